@@ -1,0 +1,38 @@
+"""multibody: rigid multibody dynamics in pure Python, from Lagrangian mechanics.
+
+Public names are listed in ``docs/api.md``; conventions (vector ordering, frames, signs) in
+``docs/conventions.md``.
+"""
+
+from . import inertia, joints, robots, spatial
+from .inertia import Inertia
+from .kinematics import (
+    forward_kinematics,
+    jacobian,
+    jacobian_time_variation,
+    point_acceleration,
+    point_velocity,
+)
+from .model import Geometry, Mimic, Model, ModelBuilder
+from .urdf import URDFError, load_urdf
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "Geometry",
+    "Inertia",
+    "Mimic",
+    "Model",
+    "ModelBuilder",
+    "URDFError",
+    "forward_kinematics",
+    "inertia",
+    "jacobian",
+    "jacobian_time_variation",
+    "joints",
+    "load_urdf",
+    "point_acceleration",
+    "point_velocity",
+    "robots",
+    "spatial",
+]

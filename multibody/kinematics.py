@@ -1,0 +1,168 @@
+"""Forward kinematics, Jacobians and their time variation, batched over leading axes.
+
+Naming: ``R_WJ, p_WJ`` is the pose of joint frame J in the world W; a *world Plücker* motion
+vector is expressed in world axes and taken at the world origin (its linear part is the velocity
+of the body point that currently coincides with the world origin). Velocities of a point are
+*world-aligned*: world axes, taken at the point (Pinocchio's ``LOCAL_WORLD_ALIGNED``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from . import spatial
+from .spatial import matvec
+
+
+def joint_local_poses(model, q):
+    """Pose ``X_λ(i),i(q)`` of each joint frame in its parent joint frame.
+
+    Returns ``(R, p)`` lists of length ``nj`` with entries ``(..., 3, 3)`` and ``(..., 3)``.
+    ``X_λ(i),i = X_placement,i · X_J,i(q_i)`` (RBDA eq. 4.x: ``X_i = X_J X_T``, written as poses).
+    """
+    R_local, p_local = [], []
+    for joint, s, X_T in zip(model.joints, model.idx_q, model.joint_placements):
+        R_J, p_J = joint.transform(q[..., s : s + joint.nq])
+        R, p = spatial.compose(X_T[:3, :3], X_T[:3, 3], R_J, p_J)
+        R_local.append(R)
+        p_local.append(p)
+    return R_local, p_local
+
+
+def joint_world_poses(model, q):
+    """World pose of every joint frame: ``R_WJ (..., nj, 3, 3)``, ``p_WJ (..., nj, 3)``.
+
+    ``X_W,i = X_W,λ(i) X_λ(i),i`` down the tree (parents come first in model order).
+    """
+    q = np.asarray(q, dtype=float)
+    R_local, p_local = joint_local_poses(model, q)
+    R_world, p_world = [], []
+    for i, parent in enumerate(model.parents):
+        if parent < 0:
+            R, p = R_local[i], p_local[i]
+        else:
+            R, p = spatial.compose(R_world[parent], p_world[parent], R_local[i], p_local[i])
+        R_world.append(np.broadcast_to(R, q.shape[:-1] + (3, 3)))
+        p_world.append(np.broadcast_to(p, q.shape[:-1] + (3,)))
+    if not R_world:
+        return np.zeros(q.shape[:-1] + (0, 3, 3)), np.zeros(q.shape[:-1] + (0, 3))
+    return np.stack(R_world, axis=-3), np.stack(p_world, axis=-2)
+
+
+def _body_world_poses(model, R_WJ, p_WJ):
+    """World poses of all bodies from the joint poses: ``X_WB = X_WJ(b) X_J(b),B``."""
+    batch = R_WJ.shape[:-3]
+    # A body fixed to the world uses the identity as its "joint" pose; index -1 picks that slot.
+    R_ext = np.concatenate([R_WJ, np.broadcast_to(np.eye(3), batch + (1, 3, 3))], axis=-3)
+    p_ext = np.concatenate([p_WJ, np.zeros(batch + (1, 3))], axis=-2)
+    R_JB, p_JB = model.body_placements[:, :3, :3], model.body_placements[:, :3, 3]
+    return spatial.compose(R_ext[..., model.body_joints, :, :], p_ext[..., model.body_joints, :], R_JB, p_JB)
+
+
+def forward_kinematics(model, q):
+    """World placements of every body: ``(..., nbodies, 4, 4)``, in ``model.body_names`` order.
+
+    ``q (..., nq)``. Pinocchio counterpart: ``forwardKinematics`` + ``updateFramePlacements``.
+    """
+    q = model.check_configuration(q)
+    R_WB, p_WB = _body_world_poses(model, *joint_world_poses(model, q))
+    return spatial.pose_matrix(R_WB, p_WB)
+
+
+def world_motion_subspaces(model, R_WJ, p_WJ):
+    """Each velocity coordinate's unit motion as a world Plücker vector: ``(..., nv, 6)``.
+
+    For coordinate k of joint j with subspace column ``s = [s_v; s_ω]`` (joint frame):
+    ``ω_k = R_Wj s_ω``, ``v_k = R_Wj s_v + p_Wj × ω_k``.
+    """
+    R = R_WJ[..., model.dof_joint, :, :]
+    p = p_WJ[..., model.dof_joint, :]
+    S = model.motion_subspaces
+    angular = matvec(R, S[:, 3:])
+    linear = matvec(R, S[:, :3]) + np.cross(p, angular)
+    return np.concatenate([linear, angular], axis=-1)
+
+
+def _point_in_world(model, R_WB, p_WB, point):
+    """World position of a point given in body coordinates (default the body origin)."""
+    if point is None:
+        return p_WB
+    point = np.asarray(point, dtype=float)
+    if point.shape[-1:] != (3,):
+        raise ValueError(f"point must have shape (..., 3), got {point.shape}")
+    return matvec(R_WB, point) + p_WB
+
+
+def _body_pose(model, q, body):
+    b = model.body_index(body)
+    R_WJ, p_WJ = joint_world_poses(model, q)
+    R_WB, p_WB = _body_world_poses(model, R_WJ, p_WJ)
+    return b, R_WJ, p_WJ, R_WB[..., b, :, :], p_WB[..., b, :]
+
+
+def _point_columns(xi, x, support):
+    """World-aligned point Jacobian from world Plücker columns ``xi (..., nv, 6)`` at point ``x (..., 3)``.
+
+    ``v_x = v_O + ω × x`` for each column; coordinates that do not move the body give zero columns.
+    """
+    linear = xi[..., :3] + np.cross(xi[..., 3:], x[..., None, :])
+    J = np.concatenate([linear, xi[..., 3:]], axis=-1) * support[:, None]
+    return spatial.transpose(J)
+
+
+def jacobian(model, q, body, point=None):
+    """World-aligned Jacobian of a body point: ``(..., 6, nv)``, rows ``[linear; angular]``.
+
+    ``[ẋ; ω] = J(q) v`` where ``x`` is ``point`` (body-frame coordinates, m; default the body
+    origin) and both rows are in world axes. ``body`` is a name from ``model.body_names`` or an index.
+    Pinocchio counterpart: ``getFrameJacobian(..., LOCAL_WORLD_ALIGNED)``.
+    """
+    q = model.check_configuration(q)
+    b, R_WJ, p_WJ, R_WB, p_WB = _body_pose(model, q, body)
+    x = _point_in_world(model, R_WB, p_WB, point)
+    xi = world_motion_subspaces(model, R_WJ, p_WJ)
+    return _point_columns(xi, x, model.body_support[b])
+
+
+def joint_velocities(model, xi, v):
+    """World Plücker velocity of every joint frame, ``V_j = Σ_{k supports j} ξ_k v_k``: ``(..., nj, 6)``."""
+    return np.einsum("jk,...kc,...k->...jc", model.joint_support.astype(float), xi, v)
+
+
+def jacobian_time_variation(model, q, v, body, point=None):
+    """Time derivative ``J̇(q, v)`` of :func:`jacobian` along the motion: ``(..., 6, nv)``.
+
+    A column ξ_k fixed in its joint's frame moves with that joint: ``ξ̇_k = V_j(k) × ξ_k`` (RBDA
+    eq. 2.37). Then, for the point ``x`` moving with velocity ``ẋ = v_O,b + ω_b × x``:
+    ``d/dt (v_k + ω_k × x) = v̇_k + ω̇_k × x + ω_k × ẋ``.
+    Together with the Jacobian, ``J a + J̇ v`` is the point's classical acceleration.
+    Pinocchio counterpart: ``getFrameJacobianTimeVariation(..., LOCAL_WORLD_ALIGNED)``.
+    """
+    q = model.check_configuration(q)
+    v = model.check_velocity(v)
+    b, R_WJ, p_WJ, R_WB, p_WB = _body_pose(model, q, body)
+    x = _point_in_world(model, R_WB, p_WB, point)
+    xi = world_motion_subspaces(model, R_WJ, p_WJ)
+    V = joint_velocities(model, xi, v)
+    xi_dot = spatial.motion_cross(V[..., model.dof_joint, :], xi)
+    j = model.body_joints[b]
+    V_b = V[..., j, :] if j >= 0 else np.zeros(V.shape[:-2] + (6,))
+    x_dot = V_b[..., :3] + np.cross(V_b[..., 3:], x)
+    linear = xi_dot[..., :3] + np.cross(xi_dot[..., 3:], x[..., None, :]) + np.cross(xi[..., 3:], x_dot[..., None, :])
+    J_dot = np.concatenate([linear, xi_dot[..., 3:]], axis=-1) * model.body_support[b][:, None]
+    return spatial.transpose(J_dot)
+
+
+def point_velocity(model, q, v, body, point=None):
+    """``[ẋ; ω]`` of a body point in world axes (m/s, rad/s): ``J v``. ``-> (..., 6)``."""
+    return matvec(jacobian(model, q, body, point), model.check_velocity(v))
+
+
+def point_acceleration(model, q, v, a, body, point=None):
+    """``[ẍ; ω̇]`` of a body point in world axes (m/s², rad/s²): ``J a + J̇ v``. ``-> (..., 6)``.
+
+    ``ẍ`` is the classical (not spatial) acceleration. With ``a = 0`` this is the velocity-product
+    term ``J̇ v`` that acceleration-level constraints need.
+    """
+    a = model.check_velocity(a, "a")
+    return matvec(jacobian(model, q, body, point), a) + matvec(jacobian_time_variation(model, q, v, body, point), v)
