@@ -490,3 +490,29 @@ def inertia_problems(model):
                      if model.body_inertias[b].mass > 0.0 or np.any(model.body_inertias[b].rotational)]
             out.append((j, links, problems))
     return out
+
+
+def suspicious_inertias(model, placeholder_mass=1e-5):
+    """Mass properties that are legal but probably not what the author meant, as messages.
+
+    Reported per link: impossible numbers (see :meth:`Inertia.problems`), placeholder masses below
+    ``placeholder_mass`` kg, and point masses (mass without rotational inertia). Reported per
+    moving rigid body: no mass at all with no massive body further down the tree, which makes the
+    mass matrix singular.
+    """
+    out = []
+    for b, (name, inertia) in enumerate(zip(model.body_names, model.body_inertias)):
+        for problem in inertia.problems():
+            out.append(f"link {name!r}: {problem}")
+        if 0.0 < inertia.mass < placeholder_mass:
+            out.append(f"link {name!r}: placeholder mass {inertia.mass:g} kg")
+        if inertia.mass > 0.0 and not np.any(inertia.rotational) and model.body_joints[b] >= 0:
+            out.append(f"link {name!r}: point mass ({inertia.mass:g} kg, zero rotational inertia)")
+    subtree_mass = np.array([inertia.mass for inertia in model.joint_inertias])
+    for i in range(model.njoints - 1, -1, -1):
+        if model.parents[i] >= 0:
+            subtree_mass[model.parents[i]] += subtree_mass[i]
+    for i, mass in enumerate(subtree_mass):
+        if mass == 0.0:
+            out.append(f"joint {model.joint_names[i]!r} moves no mass: the mass matrix is singular")
+    return out

@@ -229,7 +229,10 @@ def load_urdf(source, *, floating_base=False, package_dirs=None, invalid_inertia
         source: path to a ``.urdf`` file, or the XML text itself.
         floating_base: put a free-flyer joint named ``"root_joint"`` between the world and the root
             link (``q`` gains ``[x, y, z, qx, qy, qz, qw]`` in front, ``v`` gains ``[v_lin, ω]``).
-        package_dirs: directories searched for ``package://`` meshes (a path or a list).
+        package_dirs: directories searched for ``package://name/...`` meshes (a path or a list);
+            ``package://name/rest`` is looked up as ``d/name/rest`` and ``d/rest`` for each ``d``,
+            then in the directories of ``ROS_PACKAGE_PATH``. Nothing is read until
+            :func:`multibody.geometry.load_meshes` is called.
         invalid_inertia: what to do when a moving rigid body (a moving link lumped with the links
             fixed to it, as the dynamics sees it) has mass properties no real body can have: an
             inertia tensor that is not positive semi-definite or breaks the triangle inequality
@@ -250,6 +253,8 @@ def load_urdf(source, *, floating_base=False, package_dirs=None, invalid_inertia
     if isinstance(package_dirs, (str, os.PathLike)):
         package_dirs = [package_dirs]
     package_dirs = [os.fspath(d) for d in (package_dirs or [])]
+    # Like ROS tools and Pinocchio, also look where ROS_PACKAGE_PATH points.
+    package_dirs += [d for d in os.environ.get("ROS_PACKAGE_PATH", "").split(os.pathsep) if d]
 
     links = {}
     for link in root.findall("link"):

@@ -1,0 +1,200 @@
+"""Shared fixtures and helpers for the multibody test suite.
+
+* ``erd_urdf(relative_path)``: path of an example-robot-data URDF (skips the test when absent).
+  The ``example-robot-data`` wheel ships no Python module; its files live under
+  ``<site-packages>/cmeel.prefix/share/example-robot-data/robots``.
+* ``pin``: the ``pinocchio`` module, or a skip when it is not installed.
+* ``q_to_pinocchio`` / ``q_from_pinocchio``: configuration maps (continuous joints are one angle
+  here, ``(cos θ, sin θ)`` in Pinocchio); velocities are identical (``nv`` equal).
+* ``random_tree_model(seed)``: a random kinematic tree that uses every joint type.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import os
+import site
+import sys
+
+import numpy as np
+import pytest
+
+import multibody as mb
+from multibody import joints as jt
+from multibody.spatial import pose_from_xyz_rpy
+
+# ----------------------------------------------------------------------------- example-robot-data
+
+_ERD_SUFFIX = os.path.join("cmeel.prefix", "share", "example-robot-data", "robots")
+
+
+def _find_erd_dir():
+    candidates = []
+    spec = importlib.util.find_spec("example_robot_data")
+    if spec is not None and spec.origin:
+        # A Python loader module, if some version ships one, sits in site-packages.
+        candidates.append(os.path.join(os.path.dirname(os.path.dirname(spec.origin)), _ERD_SUFFIX))
+    try:
+        candidates += [os.path.join(d, _ERD_SUFFIX) for d in site.getsitepackages()]
+    except AttributeError:  # some virtualenvs lack getsitepackages
+        pass
+    if hasattr(site, "getusersitepackages"):
+        candidates.append(os.path.join(site.getusersitepackages(), _ERD_SUFFIX))
+    candidates += [os.path.join(d, _ERD_SUFFIX) for d in sys.path if d]
+    for candidate in candidates:
+        if os.path.isdir(candidate):
+            return candidate
+    return None
+
+
+ERD_DIR = _find_erd_dir()
+
+
+def erd_urdf(relative_path):
+    """Absolute path of ``robots/<relative_path>`` in example-robot-data, or skip the test."""
+    if ERD_DIR is None:
+        pytest.skip("example-robot-data is not installed")
+    path = os.path.join(ERD_DIR, relative_path)
+    if not os.path.isfile(path):
+        pytest.skip(f"example-robot-data has no {relative_path}")
+    return path
+
+
+@pytest.fixture(scope="session")
+def erd_dir():
+    if ERD_DIR is None:
+        pytest.skip("example-robot-data is not installed")
+    return ERD_DIR
+
+
+# ----------------------------------------------------------------------------- Pinocchio
+
+def import_pinocchio():
+    """The ``pinocchio`` module, or skip the calling test."""
+    return pytest.importorskip("pinocchio")
+
+
+@pytest.fixture(scope="session")
+def pin():
+    return import_pinocchio()
+
+
+def q_to_pinocchio(model, q):
+    """Our ``q (..., nq)`` as Pinocchio's: each continuous angle θ becomes ``(cos θ, sin θ)``."""
+    q = np.asarray(q, dtype=float)
+    blocks = []
+    for joint, s in zip(model.joints, model.idx_q):
+        block = q[..., s : s + joint.nq]
+        if isinstance(joint, jt.Continuous):
+            block = np.concatenate([np.cos(block), np.sin(block)], axis=-1)
+        blocks.append(block)
+    return np.concatenate(blocks, axis=-1) if blocks else q.copy()
+
+
+def q_from_pinocchio(model, q_pin):
+    """Inverse of :func:`q_to_pinocchio`: ``(cos θ, sin θ)`` pairs back to angles."""
+    q_pin = np.asarray(q_pin, dtype=float)
+    blocks, s = [], 0
+    for joint in model.joints:
+        if isinstance(joint, jt.Continuous):
+            blocks.append(np.arctan2(q_pin[..., s + 1 : s + 2], q_pin[..., s : s + 1]))
+            s += 2
+        else:
+            blocks.append(q_pin[..., s : s + joint.nq])
+            s += joint.nq
+    assert s == q_pin.shape[-1]
+    return np.concatenate(blocks, axis=-1) if blocks else q_pin.copy()
+
+
+def v_to_pinocchio(model, v):
+    """Velocities need no conversion (``nv`` is the same for every joint type)."""
+    return np.asarray(v, dtype=float)
+
+
+def pinocchio_nq(model):
+    """Pinocchio's ``nq`` of our model: one more per continuous joint."""
+    return model.nq + sum(isinstance(j, jt.Continuous) for j in model.joints)
+
+
+# ----------------------------------------------------------------------------- random models
+
+def random_inertia(rng, scale=1.0):
+    """A valid random body: a box of random size and mass, shifted and rotated to a random pose."""
+    mass = rng.uniform(0.5, 3.0)
+    size = rng.uniform(0.05, 0.5, size=3) * scale
+    box = mb.inertia.box(mass, size)
+    X = pose_from_xyz_rpy(rng.uniform(-0.3, 0.3, size=3), rng.uniform(-np.pi, np.pi, size=3))
+    return box.transformed(X)
+
+
+def random_axis(rng):
+    axis = rng.standard_normal(3)
+    return axis / np.linalg.norm(axis)
+
+
+def random_placement(rng, reach=0.5):
+    return pose_from_xyz_rpy(rng.uniform(-reach, reach, size=3), rng.uniform(-np.pi, np.pi, size=3))
+
+
+def random_tree_model(seed=0, n_extra=6):
+    """A seeded random tree using every joint type, with branches and fixed attachments.
+
+    Structure: a free-flyer base; then one body per joint type (Revolute with a random axis,
+    Continuous, Prismatic, Planar, Spherical, Translation), each attached to a random earlier
+    moving body; massive bodies fixed to moving ones; a massless tip fixed to a fixed body;
+    ``n_extra`` more random revolute/prismatic/spherical bodies on random parents.
+    """
+    rng = np.random.default_rng(seed)
+    b = mb.ModelBuilder(f"random_tree_{seed}")
+    names = []
+
+    def add(name, joint, parent, inertia=True, **kwargs):
+        b.add_body(name, joint, parent=parent, placement=random_placement(rng),
+                   inertia=random_inertia(rng) if inertia else None, **kwargs)
+        names.append(name)
+
+    # A massive body fixed to the world (mass that does not move), then the floating base.
+    add("ground", jt.Fixed(), None)
+    add("base", jt.FreeFlyer(), None)
+    factories = [
+        lambda: jt.Revolute(random_axis(rng)),
+        lambda: jt.Continuous(random_axis(rng)),
+        lambda: jt.Prismatic(random_axis(rng)),
+        lambda: jt.Planar(),
+        lambda: jt.Spherical(),
+        lambda: jt.Translation(),
+    ]
+    for k, make in enumerate(factories):
+        joint = make()
+        kwargs = {}
+        if isinstance(joint, jt.Revolute) and not isinstance(joint, jt.Continuous):
+            kwargs = dict(lower=[-2.0], upper=[2.5])
+        elif isinstance(joint, jt.Prismatic):
+            kwargs = dict(lower=[-0.3], upper=[0.4])
+        moving = [n for n in names if n != "ground"]
+        add(f"{joint.kind}_{k}", joint, moving[rng.integers(len(moving))], **kwargs)
+    # Fixed attachments: a massive one on a moving body, and a massless tip on the fixed body.
+    moving = [n for n in names if n != "ground"]
+    add("fixed_a", jt.Fixed(), moving[rng.integers(len(moving))])
+    add("fixed_tip", jt.Fixed(), "fixed_a", inertia=False)
+    kinds = [lambda: jt.Revolute(random_axis(rng)), lambda: jt.Prismatic(random_axis(rng)), lambda: jt.Spherical()]
+    for k in range(n_extra):
+        parent = names[1 + rng.integers(len(names) - 1)]  # anything but the world-fixed ground
+        add(f"extra_{k}", kinds[rng.integers(len(kinds))](), parent)
+    return b.build()
+
+
+ALL_MOVING_KINDS = ("revolute", "continuous", "prismatic", "planar", "spherical", "free-flyer", "translation")
+
+
+@pytest.fixture(scope="session", params=[0, 1, 2])
+def random_tree(request):
+    return random_tree_model(request.param)
+
+
+def random_state(model, rng, velocity_scale=1.0):
+    """``(q, v, a)`` with ``q`` random within limits and Gaussian ``v``, ``a``."""
+    q = model.random_configuration(rng)
+    v = velocity_scale * rng.standard_normal(model.nv)
+    a = rng.standard_normal(model.nv)
+    return q, v, a
