@@ -5,6 +5,17 @@ Public names are listed in ``docs/api.md``; conventions (vector ordering, frames
 """
 
 from . import inertia, joints, robots, spatial
+from .dynamics import (
+    bias_forces,
+    coriolis_matrix,
+    forward_dynamics,
+    generalized_gravity,
+    inverse_dynamics,
+    inverse_mass_matrix,
+    kinetic_energy,
+    mass_matrix,
+    potential_energy,
+)
 from .inertia import Inertia
 from .kinematics import (
     forward_kinematics,
@@ -19,6 +30,15 @@ from .urdf import URDFError, load_urdf
 __version__ = "0.1.0"
 
 __all__ = [
+    "bias_forces",
+    "coriolis_matrix",
+    "forward_dynamics",
+    "generalized_gravity",
+    "inverse_dynamics",
+    "inverse_mass_matrix",
+    "kinetic_energy",
+    "mass_matrix",
+    "potential_energy",
     "Geometry",
     "Inertia",
     "Mimic",

@@ -1,0 +1,413 @@
+"""Equations of motion ``M(q) a + C(q, v) v + g(q) = τ`` of a kinematic tree.
+
+Two families of algorithms, which check each other:
+
+* recursive (Featherstone, *Rigid Body Dynamics Algorithms* (RBDA), Springer 2008): Recursive
+  Newton–Euler (§5.3), Composite Rigid Body (§6.2), Articulated Body (§7.3), in joint frames;
+* Lagrangian assembly from body Jacobians in world Plücker coordinates: ``T = ½ vᵀ M v`` with
+  ``M = Σᵢ Jᵢᵀ Iᵢ Jᵢ``, and Christoffel symbols of ``M`` for ``C``.
+
+Conventions (``docs/conventions.md``): spatial vectors are ``[linear; angular]``; gravity enters as
+a fictitious acceleration ``a₀ = [−g; 0]`` of the world (RBDA §5.3); external forces ``f_ext`` have
+shape ``(..., njoints, 6)``: the spatial force on the rigid body of each joint, expressed in that
+joint's frame at its origin (Pinocchio's ``fext``).
+Every function accepts leading batch axes on its array arguments and broadcasts them.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from . import spatial
+from .kinematics import joint_local_poses, joint_velocities, joint_world_poses, world_motion_subspaces
+from .spatial import force_cross, inverse_transform_motion, matvec, motion_cross, transform_force, transpose
+
+
+# ============================================================================= shared pieces
+
+def _check(model, q, v=None, a=None, tau=None, f_ext=None):
+    """Validated float arrays and their common batch shape."""
+    q = model.check_configuration(q)
+    arrays = [model.check_velocity(x, name) if x is not None else None
+              for x, name in ((v, "v"), (a, "a"), (tau, "tau"))]
+    shapes = [q.shape[:-1]] + [x.shape[:-1] for x in arrays if x is not None]
+    if f_ext is not None:
+        f_ext = model._as_float_array(f_ext, "f_ext")
+        if f_ext.shape[-2:] != (model.njoints, 6):
+            raise ValueError(f"f_ext must have shape (..., {model.njoints}, 6) (one spatial force per moving "
+                             f"joint, in its frame), got {f_ext.shape}")
+        shapes.append(f_ext.shape[:-2])
+    return q, *arrays, f_ext, np.broadcast_shapes(*shapes)
+
+
+def _gravity_acceleration(model):
+    """Fictitious base acceleration ``a₀ = [−g; 0]`` that accounts for gravity (RBDA §5.3)."""
+    return np.concatenate([-model.gravity, np.zeros(3)])
+
+
+def _joint_velocity(model, i, v):
+    """``S_i q̇_i``: the joint's spatial velocity in its own frame, ``(..., 6)``."""
+    joint, start = model.joints[i], model.idx_v[i]
+    return matvec(joint.motion_subspace, v[..., start : start + joint.nv])
+
+
+def _body_velocities(model, R, p, v):
+    """Spatial velocity of every moving body in its joint frame: ``v_i = ⁱX_λ v_λ + S_i q̇_i``.
+
+    Returns lists ``(v_i, S_i q̇_i)`` of ``(..., 6)`` arrays.
+    """
+    velocities, joint_velocities_ = [], []
+    for i, parent in enumerate(model.parents):
+        v_J = _joint_velocity(model, i, v)
+        v_i = v_J if parent < 0 else inverse_transform_motion(R[i], p[i], velocities[parent]) + v_J
+        velocities.append(v_i)
+        joint_velocities_.append(v_J)
+    return velocities, joint_velocities_
+
+
+def _parent_from_child_motion(R, p):
+    """6×6 ``ⁱX_λ``: motion vectors from the parent's frame to joint frame i (pose ``(R, p)`` of i in λ)."""
+    return spatial.motion_transform(*spatial.inverse_pose(R, p))
+
+
+# ============================================================================= RNEA
+
+def inverse_dynamics(model, q, v, a, f_ext=None):
+    """Joint forces ``τ = M(q) a + C(q, v) v + g(q) − Σ Jᵀ f_ext`` by Recursive Newton–Euler.
+
+    RBDA Table 5.1. Shapes: ``q (..., nq)``, ``v, a (..., nv)``, ``f_ext (..., njoints, 6)``
+    (see module docstring) -> ``τ (..., nv)`` (N or N m per coordinate).
+    Pinocchio counterpart: ``rnea``.
+    """
+    q, v, a, _, f_ext, batch = _check(model, q, v, a, f_ext=f_ext)
+    R, p = joint_local_poses(model, q)
+    inertia = model.spatial_inertias
+    a0 = _gravity_acceleration(model)
+
+    # Forward pass: velocities, accelerations and the net force each body needs.
+    velocities, accelerations, forces = [], [], []
+    for i, parent in enumerate(model.parents):
+        joint, start = model.joints[i], model.idx_v[i]
+        S = joint.motion_subspace
+        v_J = matvec(S, v[..., start : start + joint.nv])
+        # v_i = ⁱX_λ v_λ + S_i q̇_i
+        v_i = v_J if parent < 0 else inverse_transform_motion(R[i], p[i], velocities[parent]) + v_J
+        # a_i = ⁱX_λ a_λ + S_i q̈_i + v_i × S_i q̇_i
+        a_parent = a0 if parent < 0 else accelerations[parent]
+        a_i = inverse_transform_motion(R[i], p[i], a_parent) + matvec(S, a[..., start : start + joint.nv]) \
+            + motion_cross(v_i, v_J)
+        # f_i = I_i a_i + v_i ×* I_i v_i − f_ext_i
+        f_i = matvec(inertia[i], a_i) + force_cross(v_i, matvec(inertia[i], v_i))
+        if f_ext is not None:
+            f_i = f_i - f_ext[..., i, :]
+        velocities.append(v_i)
+        accelerations.append(a_i)
+        forces.append(np.broadcast_to(f_i, batch + (6,)))
+
+    # Backward pass: project onto the joint axes and pass the rest to the parent.
+    tau = np.empty(batch + (model.nv,))
+    for i in range(model.njoints - 1, -1, -1):
+        joint, start, parent = model.joints[i], model.idx_v[i], model.parents[i]
+        # τ_i = S_iᵀ f_i
+        tau[..., start : start + joint.nv] = matvec(joint.motion_subspace.T, forces[i])
+        # f_λ += ᵏX_iᵀ f_i  (the force transmitted to the parent, in the parent's frame)
+        if parent >= 0:
+            forces[parent] = forces[parent] + transform_force(R[i], p[i], forces[i])
+    return tau
+
+
+def generalized_gravity(model, q):
+    """Gravity term ``g(q) = ∂U/∂q`` (N, N m), i.e. RNEA with ``v = a = 0``. ``(..., nq) -> (..., nv)``.
+
+    Pinocchio counterpart: ``computeGeneralizedGravity``.
+    """
+    q = model.check_configuration(q)
+    zeros = np.zeros(q.shape[:-1] + (model.nv,))
+    return inverse_dynamics(model, q, zeros, zeros)
+
+
+def bias_forces(model, q, v):
+    """``h(q, v) = C(q, v) v + g(q)``, i.e. RNEA with ``a = 0``. ``-> (..., nv)``.
+
+    Pinocchio counterpart: ``nonLinearEffects``.
+    """
+    v = model.check_velocity(v)
+    return inverse_dynamics(model, q, v, np.zeros_like(v))
+
+
+# ============================================================================= mass matrix
+
+def mass_matrix(model, q, method="crba"):
+    """Joint-space inertia matrix ``M(q)``, full and symmetric: ``(..., nq) -> (..., nv, nv)``.
+
+    ``method="crba"``: Composite Rigid Body Algorithm (RBDA Table 6.2).
+    ``method="lagrangian"``: ``M = Σᵢ Jᵢᵀ Iᵢ Jᵢ`` from the world-frame Jacobian ``Jᵢ`` and inertia
+    ``Iᵢ`` of each body, the kinetic energy ``T = ½ vᵀ M v`` made explicit.
+    Pinocchio counterpart: ``crba`` (upper triangle, symmetrised).
+    """
+    if method == "crba":
+        return _mass_matrix_crba(model, model.check_configuration(q))
+    if method == "lagrangian":
+        q = model.check_configuration(q)
+        jacobians, inertias = _world_body_jacobians_and_inertias(model, q)
+        # M = Σ_i J_iᵀ I_i J_i
+        return np.einsum("...ick,...icd,...idl->...kl", jacobians, inertias, jacobians)
+    raise ValueError(f"method must be 'crba' or 'lagrangian', got {method!r}")
+
+
+def _mass_matrix_crba(model, q):
+    R, p = joint_local_poses(model, q)
+    batch = q.shape[:-1]
+    # Composite inertias, leaves to root: I^c_λ += ⁱX_λᵀ I^c_i ⁱX_λ.
+    composite = [np.broadcast_to(inertia, batch + (6, 6)) for inertia in model.spatial_inertias]
+    X_up = [_parent_from_child_motion(R[i], p[i]) for i in range(model.njoints)]
+    for i in range(model.njoints - 1, -1, -1):
+        parent = model.parents[i]
+        if parent >= 0:
+            composite[parent] = composite[parent] + transpose(X_up[i]) @ composite[i] @ X_up[i]
+
+    M = np.zeros(batch + (model.nv, model.nv))
+    for i, joint in enumerate(model.joints):
+        rows = slice(model.idx_v[i], model.idx_v[i] + joint.nv)
+        # F = I^c_i S_i ;  M_ii = S_iᵀ F
+        F = composite[i] @ joint.motion_subspace
+        M[..., rows, rows] = joint.motion_subspace.T @ F
+        # Walk to the root: F = ʲX_λᵀ F ;  M_ij = Fᵀ S_j = M_jiᵀ
+        j = i
+        while model.parents[j] >= 0:
+            F = transpose(X_up[j]) @ F
+            j = model.parents[j]
+            cols = slice(model.idx_v[j], model.idx_v[j] + model.joints[j].nv)
+            block = transpose(F) @ model.joints[j].motion_subspace
+            M[..., rows, cols] = block
+            M[..., cols, rows] = transpose(block)
+    return M
+
+
+def _world_body_jacobians_and_inertias(model, q):
+    """World Plücker Jacobian ``(..., nj, 6, nv)`` and world inertia ``(..., nj, 6, 6)`` of each body."""
+    R_WJ, p_WJ = joint_world_poses(model, q)
+    xi = world_motion_subspaces(model, R_WJ, p_WJ)
+    jacobians = transpose(xi)[..., None, :, :] * model.joint_support[:, None, :]
+    # I_i in world coordinates: ᵂX_i* I_i ⁱX_W (RBDA eq. 2.66).
+    inertias = spatial.transform_inertia(R_WJ, p_WJ, model.spatial_inertias)
+    return jacobians, inertias
+
+
+# ============================================================================= Coriolis matrix
+
+def coriolis_matrix(model, q, v, method="recursive"):
+    """Christoffel-consistent Coriolis matrix ``C(q, v)``: ``Ṁ = C + Cᵀ``, ``C v + g = h``.
+
+    ``method="recursive"`` (any joint type; equals Pinocchio's ``computeCoriolisMatrix``) sums,
+    over bodies, ``C = Σᵢ Jᵢᵀ (Iᵢ J̇ᵢ + Bᵢ Jᵢ)`` in world Plücker coordinates with the body-level
+    factorisation ``Bᵢ = ½ [(Vᵢ×*) Iᵢ + (Iᵢ Vᵢ)×̄* − Iᵢ (Vᵢ×)]`` (S. Echeandia and P. M. Wensing,
+    *Numerical methods to compute the Coriolis matrix and Christoffel symbols for rigid-body
+    systems*, J. Comput. Nonlinear Dyn. 16(9), 2021, eq. 20), where ``(f×̄*) m = m ×* f``.
+
+    ``method="lagrangian"`` forms the Christoffel symbols of the first kind,
+    ``Γᵢⱼₖ = ½ (∂Mᵢⱼ/∂qₖ + ∂Mᵢₖ/∂qⱼ − ∂Mⱼₖ/∂qᵢ)``, ``Cᵢⱼ = Σₖ Γᵢⱼₖ q̇ₖ``, from an analytic ``∂M/∂q``;
+    it needs ``v = q̇`` (revolute, continuous, prismatic and translation joints only).
+
+    Shapes: ``q (..., nq)``, ``v (..., nv)`` -> ``(..., nv, nv)``.
+    """
+    q, v, *_ = _check(model, q, v)
+    if method == "recursive":
+        return _coriolis_recursive(model, q, v)
+    if method == "lagrangian":
+        return _coriolis_christoffel(model, q, v)
+    raise ValueError(f"method must be 'recursive' or 'lagrangian', got {method!r}")
+
+
+def _bar_force_cross_matrix(f):
+    """6×6 matrix of ``m ↦ m ×* f`` for a fixed force ``f = [f; n]``: ``[[0, −[f]×], [−[f]×, −[n]×]]``."""
+    F, N = spatial.skew(f[..., :3]), spatial.skew(f[..., 3:])
+    out = np.zeros(f.shape[:-1] + (6, 6))
+    out[..., :3, 3:] = -F
+    out[..., 3:, :3] = -F
+    out[..., 3:, 3:] = -N
+    return out
+
+
+def _coriolis_recursive(model, q, v):
+    R_WJ, p_WJ = joint_world_poses(model, q)
+    xi = world_motion_subspaces(model, R_WJ, p_WJ)
+    V = joint_velocities(model, xi, v)
+    inertias = spatial.transform_inertia(R_WJ, p_WJ, model.spatial_inertias)
+    support = model.joint_support[:, None, :]
+    # J̇ column k: ξ̇_k = V_j(k) × ξ_k, the column moves with its own joint.
+    xi_dot = motion_cross(V[..., model.dof_joint, :], xi)
+    jacobians = transpose(xi)[..., None, :, :] * support
+    jacobian_rates = transpose(xi_dot)[..., None, :, :] * support
+    # B_i = ½ [(V_i×*) I_i + (I_i V_i)×̄* − I_i (V_i×)]
+    momentum = matvec(inertias, V)
+    B = 0.5 * (spatial.force_cross_matrix(V) @ inertias + _bar_force_cross_matrix(momentum)
+               - inertias @ spatial.motion_cross_matrix(V))
+    # C = Σ_i J_iᵀ (I_i J̇_i + B_i J_i)
+    return np.einsum("...ick,...icl->...kl", jacobians, inertias @ jacobian_rates + B @ jacobians)
+
+
+def _coriolis_christoffel(model, q, v):
+    if any(joint.nq != joint.nv for joint in model.joints):
+        raise ValueError("method='lagrangian' needs v = q̇ (revolute, continuous, prismatic and translation "
+                         "joints only); use method='recursive'")
+    dM = mass_matrix_derivative(model, q)  # (..., k, i, j) = ∂M_ij/∂q_k
+    # Γ_ijk = ½ (∂M_ij/∂q_k + ∂M_ik/∂q_j − ∂M_jk/∂q_i)
+    christoffel = 0.5 * (np.einsum("...kij->...ijk", dM) + np.einsum("...jik->...ijk", dM)
+                         - np.einsum("...ijk->...ijk", dM))
+    # C_ij = Σ_k Γ_ijk q̇_k
+    return np.einsum("...ijk,...k->...ij", christoffel, v)
+
+
+def mass_matrix_derivative(model, q):
+    """Analytic ``∂M/∂qₖ`` for models with ``v = q̇``: ``(..., nv, nv, nv)``, index order ``[k, i, j]``.
+
+    From ``M = Σ_b J_bᵀ I_b J_b`` in world coordinates (b over bodies): a column ξ_l of J moves with
+    every coordinate k of an ancestor joint, ``∂ξ_l/∂q_k = ξ_k × ξ_l``, and so does the world inertia
+    of a body that k supports, ``∂I_b/∂q_k = (ξ_k×*) I_b − I_b (ξ_k×)``.
+    """
+    q = model.check_configuration(q)
+    R_WJ, p_WJ = joint_world_poses(model, q)
+    xi = world_motion_subspaces(model, R_WJ, p_WJ)
+    inertias = spatial.transform_inertia(R_WJ, p_WJ, model.spatial_inertias)
+    support = model.joint_support  # (nj, nv)
+    # ∂ξ_l/∂q_k is non-zero when k's joint is a strict ancestor of l's joint.
+    strict = model.ancestors[model.dof_joint][:, model.dof_joint].T & (model.dof_joint[:, None] != model.dof_joint[None, :])
+    d_xi = motion_cross(xi[..., :, None, :], xi[..., None, :, :]) * strict[:, :, None]  # [k, l, 6]
+    # ∂J_b/∂q_k: columns l of body b, (..., k, b, 6, l)
+    d_jacobians = np.einsum("...klc,bl->...kbcl", d_xi, support.astype(float))
+    jacobians = transpose(xi)[..., None, :, :] * support[:, None, :]  # (..., b, 6, l)
+    d_inertias = (spatial.force_cross_matrix(xi)[..., :, None, :, :] @ inertias[..., None, :, :, :]
+                  - inertias[..., None, :, :, :] @ spatial.motion_cross_matrix(xi)[..., :, None, :, :])
+    d_inertias = d_inertias * support.T[:, :, None, None]  # (..., k, b, 6, 6)
+    half = np.einsum("...kbci,...bcd,...bdj->...kij", d_jacobians, inertias, jacobians)
+    return half + np.swapaxes(half, -1, -2) + np.einsum("...bci,...kbcd,...bdj->...kij", jacobians, d_inertias, jacobians)
+
+
+# ============================================================================= ABA
+
+def _articulated_inertias(model, R, p, batch):
+    """Backward pass of ABA for the q-dependent part (RBDA Table 7.1, second loop).
+
+    Returns per joint ``U_i = I^A_i S_i``, ``D_i⁻¹ = (S_iᵀ U_i)⁻¹`` and ``I^a_i = I^A_i − U_i D_i⁻¹ U_iᵀ``,
+    plus the 6×6 ``ⁱX_λ`` transforms.
+    """
+    n = model.njoints
+    articulated = [np.broadcast_to(inertia, batch + (6, 6)) for inertia in model.spatial_inertias]
+    X_up = [_parent_from_child_motion(R[i], p[i]) for i in range(n)]
+    U, D_inv, projected = [None] * n, [None] * n, [None] * n
+    for i in range(n - 1, -1, -1):
+        S = model.joints[i].motion_subspace
+        U[i] = articulated[i] @ S
+        D_inv[i] = np.linalg.inv(S.T @ U[i])
+        # I^a_i = I^A_i − U_i D_i⁻¹ U_iᵀ
+        projected[i] = articulated[i] - U[i] @ D_inv[i] @ transpose(U[i])
+        parent = model.parents[i]
+        if parent >= 0:
+            # I^A_λ += ⁱX_λᵀ I^a_i ⁱX_λ
+            articulated[parent] = articulated[parent] + transpose(X_up[i]) @ projected[i] @ X_up[i]
+    return U, D_inv, projected
+
+
+def _aba_bias_and_accelerations(model, R, p, U, D_inv, projected, velocities, joint_vels, tau, f_ext, a0):
+    """Bias-force backward pass and acceleration forward pass of ABA (RBDA Table 7.1).
+
+    All arguments broadcast against each other over their leading axes.
+    """
+    n = model.njoints
+    inertia = model.spatial_inertias
+    # c_i = v_i × S_i q̇_i ;  p^A_i = v_i ×* I_i v_i − f_ext_i
+    bias = [motion_cross(velocities[i], joint_vels[i]) for i in range(n)]
+    p_art = [force_cross(velocities[i], matvec(inertia[i], velocities[i])) for i in range(n)]
+    if f_ext is not None:
+        p_art = [p_art[i] - f_ext[..., i, :] for i in range(n)]
+    u = [None] * n
+    for i in range(n - 1, -1, -1):
+        joint, start, parent = model.joints[i], model.idx_v[i], model.parents[i]
+        # u_i = τ_i − S_iᵀ p^A_i
+        u[i] = tau[..., start : start + joint.nv] - matvec(joint.motion_subspace.T, p_art[i])
+        if parent >= 0:
+            # p^a_i = p^A_i + I^a_i c_i + U_i D_i⁻¹ u_i ;  p^A_λ += ⁱX_λᵀ p^a_i
+            p_a = p_art[i] + matvec(projected[i], bias[i]) + matvec(U[i], matvec(D_inv[i], u[i]))
+            p_art[parent] = p_art[parent] + transform_force(R[i], p[i], p_a)
+
+    qdd = [None] * n
+    accelerations = [None] * n
+    for i, parent in enumerate(model.parents):
+        a_parent = a0 if parent < 0 else accelerations[parent]
+        # a'_i = ⁱX_λ a_λ + c_i ;  q̈_i = D_i⁻¹ (u_i − U_iᵀ a'_i) ;  a_i = a'_i + S_i q̈_i
+        a_prime = inverse_transform_motion(R[i], p[i], a_parent) + bias[i]
+        qdd[i] = matvec(D_inv[i], u[i] - matvec(transpose(U[i]), a_prime))
+        accelerations[i] = a_prime + matvec(model.joints[i].motion_subspace, qdd[i])
+    shape = np.broadcast_shapes(*(x.shape[:-1] for x in qdd))
+    return np.concatenate([np.broadcast_to(x, shape + x.shape[-1:]) for x in qdd], axis=-1)
+
+
+def forward_dynamics(model, q, v, tau, f_ext=None):
+    """Accelerations ``a = M⁻¹ (τ + Σ Jᵀ f_ext − C v − g)`` by the Articulated Body Algorithm.
+
+    RBDA Table 7.1 (§7.3). Shapes: ``q (..., nq)``, ``v, tau (..., nv)``, ``f_ext (..., njoints, 6)``
+    -> ``a (..., nv)``. Pinocchio counterpart: ``aba``.
+    """
+    q, v, _, tau, f_ext, batch = _check(model, q, v, tau=tau, f_ext=f_ext)
+    if model.nv == 0:
+        return np.zeros(batch + (0,))
+    R, p = joint_local_poses(model, q)
+    U, D_inv, projected = _articulated_inertias(model, R, p, q.shape[:-1])
+    velocities, joint_vels = _body_velocities(model, R, p, v)
+    a = _aba_bias_and_accelerations(model, R, p, U, D_inv, projected, velocities, joint_vels, tau, f_ext,
+                                    _gravity_acceleration(model))
+    return np.broadcast_to(a, batch + (model.nv,)).copy()
+
+
+def inverse_mass_matrix(model, q):
+    """``M(q)⁻¹`` by the Articulated Body Algorithm: ``(..., nq) -> (..., nv, nv)``.
+
+    Column k is ABA's acceleration for a unit force on coordinate k with ``v = 0`` and no gravity;
+    the articulated inertias are computed once and shared by all columns.
+    Pinocchio counterpart: ``computeMinverse``.
+    """
+    q = model.check_configuration(q)
+    batch = q.shape[:-1]
+    if model.nv == 0:
+        return np.zeros(batch + (0, 0))
+    R, p = joint_local_poses(model, q)
+    U, D_inv, projected = _articulated_inertias(model, R, p, batch)
+    # A new axis (of length nv, one per unit force) just before the vector/matrix axes.
+    expand = lambda items, k: [np.expand_dims(x, -k - 1) for x in items]  # noqa: E731
+    R, p, U, D_inv, projected = expand(R, 2), expand(p, 1), expand(U, 2), expand(D_inv, 2), expand(projected, 2)
+    zero = [np.zeros(6)] * model.njoints
+    columns = _aba_bias_and_accelerations(model, R, p, U, D_inv, projected, zero, zero,
+                                          np.eye(model.nv), None, np.zeros(6))
+    # columns[..., k, :] is M⁻¹ e_k; M⁻¹ is symmetric, so this is already M⁻¹ row by row.
+    return np.broadcast_to(columns, batch + (model.nv, model.nv)).copy()
+
+
+# ============================================================================= energies
+
+def kinetic_energy(model, q, v):
+    """``T = ½ vᵀ M(q) v = Σᵢ ½ v_iᵀ I_i v_i`` (J), with ``v_i`` each body's spatial velocity. ``-> (...)``.
+
+    Pinocchio counterpart: ``computeKineticEnergy``.
+    """
+    q, v, _, _, _, batch = _check(model, q, v)
+    R, p = joint_local_poses(model, q)
+    velocities, _ = _body_velocities(model, R, p, v)
+    energy = np.zeros(batch)
+    for inertia, v_i in zip(model.spatial_inertias, velocities):
+        energy = energy + 0.5 * np.einsum("...i,...i->...", v_i, matvec(inertia, v_i))
+    return energy
+
+
+def potential_energy(model, q):
+    """Gravitational potential ``U = −Σᵢ mᵢ gᵀ cᵢ`` (J) of the moving bodies, ``cᵢ`` their world centres of mass.
+
+    Bodies fixed to the world are not counted (their energy is constant), as in Pinocchio's
+    ``computePotentialEnergy``. ``(..., nq) -> (...)``.
+    """
+    q = model.check_configuration(q)
+    R_WJ, p_WJ = joint_world_poses(model, q)
+    masses = np.array([inertia.mass for inertia in model.joint_inertias])
+    coms = np.array([inertia.com for inertia in model.joint_inertias]).reshape(-1, 3)
+    world_coms = matvec(R_WJ, coms) + p_WJ
+    return -np.einsum("j,...jc,c->...", masses, world_coms, model.gravity)
