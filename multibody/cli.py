@@ -1,4 +1,4 @@
-"""Command line: ``multibody info URDF`` (and more as the library grows). See ``multibody --help``."""
+"""Command line: ``multibody info URDF``, ``multibody check URDF``. See ``multibody --help``."""
 
 from __future__ import annotations
 
@@ -76,6 +76,33 @@ def cmd_info(args):
     return 0
 
 
+def cmd_check(args):
+    try:
+        import pinocchio  # noqa: F401
+    except ImportError:
+        print("multibody check needs Pinocchio: pip install pin", file=sys.stderr)
+        return 2
+    from . import robots
+    from .check import compare_with_pinocchio
+
+    path = args.urdf if os.path.exists(args.urdf) else robots.path(args.urdf)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        model, rows, condition = compare_with_pinocchio(path, args.floating_base, args.samples, args.seed, args.package_dir)
+    print(f"{model.name}: nq = {model.nq}, nv = {model.nv}, {args.samples} random states, "
+          f"largest cond(M) = {condition:.3g}")
+    width = max(len(row.quantity) for row in rows)
+    print(f"{'quantity':<{width}}  {'max rel. error':>14}  {'tolerance':>9}")
+    for row in rows:
+        print(f"{row.quantity:<{width}}  {row.error:14.3e}  {row.tolerance:9.1e}  {'ok' if row.ok else 'FAIL'}")
+    failed = [row.quantity for row in rows if not row.ok]
+    if failed:
+        print(f"FAILED: {', '.join(failed)}")
+        return 1
+    print("all quantities agree with Pinocchio")
+    return 0
+
+
 def build_parser():
     parser = argparse.ArgumentParser(
         prog="multibody", description="Rigid multibody dynamics from Lagrangian mechanics."
@@ -87,6 +114,14 @@ def build_parser():
     info.add_argument("--floating-base", action="store_true", help="add a free-flyer joint at the root")
     info.add_argument("--package-dir", action="append", default=[], help="where package:// meshes live (repeatable)")
     info.set_defaults(run=cmd_info)
+
+    check = commands.add_parser("check", help="compare kinematics and dynamics with Pinocchio at random states")
+    check.add_argument("urdf", help="URDF file, or the name of a shipped robot")
+    check.add_argument("--floating-base", action="store_true", help="add a free-flyer joint at the root")
+    check.add_argument("--samples", type=int, default=20, help="number of random states (default 20)")
+    check.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    check.add_argument("--package-dir", action="append", default=[], help="where package:// meshes live (repeatable)")
+    check.set_defaults(run=cmd_check)
     return parser
 
 
