@@ -1,0 +1,634 @@
+"""Joint types, configuration-space maps, the immutable Model, the builder and the shipped robots."""
+
+import dataclasses
+import os
+import warnings
+
+import numpy as np
+import pytest
+from numpy.testing import assert_allclose
+
+import multibody as mb
+from multibody import joints as jt
+from multibody import spatial as sp
+from multibody.inertia import Inertia
+
+from conftest import (
+    ALL_MOVING_KINDS,
+    erd_urdf,
+    import_pinocchio,
+    pinocchio_nq,
+    q_from_pinocchio,
+    q_to_pinocchio,
+    random_axis,
+    random_inertia,
+    random_tree_model,
+)
+
+TOL = 1e-12
+
+
+def joint_instances():
+    rng = np.random.default_rng(7)
+    return [
+        jt.Revolute(random_axis(rng)),
+        jt.Continuous(random_axis(rng)),
+        jt.Prismatic(random_axis(rng)),
+        jt.Planar(),
+        jt.Spherical(),
+        jt.FreeFlyer(),
+        jt.Translation(),
+    ]
+
+
+JOINTS = joint_instances()
+JOINT_IDS = [j.kind for j in JOINTS]
+
+
+def quaternion_slices(joint):
+    """Slices of ``q`` holding a quaternion (compared up to sign: q and −q are one rotation)."""
+    return {"spherical": [slice(0, 4)], "free-flyer": [slice(3, 7)]}.get(joint.kind, [])
+
+
+def assert_same_joint_configuration(joint, qa, qb, atol=TOL):
+    qa, qb = np.array(qa, dtype=float), np.array(qb, dtype=float)
+    for s in quaternion_slices(joint):
+        if qa[..., s] @ qb[..., s] < 0:
+            qb[..., s] = -qb[..., s]
+    assert_allclose(qa, qb, atol=atol)
+
+
+def moderate_velocity(rng, joint, scale=1.0):
+    """A velocity whose rotation part stays below π (where exp is one-to-one)."""
+    v = rng.uniform(-1.0, 1.0, joint.nv) * scale
+    if joint.kind in ("spherical", "free-flyer"):
+        w = v[-3:]
+        if np.linalg.norm(w) > 2.5:
+            v[-3:] = w / np.linalg.norm(w) * 2.5
+    return v
+
+
+def random_joint_q(rng, joint, shape=()):
+    return joint.random(rng, *joint.default_limits, shape=shape)
+
+
+# ----------------------------------------------------------------------------- joint maps
+
+@pytest.mark.parametrize("joint", JOINTS, ids=JOINT_IDS)
+def test_integrate_difference_inverse(joint):
+    rng = np.random.default_rng(1)
+    for _ in range(50):
+        q0 = random_joint_q(rng, joint)
+        v = moderate_velocity(rng, joint, scale=2.0)
+        q1 = joint.integrate(q0, v)
+        # difference(q, integrate(q, v)) = v
+        assert_allclose(joint.difference(q0, q1), v, atol=1e-12)
+        # integrate(q0, difference(q0, q1)) = q1 for an arbitrary q1
+        q2 = random_joint_q(rng, joint)
+        assert_same_joint_configuration(joint, joint.integrate(q0, joint.difference(q0, q2)), q2, atol=1e-12)
+
+
+@pytest.mark.parametrize("joint", JOINTS, ids=JOINT_IDS)
+def test_integrate_zero_and_difference_self(joint):
+    rng = np.random.default_rng(2)
+    q = random_joint_q(rng, joint)
+    assert_same_joint_configuration(joint, joint.integrate(q, np.zeros(joint.nv)), q)
+    assert_allclose(joint.difference(q, q), np.zeros(joint.nv), atol=TOL)
+
+
+@pytest.mark.parametrize("joint", JOINTS, ids=JOINT_IDS)
+def test_unit_norm_preserved(joint):
+    rng = np.random.default_rng(3)
+    q = random_joint_q(rng, joint)
+    for _ in range(200):
+        q = joint.integrate(q, rng.standard_normal(joint.nv))
+    if joint.kind == "planar":
+        assert abs(np.hypot(q[2], q[3]) - 1.0) < 1e-14
+    for s in quaternion_slices(joint):
+        assert abs(np.linalg.norm(q[s]) - 1.0) < 1e-14
+
+
+@pytest.mark.parametrize("joint", JOINTS, ids=JOINT_IDS)
+def test_neutral_is_identity_transform(joint):
+    q = joint.neutral()
+    assert q.shape == (joint.nq,)
+    R, p = joint.transform(q)
+    assert_allclose(R, np.eye(3), atol=TOL)
+    assert_allclose(p, np.zeros(3), atol=TOL)
+
+
+@pytest.mark.parametrize("joint", JOINTS, ids=JOINT_IDS)
+def test_integrate_matches_motion_subspace(joint):
+    """For small steps, exp(S v dt) from neutral moves the joint frame with velocity S v (in J)."""
+    rng = np.random.default_rng(4)
+    v = rng.standard_normal(joint.nv)
+    q0 = random_joint_q(rng, joint)
+    R0, p0 = joint.transform(q0)
+    eps = 1e-6
+    Rp, pp = joint.transform(joint.integrate(q0, eps * v))
+    Rm, pm = joint.transform(joint.integrate(q0, -eps * v))
+    # body velocity of J in P, expressed in J: v_lin = R0ᵀ ṗ, [ω]× = R0ᵀ Ṙ
+    p_dot = (pp - pm) / (2 * eps)
+    W = R0.T @ (Rp - Rm) / (2 * eps)
+    twist = np.concatenate([R0.T @ p_dot, [W[2, 1], W[0, 2], W[1, 0]]])
+    if joint.kind == "translation":
+        # Translation's velocity is [vx, vy, vz] in P (= J axes, no rotation)
+        expected = np.concatenate([v, np.zeros(3)])
+    else:
+        expected = joint.motion_subspace @ v
+    assert_allclose(twist, expected, atol=1e-8)
+
+
+def test_revolute_and_prismatic_transforms():
+    axis = np.array([1.0, 2.0, 2.0]) / 3.0
+    R, p = jt.Revolute(axis * 3).transform(np.array([0.4]))
+    assert_allclose(R, sp.axis_angle_rotation(axis, 0.4), atol=TOL)
+    assert_allclose(p, np.zeros(3))
+    R, p = jt.Prismatic(axis).transform(np.array([0.4]))
+    assert_allclose(R, np.eye(3))
+    assert_allclose(p, 0.4 * axis, atol=TOL)
+    # the axis is normalised and read-only
+    joint = jt.Revolute([0, 0, 5])
+    assert_allclose(joint.axis, [0, 0, 1])
+    with pytest.raises(ValueError):
+        joint.axis[0] = 1.0
+
+
+@pytest.mark.parametrize("make", [lambda: jt.Revolute([0, 0, 0]), lambda: jt.Prismatic([0, 0, 0]),
+                                  lambda: jt.Revolute([1, 0]), lambda: jt.Continuous([np.nan, 0, 1])])
+def test_bad_axes(make):
+    with pytest.raises(ValueError, match="axis"):
+        make()
+
+
+def test_joint_sizes():
+    sizes = {j.kind: (j.nq, j.nv) for j in JOINTS + [jt.Fixed()]}
+    assert sizes == {"revolute": (1, 1), "continuous": (1, 1), "prismatic": (1, 1), "planar": (4, 3),
+                     "spherical": (4, 3), "free-flyer": (7, 6), "translation": (3, 3), "fixed": (0, 0)}
+    for j in JOINTS:
+        assert j.motion_subspace.shape == (6, j.nv)
+        assert np.linalg.matrix_rank(j.motion_subspace) == j.nv
+
+
+# ----------------------------------------------------------------------------- model-level maps
+
+@pytest.fixture(scope="module")
+def tree():
+    return random_tree_model(0)
+
+
+def test_random_tree_uses_every_joint_type(tree):
+    kinds = {j.kind for j in tree.joints}
+    assert set(ALL_MOVING_KINDS) <= kinds
+    # branches: some joint has more than one child
+    assert np.max(np.bincount(tree.parents + 1)) > 1
+    # bodies fixed to moving bodies and to the world
+    assert tree.nbodies > tree.njoints
+    assert -1 in tree.body_joints
+
+
+def test_model_sizes_and_indices(tree):
+    assert tree.nq == sum(j.nq for j in tree.joints)
+    assert tree.nv == sum(j.nv for j in tree.joints)
+    assert_allclose(tree.idx_q, np.cumsum([0] + [j.nq for j in tree.joints])[:-1])
+    assert_allclose(tree.idx_v, np.cumsum([0] + [j.nv for j in tree.joints])[:-1])
+    assert tree.dof_joint.shape == (tree.nv,)
+    for i, s in enumerate(tree.idx_v):
+        assert np.all(tree.dof_joint[s : s + tree.joints[i].nv] == i)
+
+
+def test_model_neutral(tree):
+    q = tree.neutral()
+    assert q.shape == (tree.nq,)
+    for joint, s in zip(tree.joints, tree.idx_q):
+        assert_allclose(q[s : s + joint.nq], joint.neutral())
+    # at the neutral configuration every joint frame sits at its placement
+    R_WJ, p_WJ = mb.kinematics.joint_world_poses(tree, q)
+    X = np.eye(4)
+    for i, parent in enumerate(tree.parents):
+        X_parent = np.eye(4) if parent < 0 else sp.pose_matrix(R_WJ[parent], p_WJ[parent])
+        assert_allclose(sp.pose_matrix(R_WJ[i], p_WJ[i]), X_parent @ tree.joint_placements[i], atol=1e-12)
+    del X
+
+
+def test_model_integrate_difference_inverse(tree):
+    rng = np.random.default_rng(5)
+    for _ in range(10):
+        q0 = tree.random_configuration(rng)
+        v = np.concatenate([moderate_velocity(rng, j) for j in tree.joints])
+        q1 = tree.integrate(q0, v)
+        assert_allclose(tree.difference(q0, q1), v, atol=1e-12)
+        assert_allclose(tree.integrate(q0, v, dt=0.5), tree.integrate(q0, 0.5 * v), atol=TOL)
+        q2 = tree.random_configuration(rng)
+        back = tree.integrate(q0, tree.difference(q0, q2))
+        for joint, s in zip(tree.joints, tree.idx_q):
+            assert_same_joint_configuration(joint, back[s : s + joint.nq], q2[s : s + joint.nq])
+
+
+def test_model_maps_batched(tree):
+    rng = np.random.default_rng(6)
+    q0 = tree.random_configuration(rng, shape=(2, 3))
+    q1 = tree.random_configuration(rng, shape=(2, 3))
+    v = rng.standard_normal((2, 3, tree.nv))
+    assert q0.shape == (2, 3, tree.nq)
+    integ, diff = tree.integrate(q0, v), tree.difference(q0, q1)
+    assert integ.shape == (2, 3, tree.nq) and diff.shape == (2, 3, tree.nv)
+    for i in range(2):
+        for k in range(3):
+            assert_allclose(integ[i, k], tree.integrate(q0[i, k], v[i, k]), atol=1e-15)
+            assert_allclose(diff[i, k], tree.difference(q0[i, k], q1[i, k]), atol=1e-15)
+    # broadcasting one configuration against a batch of velocities
+    assert tree.integrate(q0[0, 0], v).shape == (2, 3, tree.nq)
+
+
+def test_random_configuration_within_limits_and_shapes():
+    rng = np.random.default_rng(8)
+    model = random_tree_model(1)
+    for shape in [(), (5,), (2, 3)]:
+        q = model.random_configuration(rng, shape=shape)
+        assert q.shape == shape + (model.nq,)
+        assert np.all(q >= model.lower) and np.all(q <= model.upper)
+        for joint, s in zip(model.joints, model.idx_q):
+            block = q[..., s : s + joint.nq]
+            if joint.kind == "planar":
+                assert_allclose(np.hypot(block[..., 2], block[..., 3]), 1.0, atol=1e-15)
+            for qs in quaternion_slices(joint):
+                assert_allclose(np.linalg.norm(block[..., qs], axis=-1), 1.0, atol=1e-15)
+    # bounded joints are sampled inside their finite limits, and seeding reproduces the draw
+    assert np.any(np.isfinite(model.lower))
+    assert_allclose(model.random_configuration(42), model.random_configuration(42))
+    # draws of the bounded revolute/prismatic joints are spread over their range, not stuck at a value
+    qs = model.random_configuration(rng, shape=(200,))
+    scalar = np.zeros(model.nq, dtype=bool)
+    scalar[[s for j, s in zip(model.joints, model.idx_q) if j.kind in ("revolute", "prismatic")]] = True
+    bounded = scalar & np.isfinite(model.lower) & np.isfinite(model.upper)
+    assert bounded.sum() >= 2
+    spread = qs[:, bounded].max(axis=0) - qs[:, bounded].min(axis=0)
+    assert np.all(spread > 0.5 * (model.upper - model.lower)[bounded])
+
+
+def test_normalize(tree):
+    rng = np.random.default_rng(9)
+    q = tree.random_configuration(rng)
+    scaled = q.copy()
+    for joint, s in zip(tree.joints, tree.idx_q):
+        for qs in quaternion_slices(joint):
+            scaled[s + qs.start : s + qs.stop] *= 1.3
+        if joint.kind == "planar":
+            scaled[s + 2 : s + 4] *= 0.7
+    with pytest.raises(ValueError, match="unit norm"):
+        tree.integrate(scaled, np.zeros(tree.nv))
+    assert_allclose(tree.normalize(scaled), q, atol=1e-15)
+
+
+# ----------------------------------------------------------------------------- against Pinocchio
+
+def both_models(pin, specs):
+    """Our model and Pinocchio's for a chain given as ``(our joint, Pinocchio joint model)`` pairs."""
+    rng = np.random.default_rng(10)
+    b = mb.ModelBuilder("chain")
+    pmodel = pin.Model()
+    parent_id = 0
+    for k, (ours, theirs) in enumerate(specs):
+        X = sp.pose_from_xyz_rpy(rng.uniform(-1, 1, 3), rng.uniform(-np.pi, np.pi, 3))
+        inertia = random_inertia(rng)
+        b.add_body(f"b{k}", ours, parent=f"b{k - 1}" if k else None, placement=X, inertia=inertia)
+        parent_id = pmodel.addJoint(parent_id, theirs, pin.SE3(X[:3, :3], X[:3, 3]), f"j{k}")
+        pmodel.appendBodyToJoint(parent_id, pin.Inertia(inertia.mass, inertia.com, inertia.rotational), pin.SE3.Identity())
+    return b.build(), pmodel
+
+
+def assert_same_config(model, q, q_pin, atol=TOL):
+    """Our ``q`` against a Pinocchio configuration, quaternions up to sign."""
+    mapped = q_to_pinocchio(model, q)
+    s_pin = 0
+    for joint in model.joints:
+        n = 2 if isinstance(joint, jt.Continuous) else joint.nq
+        assert_same_joint_configuration(joint if not isinstance(joint, jt.Continuous) else jt.Revolute(),
+                                        mapped[s_pin : s_pin + n], q_pin[s_pin : s_pin + n], atol=atol)
+        s_pin += n
+
+
+def assert_same_velocity(model, v, v_pin, atol=TOL):
+    """Velocities are equal, except continuous angles: ours are plain angle differences (q is an
+    angle in R), Pinocchio's are wrapped to (−π, π] (q is a point on the circle): equal modulo 2π."""
+    diff = np.asarray(v) - np.asarray(v_pin)
+    for joint, s in zip(model.joints, model.idx_v):
+        if isinstance(joint, jt.Continuous):
+            diff[s] = (diff[s] + np.pi) % (2 * np.pi) - np.pi
+    assert_allclose(diff, np.zeros_like(diff), atol=atol)
+
+
+def test_integrate_difference_match_pinocchio_solo12_free_flyer():
+    pin = import_pinocchio()
+    path = erd_urdf("solo_description/robots/solo12.urdf")
+    model = mb.load_urdf(path, floating_base=True)
+    pmodel = pin.buildModelFromUrdf(path, pin.JointModelFreeFlyer())
+    assert model.joints[0].kind == "free-flyer"
+    rng = np.random.default_rng(11)
+    for _ in range(10):
+        q0, q1 = model.random_configuration(rng), model.random_configuration(rng)
+        v = rng.standard_normal(model.nv) * 2.0
+        assert_same_config(model, model.integrate(q0, v), pin.integrate(pmodel, q0, v))
+        assert_allclose(model.difference(q0, q1), pin.difference(pmodel, q0, q1), atol=1e-12)
+
+
+def test_integrate_difference_match_pinocchio_every_joint_type():
+    pin = import_pinocchio()
+    model, pmodel = both_models(pin, [
+        (jt.FreeFlyer(), pin.JointModelFreeFlyer()),
+        (jt.Spherical(), pin.JointModelSpherical()),
+        (jt.Planar(), pin.JointModelPlanar()),
+        (jt.Revolute([0, 0, 1]), pin.JointModelRZ()),
+        (jt.Prismatic([1, 0, 0]), pin.JointModelPX()),
+        (jt.Translation(), pin.JointModelTranslation()),
+        (jt.Continuous([0, 1, 0]), pin.JointModelRUBY()),
+        (jt.Revolute([0.6, 0.8, 0]), pin.JointModelRevoluteUnaligned(np.array([0.6, 0.8, 0.0]))),
+    ])
+    assert model.nv == pmodel.nv
+    assert pinocchio_nq(model) == pmodel.nq
+    rng = np.random.default_rng(12)
+    for _ in range(20):
+        q0, q1 = model.random_configuration(rng), model.random_configuration(rng)
+        v = rng.standard_normal(model.nv) * 2.0
+        assert_same_config(model, model.integrate(q0, v), pin.integrate(pmodel, q_to_pinocchio(model, q0), v))
+        assert_same_velocity(model, model.difference(q0, q1),
+                             pin.difference(pmodel, q_to_pinocchio(model, q0), q_to_pinocchio(model, q1)), atol=1e-12)
+    assert_same_config(model, model.neutral(), pin.neutral(pmodel))
+    # the configuration maps round trip
+    q = model.random_configuration(rng)
+    assert_allclose(q_from_pinocchio(model, q_to_pinocchio(model, q)), q, atol=1e-15)
+
+
+@pytest.mark.xfail(strict=True, reason=(
+    "FreeFlyer.difference (through spatial.se3_log) has ~1e-8 relative error for steps whose rotation is "
+    "just above 1e-4 rad; Pinocchio's difference is accurate to rounding"))
+def test_free_flyer_difference_small_steps_match_pinocchio():
+    pin = import_pinocchio()
+    model, pmodel = both_models(pin, [(jt.FreeFlyer(), pin.JointModelFreeFlyer())])
+    rng = np.random.default_rng(13)
+    worst = 0.0
+    for _ in range(50):
+        q0 = model.random_configuration(rng)
+        v = 1.5e-4 * rng.standard_normal(model.nv)
+        q1 = pin.integrate(pmodel, q0, v)
+        worst = max(worst, np.abs(model.difference(q0, q1) - pin.difference(pmodel, q0, q1)).max() / 1.5e-4)
+    # rounding of q (~1e-16) limits the relative accuracy to ~1e-12 here
+    assert worst < 1e-10
+
+
+# ----------------------------------------------------------------------------- input checks
+
+@pytest.fixture(scope="module")
+def solo():
+    return mb.load_urdf(erd_urdf("solo_description/robots/solo12.urdf"), floating_base=True)
+
+
+def test_non_unit_quaternion_raises(tree):
+    q = tree.neutral()
+    s = tree.idx_q[0]
+    bad = q.copy()
+    bad[s + 3 : s + 7] = [0.0, 0.0, 0.0, 1.01]
+    for call in (lambda: tree.integrate(bad, np.zeros(tree.nv)), lambda: tree.difference(bad, q),
+                 lambda: tree.difference(q, bad), lambda: mb.forward_kinematics(tree, bad)):
+        with pytest.raises(ValueError, match="unit norm"):
+            call()
+    # inside the tolerance the quaternion is accepted and treated as normalised
+    ok = q.copy()
+    ok[s + 3 : s + 7] = [0.0, 0.0, 0.0, 1.0 + 1e-8]
+    assert_allclose(mb.forward_kinematics(tree, ok), mb.forward_kinematics(tree, q), atol=1e-15)
+    # a planar (cos θ, sin θ) pair is checked too
+    p = [j.kind for j in tree.joints].index("planar")
+    bad = q.copy()
+    bad[tree.idx_q[p] + 2] = 2.0
+    with pytest.raises(ValueError, match="unit norm"):
+        tree.integrate(bad, np.zeros(tree.nv))
+
+
+def test_wrong_shapes_raise_naming_expected_shape(solo):
+    q, v = solo.neutral(), np.zeros(solo.nv)
+    with pytest.raises(ValueError, match=rf"\(\.\.\., {solo.nq}\)"):
+        solo.integrate(q[:-1], v)
+    with pytest.raises(ValueError, match=rf"\(\.\.\., {solo.nv}\)"):
+        solo.integrate(q, np.zeros(solo.nv + 1))
+    with pytest.raises(ValueError, match=rf"\(\.\.\., {solo.nq}\)"):
+        solo.difference(q, np.zeros((2, solo.nq + 2)))
+    with pytest.raises(ValueError, match=rf"\(\.\.\., {solo.nq}\)"):
+        solo.integrate(1.0, v)
+    with pytest.raises(ValueError, match=rf"\(\.\.\., {solo.nq}\)"):
+        mb.forward_kinematics(solo, q[None, :-1])
+
+
+@pytest.mark.parametrize("bad", [
+    lambda n: np.array(["0"] * n),
+    lambda n: np.zeros(n, dtype=complex),
+    lambda n: np.array([object()] * n, dtype=object),
+])
+def test_wrong_dtype_raises(solo, bad):
+    q, v = solo.neutral(), np.zeros(solo.nv)
+    with pytest.raises(ValueError, match="dtype"):
+        solo.integrate(bad(solo.nq), v)
+    with pytest.raises(ValueError, match="dtype"):
+        solo.integrate(q, bad(solo.nv))
+    with pytest.raises(ValueError, match="dtype"):
+        mb.forward_kinematics(solo, bad(solo.nq))
+
+
+def test_integer_and_list_inputs_are_accepted(tree):
+    v = [0] * tree.nv
+    assert_allclose(tree.integrate(list(tree.neutral()), v), tree.neutral())
+
+
+def test_nan_warns_and_propagates(solo):
+    q, v = solo.neutral(), np.zeros(solo.nv)
+    bad_q = q.copy()
+    bad_q[4] = np.nan  # inside the base quaternion
+    with pytest.warns(RuntimeWarning, match="NaN"):
+        out = solo.integrate(bad_q, v)
+    assert np.all(np.isnan(out[3:7]))
+    bad_v = v.copy()
+    bad_v[8] = np.nan
+    with pytest.warns(RuntimeWarning, match="NaN"):
+        out = solo.integrate(q, bad_v)
+    assert np.isnan(out[9])
+    with pytest.warns(RuntimeWarning, match="NaN"):
+        out = solo.difference(bad_q, q)
+    assert np.any(np.isnan(out))
+    with pytest.warns(RuntimeWarning, match="NaN"):
+        X = mb.forward_kinematics(solo, bad_q)
+    assert np.all(np.isnan(X[..., :3, :]))
+
+
+def test_nan_in_one_batch_row_leaves_other_rows_finite(solo):
+    q = np.stack([solo.neutral(), solo.neutral()])
+    q[1, 10] = np.nan
+    with pytest.warns(RuntimeWarning):
+        out = solo.integrate(q, np.zeros((2, solo.nv)))
+    assert np.all(np.isfinite(out[0])) and np.isnan(out[1, 10])
+
+
+# ----------------------------------------------------------------------------- immutability
+
+def test_model_is_immutable(tree):
+    for name in ("parents", "joint_placements", "body_joints", "body_placements", "lower", "upper", "gravity",
+                 "idx_q", "idx_v", "spatial_inertias", "motion_subspaces", "ancestors"):
+        array = getattr(tree, name)
+        assert isinstance(array, np.ndarray) and not array.flags.writeable, name
+        with pytest.raises(ValueError):
+            array.flat[0] = 1
+    for name in ("nq", "joints", "parents", "name", "gravity", "idx_q"):
+        with pytest.raises(dataclasses.FrozenInstanceError):
+            setattr(tree, name, 0)
+    assert isinstance(tree.joints, tuple) and isinstance(tree.joint_names, tuple)
+    assert isinstance(tree.body_names, tuple) and isinstance(tree.body_inertias, tuple)
+    with pytest.raises(ValueError):
+        tree.body_inertias[0].rotational[0, 0] = 1.0
+
+
+def test_model_does_not_alias_builder_inputs():
+    placement = np.eye(4)
+    b = mb.ModelBuilder()
+    b.add_body("a", jt.Revolute(), placement=placement)
+    model = b.build()
+    placement[0, 3] = 5.0
+    assert model.joint_placements[0, 0, 3] == 0.0
+
+
+# ----------------------------------------------------------------------------- builder
+
+def test_builder_errors():
+    b = mb.ModelBuilder()
+    b.add_body("a", jt.Revolute())
+    with pytest.raises(ValueError, match="duplicate body name 'a'"):
+        b.add_body("a", jt.Revolute(), joint_name="other")
+    with pytest.raises(ValueError, match="duplicate joint name 'a_joint'"):
+        b.add_body("b", jt.Revolute(), joint_name="a_joint")
+    with pytest.raises(ValueError, match="parent body 'nope'"):
+        b.add_body("c", jt.Revolute(), parent="nope")
+    with pytest.raises(ValueError, match=r"placement must have shape \(4, 4\)"):
+        b.add_body("d", jt.Revolute(), parent="a", placement=np.eye(3))
+    with pytest.raises(ValueError, match=r"limits .* shape \(1,\)"):
+        b.add_body("e", jt.Revolute(), parent="a", lower=[0.0, 1.0], upper=[1.0, 2.0])
+    with pytest.raises(TypeError, match="Joint"):
+        b.add_body("f", "revolute", parent="a")
+    # the failed calls added nothing
+    model = b.build()
+    assert model.body_names == ("a",) and model.joint_names == ("a_joint",)
+
+
+def test_builder_refuses_impossible_inertia():
+    b = mb.ModelBuilder()
+    b.add_body("a", jt.Revolute(), inertia=Inertia(1.0, np.zeros(3), np.diag([1.0, 1.0, 5.0])))
+    with pytest.raises(ValueError, match="triangle"):
+        b.build()
+    assert b.build(check_inertia=False).njoints == 1
+
+
+def test_builder_lumps_fixed_bodies():
+    """joint_inertias[i] is the sum, in joint frame i, of the links fixed to body i (hand computation
+    through 6×6 spatial inertias, independent of Inertia.__add__)."""
+    rng = np.random.default_rng(14)
+    I_a, I_b, I_c, I_w = (random_inertia(rng) for _ in range(4))
+    X_wa = sp.pose_from_xyz_rpy([0.0, 0.0, 1.0], [0.1, 0.2, 0.3])
+    X_ab = sp.pose_from_xyz_rpy([0.5, -0.2, 0.1], [0.5, -0.3, 1.2])
+    X_bc = sp.pose_from_xyz_rpy([0.0, 0.4, -0.3], [-1.0, 0.2, 0.0])
+    b = mb.ModelBuilder()
+    b.add_body("w", inertia=I_w)  # fixed to the world
+    b.add_body("a", jt.Revolute([0, 0, 1]), parent="w", placement=X_wa, inertia=I_a)
+    b.add_body("b", parent="a", placement=X_ab, inertia=I_b)  # Fixed by default
+    b.add_body("c", parent="b", placement=X_bc, inertia=I_c)
+    b.add_body("d", jt.Prismatic([1, 0, 0]), parent="c", placement=np.eye(4))
+    model = b.build()
+    assert model.joint_names == ("a_joint", "d_joint")
+    assert list(model.body_joints) == [-1, 0, 0, 0, 1]
+    assert_allclose(model.body_placements[2], X_ab, atol=TOL)
+    assert_allclose(model.body_placements[3], X_ab @ X_bc, atol=TOL)
+    # the joint behind fixed bodies is placed relative to the moving body's joint frame
+    assert_allclose(model.joint_placements[1], X_ab @ X_bc, atol=TOL)
+    assert model.parents.tolist() == [-1, 0]
+
+    def spatial_in(X, inertia):
+        return sp.transform_inertia(X[:3, :3], X[:3, 3], inertia.spatial)
+
+    expected = I_a.spatial + spatial_in(X_ab, I_b) + spatial_in(X_ab @ X_bc, I_c)
+    lumped = model.joint_inertias[0]
+    mass = expected[0, 0]
+    com = np.array([expected[5, 1], expected[3, 2], expected[4, 0]]) / mass  # m [c]× block
+    C = sp.skew(com)
+    I_com = expected[3:, 3:] + mass * C @ C
+    assert lumped.mass == pytest.approx(I_a.mass + I_b.mass + I_c.mass, rel=1e-15)
+    assert_allclose(lumped.com, com, atol=1e-13)
+    assert_allclose(lumped.rotational, I_com, atol=1e-13)
+    assert_allclose(model.spatial_inertias[0], expected, atol=1e-13)
+    # the massless prismatic body, and the world-fixed mass counted only in total_mass
+    assert model.joint_inertias[1].mass == 0.0
+    assert model.total_mass == pytest.approx(I_w.mass + I_a.mass + I_b.mass + I_c.mass, rel=1e-15)
+
+
+def test_builder_default_joint_names_and_limits():
+    b = mb.ModelBuilder("m")
+    b.add_body("a", jt.Revolute(), lower=[-1.0], upper=[2.0])
+    b.add_body("s", jt.Spherical(), parent="a", joint_name="ball")
+    model = b.build()
+    assert model.joint_names == ("a_joint", "ball")
+    assert_allclose(model.lower, [-1.0, -1, -1, -1, -1])
+    assert_allclose(model.upper, [2.0, 1, 1, 1, 1])
+    assert model.name == "m"
+    assert_allclose(model.gravity, [0, 0, -9.81])
+
+
+def test_model_index_lookups(tree):
+    assert tree.body_index(tree.body_names[3]) == 3
+    assert tree.body_index(-1) == tree.nbodies - 1
+    with pytest.raises(ValueError, match="unknown body 'nope'"):
+        tree.body_index("nope")
+    with pytest.raises(ValueError, match="out of range"):
+        tree.body_index(tree.nbodies)
+    assert tree.joint_index(tree.joint_names[2]) == 2
+    with pytest.raises(ValueError, match="unknown joint"):
+        tree.joint_index("nope")
+
+
+def test_empty_model():
+    b = mb.ModelBuilder()
+    b.add_body("only", inertia=mb.inertia.box(1.0, (1, 1, 1)))
+    model = b.build()
+    assert model.nq == 0 and model.nv == 0
+    assert model.neutral().shape == (0,)
+    assert model.random_configuration(0).shape == (0,)
+    X = mb.forward_kinematics(model, np.zeros(0))
+    assert X.shape == (1, 4, 4)
+    assert_allclose(X[0], np.eye(4))
+
+
+# ----------------------------------------------------------------------------- shipped robots
+
+def test_robots_path():
+    path = mb.robots.path("double_pendulum")
+    assert os.path.isfile(path) and path.endswith("double_pendulum.urdf")
+    assert mb.robots.path("double_pendulum.urdf") == path
+    assert {"ball", "double_pendulum", "pendulum"} <= set(mb.robots.names())
+
+
+def test_robots_load_ball_floating():
+    model = mb.robots.load("ball", floating_base=True)
+    assert model.nq == 7 and model.nv == 6
+    assert model.joint_names == ("root_joint",)
+    assert model.total_mass == pytest.approx(1.0)
+    assert_allclose(model.joint_inertias[0].rotational, 0.004 * np.eye(3))
+
+
+def test_robots_load_double_pendulum():
+    model = mb.robots.load("double_pendulum")
+    assert model.joint_names == ("shoulder", "elbow")
+    assert all(isinstance(j, jt.Continuous) for j in model.joints)
+    # hanging straight down the tip is 2 m below the base
+    X = mb.forward_kinematics(model, model.neutral())
+    assert_allclose(X[model.body_index("tip"), :3, 3], [0, 0, -2.0], atol=TOL)
+
+
+def test_robots_unknown_name():
+    with pytest.raises(ValueError, match="no shipped robot named 'nope'.*double_pendulum"):
+        mb.robots.path("nope")
+    with pytest.raises(ValueError):
+        mb.robots.load("nope")
