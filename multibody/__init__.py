@@ -5,6 +5,17 @@ Public names are listed in ``docs/api.md``; conventions (vector ordering, frames
 """
 
 from . import inertia, joints, robots, spatial
+from .constrained import ConstrainedSystem, ConstraintError, KKTSolution
+from .constraints import (
+    Distance,
+    Holonomic,
+    JointCoupling,
+    LoopClosure,
+    Pfaffian,
+    PointOnCurve,
+    PointOnSurface,
+    mimic_constraints,
+)
 from .dynamics import (
     bias_forces,
     coriolis_matrix,
@@ -25,11 +36,26 @@ from .kinematics import (
     point_velocity,
 )
 from .model import Geometry, Mimic, Model, ModelBuilder
+from .simulation import SimulationError, Trajectory, simulate
 from .urdf import URDFError, load_urdf
 
 __version__ = "0.1.0"
 
 __all__ = [
+    "ConstrainedSystem",
+    "ConstraintError",
+    "Distance",
+    "Holonomic",
+    "JointCoupling",
+    "KKTSolution",
+    "LoopClosure",
+    "Pfaffian",
+    "PointOnCurve",
+    "PointOnSurface",
+    "SimulationError",
+    "Trajectory",
+    "mimic_constraints",
+    "simulate",
     "bias_forces",
     "coriolis_matrix",
     "forward_dynamics",

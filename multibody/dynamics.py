@@ -80,6 +80,11 @@ def inverse_dynamics(model, q, v, a, f_ext=None):
     Pinocchio counterpart: ``rnea``.
     """
     q, v, a, _, f_ext, batch = _check(model, q, v, a, f_ext=f_ext)
+    return _rnea(model, q, v, a, f_ext, batch)
+
+
+def _rnea(model, q, v, a, f_ext, batch):
+    """:func:`inverse_dynamics` on validated arrays with common batch shape ``batch``."""
     R, p = joint_local_poses(model, q)
     inertia = model.spatial_inertias
     a0 = _gravity_acceleration(model)
@@ -123,7 +128,7 @@ def generalized_gravity(model, q):
     """
     q = model.check_configuration(q)
     zeros = np.zeros(q.shape[:-1] + (model.nv,))
-    return inverse_dynamics(model, q, zeros, zeros)
+    return _rnea(model, q, zeros, zeros, None, q.shape[:-1])
 
 
 def bias_forces(model, q, v):
@@ -131,8 +136,8 @@ def bias_forces(model, q, v):
 
     Pinocchio counterpart: ``nonLinearEffects``.
     """
-    v = model.check_velocity(v)
-    return inverse_dynamics(model, q, v, np.zeros_like(v))
+    q, v, *_, batch = _check(model, q, v)
+    return _rnea(model, q, v, np.zeros(batch + (model.nv,)), None, batch)
 
 
 # ============================================================================= mass matrix
@@ -151,7 +156,8 @@ def mass_matrix(model, q, method="crba"):
         q = model.check_configuration(q)
         jacobians, inertias = _world_body_jacobians_and_inertias(model, q)
         # M = Σ_i J_iᵀ I_i J_i
-        return np.einsum("...ick,...icd,...idl->...kl", jacobians, inertias, jacobians)
+        M = np.einsum("...ick,...icd,...idl->...kl", jacobians, inertias, jacobians, optimize=True)
+        return 0.5 * (M + transpose(M))  # exactly symmetric
     raise ValueError(f"method must be 'crba' or 'lagrangian', got {method!r}")
 
 
@@ -171,7 +177,8 @@ def _mass_matrix_crba(model, q):
         rows = slice(model.idx_v[i], model.idx_v[i] + joint.nv)
         # F = I^c_i S_i ;  M_ii = S_iᵀ F
         F = composite[i] @ joint.motion_subspace
-        M[..., rows, rows] = joint.motion_subspace.T @ F
+        diagonal = joint.motion_subspace.T @ F
+        M[..., rows, rows] = 0.5 * (diagonal + transpose(diagonal))  # exactly symmetric
         # Walk to the root: F = ʲX_λᵀ F ;  M_ij = Fᵀ S_j = M_jiᵀ
         j = i
         while model.parents[j] >= 0:
@@ -280,8 +287,9 @@ def mass_matrix_derivative(model, q):
     d_inertias = (spatial.force_cross_matrix(xi)[..., :, None, :, :] @ inertias[..., None, :, :, :]
                   - inertias[..., None, :, :, :] @ spatial.motion_cross_matrix(xi)[..., :, None, :, :])
     d_inertias = d_inertias * support.T[:, :, None, None]  # (..., k, b, 6, 6)
-    half = np.einsum("...kbci,...bcd,...bdj->...kij", d_jacobians, inertias, jacobians)
-    return half + np.swapaxes(half, -1, -2) + np.einsum("...bci,...kbcd,...bdj->...kij", jacobians, d_inertias, jacobians)
+    half = np.einsum("...kbci,...bcd,...bdj->...kij", d_jacobians, inertias, jacobians, optimize=True)
+    return half + np.swapaxes(half, -1, -2) + np.einsum("...bci,...kbcd,...bdj->...kij", jacobians, d_inertias,
+                                                        jacobians, optimize=True)
 
 
 # ============================================================================= ABA
@@ -299,7 +307,13 @@ def _articulated_inertias(model, R, p, batch):
     for i in range(n - 1, -1, -1):
         S = model.joints[i].motion_subspace
         U[i] = articulated[i] @ S
-        D_inv[i] = np.linalg.inv(S.T @ U[i])
+        try:
+            D_inv[i] = np.linalg.inv(S.T @ U[i])
+        except np.linalg.LinAlgError:
+            raise np.linalg.LinAlgError(
+                f"the mass matrix is singular: joint {model.joint_names[i]!r} moves no inertia "
+                "(its articulated inertia Sᵀ I^A S is singular); give the bodies it carries mass and inertia"
+            ) from None
         # I^a_i = I^A_i − U_i D_i⁻¹ U_iᵀ
         projected[i] = articulated[i] - U[i] @ D_inv[i] @ transpose(U[i])
         parent = model.parents[i]

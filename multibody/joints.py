@@ -111,6 +111,10 @@ class Joint:
         """Velocity ``v`` such that ``integrate(q0, v) = q1``."""
         return q1 - q0
 
+    def configuration_rate(self, q, v):
+        """``q̇`` of the configuration moving with velocity ``v`` (``(..., nq)``)."""
+        return v
+
     def random(self, rng, lower, upper, shape=()):
         """Random configurations within ``[lower, upper]`` (each ``(nq,)``), batch ``shape``."""
         return _random_uniform(rng, lower, upper, _DEFAULT_TRANSLATION_RANGE, shape)
@@ -251,6 +255,11 @@ class Planar(Joint):
             axis=-1,
         )
 
+    def configuration_rate(self, q, v):
+        c, s = q[..., 2], q[..., 3]
+        # (ẋ, ẏ) = R(θ) (vx, vy);  d/dt (cos θ, sin θ) = ω (−sin θ, cos θ)
+        return np.stack([c * v[..., 0] - s * v[..., 1], s * v[..., 0] + c * v[..., 1], -s * v[..., 2], c * v[..., 2]], -1)
+
     def difference(self, q0, q1):
         c0, s0 = q0[..., 2] / np.hypot(q0[..., 2], q0[..., 3]), q0[..., 3] / np.hypot(q0[..., 2], q0[..., 3])
         c1, s1 = q1[..., 2] / np.hypot(q1[..., 2], q1[..., 3]), q1[..., 3] / np.hypot(q1[..., 2], q1[..., 3])
@@ -301,6 +310,10 @@ class Spherical(Joint):
     def difference(self, q0, q1):
         return spatial.quat_log(spatial.quat_multiply(spatial.quat_conjugate(q0), q1))
 
+    def configuration_rate(self, q, v):
+        # q̇ = ½ q ⊗ (ω, 0), ω in the joint frame
+        return 0.5 * spatial.quat_multiply(q, np.concatenate([v, np.zeros(v.shape[:-1] + (1,))], axis=-1))
+
     def random(self, rng, lower, upper, shape=()):
         return _random_unit_quaternion(rng, shape)
 
@@ -339,6 +352,12 @@ class FreeFlyer(Joint):
         quat = spatial.quat_multiply(q[..., 3:], spatial.quat_exp(v[..., 3:]))
         quat = quat / np.linalg.norm(quat, axis=-1, keepdims=True)
         return np.concatenate([q[..., :3] + spatial.matvec(R0, dp), quat], axis=-1)
+
+    def configuration_rate(self, q, v):
+        # ṗ = R v_lin (v_lin is in the body frame);  q̇ = ½ q ⊗ (ω, 0)
+        p_dot = spatial.matvec(spatial.quat_to_rotation(q[..., 3:]), v[..., :3])
+        omega = np.concatenate([v[..., 3:], np.zeros(v.shape[:-1] + (1,))], axis=-1)
+        return np.concatenate([p_dot, 0.5 * spatial.quat_multiply(q[..., 3:], omega)], axis=-1)
 
     def difference(self, q0, q1):
         R0, R1 = spatial.quat_to_rotation(q0[..., 3:]), spatial.quat_to_rotation(q1[..., 3:])

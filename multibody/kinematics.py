@@ -79,7 +79,7 @@ def world_motion_subspaces(model, R_WJ, p_WJ):
     p = p_WJ[..., model.dof_joint, :]
     S = model.motion_subspaces
     angular = matvec(R, S[:, 3:])
-    linear = matvec(R, S[:, :3]) + np.cross(p, angular)
+    linear = matvec(R, S[:, :3]) + spatial.cross(p, angular)
     return np.concatenate([linear, angular], axis=-1)
 
 
@@ -105,8 +105,10 @@ def _point_columns(xi, x, support):
 
     ``v_x = v_O + ω × x`` for each column; coordinates that do not move the body give zero columns.
     """
-    linear = xi[..., :3] + np.cross(xi[..., 3:], x[..., None, :])
-    J = np.concatenate([linear, xi[..., 3:]], axis=-1) * support[:, None]
+    linear = xi[..., :3] + spatial.cross(xi[..., 3:], x[..., None, :])
+    # The point's batch axes may be wider than the configuration's: broadcast the angular rows too.
+    angular = np.broadcast_to(xi[..., 3:], linear.shape)
+    J = np.concatenate([linear, angular], axis=-1) * support[:, None]
     return spatial.transpose(J)
 
 
@@ -142,15 +144,48 @@ def jacobian_time_variation(model, q, v, body, point=None):
     v = model.check_velocity(v)
     b, R_WJ, p_WJ, R_WB, p_WB = _body_pose(model, q, body)
     x = _point_in_world(model, R_WB, p_WB, point)
-    xi = world_motion_subspaces(model, R_WJ, p_WJ)
+    return _point_jacobian_rate(model, world_motion_subspaces(model, R_WJ, p_WJ), v, b, x)
+
+
+def _point_jacobian_rate(model, xi, v, b, x):
+    """``J̇`` of the world point ``x`` of body ``b`` from the world Plücker columns ``xi``."""
     V = joint_velocities(model, xi, v)
     xi_dot = spatial.motion_cross(V[..., model.dof_joint, :], xi)
     j = model.body_joints[b]
     V_b = V[..., j, :] if j >= 0 else np.zeros(V.shape[:-2] + (6,))
-    x_dot = V_b[..., :3] + np.cross(V_b[..., 3:], x)
-    linear = xi_dot[..., :3] + np.cross(xi_dot[..., 3:], x[..., None, :]) + np.cross(xi[..., 3:], x_dot[..., None, :])
-    J_dot = np.concatenate([linear, xi_dot[..., 3:]], axis=-1) * model.body_support[b][:, None]
+    x_dot = V_b[..., :3] + spatial.cross(V_b[..., 3:], x)
+    linear = xi_dot[..., :3] + spatial.cross(xi_dot[..., 3:], x[..., None, :]) + spatial.cross(xi[..., 3:], x_dot[..., None, :])
+    angular = np.broadcast_to(xi_dot[..., 3:], linear.shape)
+    J_dot = np.concatenate([linear, angular], axis=-1) * model.body_support[b][:, None]
     return spatial.transpose(J_dot)
+
+
+def frame_kinematics(model, q, v, body, placement=None):
+    """Everything a constraint needs about one frame F fixed in a body, from a single tree pass.
+
+    ``placement`` is the 4×4 pose of F in the body frame (default identity); ``body`` a name or
+    index, or ``None`` for a frame fixed in the world (then ``placement`` is its world pose).
+    Returns ``(R_WF (..., 3, 3), p_WF (..., 3), J (..., 6, nv), J̇v (..., 6))``: the world pose,
+    the world-aligned Jacobian of F's origin, and the velocity-product acceleration ``J̇ v``
+    (classical linear acceleration of the origin and angular acceleration when ``a = 0``).
+    """
+    q = model.check_configuration(q)
+    v = model.check_velocity(v)
+    batch = np.broadcast_shapes(q.shape[:-1], v.shape[:-1])
+    X_BF = np.eye(4) if placement is None else np.asarray(placement, dtype=float)
+    if X_BF.shape != (4, 4):
+        raise ValueError(f"placement must have shape (4, 4), got {X_BF.shape}")
+    if body is None:
+        R = np.broadcast_to(X_BF[:3, :3], batch + (3, 3))
+        p = np.broadcast_to(X_BF[:3, 3], batch + (3,))
+        return R, p, np.zeros(batch + (6, model.nv)), np.zeros(batch + (6,))
+    b, R_WJ, p_WJ, R_WB, p_WB = _body_pose(model, q, body)
+    R_WF, p_WF = spatial.compose(R_WB, p_WB, X_BF[:3, :3], X_BF[:3, 3])
+    xi = world_motion_subspaces(model, R_WJ, p_WJ)
+    J = _point_columns(xi, p_WF, model.body_support[b])
+    J_dot = _point_jacobian_rate(model, xi, v, b, p_WF)
+    return (np.broadcast_to(R_WF, batch + (3, 3)), np.broadcast_to(p_WF, batch + (3,)),
+            np.broadcast_to(J, batch + (6, model.nv)), matvec(J_dot, v))
 
 
 def point_velocity(model, q, v, body, point=None):

@@ -269,6 +269,15 @@ class Model:
         q0, q1 = self.check_configuration(q0, "q0"), self.check_configuration(q1, "q1")
         return self._per_joint(lambda joint, a, b: joint.difference(a, b), q0, q1, second="q", out="v")
 
+    def configuration_rate(self, q, v) -> np.ndarray:
+        """``q̇`` of a configuration moving with velocity ``v``: ``(..., nq)``.
+
+        Equal to ``v`` for angles and displacements; quaternions get ``½ q ⊗ (ω, 0)``, free-flyer
+        positions ``R v_lin``, planar joints ``R(θ) (vx, vy)`` and ``ω (−sin θ, cos θ)``.
+        """
+        q, v = self.check_configuration(q), self.check_velocity(v)
+        return self._per_joint(lambda joint, qi, vi: joint.configuration_rate(qi, vi), q, v, out="q")
+
     def normalize(self, q) -> np.ndarray:
         """``q`` with every quaternion (and planar ``(cos θ, sin θ)`` pair) scaled to unit norm."""
         q = np.asarray(q, dtype=float)
@@ -317,10 +326,16 @@ class Model:
         """
         q = self._as_float_array(q, name)
         self._require_last_axis(q, self.nq, name)
-        finite = np.all(np.isfinite(q), axis=-1)
-        for joint, name_j, s in zip(self.joints, self.joint_names, self.idx_q):
-            joint.validate(q[finite][..., s : s + joint.nq], name_j)
+        # NaN norms compare false, so non-finite entries pass here and propagate (with the warning above).
+        for joint, joint_name, start in self._unit_norm_blocks:
+            joint.validate(q[..., start : start + joint.nq], joint_name)
         return q
+
+    @cached_property
+    def _unit_norm_blocks(self):
+        """``(joint, name, start in q)`` of the joints whose configuration must have unit norm."""
+        return tuple((joint, name, start) for joint, name, start in zip(self.joints, self.joint_names, self.idx_q)
+                     if type(joint).validate is not jt.Joint.validate)
 
     def check_velocity(self, v, name="v") -> np.ndarray:
         """``v`` as a float array of shape ``(..., nv)``, or ``ValueError``."""

@@ -294,7 +294,7 @@ def load_urdf(source, *, floating_base=False, package_dirs=None, invalid_inertia
     roots = [name for name in links if name not in parent_joint]
     if len(roots) != 1:
         if not roots:
-            raise ctx.error("<robot>", "the joints form a cycle: no link is without a parent")
+            raise ctx.error("<robot>", f"the joints {sorted(joint_names)} form a cycle: no link is without a parent")
         raise ctx.error("<robot>", f"several root links {roots}: a URDF must describe a single tree")
     root_link = roots[0]
 
@@ -340,7 +340,9 @@ def load_urdf(source, *, floating_base=False, package_dirs=None, invalid_inertia
 
     unreached = [name for name in links if name not in visited]
     if unreached:
-        raise ctx.error("<robot>", f"the joints form a cycle: links {unreached} are not reachable from root {root_link!r}")
+        cycle = [parent_joint[name].get("name") for name in unreached if name in parent_joint]
+        raise ctx.error("<robot>", f"the joints {cycle} form a cycle: links {unreached} are not reachable "
+                                   f"from root {root_link!r}")
     for mimic in mimics:
         if mimic.mimicked in joint_names:
             builder.add_mimic(mimic)

@@ -198,3 +198,61 @@ def random_state(model, rng, velocity_scale=1.0):
     v = velocity_scale * rng.standard_normal(model.nv)
     a = rng.standard_normal(model.nv)
     return q, v, a
+
+
+# ----------------------------------------------------------------------------- Pinocchio twin
+
+def _rotation_z_to(axis):
+    """A rotation C with C e_z = axis (unit)."""
+    z = np.array([0.0, 0.0, 1.0])
+    w = np.cross(z, axis)
+    s, c = np.linalg.norm(w), float(z @ axis)
+    if s < 1e-12:
+        return np.eye(3) if c > 0 else np.diag([1.0, -1.0, -1.0])
+    return mb.spatial.axis_angle_rotation(w / s, np.arctan2(s, c))
+
+
+def pinocchio_twin(pin, model):
+    """The same kinematic tree as a ``pin.Model``, and the Pinocchio frame id of each of our bodies.
+
+    Joint types map one to one, except that Pinocchio's unbounded revolute joint with an arbitrary
+    axis cannot be given its axis from Python: a ``Continuous`` joint about ``a`` becomes ``RUBZ`` in
+    a joint frame rotated by ``C`` (``C e_z = a``). Its children, bodies and inertia are expressed in
+    that rotated frame, so world placements and world-aligned Jacobians of the bodies are unchanged.
+    Masses fixed to the world are appended to Pinocchio's universe.
+    """
+    corrections = []
+    pmodel = pin.Model()
+    for i, joint in enumerate(model.joints):
+        C = np.eye(3)
+        if isinstance(joint, jt.Continuous):
+            C = _rotation_z_to(joint.axis)
+            jmodel = pin.JointModelRUBZ()
+        elif isinstance(joint, jt.Revolute):
+            jmodel = pin.JointModelRevoluteUnaligned(np.array(joint.axis))
+        elif isinstance(joint, jt.Prismatic):
+            jmodel = pin.JointModelPrismaticUnaligned(np.array(joint.axis))
+        else:
+            jmodel = {"planar": pin.JointModelPlanar, "spherical": pin.JointModelSpherical,
+                      "free-flyer": pin.JointModelFreeFlyer, "translation": pin.JointModelTranslation}[joint.kind]()
+        corrections.append(C)
+        parent = model.parents[i]
+        C_parent = corrections[parent] if parent >= 0 else np.eye(3)
+        X = model.joint_placements[i]
+        R = C_parent.T @ X[:3, :3] @ C
+        p = C_parent.T @ X[:3, 3]
+        jid = pmodel.addJoint(int(parent + 1), jmodel, pin.SE3(R, p), model.joint_names[i])
+        inertia = model.joint_inertias[i].transformed(mb.spatial.pose_matrix(C.T, np.zeros(3)))
+        pmodel.appendBodyToJoint(jid, pin.Inertia(inertia.mass, inertia.com, inertia.rotational), pin.SE3.Identity())
+    frame_ids = []
+    for b, name in enumerate(model.body_names):
+        j = model.body_joints[b]
+        C = corrections[j] if j >= 0 else np.eye(3)
+        X = model.body_placements[b]
+        placement = pin.SE3(C.T @ X[:3, :3], C.T @ X[:3, 3])
+        if j < 0:
+            I = model.body_inertias[b]
+            pmodel.appendBodyToJoint(0, pin.Inertia(I.mass, I.com, I.rotational), placement)
+        frame_ids.append(pmodel.addFrame(pin.Frame(name, int(j + 1), 0, placement, pin.FrameType.BODY)))
+    pmodel.gravity = pin.Motion(np.concatenate([model.gravity, np.zeros(3)]))
+    return pmodel, frame_ids

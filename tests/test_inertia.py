@@ -6,7 +6,7 @@ from numpy.testing import assert_allclose
 
 import multibody as mb
 from multibody.inertia import Inertia
-from multibody.spatial import pose_from_xyz_rpy, skew
+from multibody.spatial import pose_from_xyz_rpy
 
 trimesh = pytest.importorskip("trimesh")
 

@@ -314,9 +314,6 @@ def test_se3_exp_log_round_trip(rng, angle):
         assert_allclose(sp.se3_log(R, p), m, atol=TOL)
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "spatial.se3_log loses ~8 digits for rotation angles just above _SMALL_ANGLE=1e-4: "
-    "c = (1 - t sin t / (2(1 - cos t))) / t**2 cancels catastrophically"))
 @pytest.mark.parametrize("angle", [1.5e-4, 1e-3])
 def test_se3_log_accuracy_just_above_small_angle_threshold(rng, angle):
     worst = 0.0

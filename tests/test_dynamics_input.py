@@ -1,0 +1,377 @@
+"""Input checking of the dynamics functions: shapes, dtypes, unit quaternions, non-finite values,
+external-force shapes, unknown methods, and a model without degrees of freedom.
+"""
+
+from __future__ import annotations
+
+import functools
+import re
+import warnings
+
+import numpy as np
+import pytest
+
+import multibody as mb
+from multibody import joints as jt
+from multibody.dynamics import mass_matrix_derivative
+
+from dyn_helpers import STATUE_URDF, assert_rel, coordinate_tree_model, random_tree_model
+
+
+@functools.lru_cache(maxsize=None)
+def tree():
+    """Free-flyer, revolute, continuous, prismatic, planar, spherical, translation joints."""
+    return random_tree_model(0)
+
+
+@functools.lru_cache(maxsize=None)
+def coordinate_tree():
+    return coordinate_tree_model(0)
+
+
+# name -> (model factory, function(model, q, v, a, f), the array arguments it takes)
+FUNCTIONS = {
+    "mass_matrix": (tree, lambda m, q, v, a, f: mb.mass_matrix(m, q), ("q",)),
+    "mass_matrix[lagrangian]": (tree, lambda m, q, v, a, f: mb.mass_matrix(m, q, method="lagrangian"), ("q",)),
+    "coriolis_matrix": (tree, lambda m, q, v, a, f: mb.coriolis_matrix(m, q, v), ("q", "v")),
+    "coriolis_matrix[lagrangian]": (coordinate_tree, lambda m, q, v, a, f: mb.coriolis_matrix(m, q, v, method="lagrangian"),
+                                    ("q", "v")),
+    "mass_matrix_derivative": (coordinate_tree, lambda m, q, v, a, f: mass_matrix_derivative(m, q), ("q",)),
+    "generalized_gravity": (tree, lambda m, q, v, a, f: mb.generalized_gravity(m, q), ("q",)),
+    "bias_forces": (tree, lambda m, q, v, a, f: mb.bias_forces(m, q, v), ("q", "v")),
+    "inverse_dynamics": (tree, lambda m, q, v, a, f: mb.inverse_dynamics(m, q, v, a, f_ext=f), ("q", "v", "a", "f_ext")),
+    "forward_dynamics": (tree, lambda m, q, v, a, f: mb.forward_dynamics(m, q, v, a, f_ext=f), ("q", "v", "tau", "f_ext")),
+    "inverse_mass_matrix": (tree, lambda m, q, v, a, f: mb.inverse_mass_matrix(m, q), ("q",)),
+    "kinetic_energy": (tree, lambda m, q, v, a, f: mb.kinetic_energy(m, q, v), ("q", "v")),
+    "potential_energy": (tree, lambda m, q, v, a, f: mb.potential_energy(m, q), ("q",)),
+}
+
+# (function, argument) pairs over the vector arguments q, v, a/tau.
+VECTOR_ARGS = [pytest.param(fn, arg, id=f"{fn}-{arg}") for fn, (_, _, args) in FUNCTIONS.items()
+               for arg in args if arg != "f_ext"]
+
+
+def valid_inputs(model, seed=0, batch=()):
+    rng = np.random.default_rng(seed)
+    return dict(
+        q=model.random_configuration(rng, shape=batch),
+        v=rng.standard_normal(batch + (model.nv,)),
+        a=rng.standard_normal(batch + (model.nv,)),
+        f_ext=rng.standard_normal(batch + (model.njoints, 6)),
+    )
+
+
+def call(name, **replace):
+    """Call FUNCTIONS[name] on valid inputs with some of them replaced (``tau`` is the ``a`` slot)."""
+    make_model, fn, _ = FUNCTIONS[name]
+    model = make_model()
+    inputs = valid_inputs(model)
+    if "tau" in replace:
+        replace["a"] = replace.pop("tau")
+    inputs.update(replace)
+    return fn(model, inputs["q"], inputs["v"], inputs["a"], inputs["f_ext"])
+
+
+def arg_size(name, arg):
+    model = FUNCTIONS[name][0]()
+    return model.nq if arg == "q" else model.nv
+
+
+def test_valid_inputs_work():
+    """The baseline every failure case below perturbs: valid inputs give finite results, no warning."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        for name in FUNCTIONS:
+            assert np.all(np.isfinite(call(name))), name
+
+
+# ============================================================================= shapes
+
+@pytest.mark.parametrize("name, arg", VECTOR_ARGS)
+@pytest.mark.parametrize("bad", ["one_more", "one_less", "scalar", "transposed_batch"])
+def test_wrong_shape_names_the_expected_shape(name, arg, bad):
+    size = arg_size(name, arg)
+    good = valid_inputs(FUNCTIONS[name][0](), batch=(2,))[arg if arg != "tau" else "a"]
+    value = {
+        "one_more": np.zeros(size + 1),
+        "one_less": np.zeros(size - 1),
+        "scalar": np.float64(0.5),
+        "transposed_batch": good.T,  # (size, 2): batch axis last by mistake
+    }[bad]
+    with pytest.raises(ValueError, match=rf"^{arg} must have shape {re.escape(f'(..., {size})')}"):
+        call(name, **{arg: value})
+
+
+@pytest.mark.parametrize("name", ["coriolis_matrix", "inverse_dynamics", "forward_dynamics", "kinetic_energy"])
+def test_incompatible_batch_shapes_raise(name):
+    model = FUNCTIONS[name][0]()
+    inputs = valid_inputs(model, batch=(3,))
+    with pytest.raises(ValueError):
+        call(name, q=inputs["q"], v=valid_inputs(model, batch=(2,))["v"])
+
+
+# ============================================================================= dtypes
+
+def _bad_dtype(kind, good):
+    if kind == "strings":
+        return np.array([str(x) for x in good.ravel()]).reshape(good.shape)
+    if kind == "string_list":
+        return [str(x) for x in good]
+    if kind == "complex":
+        return good.astype(complex)  # zero imaginary part: still refused, a complex q is a mistake
+    if kind == "object":
+        return np.array(list(good), dtype=object)
+    if kind == "object_with_none":
+        return [None] + list(good[1:])
+    raise KeyError(kind)
+
+
+@pytest.mark.parametrize("name, arg", VECTOR_ARGS)
+@pytest.mark.parametrize("kind", ["strings", "string_list", "complex", "object", "object_with_none"])
+def test_wrong_dtype_raises_value_error(name, arg, kind):
+    model = FUNCTIONS[name][0]()
+    good = valid_inputs(model)[arg if arg != "tau" else "a"]
+    with pytest.raises(ValueError, match=rf"^{arg} must be (a )?real"):
+        call(name, **{arg: _bad_dtype(kind, good)})
+
+
+@pytest.mark.parametrize("name", ["inverse_dynamics", "forward_dynamics"])
+def test_wrong_dtype_f_ext_raises(name):
+    good = valid_inputs(tree())["f_ext"]
+    for bad in (good.astype(complex), good.astype(str), good.astype(object)):
+        with pytest.raises(ValueError, match=r"^f_ext must be (a )?real"):
+            call(name, f_ext=bad)
+
+
+@pytest.mark.parametrize("name", list(FUNCTIONS))
+def test_lists_and_integer_arrays_are_accepted(name):
+    """Plain lists and integer dtypes are real numbers: same results as float arrays."""
+    model = FUNCTIONS[name][0]()
+    inputs = valid_inputs(model)
+    expected = call(name)
+    as_lists = {k: x.tolist() for k, x in inputs.items()}
+    np.testing.assert_array_equal(call(name, **as_lists), expected)
+    integer_v = np.arange(model.nv) % 3 - 1
+    np.testing.assert_array_equal(call(name, v=integer_v, a=integer_v),
+                                  call(name, v=integer_v.astype(float), a=integer_v.astype(float)))
+
+
+# ============================================================================= unit quaternions
+
+def _unit_blocks(model):
+    """(joint name, slice of q) of every quaternion and planar (cos θ, sin θ) pair."""
+    out = []
+    for joint, name, s in zip(model.joints, model.joint_names, model.idx_q):
+        if isinstance(joint, jt.FreeFlyer):
+            out.append((name, slice(s + 3, s + 7)))
+        elif isinstance(joint, jt.Spherical):
+            out.append((name, slice(s, s + 4)))
+        elif isinstance(joint, jt.Planar):
+            out.append((name, slice(s + 2, s + 4)))
+    return out
+
+
+Q_FUNCTIONS = [name for name, (make, _, _) in FUNCTIONS.items() if make is tree]
+
+
+def test_tree_has_every_unit_norm_block():
+    kinds = {type(tree().joints[tree().joint_names.index(name)]) for name, _ in _unit_blocks(tree())}
+    assert kinds == {jt.FreeFlyer, jt.Spherical, jt.Planar}
+
+
+@pytest.mark.parametrize("block", range(len(_unit_blocks(random_tree_model(0)))))
+@pytest.mark.parametrize("name", Q_FUNCTIONS)
+def test_non_unit_quaternion_beyond_tolerance_raises(name, block):
+    model = tree()
+    joint_name, sl = _unit_blocks(model)[block]
+    q = valid_inputs(model, batch=(3,))["q"]
+    q[1, sl] *= 1.0 + 3 * jt.UNIT_NORM_TOLERANCE  # one bad sample in a batch
+    with pytest.raises(ValueError, match=re.escape(repr(joint_name))):
+        call(name, q=q)
+    q[1, sl] *= 0.5  # far inside the sphere too
+    with pytest.raises(ValueError, match="unit norm"):
+        call(name, q=q)
+
+
+@pytest.mark.parametrize("name", Q_FUNCTIONS)
+def test_quaternion_within_tolerance_is_used_normalised(name):
+    model = tree()
+    inputs = valid_inputs(model, seed=3, batch=(2,))
+    q = inputs["q"].copy()
+    for k, (_, sl) in enumerate(_unit_blocks(model)):
+        sign = 1.0 if k % 2 == 0 else -1.0
+        q[:, sl] *= 1.0 + sign * 0.5 * jt.UNIT_NORM_TOLERANCE
+    assert not np.allclose(q, model.normalize(q), rtol=0, atol=1e-8)
+    out = call(name, **{**inputs, "q": q})
+    ref = call(name, **{**inputs, "q": model.normalize(q)})
+    # Off-unit inputs used as-is would change results by ~5e-7 relative; normalised, only rounding differs.
+    assert_rel(out, ref, 1e-12, f"{name} with a slightly non-unit quaternion", batch_ndim=0)
+
+
+# ============================================================================= NaN and inf
+
+def _nan_position(model):
+    """A coordinate that every output depends on: the first joint after the free-flyer base."""
+    assert isinstance(model.joints[0], jt.FreeFlyer)
+    return int(model.idx_q[1])
+
+
+@pytest.mark.parametrize("name", list(FUNCTIONS))
+def test_nan_in_q_warns_and_propagates(name):
+    model = FUNCTIONS[name][0]()
+    inputs = valid_inputs(model, batch=(3,))
+    q = inputs["q"].copy()
+    pos = _nan_position(model) if isinstance(model.joints[0], jt.FreeFlyer) else int(model.idx_q[1])
+    q[1, pos] = np.nan
+    with pytest.warns(RuntimeWarning, match="q contains NaN"):
+        out = call(name, **{**inputs, "q": q})
+    assert np.isnan(out[1]).any()
+    # The other samples of the batch are unaffected.
+    clean = call(name, **inputs)
+    assert np.all(np.isfinite(out[[0, 2]]))
+    np.testing.assert_allclose(out[[0, 2]], clean[[0, 2]], rtol=1e-13, atol=1e-13)
+
+
+def test_nan_in_free_flyer_pose_warns_even_when_result_is_pose_independent():
+    """M(q) does not depend on a floating base's pose, so it stays finite; the warning still comes."""
+    model = tree()
+    q = valid_inputs(model)["q"]
+    q[0] = np.nan
+    with pytest.warns(RuntimeWarning, match="NaN"):
+        M = mb.mass_matrix(model, q)
+    np.testing.assert_allclose(M, mb.mass_matrix(model, valid_inputs(model)["q"]), rtol=1e-12, atol=1e-12)
+    with pytest.warns(RuntimeWarning, match="NaN"):
+        assert np.isnan(mb.potential_energy(model, q))
+
+
+V_FUNCTIONS = [pytest.param(fn, arg, id=f"{fn}-{arg}") for fn, (_, _, args) in FUNCTIONS.items()
+               for arg in args if arg in ("v", "a", "tau", "f_ext")]
+
+
+# NumPy's own "invalid value encountered" warnings (inf − inf, 0 · inf) are expected here.
+@pytest.mark.filterwarnings("ignore:invalid value encountered:RuntimeWarning")
+@pytest.mark.parametrize("value", [np.nan, np.inf], ids=["nan", "inf"])
+@pytest.mark.parametrize("name, arg", V_FUNCTIONS)
+def test_non_finite_velocity_like_inputs_warn_and_propagate(name, arg, value):
+    model = FUNCTIONS[name][0]()
+    key = "a" if arg == "tau" else arg
+    x = valid_inputs(model, batch=(2,))[key].copy()
+    x[1].flat[0] = value
+    with pytest.warns(RuntimeWarning, match=f"{arg} contains NaN or infinite"):
+        out = call(name, **{arg: x})
+    assert not np.all(np.isfinite(out[1]))
+    assert np.isnan(out[1]).any() or np.isinf(out[1]).any()
+    assert np.all(np.isfinite(out[0]))
+
+
+# ============================================================================= f_ext, methods
+
+@pytest.mark.parametrize("name", ["inverse_dynamics", "forward_dynamics"])
+@pytest.mark.parametrize("shape", ["with_universe", "three_components", "flat", "transposed"])
+def test_wrong_f_ext_shape_raises(name, shape):
+    nj = tree().njoints
+    value = {
+        "with_universe": np.zeros((nj + 1, 6)),  # Pinocchio's list has an entry for the universe; ours does not
+        "three_components": np.zeros((nj, 3)),
+        "flat": np.zeros(6 * nj),
+        "transposed": np.zeros((6, nj)),
+    }[shape]
+    with pytest.raises(ValueError, match=re.escape(f"(..., {nj}, 6)")):
+        call(name, f_ext=value)
+
+
+@pytest.mark.parametrize("name", ["inverse_dynamics", "forward_dynamics"])
+def test_f_ext_batch_must_broadcast(name):
+    model = tree()
+    inputs = valid_inputs(model, batch=(3,))
+    with pytest.raises(ValueError):
+        call(name, **{**inputs, "f_ext": np.zeros((2, model.njoints, 6))})
+    # One force set broadcasts against a batch of states, like any other argument.
+    f = valid_inputs(model, seed=5)["f_ext"]
+    out = call(name, **{**inputs, "f_ext": f})
+    expected = call(name, **{**inputs, "f_ext": np.broadcast_to(f, (3,) + f.shape)})
+    np.testing.assert_allclose(out, expected, rtol=1e-13, atol=1e-13)
+
+
+def test_zero_f_ext_equals_none():
+    model = tree()
+    inputs = valid_inputs(model, batch=(2,))
+    zero = np.zeros((2, model.njoints, 6))
+    for fn in (mb.inverse_dynamics, mb.forward_dynamics):
+        # Equal up to rounding (the two paths broadcast differently).
+        assert_rel(fn(model, inputs["q"], inputs["v"], inputs["a"], f_ext=zero),
+                   fn(model, inputs["q"], inputs["v"], inputs["a"]), 1e-13, fn.__name__)
+
+
+@pytest.mark.parametrize("method", ["foo", "CRBA", "aba", "", None])
+def test_unknown_mass_matrix_method(method):
+    model = tree()
+    with pytest.raises(ValueError, match="crba"):
+        mb.mass_matrix(model, model.neutral(), method=method)
+
+
+@pytest.mark.parametrize("method", ["foo", "Recursive", "christoffel", "crba", None])
+def test_unknown_coriolis_method(method):
+    model = tree()
+    with pytest.raises(ValueError, match="recursive"):
+        mb.coriolis_matrix(model, model.neutral(), np.zeros(model.nv), method=method)
+
+
+# ============================================================================= no degrees of freedom
+
+@pytest.mark.parametrize("batch", [(), (3,), (2, 4)], ids=["single", "3", "2x4"])
+def test_zero_dof_model(batch):
+    model = mb.load_urdf(STATUE_URDF)
+    assert (model.nq, model.nv, model.njoints) == (0, 0, 0)
+    assert len(model.body_names) == 3
+    q = np.zeros(batch + (0,))
+    v = np.zeros(batch + (0,))
+    f = np.zeros(batch + (0, 6))
+    matrices = {
+        "mass_matrix": mb.mass_matrix(model, q),
+        "mass_matrix[lagrangian]": mb.mass_matrix(model, q, method="lagrangian"),
+        "coriolis_matrix": mb.coriolis_matrix(model, q, v),
+        "coriolis_matrix[lagrangian]": mb.coriolis_matrix(model, q, v, method="lagrangian"),
+        "inverse_mass_matrix": mb.inverse_mass_matrix(model, q),
+    }
+    vectors = {
+        "generalized_gravity": mb.generalized_gravity(model, q),
+        "bias_forces": mb.bias_forces(model, q, v),
+        "inverse_dynamics": mb.inverse_dynamics(model, q, v, v),
+        "inverse_dynamics[f_ext]": mb.inverse_dynamics(model, q, v, v, f_ext=f),
+        "forward_dynamics": mb.forward_dynamics(model, q, v, v),
+        "forward_dynamics[f_ext]": mb.forward_dynamics(model, q, v, v, f_ext=f),
+    }
+    for what, x in matrices.items():
+        assert x.shape == batch + (0, 0), what
+    for what, x in vectors.items():
+        assert x.shape == batch + (0,), what
+    assert mass_matrix_derivative(model, q).shape == batch + (0, 0, 0)
+    T, U = mb.kinetic_energy(model, q, v), mb.potential_energy(model, q)
+    assert np.shape(T) == batch and np.shape(U) == batch
+    # Nothing moves: no kinetic energy, and bodies fixed to the world carry no (constant) potential.
+    np.testing.assert_array_equal(T, np.zeros(batch))
+    np.testing.assert_array_equal(U, np.zeros(batch))
+    with pytest.raises(ValueError, match=re.escape("(..., 0)")):
+        mb.mass_matrix(model, np.zeros(1))
+
+
+def test_singular_mass_matrix_names_the_massless_joint():
+    builder = mb.ModelBuilder("massless_leaf")
+    builder.add_body("arm", joint=mb.joints.Revolute([0, 0, 1]), inertia=mb.inertia.box(1.0, (1, 0.1, 0.1)))
+    builder.add_body("ghost", parent="arm", joint=mb.joints.Revolute([0, 0, 1]), joint_name="ghost_joint")
+    model = builder.build()
+    with pytest.raises(np.linalg.LinAlgError, match="ghost_joint"):
+        mb.forward_dynamics(model, np.zeros(2), np.zeros(2), np.zeros(2))
+    with pytest.raises(np.linalg.LinAlgError, match="ghost_joint"):
+        mb.inverse_mass_matrix(model, np.zeros(2))
+
+
+def test_nan_warns_once_per_call():
+    model = mb.robots.load("double_pendulum")
+    with pytest.warns(RuntimeWarning) as record:
+        mb.generalized_gravity(model, np.array([np.nan, 0.0]))
+    assert len(record) == 1
+    with pytest.warns(RuntimeWarning) as record:
+        mb.bias_forces(model, np.zeros(2), np.array([np.nan, 0.0]))
+    assert len(record) == 1
