@@ -19,8 +19,8 @@ from __future__ import annotations
 import numpy as np
 
 from . import spatial
-from .kinematics import joint_local_poses, joint_velocities, joint_world_poses, world_motion_subspaces
-from .spatial import force_cross, inverse_transform_motion, matvec, motion_cross, transform_force, transpose
+from .kinematics import joint_world_poses, world_motion_subspaces
+from .spatial import force_cross, matvec, motion_cross, transform_force, transpose
 
 
 # ============================================================================= shared pieces
@@ -45,38 +45,33 @@ def _gravity_acceleration(model):
     return np.concatenate([-model.gravity, np.zeros(3)])
 
 
-def _joint_velocity(model, i, v):
-    """``S_i q̇_i``: the joint's spatial velocity in its own frame, ``(..., 6)``."""
-    joint, start = model.joints[i], model.idx_v[i]
-    return matvec(joint.motion_subspace, v[..., start : start + joint.nv])
+def _world_tree(model, q):
+    """World poses of the joint frames, world Plücker motion subspaces ``ξ (..., nv, 6)`` and
+    world inertias ``ᵂI_i = ᵂX_i* I_i ⁱX_W`` ``(..., nj, 6, 6)`` (RBDA eq. 2.66)."""
+    R_WJ, p_WJ = joint_world_poses(model, q)
+    xi = world_motion_subspaces(model, R_WJ, p_WJ)
+    return R_WJ, p_WJ, xi, spatial.transform_inertia(R_WJ, p_WJ, model.spatial_inertias)
 
 
-def _body_velocities(model, R, p, v):
-    """Spatial velocity of every moving body in its joint frame: ``v_i = ⁱX_λ v_λ + S_i q̇_i``.
-
-    Returns lists ``(v_i, S_i q̇_i)`` of ``(..., 6)`` arrays.
-    """
-    velocities, joint_velocities_ = [], []
-    for i, parent in enumerate(model.parents):
-        v_J = _joint_velocity(model, i, v)
-        v_i = v_J if parent < 0 else inverse_transform_motion(R[i], p[i], velocities[parent]) + v_J
-        velocities.append(v_i)
-        joint_velocities_.append(v_J)
-    return velocities, joint_velocities_
+def _support(model):
+    return model.joint_support.astype(float)
 
 
-def _parent_from_child_motion(R, p):
-    """6×6 ``ⁱX_λ``: motion vectors from the parent's frame to joint frame i (pose ``(R, p)`` of i in λ)."""
-    return spatial.motion_transform(*spatial.inverse_pose(R, p))
+def _velocities(model, xi, v):
+    """World velocities ``V_j = Σ_{k ⪯ j} ξ_k v_k`` ``(..., nj, 6)`` and column rates ``ξ̇_k = V_j(k) × ξ_k``."""
+    V = _support(model) @ (xi * v[..., :, None])
+    return V, motion_cross(V[..., model.dof_joint, :], xi)
 
 
 # ============================================================================= RNEA
 
 def inverse_dynamics(model, q, v, a, f_ext=None):
-    """Joint forces ``τ = M(q) a + C(q, v) v + g(q) − Σ Jᵀ f_ext`` by Recursive Newton–Euler.
+    """Joint forces ``τ = M(q) a + C(q, v) v + g(q) − Σ Jᵢᵀ f_ext,i`` by Recursive Newton–Euler.
 
-    RBDA Table 5.1. Shapes: ``q (..., nq)``, ``v, a (..., nv)``, ``f_ext (..., njoints, 6)``
-    (see module docstring) -> ``τ (..., nv)`` (N or N m per coordinate).
+    RBDA Table 5.1, written in world Plücker coordinates (RBDA §5.3, "RNEA in base coordinates"),
+    where every recursion becomes a sum over the subtree or the support of a joint, so all
+    joints are processed at once. Shapes: ``q (..., nq)``, ``v, a (..., nv)``,
+    ``f_ext (..., njoints, 6)`` (see module docstring) -> ``τ (..., nv)`` (N or N m per coordinate).
     Pinocchio counterpart: ``rnea``.
     """
     q, v, a, _, f_ext, batch = _check(model, q, v, a, f_ext=f_ext)
@@ -85,40 +80,18 @@ def inverse_dynamics(model, q, v, a, f_ext=None):
 
 def _rnea(model, q, v, a, f_ext, batch):
     """:func:`inverse_dynamics` on validated arrays with common batch shape ``batch``."""
-    R, p = joint_local_poses(model, q)
-    inertia = model.spatial_inertias
-    a0 = _gravity_acceleration(model)
-
-    # Forward pass: velocities, accelerations and the net force each body needs.
-    velocities, accelerations, forces = [], [], []
-    for i, parent in enumerate(model.parents):
-        joint, start = model.joints[i], model.idx_v[i]
-        S = joint.motion_subspace
-        v_J = matvec(S, v[..., start : start + joint.nv])
-        # v_i = ⁱX_λ v_λ + S_i q̇_i
-        v_i = v_J if parent < 0 else inverse_transform_motion(R[i], p[i], velocities[parent]) + v_J
-        # a_i = ⁱX_λ a_λ + S_i q̈_i + v_i × S_i q̇_i
-        a_parent = a0 if parent < 0 else accelerations[parent]
-        a_i = inverse_transform_motion(R[i], p[i], a_parent) + matvec(S, a[..., start : start + joint.nv]) \
-            + motion_cross(v_i, v_J)
-        # f_i = I_i a_i + v_i ×* I_i v_i − f_ext_i
-        f_i = matvec(inertia[i], a_i) + force_cross(v_i, matvec(inertia[i], v_i))
-        if f_ext is not None:
-            f_i = f_i - f_ext[..., i, :]
-        velocities.append(v_i)
-        accelerations.append(a_i)
-        forces.append(np.broadcast_to(f_i, batch + (6,)))
-
-    # Backward pass: project onto the joint axes and pass the rest to the parent.
-    tau = np.empty(batch + (model.nv,))
-    for i in range(model.njoints - 1, -1, -1):
-        joint, start, parent = model.joints[i], model.idx_v[i], model.parents[i]
-        # τ_i = S_iᵀ f_i
-        tau[..., start : start + joint.nv] = matvec(joint.motion_subspace.T, forces[i])
-        # f_λ += ᵏX_iᵀ f_i  (the force transmitted to the parent, in the parent's frame)
-        if parent >= 0:
-            forces[parent] = forces[parent] + transform_force(R[i], p[i], forces[i])
-    return tau
+    R_WJ, p_WJ, xi, inertia = _world_tree(model, q)
+    # Forward: v_i = v_λ + ξ_i q̇_i ;  a_i = a_λ + ξ_i q̈_i + ξ̇_i q̇_i  (summed over each support)
+    V, xi_dot = _velocities(model, xi, v)
+    A = _gravity_acceleration(model) + _support(model) @ (xi * a[..., :, None] + xi_dot * v[..., :, None])
+    # f_i = I_i a_i + v_i ×* I_i v_i − f_ext_i
+    F = matvec(inertia, A) + force_cross(V, matvec(inertia, V))
+    if f_ext is not None:
+        F = F - transform_force(R_WJ, p_WJ, f_ext)
+    # Backward: the force a joint transmits is the sum over its subtree;  τ_k = ξ_kᵀ f_subtree(j(k))
+    F_subtree = model.descendants.astype(float) @ F
+    tau = np.sum(xi * F_subtree[..., model.dof_joint, :], axis=-1)
+    return np.broadcast_to(tau, batch + (model.nv,))
 
 
 def generalized_gravity(model, q):
@@ -145,7 +118,7 @@ def bias_forces(model, q, v):
 def mass_matrix(model, q, method="crba"):
     """Joint-space inertia matrix ``M(q)``, full and symmetric: ``(..., nq) -> (..., nv, nv)``.
 
-    ``method="crba"``: Composite Rigid Body Algorithm (RBDA Table 6.2).
+    ``method="crba"``: Composite Rigid Body Algorithm (RBDA Table 6.2) in world coordinates.
     ``method="lagrangian"``: ``M = Σᵢ Jᵢᵀ Iᵢ Jᵢ`` from the world-frame Jacobian ``Jᵢ`` and inertia
     ``Iᵢ`` of each body, the kinetic energy ``T = ½ vᵀ M v`` made explicit.
     Pinocchio counterpart: ``crba`` (upper triangle, symmetrised).
@@ -162,42 +135,23 @@ def mass_matrix(model, q, method="crba"):
 
 
 def _mass_matrix_crba(model, q):
-    R, p = joint_local_poses(model, q)
+    _, _, xi, inertia = _world_tree(model, q)
     batch = q.shape[:-1]
-    # Composite inertias, leaves to root: I^c_λ += ⁱX_λᵀ I^c_i ⁱX_λ.
-    composite = [np.broadcast_to(inertia, batch + (6, 6)) for inertia in model.spatial_inertias]
-    X_up = [_parent_from_child_motion(R[i], p[i]) for i in range(model.njoints)]
-    for i in range(model.njoints - 1, -1, -1):
-        parent = model.parents[i]
-        if parent >= 0:
-            composite[parent] = composite[parent] + transpose(X_up[i]) @ composite[i] @ X_up[i]
-
-    M = np.zeros(batch + (model.nv, model.nv))
-    for i, joint in enumerate(model.joints):
-        rows = slice(model.idx_v[i], model.idx_v[i] + joint.nv)
-        # F = I^c_i S_i ;  M_ii = S_iᵀ F
-        F = composite[i] @ joint.motion_subspace
-        diagonal = joint.motion_subspace.T @ F
-        M[..., rows, rows] = 0.5 * (diagonal + transpose(diagonal))  # exactly symmetric
-        # Walk to the root: F = ʲX_λᵀ F ;  M_ij = Fᵀ S_j = M_jiᵀ
-        j = i
-        while model.parents[j] >= 0:
-            F = transpose(X_up[j]) @ F
-            j = model.parents[j]
-            cols = slice(model.idx_v[j], model.idx_v[j] + model.joints[j].nv)
-            block = transpose(F) @ model.joints[j].motion_subspace
-            M[..., rows, cols] = block
-            M[..., cols, rows] = transpose(block)
-    return M
+    # Composite inertias: in world coordinates, I^c_i is the plain sum of the subtree's inertias.
+    composite = (model.descendants.astype(float) @ inertia.reshape(batch + (model.njoints, 36))).reshape(
+        batch + (model.njoints, 6, 6))
+    # F_l = I^c_j(l) ξ_l ;  M_kl = ξ_kᵀ F_l when k's joint supports l's (RBDA eq. 6.14)
+    F = matvec(composite[..., model.dof_joint, :, :], xi)
+    products = xi @ transpose(F)
+    upper = np.where(model.dof_ancestor, products, 0.0)
+    M = upper + transpose(np.where(model.dof_same_joint, 0.0, upper))
+    return 0.5 * (M + transpose(M))  # exactly symmetric
 
 
 def _world_body_jacobians_and_inertias(model, q):
     """World Plücker Jacobian ``(..., nj, 6, nv)`` and world inertia ``(..., nj, 6, 6)`` of each body."""
-    R_WJ, p_WJ = joint_world_poses(model, q)
-    xi = world_motion_subspaces(model, R_WJ, p_WJ)
+    _, _, xi, inertias = _world_tree(model, q)
     jacobians = transpose(xi)[..., None, :, :] * model.joint_support[:, None, :]
-    # I_i in world coordinates: ᵂX_i* I_i ⁱX_W (RBDA eq. 2.66).
-    inertias = spatial.transform_inertia(R_WJ, p_WJ, model.spatial_inertias)
     return jacobians, inertias
 
 
@@ -237,13 +191,10 @@ def _bar_force_cross_matrix(f):
 
 
 def _coriolis_recursive(model, q, v):
-    R_WJ, p_WJ = joint_world_poses(model, q)
-    xi = world_motion_subspaces(model, R_WJ, p_WJ)
-    V = joint_velocities(model, xi, v)
-    inertias = spatial.transform_inertia(R_WJ, p_WJ, model.spatial_inertias)
-    support = model.joint_support[:, None, :]
+    _, _, xi, inertias = _world_tree(model, q)
     # J̇ column k: ξ̇_k = V_j(k) × ξ_k, the column moves with its own joint.
-    xi_dot = motion_cross(V[..., model.dof_joint, :], xi)
+    V, xi_dot = _velocities(model, xi, v)
+    support = model.joint_support[:, None, :]
     jacobians = transpose(xi)[..., None, :, :] * support
     jacobian_rates = transpose(xi_dot)[..., None, :, :] * support
     # B_i = ½ [(V_i×*) I_i + (I_i V_i)×̄* − I_i (V_i×)]
@@ -251,7 +202,7 @@ def _coriolis_recursive(model, q, v):
     B = 0.5 * (spatial.force_cross_matrix(V) @ inertias + _bar_force_cross_matrix(momentum)
                - inertias @ spatial.motion_cross_matrix(V))
     # C = Σ_i J_iᵀ (I_i J̇_i + B_i J_i)
-    return np.einsum("...ick,...icl->...kl", jacobians, inertias @ jacobian_rates + B @ jacobians)
+    return np.einsum("...ick,...icl->...kl", jacobians, inertias @ jacobian_rates + B @ jacobians, optimize=True)
 
 
 def _coriolis_christoffel(model, q, v):
@@ -274,9 +225,7 @@ def mass_matrix_derivative(model, q):
     of a body that k supports, ``∂I_b/∂q_k = (ξ_k×*) I_b − I_b (ξ_k×)``.
     """
     q = model.check_configuration(q)
-    R_WJ, p_WJ = joint_world_poses(model, q)
-    xi = world_motion_subspaces(model, R_WJ, p_WJ)
-    inertias = spatial.transform_inertia(R_WJ, p_WJ, model.spatial_inertias)
+    _, _, xi, inertias = _world_tree(model, q)
     support = model.joint_support  # (nj, nv)
     # ∂ξ_l/∂q_k is non-zero when k's joint is a strict ancestor of l's joint.
     strict = model.ancestors[model.dof_joint][:, model.dof_joint].T & (model.dof_joint[:, None] != model.dof_joint[None, :])
@@ -294,65 +243,72 @@ def mass_matrix_derivative(model, q):
 
 # ============================================================================= ABA
 
-def _articulated_inertias(model, R, p, batch):
-    """Backward pass of ABA for the q-dependent part (RBDA Table 7.1, second loop).
+def _joint_columns(model, xi, i):
+    """World motion subspace of joint i as a ``(..., 6, nv_i)`` matrix."""
+    start = model.idx_v[i]
+    return transpose(xi[..., start : start + model.joints[i].nv, :])
 
-    Returns per joint ``U_i = I^A_i S_i``, ``D_i⁻¹ = (S_iᵀ U_i)⁻¹`` and ``I^a_i = I^A_i − U_i D_i⁻¹ U_iᵀ``,
-    plus the 6×6 ``ⁱX_λ`` transforms.
+
+def _inverse(D):
+    """Inverse of the small SPD matrices ``D (..., n, n)``; a reciprocal when ``n = 1``."""
+    if D.shape[-1] == 1:
+        with np.errstate(divide="ignore"):  # a zero pivot is reported by the caller, by joint name
+            return 1.0 / D
+    return np.linalg.inv(D)
+
+
+def _articulated_inertias(model, xi, inertia):
+    """Backward pass of ABA for the q-dependent part (RBDA Table 7.1, second loop), in world coordinates.
+
+    Returns per joint ``U_i = I^A_i S_i``, ``D_i⁻¹ = (S_iᵀ U_i)⁻¹`` and ``I^a_i = I^A_i − U_i D_i⁻¹ U_iᵀ``.
+    In world coordinates a child's articulated inertia adds to its parent's without transformation.
     """
     n = model.njoints
-    articulated = [np.broadcast_to(inertia, batch + (6, 6)) for inertia in model.spatial_inertias]
-    X_up = [_parent_from_child_motion(R[i], p[i]) for i in range(n)]
+    articulated = [inertia[..., i, :, :] for i in range(n)]
     U, D_inv, projected = [None] * n, [None] * n, [None] * n
     for i in range(n - 1, -1, -1):
-        S = model.joints[i].motion_subspace
+        S = _joint_columns(model, xi, i)
         U[i] = articulated[i] @ S
         try:
-            D_inv[i] = np.linalg.inv(S.T @ U[i])
+            D_inv[i] = _inverse(transpose(S) @ U[i])
         except np.linalg.LinAlgError:
+            D_inv[i] = None
+        if D_inv[i] is None or not np.all(np.isfinite(D_inv[i])[np.isfinite(U[i]).all(axis=(-1, -2))]):
             raise np.linalg.LinAlgError(
                 f"the mass matrix is singular: joint {model.joint_names[i]!r} moves no inertia "
-                "(its articulated inertia Sᵀ I^A S is singular); give the bodies it carries mass and inertia"
-            ) from None
-        # I^a_i = I^A_i − U_i D_i⁻¹ U_iᵀ
-        projected[i] = articulated[i] - U[i] @ D_inv[i] @ transpose(U[i])
+                "(its articulated inertia Sᵀ I^A S is singular); give the bodies it carries mass and inertia")
         parent = model.parents[i]
         if parent >= 0:
-            # I^A_λ += ⁱX_λᵀ I^a_i ⁱX_λ
-            articulated[parent] = articulated[parent] + transpose(X_up[i]) @ projected[i] @ X_up[i]
+            # I^a_i = I^A_i − U_i D_i⁻¹ U_iᵀ ;  I^A_λ += I^a_i
+            projected[i] = articulated[i] - U[i] @ D_inv[i] @ transpose(U[i])
+            articulated[parent] = articulated[parent] + projected[i]
     return U, D_inv, projected
 
 
-def _aba_bias_and_accelerations(model, R, p, U, D_inv, projected, velocities, joint_vels, tau, f_ext, a0):
-    """Bias-force backward pass and acceleration forward pass of ABA (RBDA Table 7.1).
+def _aba_bias_and_accelerations(model, xi, U, D_inv, projected, bias, p_art, tau, a0):
+    """Bias-force backward pass and acceleration forward pass of ABA (RBDA Table 7.1), world coordinates.
 
-    All arguments broadcast against each other over their leading axes.
+    ``bias[i] = c_i`` (velocity-product acceleration of joint i), ``p_art[i] = p^A_i`` (bias forces);
+    all arguments broadcast against each other over their leading axes.
     """
     n = model.njoints
-    inertia = model.spatial_inertias
-    # c_i = v_i × S_i q̇_i ;  p^A_i = v_i ×* I_i v_i − f_ext_i
-    bias = [motion_cross(velocities[i], joint_vels[i]) for i in range(n)]
-    p_art = [force_cross(velocities[i], matvec(inertia[i], velocities[i])) for i in range(n)]
-    if f_ext is not None:
-        p_art = [p_art[i] - f_ext[..., i, :] for i in range(n)]
+    p_art = list(p_art)
     u = [None] * n
     for i in range(n - 1, -1, -1):
-        joint, start, parent = model.joints[i], model.idx_v[i], model.parents[i]
+        start, parent = model.idx_v[i], model.parents[i]
+        S = _joint_columns(model, xi, i)
         # u_i = τ_i − S_iᵀ p^A_i
-        u[i] = tau[..., start : start + joint.nv] - matvec(joint.motion_subspace.T, p_art[i])
+        u[i] = tau[..., start : start + model.joints[i].nv] - matvec(transpose(S), p_art[i])
         if parent >= 0:
-            # p^a_i = p^A_i + I^a_i c_i + U_i D_i⁻¹ u_i ;  p^A_λ += ⁱX_λᵀ p^a_i
-            p_a = p_art[i] + matvec(projected[i], bias[i]) + matvec(U[i], matvec(D_inv[i], u[i]))
-            p_art[parent] = p_art[parent] + transform_force(R[i], p[i], p_a)
+            # p^a_i = p^A_i + I^a_i c_i + U_i D_i⁻¹ u_i ;  p^A_λ += p^a_i
+            p_art[parent] = p_art[parent] + p_art[i] + matvec(projected[i], bias[i]) + matvec(U[i], matvec(D_inv[i], u[i]))
 
-    qdd = [None] * n
-    accelerations = [None] * n
+    qdd, accelerations = [None] * n, [None] * n
     for i, parent in enumerate(model.parents):
-        a_parent = a0 if parent < 0 else accelerations[parent]
-        # a'_i = ⁱX_λ a_λ + c_i ;  q̈_i = D_i⁻¹ (u_i − U_iᵀ a'_i) ;  a_i = a'_i + S_i q̈_i
-        a_prime = inverse_transform_motion(R[i], p[i], a_parent) + bias[i]
+        # a'_i = a_λ + c_i ;  q̈_i = D_i⁻¹ (u_i − U_iᵀ a'_i) ;  a_i = a'_i + S_i q̈_i
+        a_prime = (a0 if parent < 0 else accelerations[parent]) + bias[i]
         qdd[i] = matvec(D_inv[i], u[i] - matvec(transpose(U[i]), a_prime))
-        accelerations[i] = a_prime + matvec(model.joints[i].motion_subspace, qdd[i])
+        accelerations[i] = a_prime + matvec(_joint_columns(model, xi, i), qdd[i])
     shape = np.broadcast_shapes(*(x.shape[:-1] for x in qdd))
     return np.concatenate([np.broadcast_to(x, shape + x.shape[-1:]) for x in qdd], axis=-1)
 
@@ -360,17 +316,23 @@ def _aba_bias_and_accelerations(model, R, p, U, D_inv, projected, velocities, jo
 def forward_dynamics(model, q, v, tau, f_ext=None):
     """Accelerations ``a = M⁻¹ (τ + Σ Jᵀ f_ext − C v − g)`` by the Articulated Body Algorithm.
 
-    RBDA Table 7.1 (§7.3). Shapes: ``q (..., nq)``, ``v, tau (..., nv)``, ``f_ext (..., njoints, 6)``
-    -> ``a (..., nv)``. Pinocchio counterpart: ``aba``.
+    RBDA Table 7.1 (§7.3), in world coordinates. Shapes: ``q (..., nq)``, ``v, tau (..., nv)``,
+    ``f_ext (..., njoints, 6)`` -> ``a (..., nv)``. A joint that moves no inertia makes ``M``
+    singular and raises ``numpy.linalg.LinAlgError`` naming it. Pinocchio counterpart: ``aba``.
     """
     q, v, _, tau, f_ext, batch = _check(model, q, v, tau=tau, f_ext=f_ext)
     if model.nv == 0:
         return np.zeros(batch + (0,))
-    R, p = joint_local_poses(model, q)
-    U, D_inv, projected = _articulated_inertias(model, R, p, q.shape[:-1])
-    velocities, joint_vels = _body_velocities(model, R, p, v)
-    a = _aba_bias_and_accelerations(model, R, p, U, D_inv, projected, velocities, joint_vels, tau, f_ext,
-                                    _gravity_acceleration(model))
+    R_WJ, p_WJ, xi, inertia = _world_tree(model, q)
+    U, D_inv, projected = _articulated_inertias(model, xi, inertia)
+    V, xi_dot = _velocities(model, xi, v)
+    # c_i = ξ̇_i q̇_i (the joint's own columns) ;  p^A_i = v_i ×* I_i v_i − f_ext_i
+    bias = model.own_dofs.astype(float) @ (xi_dot * v[..., :, None])
+    p_art = force_cross(V, matvec(inertia, V))
+    if f_ext is not None:
+        p_art = p_art - transform_force(R_WJ, p_WJ, f_ext)
+    a = _aba_bias_and_accelerations(model, xi, U, D_inv, projected, [bias[..., i, :] for i in range(model.njoints)],
+                                    [p_art[..., i, :] for i in range(model.njoints)], tau, _gravity_acceleration(model))
     return np.broadcast_to(a, batch + (model.nv,)).copy()
 
 
@@ -385,14 +347,14 @@ def inverse_mass_matrix(model, q):
     batch = q.shape[:-1]
     if model.nv == 0:
         return np.zeros(batch + (0, 0))
-    R, p = joint_local_poses(model, q)
-    U, D_inv, projected = _articulated_inertias(model, R, p, batch)
+    _, _, xi, inertia = _world_tree(model, q)
+    U, D_inv, projected = _articulated_inertias(model, xi, inertia)
     # A new axis (of length nv, one per unit force) just before the vector/matrix axes.
-    expand = lambda items, k: [np.expand_dims(x, -k - 1) for x in items]  # noqa: E731
-    R, p, U, D_inv, projected = expand(R, 2), expand(p, 1), expand(U, 2), expand(D_inv, 2), expand(projected, 2)
+    expand = lambda items: [None if x is None else x[..., None, :, :] for x in items]  # noqa: E731
+    U, D_inv, projected = expand(U), expand(D_inv), expand(projected)
     zero = [np.zeros(6)] * model.njoints
-    columns = _aba_bias_and_accelerations(model, R, p, U, D_inv, projected, zero, zero,
-                                          np.eye(model.nv), None, np.zeros(6))
+    columns = _aba_bias_and_accelerations(model, xi[..., None, :, :], U, D_inv, projected, zero, zero,
+                                          np.eye(model.nv), np.zeros(6))
     # columns[..., k, :] is M⁻¹ e_k; M⁻¹ is symmetric, so this is already M⁻¹ row by row.
     return np.broadcast_to(columns, batch + (model.nv, model.nv)).copy()
 
@@ -400,17 +362,14 @@ def inverse_mass_matrix(model, q):
 # ============================================================================= energies
 
 def kinetic_energy(model, q, v):
-    """``T = ½ vᵀ M(q) v = Σᵢ ½ v_iᵀ I_i v_i`` (J), with ``v_i`` each body's spatial velocity. ``-> (...)``.
+    """``T = ½ vᵀ M(q) v = Σᵢ ½ Vᵢᵀ Iᵢ Vᵢ`` (J), with ``Vᵢ`` each body's spatial velocity. ``-> (...)``.
 
     Pinocchio counterpart: ``computeKineticEnergy``.
     """
-    q, v, _, _, _, batch = _check(model, q, v)
-    R, p = joint_local_poses(model, q)
-    velocities, _ = _body_velocities(model, R, p, v)
-    energy = np.zeros(batch)
-    for inertia, v_i in zip(model.spatial_inertias, velocities):
-        energy = energy + 0.5 * np.einsum("...i,...i->...", v_i, matvec(inertia, v_i))
-    return energy
+    q, v, *_ = _check(model, q, v)
+    _, _, xi, inertia = _world_tree(model, q)
+    V, _ = _velocities(model, xi, v)
+    return 0.5 * np.sum(V * matvec(inertia, V), axis=(-1, -2))
 
 
 def potential_energy(model, q):

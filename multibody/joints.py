@@ -101,6 +101,19 @@ class Joint:
         return np.zeros(self.nq)
 
     def transform(self, q):
+        """Pose ``(R (..., 3, 3), p (..., 3))`` of the joint frame in the pre-joint frame."""
+        R, p = self.group_transform(self.group_constants([self]), q[..., None, :])
+        return R[..., 0, :, :], p[..., 0, :]
+
+    @classmethod
+    def group_constants(cls, joints):
+        """Constants that :meth:`group_transform` needs for several joints of this type (e.g. axes)."""
+        return None
+
+    @staticmethod
+    def group_transform(constants, q):
+        """Transforms of a group of joints of one type at once: ``q (..., n, nq)`` ->
+        ``R (..., n, 3, 3)``, ``p (..., n, 3)``. The algorithms call this once per joint type."""
         raise NotImplementedError
 
     def integrate(self, q, v):
@@ -150,8 +163,17 @@ class Revolute(Joint):
         object.__setattr__(self, "axis", axis)
         object.__setattr__(self, "motion_subspace", _constant(np.concatenate([np.zeros(3), axis])[:, None]))
 
-    def transform(self, q):
-        return spatial.axis_angle_rotation(self.axis, q[..., 0]), np.zeros(q.shape[:-1] + (3,))
+    @classmethod
+    def group_constants(cls, joints):
+        K = spatial.skew(np.stack([joint.axis for joint in joints]))
+        return K, K @ K
+
+    @staticmethod
+    def group_transform(constants, q):
+        # Rodrigues: R = I + sin θ [a]× + (1 − cos θ) [a]×²
+        K, K2 = constants
+        angle = q[..., 0, None, None]
+        return np.eye(3) + np.sin(angle) * K + (1.0 - np.cos(angle)) * K2, np.zeros(q.shape[:-1] + (3,))
 
     def random(self, rng, lower, upper, shape=()):
         return _random_uniform(rng, lower, upper, np.pi, shape)
@@ -181,9 +203,13 @@ class Prismatic(Joint):
         object.__setattr__(self, "axis", axis)
         object.__setattr__(self, "motion_subspace", _constant(np.concatenate([axis, np.zeros(3)])[:, None]))
 
-    def transform(self, q):
-        R = np.broadcast_to(np.eye(3), q.shape[:-1] + (3, 3))
-        return R, q[..., :1] * self.axis
+    @classmethod
+    def group_constants(cls, joints):
+        return np.stack([joint.axis for joint in joints])
+
+    @staticmethod
+    def group_transform(axes, q):
+        return np.broadcast_to(np.eye(3), q.shape[:-1] + (3, 3)), q[..., :1] * axes
 
     def describe(self):
         return f"{self.kind} axis {np.round(self.axis, 6).tolist()}"
@@ -198,7 +224,8 @@ class Translation(Joint):
     nv: ClassVar[int] = 3
     motion_subspace: ClassVar[np.ndarray] = _constant(np.vstack([np.eye(3), np.zeros((3, 3))]))
 
-    def transform(self, q):
+    @staticmethod
+    def group_transform(constants, q):
         return np.broadcast_to(np.eye(3), q.shape[:-1] + (3, 3)), q
 
 
@@ -220,7 +247,8 @@ class Planar(Joint):
     def neutral(self):
         return np.array([0.0, 0.0, 1.0, 0.0])
 
-    def transform(self, q):
+    @staticmethod
+    def group_transform(constants, q):
         c, s = q[..., 2], q[..., 3]
         norm = np.hypot(c, s)
         c, s = c / norm, s / norm
@@ -299,7 +327,8 @@ class Spherical(Joint):
     def neutral(self):
         return np.array([0.0, 0.0, 0.0, 1.0])
 
-    def transform(self, q):
+    @staticmethod
+    def group_transform(constants, q):
         return spatial.quat_to_rotation(q), np.zeros(q.shape[:-1] + (3,))
 
     def integrate(self, q, v):
@@ -343,7 +372,8 @@ class FreeFlyer(Joint):
     def neutral(self):
         return np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0])
 
-    def transform(self, q):
+    @staticmethod
+    def group_transform(constants, q):
         return spatial.quat_to_rotation(q[..., 3:]), q[..., :3]
 
     def integrate(self, q, v):
@@ -388,5 +418,6 @@ class Fixed(Joint):
     nv: ClassVar[int] = 0
     motion_subspace: ClassVar[np.ndarray] = _constant(np.zeros((6, 0)))
 
-    def transform(self, q):
+    @staticmethod
+    def group_transform(constants, q):
         return np.broadcast_to(np.eye(3), q.shape[:-1] + (3, 3)), np.zeros(q.shape[:-1] + (3,))

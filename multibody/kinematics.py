@@ -14,39 +14,48 @@ from . import spatial
 from .spatial import matvec
 
 
-def joint_local_poses(model, q):
-    """Pose ``X_λ(i),i(q)`` of each joint frame in its parent joint frame.
+def joint_transforms(model, q):
+    """Joint transforms ``X_J(q)`` of all joints, one vectorised call per joint type.
 
-    Returns ``(R, p)`` lists of length ``nj`` with entries ``(..., 3, 3)`` and ``(..., 3)``.
-    ``X_λ(i),i = X_placement,i · X_J,i(q_i)`` (RBDA eq. 4.x: ``X_i = X_J X_T``, written as poses).
+    Returns ``R (..., nj, 3, 3)``, ``p (..., nj, 3)``: the pose of each joint frame in its pre-joint frame.
     """
-    R_local, p_local = [], []
-    for joint, s, X_T in zip(model.joints, model.idx_q, model.joint_placements):
-        R_J, p_J = joint.transform(q[..., s : s + joint.nq])
-        R, p = spatial.compose(X_T[:3, :3], X_T[:3, 3], R_J, p_J)
-        R_local.append(R)
-        p_local.append(p)
-    return R_local, p_local
+    batch = q.shape[:-1]
+    if len(model.joint_groups) == 1:
+        kind, _, q_index, constants = model.joint_groups[0]
+        return kind.group_transform(constants, q[..., q_index])
+    R, p = np.empty(batch + (model.njoints, 3, 3)), np.empty(batch + (model.njoints, 3))
+    for kind, index, q_index, constants in model.joint_groups:
+        R[..., index, :, :], p[..., index, :] = kind.group_transform(constants, q[..., q_index])
+    return R, p
+
+
+def joint_local_poses(model, q):
+    """Pose ``X_λ(i),i(q) = X_T,i X_J,i(q_i)`` of each joint frame in its parent joint frame.
+
+    Returns ``R (..., nj, 3, 3)``, ``p (..., nj, 3)`` (RBDA §4.1: the tree transform ``X_T`` is the
+    joint's placement, followed by the joint transform ``X_J``).
+    """
+    R_J, p_J = joint_transforms(model, q)
+    X_T = model.joint_placements
+    return spatial.compose(X_T[:, :3, :3], X_T[:, :3, 3], R_J, p_J)
 
 
 def joint_world_poses(model, q):
     """World pose of every joint frame: ``R_WJ (..., nj, 3, 3)``, ``p_WJ (..., nj, 3)``.
 
-    ``X_W,i = X_W,λ(i) X_λ(i),i`` down the tree (parents come first in model order).
+    ``X_W,i = X_W,λ(i) X_λ(i),i`` level by level down the tree: all joints of one depth at once.
     """
     q = np.asarray(q, dtype=float)
     R_local, p_local = joint_local_poses(model, q)
-    R_world, p_world = [], []
-    for i, parent in enumerate(model.parents):
-        if parent < 0:
-            R, p = R_local[i], p_local[i]
+    batch = q.shape[:-1]
+    R_world, p_world = np.empty(batch + (model.njoints, 3, 3)), np.empty(batch + (model.njoints, 3))
+    for level, (index, parents) in enumerate(model.levels):
+        if level == 0:
+            R_world[..., index, :, :], p_world[..., index, :] = R_local[..., index, :, :], p_local[..., index, :]
         else:
-            R, p = spatial.compose(R_world[parent], p_world[parent], R_local[i], p_local[i])
-        R_world.append(np.broadcast_to(R, q.shape[:-1] + (3, 3)))
-        p_world.append(np.broadcast_to(p, q.shape[:-1] + (3,)))
-    if not R_world:
-        return np.zeros(q.shape[:-1] + (0, 3, 3)), np.zeros(q.shape[:-1] + (0, 3))
-    return np.stack(R_world, axis=-3), np.stack(p_world, axis=-2)
+            R_world[..., index, :, :], p_world[..., index, :] = spatial.compose(
+                R_world[..., parents, :, :], p_world[..., parents, :], R_local[..., index, :, :], p_local[..., index, :])
+    return R_world, p_world
 
 
 def _body_world_poses(model, R_WJ, p_WJ):

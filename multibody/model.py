@@ -56,6 +56,14 @@ class Mimic:
     offset: float = 0.0
 
 
+def _index(indices):
+    """A contiguous increasing index array as a slice (a view when used), else the array itself."""
+    indices = np.asarray(indices, dtype=int)
+    if indices.size and np.all(np.diff(indices) == 1):
+        return slice(int(indices[0]), int(indices[-1]) + 1)
+    return indices
+
+
 def _frozen(array, dtype=float):
     array = np.array(array, dtype=dtype)
     array.setflags(write=False)
@@ -183,12 +191,59 @@ class Model:
         return _frozen(self.ancestors[:, self.dof_joint], bool)
 
     @cached_property
+    def dof_ancestor(self) -> np.ndarray:
+        """``(nv, nv)`` boolean: coordinate k's joint is l's joint or one of its ancestors."""
+        return _frozen(self.ancestors[np.ix_(self.dof_joint, self.dof_joint)].T, bool)
+
+    @cached_property
+    def own_dofs(self) -> np.ndarray:
+        """``(nj, nv)`` boolean: velocity coordinate k belongs to joint i."""
+        return _frozen(self.dof_joint[None, :] == np.arange(self.njoints)[:, None], bool)
+
+    @cached_property
+    def dof_same_joint(self) -> np.ndarray:
+        """``(nv, nv)`` boolean: coordinates k and l belong to the same joint."""
+        return _frozen(self.dof_joint[:, None] == self.dof_joint[None, :], bool)
+
+    @cached_property
     def body_support(self) -> np.ndarray:
         """``(nb, nv)`` boolean: velocity coordinate k moves body b."""
         out = np.zeros((self.nbodies, self.nv), dtype=bool)
         moving = self.body_joints >= 0
         out[moving] = self.joint_support[self.body_joints[moving]]
         return _frozen(out, bool)
+
+    @cached_property
+    def descendants(self) -> np.ndarray:
+        """``(nj, nj)`` boolean: ``descendants[i, j]`` is true when joint j is i or lies in i's subtree."""
+        return _frozen(self.ancestors.T, bool)
+
+    @cached_property
+    def joint_groups(self) -> tuple:
+        """Joints grouped by type, so that each type's transform runs once for all its joints.
+
+        Tuple of ``(joint type, joint indices (n,), indices into q (n, nq), type constants)``.
+        """
+        members = {}
+        for i, joint in enumerate(self.joints):
+            members.setdefault(type(joint), []).append(i)
+        return tuple(
+            (kind, _index(np.array(idx)), np.array([np.arange(self.idx_q[i], self.idx_q[i] + kind.nq) for i in idx]),
+             kind.group_constants([self.joints[i] for i in idx]))
+            for kind, idx in members.items()
+        )
+
+    @cached_property
+    def levels(self) -> tuple:
+        """Joints by depth in the tree: ``(joint indices, their parents)`` per level, root level first.
+
+        Indices are slices when contiguous, so that a chain costs no fancy indexing.
+        """
+        depth = np.zeros(self.njoints, dtype=int)
+        for i, parent in enumerate(self.parents):
+            depth[i] = 0 if parent < 0 else depth[parent] + 1
+        return tuple((_index(np.flatnonzero(depth == d)), _index(self.parents[depth == d]))
+                     for d in range(depth.max(initial=-1) + 1))
 
     def body_index(self, body) -> int:
         """Index of a body given by name or index; ``ValueError`` names the valid choices."""

@@ -25,19 +25,18 @@ _SMALL_ANGLE = 1e-4
 
 # ----------------------------------------------------------------------------- 3-D basics
 
+_SKEW_PLUS = np.array([7, 2, 3])
+_SKEW_MINUS = np.array([5, 6, 1])
+
+
 def skew(w):
     """Cross-product matrix ``[w]×`` with ``[w]× x = w × x``. ``(..., 3) -> (..., 3, 3)``."""
     w = np.asarray(w, dtype=float)
-    zero = np.zeros(w.shape[:-1])
-    wx, wy, wz = w[..., 0], w[..., 1], w[..., 2]
-    return np.stack(
-        [
-            np.stack([zero, -wz, wy], axis=-1),
-            np.stack([wz, zero, -wx], axis=-1),
-            np.stack([-wy, wx, zero], axis=-1),
-        ],
-        axis=-2,
-    )
+    out = np.zeros(w.shape[:-1] + (9,))
+    # Row-major entries (2,1), (0,2), (1,0) hold +w; (1,2), (2,0), (0,1) hold −w.
+    out[..., _SKEW_PLUS] = w
+    out[..., _SKEW_MINUS] = -w
+    return out.reshape(w.shape[:-1] + (3, 3))
 
 
 _NEXT = np.array([1, 2, 0])
@@ -47,12 +46,12 @@ _PREVIOUS = np.array([2, 0, 1])
 def cross(a, b):
     """Batched 3-D cross product ``a × b``, ``(..., 3), (..., 3) -> (..., 3)`` (cheaper than ``np.cross``)."""
     # (a × b)_i = a_{i+1} b_{i+2} − a_{i+2} b_{i+1}
-    return a[..., _NEXT] * b[..., _PREVIOUS] - a[..., _PREVIOUS] * b[..., _NEXT]
+    return a.take(_NEXT, -1) * b.take(_PREVIOUS, -1) - a.take(_PREVIOUS, -1) * b.take(_NEXT, -1)
 
 
 def matvec(A, x):
     """Batched matrix–vector product ``A x``. ``(..., n, k), (..., k) -> (..., n)``."""
-    return np.einsum("...ij,...j->...i", A, x)
+    return (A @ x[..., None])[..., 0]
 
 
 def transpose(A):
