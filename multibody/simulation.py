@@ -1,9 +1,10 @@
 """Time integration of (constrained) equations of motion: ``mb.simulate``.
 
 The state is ``(q, v)`` with ``q̇ = G(q) v`` (``model.configuration_rate``) and ``v̇ = a`` from the
-KKT solve of :class:`~multibody.constrained.ConstrainedSystem`. Adaptive methods are SciPy's
-(``scipy.integrate.RK45``, ``DOP853``, ``Radau``, ...); ``"RK4"`` is the classical fixed-step method.
-After every step the state is put back on the configuration manifold (unit quaternions) and, with
+KKT solve of :class:`~multibody.constrained.ConstrainedSystem`. Adaptive methods run through
+``scipy.integrate.solve_ivp`` (RK45, DOP853, Radau, ...) from one output time to the next;
+``"RK4"`` is the classical fixed-step method with step ``dt``. At every output time (every step
+for RK4) the state is put back on the configuration manifold (unit quaternions) and, with
 ``project=True``, onto the constraints ``φ = 0`` and ``A v + b = 0``.
 """
 
@@ -13,7 +14,7 @@ import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import integrate
+from scipy.integrate import solve_ivp
 
 from .constrained import ConstrainedSystem, ConstraintError
 
@@ -79,11 +80,12 @@ def simulate(system, q0, v0, t_final, *, dt=None, method="RK45", tau=None, rtol=
         q0, v0: initial state ``(nq,)``, ``(nv,)``. An inconsistent state is projected onto the
             constraints with a warning giving the distance moved; if that fails, ``ConstraintError``.
         t_final: end time (s).
-        dt: output interval (s), and the step of ``"RK4"``; default ``(t_final − t0) / 500``.
+        dt: output interval (s), which is also the projection interval, and the step of ``"RK4"``;
+            default ``(t_final − t0) / 500``.
         method: ``"RK45"``, ``"DOP853"``, ``"Radau"`` (or ``"RK23"``, ``"BDF"``, ``"LSODA"``), or ``"RK4"``.
         tau: joint forces: ``None``, an array ``(nv,)``, or a callable ``tau(t, q, v) -> (nv,)``.
         rtol, atol: tolerances of the adaptive methods.
-        project: project onto the constraints after every step (default ``True``).
+        project: project onto the constraints at every output time (default ``True``).
         max_step: largest internal step of the adaptive methods (s).
     Returns:
         :class:`Trajectory`.
@@ -134,7 +136,6 @@ def simulate(system, q0, v0, t_final, *, dt=None, method="RK45", tau=None, rtol=
         q_t, v_t = normalize(y[:nq]), y[nq:]
         return constrained.project(q_t, v_t, t) if project else (q_t, v_t)
 
-    solvers = {name: getattr(integrate, name) for name in ADAPTIVE_METHODS}
     step_size = None
     n_intervals = int(np.ceil((t_final - t0) / dt - 1e-9))
     times = np.minimum(t0 + dt * np.arange(n_intervals + 1), t_final)
@@ -169,17 +170,16 @@ def simulate(system, q0, v0, t_final, *, dt=None, method="RK45", tau=None, rtol=
             if method == "RK4":
                 q, v = settle(t_end, rk4_step(t_start, y, t_end - t_start))
             else:
-                # Adaptive steps up to the next output time, each followed by the projection; a new
-                # solver starts from the projected state with the step size the last one reached.
-                t = t_start
-                while t < t_end:
-                    solver = solvers[method](derivative, t, np.concatenate([q, v]), t_end, rtol=rtol, atol=atol,
-                                             max_step=max_step, first_step=min(step_size, t_end - t) if step_size else None)
-                    message = solver.step()
-                    if solver.status == "failed":
-                        raise SimulationError(f"{method} failed at t = {t:.6g} s: {message}", None)
-                    t, step_size = solver.t, solver.step_size
-                    q, v = settle(t, solver.y)
+                # Adaptive steps up to the next output time, then the projection; the next interval
+                # starts with the step size this one ended with, so no step-size search is repeated.
+                options = {"first_step": min(step_size, t_end - t_start)} if step_size else {}
+                result = solve_ivp(derivative, (t_start, t_end), y, method=method, rtol=rtol, atol=atol,
+                                   max_step=max_step, **options)
+                if not result.success:
+                    raise SimulationError(f"{method} failed at t = {t_start:.6g} s: {result.message}", None)
+                # The last step may have been shortened to land on t_end: take the longer of the last two.
+                step_size = np.diff(result.t)[-2:].max()
+                q, v = settle(t_end, result.y[:, -1])
             append(t_end, q, v)
     except (SimulationError, ConstraintError, np.linalg.LinAlgError, ValueError, FloatingPointError) as exc:
         t_fail = record["t"][-1] if record["t"] else t0
