@@ -258,6 +258,10 @@ class PointOnCurve(Constraint):
             s = s - step
             if np.all(np.abs(step) <= 1e-15 * (1.0 + np.abs(s))):
                 break
+        low, high = self.s_grid[0], self.s_grid[-1]
+        if np.any((s < low) | (s > high)):
+            raise ValueError(f"{self.name}: the closest point of the curve lies outside s_range = ({low:g}, {high:g}) "
+                             "(the point has left the curve's parameter range); widen s_range")
         return s
 
     def _geometry(self, x):
@@ -289,8 +293,9 @@ class PointOnCurve(Constraint):
         t_dot = matvec(projector, self._d2(s)) * s_dot / np.sqrt(speed2)
         P_dot_x_dot = -t_dot * np.sum(tangent * x_dot, axis=-1, keepdims=True) \
             - tangent * np.sum(t_dot * x_dot, axis=-1, keepdims=True)
-        # γ = −(Ṗ ẋ + P J̇v)
-        gamma = -(P_dot_x_dot + matvec(projector, J_dot_v[..., :3]))
+        # γ = −P (Ṗ ẋ + J̇v): the rows P J are orthogonal to t, so only γ's normal part can be met
+        # (its tangential part vanishes on the velocity manifold anyway).
+        gamma = -matvec(projector, P_dot_x_dot + J_dot_v[..., :3])
         return projector @ J[..., :3, :], np.zeros_like(gamma), gamma
 
 
