@@ -83,6 +83,16 @@ class Constraint:
         """``(A, b, γ)`` at one state; built-in constraints share one kinematics pass between them."""
         return self.jacobian(system, q, t), self.velocity_bias(system, q, t), self.acceleration_rhs(system, q, v, t)
 
+    def body_forces(self, system, q, lam, t=0.0):
+        """Spatial forces the constraint exerts on the bodies for multipliers ``lam (m,)``.
+
+        Returned in the ``f_ext`` layout of :func:`multibody.inverse_dynamics`: ``(njoints, 6)``,
+        each body's force in its joint frame, so that ``Σ Jᵀ f = Aᵀ λ``. Only constraints that act
+        through body points define it.
+        """
+        raise TypeError(f"{self.name} acts on generalized coordinates, not through body points: "
+                        "it has no body forces (its generalized force is Aᵀ λ)")
+
     def __repr__(self):
         return f"{type(self).__name__}({self.name!r})"
 
@@ -194,6 +204,22 @@ def _frame(system, q, v, body, placement):
     return kinematics.frame_kinematics(system, q, v, body, placement)
 
 
+def _wrenches(model, q, loads):
+    """``f_ext (njoints, 6)`` from world-frame loads ``(body, force (3,), application point (3,), moment (3,))``."""
+    R_WJ, p_WJ = kinematics.joint_world_poses(model, q)
+    f_ext = np.zeros((model.njoints, 6))
+    for body, force, point, moment in loads:
+        if body is None:
+            continue  # the world takes it
+        joint = model.body_joints[model.body_index(body)]
+        if joint < 0:
+            continue
+        # World Plücker force at the origin: [f; p × f + n], then into the joint frame.
+        world = np.concatenate([force, spatial.cross(point, force) + moment])
+        f_ext[joint] += spatial.inverse_transform_force(R_WJ[joint], p_WJ[joint], world)
+    return f_ext
+
+
 def _point_placement(point):
     placement = np.eye(4)
     if point is not None:
@@ -276,6 +302,12 @@ class PointOnCurve(Constraint):
         s, _, _, projector = self._geometry(x)
         return matvec(projector, x - self.curve(s))
 
+    def body_forces(self, system, q, lam, t=0.0):
+        model = _require_model(system, self)
+        _, x, _, _ = _frame(model, q, None, self.body, self.placement)
+        # Aᵀλ = Jᵀ P λ: the force P λ at the bead
+        return _wrenches(model, q, [(self.body, self._geometry(x)[3] @ lam, x, np.zeros(3))])
+
     def jacobian(self, system, q, t=0.0):
         _, x, J, _ = _frame(_require_model(system, self), q, None, self.body, self.placement)
         return self._geometry(x)[3] @ J[..., :3, :]
@@ -330,6 +362,12 @@ class PointOnSurface(Constraint):
         _, x, _, _ = _frame(_require_model(system, self), q, None, self.body, self.placement)
         return np.asarray(self.surface(x), dtype=float)[..., None]
 
+    def body_forces(self, system, q, lam, t=0.0):
+        model = _require_model(system, self)
+        _, x, _, _ = _frame(model, q, None, self.body, self.placement)
+        # Aᵀλ = Jᵀ ∇f λ: the force ∇f λ at the point
+        return _wrenches(model, q, [(self.body, self._gradient(x) * lam[0], x, np.zeros(3))])
+
     def jacobian(self, system, q, t=0.0):
         _, x, J, _ = _frame(_require_model(system, self), q, None, self.body, self.placement)
         return matvec(transpose(J[..., :3, :]), self._gradient(x))[..., None, :]
@@ -378,6 +416,14 @@ class Distance(Constraint):
     def position(self, system, q, t=0.0):
         (_, x_a, _, _), (_, x_b, _, _) = self._points(system, q, None)
         return (self.distance - np.linalg.norm(x_a - x_b, axis=-1))[..., None]
+
+    def body_forces(self, system, q, lam, t=0.0):
+        (_, x_a, _, _), (_, x_b, _, _) = self._points(system, q, None)
+        u = (x_a - x_b) / np.linalg.norm(x_a - x_b)
+        # Aᵀλ = J_aᵀ(−u λ) + J_bᵀ(u λ): the rod pulls a towards b and b towards a
+        zero = np.zeros(3)
+        return _wrenches(_require_model(system, self), q,
+                         [(self.body_a, -u * lam[0], x_a, zero), (self.body_b, u * lam[0], x_b, zero)])
 
     def jacobian(self, system, q, t=0.0):
         return self.evaluate(system, q, np.zeros(system.nv), t)[0]
@@ -459,6 +505,17 @@ class LoopClosure(Constraint):
     def jacobian(self, system, q, t=0.0):
         (R_a, p_a, J_a, _), (R_b, p_b, J_b, _) = self._frames(system, q, None)
         return self._rows(R_a, p_a, J_a, R_b, p_b, J_b)
+
+    def body_forces(self, system, q, lam, t=0.0):
+        (R_a, _, _, _), (R_b, p_b, _, _) = self._frames(system, q, None)
+        k = len(self.position_axes)
+        # Position rows: the force R_a Sᵀ λ on B at p_B, and its opposite on A at the same point.
+        force = R_a[:, list(self.position_axes)] @ lam[:k]
+        # Orientation rows: the moment Σ (e_i × f_j) λ on A, and its opposite on B.
+        moment = sum((spatial.cross(R_a[:, i], R_b[:, j]) * lam[k + r] for r, (i, j) in enumerate(self.aligned_axes)),
+                     np.zeros(3))
+        return _wrenches(_require_model(system, self), q,
+                         [(self.body_b, force, p_b, -moment), (self.body_a, -force, p_b, moment)])
 
     def _rows(self, R_a, p_a, J_a, R_b, p_b, J_b):
         # d/dt R_aᵀ(p_b − p_a) = R_aᵀ (ẋ_b − ẋ_a − ω_a × Δ): B's velocity relative to the point of

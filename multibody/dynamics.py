@@ -80,6 +80,13 @@ def inverse_dynamics(model, q, v, a, f_ext=None):
 
 def _rnea(model, q, v, a, f_ext, batch):
     """:func:`inverse_dynamics` on validated arrays with common batch shape ``batch``."""
+    _, _, xi, F_subtree = _rnea_forces(model, q, v, a, f_ext)
+    tau = np.sum(xi * F_subtree[..., model.dof_joint, :], axis=-1)
+    return np.broadcast_to(tau, batch + (model.nv,))
+
+
+def _rnea_forces(model, q, v, a, f_ext):
+    """RNEA up to the joint forces: world poses, ``ξ``, and the force each joint transmits (world Plücker)."""
     R_WJ, p_WJ, xi, inertia = _world_tree(model, q)
     # Forward: v_i = v_λ + ξ_i q̇_i ;  a_i = a_λ + ξ_i q̈_i + ξ̇_i q̇_i  (summed over each support)
     V, xi_dot = _velocities(model, xi, v)
@@ -89,9 +96,21 @@ def _rnea(model, q, v, a, f_ext, batch):
     if f_ext is not None:
         F = F - transform_force(R_WJ, p_WJ, f_ext)
     # Backward: the force a joint transmits is the sum over its subtree;  τ_k = ξ_kᵀ f_subtree(j(k))
-    F_subtree = model.descendants.astype(float) @ F
-    tau = np.sum(xi * F_subtree[..., model.dof_joint, :], axis=-1)
-    return np.broadcast_to(tau, batch + (model.nv,))
+    return R_WJ, p_WJ, xi, model.descendants.astype(float) @ F
+
+
+def joint_reaction_forces(model, q, v, a, f_ext=None):
+    """Spatial force each joint transmits from its parent to its child body: ``(..., njoints, 6)``.
+
+    The force ``[f; n]`` (N, N m) the parent exerts on the subtree of joint i through the joint,
+    expressed in joint frame i at its origin: the RNEA backward-pass force ``f_i`` (RBDA Table 5.1).
+    Its projection on the motion subspace is the joint force ``τ_i = S_iᵀ f_i``; the rest is what
+    the joint's bearings carry. Constraint forces enter through ``f_ext`` (see
+    ``ConstrainedSystem.body_forces``). Shapes as :func:`inverse_dynamics`.
+    """
+    q, v, a, _, f_ext, batch = _check(model, q, v, a, f_ext=f_ext)
+    R_WJ, p_WJ, _, F_subtree = _rnea_forces(model, q, v, a, f_ext)
+    return np.broadcast_to(spatial.inverse_transform_force(R_WJ, p_WJ, F_subtree), batch + (model.njoints, 6))
 
 
 def generalized_gravity(model, q):

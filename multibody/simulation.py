@@ -151,12 +151,12 @@ def simulate(system, q0, v0, t_final, *, dt=None, method="RK45", tau=None, rtol=
         record["residual"].append(constrained.residual(q, v, t))
 
     def trajectory(status):
-        m = constrained.num_rows
+        n, m = len(record["t"]), constrained.num_rows
         return Trajectory(
-            t=np.array(record["t"]),
-            q=np.array(record["q"]).reshape(-1, nq),
-            v=np.array(record["v"]).reshape(-1, nv),
-            lam=np.array(record["lam"]).reshape(-1, m),
+            t=np.array(record["t"], dtype=float),
+            q=np.array(record["q"], dtype=float).reshape(n, nq),
+            v=np.array(record["v"], dtype=float).reshape(n, nv),
+            lam=np.array(record["lam"], dtype=float).reshape(n, m),
             energy=np.array(record["energy"], dtype=float),
             residual=np.array(record["residual"], dtype=float),
             row_names=list(constrained.row_names),
