@@ -37,6 +37,7 @@ from .kinematics import (
     point_velocity,
 )
 from .model import Geometry, Mimic, Model, ModelBuilder
+from .rolling import KnifeEdge, RollingDisc, RollingSphere
 from .simulation import SimulationError, Trajectory, simulate
 from .urdf import URDFError, load_urdf
 
@@ -48,11 +49,14 @@ __all__ = [
     "Distance",
     "Holonomic",
     "JointCoupling",
+    "KnifeEdge",
     "KKTSolution",
     "LoopClosure",
     "Pfaffian",
     "PointOnCurve",
     "PointOnSurface",
+    "RollingDisc",
+    "RollingSphere",
     "SimulationError",
     "Trajectory",
     "mimic_constraints",

@@ -125,6 +125,9 @@ class ConstrainedSystem:
             self.baumgarte = (float(alpha), float(beta))
         self.rank_tolerance = rank_tolerance
         self._rows = [c.rows(self.system) for c in self.constraints]
+        masks = [np.asarray(c.position_rows(self.system), dtype=bool) for c in self.constraints]
+        self._position_mask = np.concatenate(masks) if masks else np.zeros(0, dtype=bool)
+        self._has_position = [bool(mask.any()) for mask in masks]
         self.row_names = [f"{c.name}[{k}]" for c, m in zip(self.constraints, self._rows) for k in range(m)]
 
     @property
@@ -138,9 +141,9 @@ class ConstrainedSystem:
         return np.concatenate(pieces, axis=-1 if len(shape) == 1 else -2) if pieces else np.zeros(shape)
 
     def position_error(self, q, t=0.0):
-        """``φ(q, t)`` of the holonomic rows, zeros for the others: ``(m,)``."""
-        pieces = [c.position(self.system, q, t) if c.holonomic else np.zeros(m)
-                  for c, m in zip(self.constraints, self._rows)]
+        """``φ(q, t)`` of the rows with a position level, zeros for the others: ``(m,)``."""
+        pieces = [c.position(self.system, q, t) if has_position else np.zeros(m)
+                  for c, m, has_position in zip(self.constraints, self._rows, self._has_position)]
         return self._stack(pieces, (0,))
 
     def jacobian(self, q, t=0.0):
@@ -254,7 +257,7 @@ class ConstrainedSystem:
     def project(self, q, v, t=0.0, *, tolerance=1e-12, max_iterations=50):
         """The nearest consistent state: ``φ(q', t) = 0`` and ``A v' + b = 0``.
 
-        Positions by Gauss–Newton steps ``δ = −M⁻¹Aᵀ (A M⁻¹ Aᵀ)⁺ φ`` on the holonomic rows (the
+        Positions by Gauss–Newton steps ``δ = −M⁻¹Aᵀ (A M⁻¹ Aᵀ)⁺ φ`` on the rows with a position level (the
         smallest move in the kinetic-energy metric), then velocities by the ``M``-orthogonal
         projection ``v' = v − M⁻¹Aᵀ (A M⁻¹ Aᵀ)⁺ (A v + b)``. Raises :class:`ConstraintError` when the
         positions do not converge.
@@ -263,7 +266,7 @@ class ConstrainedSystem:
         v = np.asarray(v, dtype=float)
         if not self.num_rows:
             return q, v
-        holonomic = np.concatenate([np.full(m, c.holonomic) for c, m in zip(self.constraints, self._rows)])
+        holonomic = self._position_mask
         if holonomic.any():
             for _ in range(max_iterations):
                 phi = self.position_error(q, t)[holonomic]

@@ -63,6 +63,11 @@ class Constraint:
         """Number of rows ``m``."""
         raise NotImplementedError
 
+    def position_rows(self, system):
+        """``(m,)`` boolean: the rows that have a position level ``φ = 0`` (all of a holonomic
+        constraint's, none of a Pfaffian's; a rolling contact's normal row is holonomic)."""
+        return np.full(self.rows(system), self.holonomic)
+
     def position(self, system, q, t=0.0):
         """``φ(q, t)`` ``(..., m)`` (holonomic constraints only)."""
         raise TypeError(f"{self.name} is not holonomic: it has no position level")
