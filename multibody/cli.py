@@ -1,4 +1,4 @@
-"""Command line: ``multibody info URDF``, ``multibody check URDF``. See ``multibody --help``."""
+"""Command line: ``multibody demo NAME``, ``multibody info URDF``, ``multibody check URDF``. See ``multibody --help``."""
 
 from __future__ import annotations
 
@@ -103,6 +103,21 @@ def cmd_check(args):
     return 0
 
 
+def cmd_demo(args):
+    from .demos import DEMOS
+
+    if args.name not in DEMOS:
+        print(f"unknown demo {args.name!r}; available: {', '.join(sorted(DEMOS))}", file=sys.stderr)
+        return 2
+    summary, paths = DEMOS[args.name](args.out)
+    print(f"demo {args.name}: {DEMOS[args.name].__doc__.strip().splitlines()[0]}")
+    for key, value in summary.items():
+        print(f"  {key}: {value:.3e}")
+    for path in paths:
+        print(f"  wrote {path}")
+    return 0
+
+
 def build_parser():
     parser = argparse.ArgumentParser(
         prog="multibody", description="Rigid multibody dynamics from Lagrangian mechanics."
@@ -114,6 +129,13 @@ def build_parser():
     info.add_argument("--floating-base", action="store_true", help="add a free-flyer joint at the root")
     info.add_argument("--package-dir", action="append", default=[], help="where package:// meshes live (repeatable)")
     info.set_defaults(run=cmd_info)
+
+    from .demos import DEMOS
+
+    demo = commands.add_parser("demo", help=f"run a named demo and write its figures ({', '.join(sorted(DEMOS))})")
+    demo.add_argument("name", help="demo name: " + ", ".join(sorted(DEMOS)))
+    demo.add_argument("--out", default="multibody_output", help="folder for the figures (default multibody_output)")
+    demo.set_defaults(run=cmd_demo)
 
     check = commands.add_parser("check", help="compare kinematics and dynamics with Pinocchio at random states")
     check.add_argument("urdf", help="URDF file, or the name of a shipped robot")
