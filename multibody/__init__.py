@@ -39,6 +39,16 @@ from .kinematics import (
 from .model import Geometry, Mimic, Model, ModelBuilder
 from .rolling import KnifeEdge, RollingDisc, RollingSphere
 from .simulation import SimulationError, Trajectory, simulate
+
+
+def __getattr__(name):
+    # The symbolic front-end (and SymPy with it) is imported on first use only.
+    if name in ("LagrangianSystem", "generalized_forces", "symbolic"):
+        import importlib
+
+        symbolic = importlib.import_module("multibody.symbolic")
+        return symbolic if name == "symbolic" else getattr(symbolic, name)
+    raise AttributeError(f"module 'multibody' has no attribute {name!r}")
 from .urdf import URDFError, load_urdf
 
 __version__ = "0.1.0"
@@ -50,6 +60,7 @@ __all__ = [
     "Holonomic",
     "JointCoupling",
     "KnifeEdge",
+    "LagrangianSystem",
     "KKTSolution",
     "LoopClosure",
     "Pfaffian",
@@ -78,6 +89,7 @@ __all__ = [
     "ModelBuilder",
     "URDFError",
     "forward_kinematics",
+    "generalized_forces",
     "inertia",
     "jacobian",
     "jacobian_time_variation",
