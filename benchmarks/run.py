@@ -1,0 +1,220 @@
+"""Speed of multibody against Pinocchio (measured in the same run), single calls and batches.
+
+For each robot and algorithm it reports multibody's single-call time, its time per state for
+batches of N states, Pinocchio's time per call from Python, and their ratio; then the peak memory
+of a large batched CRBA, one constrained-dynamics step of the rolling ball and the wall time of
+simulating it for 10 s at 1 kHz. The table is printed and saved as JSON and Markdown.
+
+    python benchmarks/run.py                      # the full table (several minutes)
+    python benchmarks/run.py --quick              # small sizes, a smoke run
+    python benchmarks/run.py --robots panda ur5 --sizes 1 4096
+
+Times are medians of repeated runs (µs). The machine is shared and noisy: compare ratios within one
+run, not absolute numbers across runs.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import site
+import sys
+import time
+import tracemalloc
+
+import numpy as np
+
+import multibody as mb
+from multibody.check import to_pinocchio_configuration
+
+ROBOTS = {
+    # name: (path below example-robot-data/robots, free-flyer base, end-effector body)
+    "double_pendulum": ("double_pendulum_description/urdf/double_pendulum.urdf", False, "link2"),
+    "ur5": ("ur_description/urdf/ur5_robot.urdf", False, "tool0"),
+    "panda": ("panda_description/urdf/panda.urdf", False, "panda_hand"),
+    "solo12": ("solo_description/robots/solo12.urdf", True, "FL_FOOT"),
+    "talos_reduced": ("talos_data/robots/talos_reduced.urdf", True, "arm_left_7_link"),
+}
+ALGORITHMS = ("rnea", "crba", "aba", "coriolis", "bias", "jacobian")
+
+
+def example_robot_data():
+    for directory in site.getsitepackages() + [site.getusersitepackages()]:
+        path = os.path.join(directory, "cmeel.prefix", "share", "example-robot-data", "robots")
+        if os.path.isdir(path):
+            return path
+    return None
+
+
+def median_time(fn, budget=0.3, min_runs=3):
+    """Median wall time (s) of ``fn()`` over repeated runs filling about ``budget`` seconds."""
+    fn()
+    times = []
+    start = time.perf_counter()
+    while len(times) < min_runs or time.perf_counter() - start < budget:
+        t0 = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t0)
+        if len(times) >= 10000:
+            break
+    return float(np.median(times))
+
+
+def ours(model, algorithm, q, v, a, body):
+    return {
+        "rnea": lambda: mb.inverse_dynamics(model, q, v, a),
+        "crba": lambda: mb.mass_matrix(model, q),
+        "aba": lambda: mb.forward_dynamics(model, q, v, a),
+        "coriolis": lambda: mb.coriolis_matrix(model, q, v),
+        "bias": lambda: mb.bias_forces(model, q, v),
+        "jacobian": lambda: mb.jacobian(model, q, body),
+    }[algorithm]
+
+
+def theirs(pin, model, data, algorithm, q, v, a, frame):
+    def jacobian():
+        pin.computeFrameJacobian(model, data, q, frame, pin.LOCAL_WORLD_ALIGNED)
+
+    return {
+        "rnea": lambda: pin.rnea(model, data, q, v, a),
+        "crba": lambda: pin.crba(model, data, q),
+        "aba": lambda: pin.aba(model, data, q, v, a),
+        "coriolis": lambda: pin.computeCoriolisMatrix(model, data, q, v),
+        "bias": lambda: pin.nonLinearEffects(model, data, q, v),
+        "jacobian": jacobian,
+    }[algorithm]
+
+
+def rne_python_time(robot_name):
+    """roboticstoolbox-python's pure-Python RNE on its own model of the robot, if installed (µs)."""
+    try:
+        import roboticstoolbox as rtb
+    except ImportError:
+        return None
+    models = {"panda": "Panda", "ur5": "UR5"}
+    if robot_name not in models:
+        return None
+    robot = getattr(rtb.models.DH, models[robot_name])()
+    q = np.zeros(robot.n)
+    return median_time(lambda: robot.rne_python(q, q, q)) * 1e6
+
+
+def benchmark_robot(name, sizes, budget, rng):
+    relative, floating, body = ROBOTS[name]
+    root = example_robot_data()
+    path = os.path.join(root, relative)
+    model = mb.load_urdf(path, floating_base=floating)
+    rows = []
+    try:
+        import pinocchio as pin
+    except ImportError:
+        pin = None
+    if pin is not None:
+        reference = pin.buildModelFromUrdf(path, pin.JointModelFreeFlyer()) if floating else pin.buildModelFromUrdf(path)
+        data = reference.createData()
+        frame = reference.getFrameId(body)
+    q1 = model.random_configuration(rng)
+    v1, a1 = rng.standard_normal((2, model.nv))
+    for algorithm in ALGORITHMS:
+        row = {"robot": name, "algorithm": algorithm, "nv": model.nv}
+        row["single_us"] = median_time(ours(model, algorithm, q1, v1, a1, body), budget) * 1e6
+        for n in sizes:
+            q = model.random_configuration(rng, (n,))
+            v, a = rng.standard_normal((2, n, model.nv))
+            row[f"batch_{n}_us_per_state"] = median_time(ours(model, algorithm, q, v, a, body), budget, min_runs=1) * 1e6 / n
+        if pin is not None:
+            q_pin = to_pinocchio_configuration(model, q1)
+            row["pinocchio_us"] = median_time(theirs(pin, reference, data, algorithm, q_pin, v1, a1, frame), budget) * 1e6
+            largest = max(sizes)
+            row[f"ratio_batch_{largest}_vs_pinocchio"] = row[f"batch_{largest}_us_per_state"] / row["pinocchio_us"]
+            row["ratio_single_vs_pinocchio"] = row["single_us"] / row["pinocchio_us"]
+        rows.append(row)
+    if "rnea" in ALGORITHMS:
+        rows[0]["rne_python_us"] = rne_python_time(name)
+    return rows
+
+
+def crba_peak_memory(n, rng):
+    """Peak memory (MB) traced by Python while computing the batched CRBA of the Panda for n states."""
+    model = mb.load_urdf(os.path.join(example_robot_data(), ROBOTS["panda"][0]))
+    q = model.random_configuration(rng, (n,))
+    tracemalloc.start()
+    mb.mass_matrix(model, q)
+    _, peak = tracemalloc.get_traced_memory()
+    tracemalloc.stop()
+    return peak / 1e6
+
+
+def rolling_ball(duration, rate, budget):
+    """One KKT step of the rolling ball (µs) and the wall time of simulating it (s), RK4 at ``rate`` Hz."""
+    ball = mb.load_urdf(mb.robots.path("ball"), floating_base=True)
+    system = mb.ConstrainedSystem(ball, [mb.RollingSphere("ball", 0.1, plane_normal=(np.sin(0.1), 0.0, np.cos(0.1)))])
+    q0 = ball.neutral()
+    q0[:3] = 0.1 * np.array([np.sin(0.1), 0.0, np.cos(0.1)])
+    q0, v0 = system.project(q0, np.array([0.0, 1.0, 0.0, 0.0, 0.0, 0.0]))
+    step = median_time(lambda: system.forward_dynamics(q0, v0), budget) * 1e6
+    start = time.perf_counter()
+    trajectory = mb.simulate(system, q0, v0, duration, dt=1.0 / rate, method="RK4")
+    wall = time.perf_counter() - start
+    return {"kkt_step_us": step, "simulate_s": wall, "sim_duration_s": duration, "rate_hz": rate,
+            "max_residual": float(trajectory.residual.max())}
+
+
+def markdown(rows, sizes):
+    largest = max(sizes)
+    header = ["robot", "algorithm", "nv", "single µs"] + [f"N={n} µs/state" for n in sizes] + \
+        ["pin µs/call", f"N={largest} / pin", "single / pin"]
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    for row in rows:
+        cells = [row["robot"], row["algorithm"], str(row["nv"]), f"{row['single_us']:.0f}"]
+        cells += [f"{row[f'batch_{n}_us_per_state']:.2f}" for n in sizes]
+        cells += [f"{row.get('pinocchio_us', float('nan')):.2f}",
+                  f"{row.get(f'ratio_batch_{largest}_vs_pinocchio', float('nan')):.2f}",
+                  f"{row.get('ratio_single_vs_pinocchio', float('nan')):.0f}"]
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--robots", nargs="*", default=list(ROBOTS), choices=list(ROBOTS))
+    parser.add_argument("--sizes", nargs="*", type=int, default=[1, 64, 1024, 4096, 16384])
+    parser.add_argument("--budget", type=float, default=0.5, help="seconds of repetitions per measurement")
+    parser.add_argument("--memory-states", type=int, default=16384)
+    parser.add_argument("--sim-duration", type=float, default=10.0)
+    parser.add_argument("--quick", action="store_true", help="tiny sizes and budgets (a smoke run)")
+    parser.add_argument("--out", default=os.path.join(os.path.dirname(os.path.abspath(__file__)), "results"))
+    args = parser.parse_args(argv)
+    if args.quick:
+        args.sizes, args.budget, args.memory_states, args.sim_duration = [1, 8], 0.01, 64, 0.05
+        args.robots = args.robots[:1]
+    if example_robot_data() is None:
+        print("example-robot-data is not installed: pip install example-robot-data", file=sys.stderr)
+        return 2
+    rng = np.random.default_rng(0)
+    rows = [row for name in args.robots for row in benchmark_robot(name, args.sizes, args.budget, rng)]
+    table = markdown(rows, args.sizes)
+    memory = crba_peak_memory(args.memory_states, rng)
+    ball = rolling_ball(args.sim_duration, 1000.0, args.budget)
+    rne = {row["robot"]: row.get("rne_python_us") for row in rows if row["algorithm"] == "rnea"}
+    extra = [
+        f"peak memory of the batched Panda CRBA at N = {args.memory_states}: {memory:.0f} MB",
+        f"rolling ball: one constrained step {ball['kkt_step_us']:.0f} µs; simulating {ball['sim_duration_s']:g} s "
+        f"at 1 kHz (RK4) took {ball['simulate_s']:.2f} s wall (max residual {ball['max_residual']:.1e})",
+        "roboticstoolbox rne_python (µs): " + ", ".join(
+            f"{k}: {'not installed / no model' if t is None else f'{t:.0f}'}" for k, t in rne.items()),
+    ]
+    print(table)
+    print()
+    print("\n".join(extra))
+    os.makedirs(args.out, exist_ok=True)
+    with open(os.path.join(args.out, "results.json"), "w") as handle:
+        json.dump({"rows": rows, "crba_peak_memory_mb": memory, "rolling_ball": ball, "sizes": args.sizes}, handle, indent=1)
+    with open(os.path.join(args.out, "results.md"), "w") as handle:
+        handle.write(table + "\n\n" + "\n".join(f"- {line}" for line in extra) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,21 @@
+"""The benchmark script runs end to end (tiny sizes), so that it never rots. Speed itself is
+measured by benchmarks/run.py, never asserted here."""
+
+import json
+import os
+import runpy
+
+import pytest
+
+
+def test_benchmark_script_smoke(tmp_path):
+    pytest.importorskip("pinocchio")
+    script = os.path.join(os.path.dirname(__file__), "..", "benchmarks", "run.py")
+    main = runpy.run_path(script)["main"]
+    assert main(["--quick", "--out", str(tmp_path)]) == 0
+    results = json.loads((tmp_path / "results.json").read_text())
+    algorithms = {row["algorithm"] for row in results["rows"]}
+    assert algorithms == {"rnea", "crba", "aba", "coriolis", "bias", "jacobian"}
+    assert all(row["single_us"] > 0 and row["pinocchio_us"] > 0 for row in results["rows"])
+    assert results["rolling_ball"]["max_residual"] < 1e-9
+    assert (tmp_path / "results.md").read_text().startswith("| robot |")
