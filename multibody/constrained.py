@@ -52,17 +52,6 @@ class ModelSystem:
     def neutral(self):
         return self.model.neutral()
 
-    def body_forces(self, q, lam, t=0.0):
-        """Spatial forces all constraints exert on the bodies: ``f_ext (njoints, 6)`` in joint frames.
-
-        Pass them to :func:`multibody.joint_reaction_forces` (with the accelerations of
-        :meth:`forward_dynamics`) to get the loads every joint carries in the closed mechanism.
-        """
-        lam = np.asarray(lam, dtype=float)
-        offsets = np.cumsum([0] + self._rows)
-        return sum(c.body_forces(self.system, q, lam[offsets[k]:offsets[k + 1]], t)
-                   for k, c in enumerate(self.constraints))
-
     def energy(self, q, v):
         """Kinetic plus gravitational potential energy (J)."""
         return dynamics.kinetic_energy(self.model, q, v) + dynamics.potential_energy(self.model, q)

@@ -77,6 +77,22 @@ def test_pendulum_tension_along_trajectory(pendulum_run):
     assert expected.min() < 0.5 * expected.max()  # the tension really varies along the swing
 
 
+@pytest.mark.parametrize("form", ["array", "callable"])
+def test_pendulum_tension_with_applied_force(form):
+    """A constant force F on the bob (``tau`` of the Translation joint is a world force): from
+    ``m a = m g − λ u + F`` and ``u·a = −|v|²/l``, ``λ = m g cos θ + m |v|²/l + u·F``. The recorded
+    multipliers must include the applied force, at every output, to 1e-8."""
+    force = np.array([3.0, -1.0, 4.0])
+    tau = force if form == "array" else (lambda t, q, v: force.copy())
+    q0, v0 = pendulum_state(L_PEND, 0.8, -0.5, azimuth=0.3)
+    trajectory = mb.simulate(pendulum_system(), q0, v0, 1.0, dt=0.1, tau=tau, **TIGHT)
+    u = trajectory.q / L_PEND
+    expected = pendulum_tension(M_PEND, L_PEND, trajectory.q, trajectory.v) + u @ force
+    assert_close(trajectory.lam[:, 0], expected, 1e-8, what="tension with applied force")
+    assert trajectory.residual.max() <= 1e-10
+    assert np.abs(u @ force).min() > 0.5  # the applied force's share of the tension is far above tolerance
+
+
 def test_particle_pendulum_matches_revolute_pendulum():
     """The shipped pendulum (1 kg at 1 m on a revolute joint about y, minimal coordinate θ) and the
     particle held by ``Distance(p, None, 1)``: same motion, ``x = (−sin θ, 0, −cos θ)`` (rotation about
@@ -213,21 +229,24 @@ def rotating_wire(analytic):
         dphi_dt=lambda q, t: np.array([w * (q[0] * np.cos(w * t) + q[1] * np.sin(w * t)), 0.0]), gamma=gamma)
 
 
-@pytest.mark.parametrize("analytic, t0", [(False, 0.0), (True, 0.3)])
-def test_bead_on_rotating_wire_closed_form(analytic, t0):
+@pytest.mark.parametrize("analytic, t0, method", [(False, 0.0, "DOP853"), (True, 0.3, "DOP853"), (True, 0.3, "RK4")])
+def test_bead_on_rotating_wire_closed_form(analytic, t0, method):
     """Horizontal wire through the origin turning about z at ω (time-dependent φ), gravity along −z
     carried by the z row. Along the wire ``r̈ = ω² r``: ``r = r₀ cosh ω(t−t₀) + (ṙ₀/ω) sinh ω(t−t₀)``,
     ``x = r (cos ωt, sin ωt, 0)``; multipliers ``λ₁ = −2 m ω ṙ`` (Coriolis), ``λ₂ = m g``.
 
     Numerical derivatives (A, b, γ by stencils; γ error ≈ 3e-10|φ|, see test_constraints) or analytic
     ones, started at t₀ = 0 or 0.3 s (the constraint sees the absolute time): to 1e-8 relative.
+    DOP853 at rtol 1e-11; RK4 with h = 0.01 s (global error ≈ 1e-9 here: (ωh)⁴ ≈ 3e-8 per unit
+    ωt, and it evaluates the constraint at the mid-step times).
     """
+    options = dict(dt=0.01) if method == "RK4" else dict(dt=0.1, rtol=1e-11, atol=1e-12)
     r0, r_dot0 = 0.4, 0.2
     u0 = np.array([np.cos(OMEGA * t0), np.sin(OMEGA * t0), 0.0])
     u0_perp = np.array([-np.sin(OMEGA * t0), np.cos(OMEGA * t0), 0.0])
     cs = mb.ConstrainedSystem(particle_model(M_BEAD, names=["bead"]), [rotating_wire(analytic)])
-    trajectory = mb.simulate(cs, r0 * u0, r_dot0 * u0 + OMEGA * r0 * u0_perp, t0 + 2.0, t0=t0, dt=0.1,
-                             method="DOP853", rtol=1e-11, atol=1e-12)
+    trajectory = mb.simulate(cs, r0 * u0, r_dot0 * u0 + OMEGA * r0 * u0_perp, t0 + 2.0, t0=t0, method=method,
+                             **options)
     t = trajectory.t
     assert t[0] == t0 and t[-1] == pytest.approx(t0 + 2.0, abs=1e-12)
     tau = OMEGA * (t - t0)
