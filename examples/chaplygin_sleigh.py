@@ -12,7 +12,7 @@ import sys
 import numpy as np
 
 import multibody as mb
-from multibody.plotting import plot_trajectory, pyplot
+from multibody.plotting import plot_path, plot_trajectory
 
 out = sys.argv[1] if len(sys.argv) > 1 else "output"
 m, inertia, b = 2.0, 0.05, 0.2  # kg, kg m² about the centre of mass, m from the centre of mass to the blade
@@ -33,14 +33,6 @@ print(f"energy drift {np.ptp(trajectory.energy) / abs(trajectory.energy).max():.
       f"max residual {trajectory.residual.max():.2e}")
 paths = plot_trajectory(trajectory, out, "sleigh", coordinate_labels=["x", "y", "cos θ", "sin θ"],
                         multiplier_labels=["sideways blade force (N)"])
-plt = pyplot()
-figure, ax = plt.subplots(figsize=(6, 5))
-ax.plot(trajectory.q[:, 0], trajectory.q[:, 1])
-ax.set_aspect("equal", adjustable="datalim")
-ax.set_xlabel("x (m)")
-ax.set_ylabel("y (m)")
-ax.set_title("path of the sleigh's centre of mass")
-figure.tight_layout()
-figure.savefig(f"{out}/sleigh_path.png", dpi=110)
-for path in paths + [f"{out}/sleigh_path.png"]:
+paths.append(plot_path(trajectory.q[:, :2], out, "sleigh", "path of the sleigh's centre of mass"))
+for path in paths:
     print("wrote", path)

@@ -12,7 +12,7 @@ import sys
 import numpy as np
 
 import multibody as mb
-from multibody.plotting import plot_trajectory, pyplot
+from multibody.plotting import plot_path, plot_trajectory
 
 out = sys.argv[1] if len(sys.argv) > 1 else "output"
 robot = mb.robots.load("diff_drive")
@@ -37,14 +37,6 @@ heading = np.degrees(np.arctan2(trajectory.q[-1, 3], trajectory.q[-1, 2]))
 print(f"after 4 s: at ({trajectory.q[-1, 0]:.3f}, {trajectory.q[-1, 1]:.3f}) m, heading {heading:.1f}°, "
       f"max residual {trajectory.residual.max():.2e}")
 paths = plot_trajectory(trajectory, out, "diff_drive", coordinate_labels=["x", "y", "cos θ", "sin θ", "left", "right"])
-plt = pyplot()
-figure, ax = plt.subplots(figsize=(6, 5))
-ax.plot(trajectory.q[:, 0], trajectory.q[:, 1])
-ax.set_aspect("equal", adjustable="datalim")
-ax.set_xlabel("x (m)")
-ax.set_ylabel("y (m)")
-ax.set_title("path of the chassis")
-figure.tight_layout()
-figure.savefig(f"{out}/diff_drive_path.png", dpi=110)
-for path in paths + [f"{out}/diff_drive_path.png"]:
+paths.append(plot_path(trajectory.q[:, :2], out, "diff_drive", "path of the chassis"))
+for path in paths:
     print("wrote", path)

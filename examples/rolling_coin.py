@@ -11,7 +11,7 @@ import sys
 import numpy as np
 
 import multibody as mb
-from multibody.plotting import plot_trajectory, pyplot
+from multibody.plotting import plot_path, plot_trajectory
 
 out = sys.argv[1] if len(sys.argv) > 1 else "output"
 m, r = 0.01, 0.02  # kg, m: a large coin
@@ -34,15 +34,7 @@ trajectory = mb.simulate(system, q0, v0, 2.0, dt=0.002, method="DOP853", rtol=1e
 print(f"energy drift {np.ptp(trajectory.energy) / abs(trajectory.energy).max():.2e} (relative), "
       f"max residual {trajectory.residual.max():.2e}")
 paths = plot_trajectory(trajectory, out, "coin", multiplier_labels=["friction t₁ (N)", "friction t₂ (N)", "normal (N)"])
-plt = pyplot()
-figure, ax = plt.subplots(figsize=(5, 5))
 contact_points = np.array([contact.contact_point(coin, q) for q in trajectory.q])
-ax.plot(contact_points[:, 0], contact_points[:, 1])
-ax.set_aspect("equal")
-ax.set_xlabel("x (m)")
-ax.set_ylabel("y (m)")
-ax.set_title("contact path of the rolling coin")
-figure.tight_layout()
-figure.savefig(f"{out}/coin_path.png", dpi=110)
-for path in paths + [f"{out}/coin_path.png"]:
+paths.append(plot_path(contact_points[:, :2], out, "coin", "contact path of the rolling coin"))
+for path in paths:
     print("wrote", path)

@@ -73,3 +73,20 @@ def plot_trajectory(trajectory, out_dir, name, *, coordinate_labels=None, multip
         ax.legend(fontsize="small")
         save(figure, "multipliers")
     return paths
+
+
+def plot_path(xy, out_dir, name, title, labels=("x (m)", "y (m)")):
+    """Write ``<name>_path.png``: a path ``xy (n, 2)`` seen from above, equal axes. Returns the file path."""
+    plt = pyplot()
+    os.makedirs(out_dir, exist_ok=True)
+    figure, ax = plt.subplots(figsize=(6, 5))
+    ax.plot(xy[:, 0], xy[:, 1])
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_xlabel(labels[0])
+    ax.set_ylabel(labels[1])
+    ax.set_title(title)
+    figure.tight_layout()
+    path = os.path.join(out_dir, f"{name}_path.png")
+    figure.savefig(path, dpi=110)
+    plt.close(figure)
+    return path
