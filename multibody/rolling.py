@@ -192,7 +192,10 @@ class KnifeEdge(Constraint):
     def __init__(self, body, *, point=None, direction=(1.0, 0.0, 0.0), plane_normal=(0.0, 0.0, 1.0), name=None):
         super().__init__(name or f"knife edge {body}")
         self.body, self.placement = body, _point_placement(point)
-        self.direction = np.asarray(direction, dtype=float) / np.linalg.norm(direction)
+        direction = np.asarray(direction, dtype=float)
+        if direction.shape != (3,) or not np.linalg.norm(direction) > 0:
+            raise ValueError(f"blade direction must be a non-zero 3-vector, got {direction.tolist()}")
+        self.direction = direction / np.linalg.norm(direction)
         self.normal, _ = _plane_frame(plane_normal)
 
     def rows(self, system):

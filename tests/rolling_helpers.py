@@ -18,6 +18,8 @@ Others: ``tilted_normal``, ``contact_angular_momentum`` (of a ball about its con
 
 from __future__ import annotations
 
+import xml.etree.ElementTree as ET
+
 import numpy as np
 
 import multibody as mb
@@ -112,6 +114,18 @@ def sleigh():
                      inertia=mb.Inertia(SLEIGH_MASS, [0, 0, 0], SLEIGH_INERTIA * np.eye(3)))
     model = builder.build()
     return model, mb.KnifeEdge("sleigh", point=[SLEIGH_B, 0.0, 0.0], direction=[1.0, 0.0, 0.0])
+
+
+def diff_drive_numbers():
+    """``(total mass, wheel spin inertia I_w, wheel radius r)`` read from robots/diff_drive.urdf."""
+    root = ET.parse(mb.robots.path("diff_drive")).getroot()
+    masses = {link.get("name"): float(link.find("inertial/mass").get("value"))
+              for link in root.findall("link") if link.find("inertial") is not None}
+    wheels = [root.find(f"link[@name='{w}']") for w in ("left_wheel", "right_wheel")]
+    spin_inertia = {float(w.find("inertial/inertia").get("iyy")) for w in wheels}  # the wheel joints turn about y
+    radius = {float(w.find("visual/geometry/cylinder").get("radius")) for w in wheels}
+    assert len(spin_inertia) == 1 and len(radius) == 1
+    return sum(masses.values()), spin_inertia.pop(), radius.pop()
 
 
 # ----------------------------------------------------------------------------- state maps

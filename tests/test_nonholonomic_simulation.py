@@ -39,6 +39,7 @@ from rolling_helpers import (
     chaplygin_inertia,
     coin,
     contact_angular_momentum,
+    diff_drive_numbers,
     downhill,
     five_coordinate_ball,
     free_ball,
@@ -51,11 +52,9 @@ from rolling_helpers import (
     turntable,
 )
 
-UNIFORM_INERTIA = 0.4 * BALL_MASS * BALL_RADIUS**2 * np.eye(3)
-
-
-def rotations(trajectory_q):
-    return quat_to_rotation(trajectory_q)
+def rotations(quaternions):
+    """Rotation matrices ``(n, 3, 3)`` of the quaternion columns of a trajectory."""
+    return quat_to_rotation(quaternions)
 
 
 # ============================================================================= 1. ball on an incline
@@ -70,7 +69,8 @@ def incline_run():
     n = tilted_normal(ALPHA, AZIMUTH)
     contact = mb.RollingSphere("ball", BALL_RADIUS, plane_normal=n)
     cs = mb.ConstrainedSystem(ball, [contact])
-    q0 = np.concatenate([BALL_RADIUS * n + [0.2, -0.1, 0.0] - (n @ [0.2, -0.1, 0.0]) * n, quat(rotation([0.3, 1.0, -0.4]))])
+    on_plane = np.array([0.2, -0.1, 0.0]) - (n @ [0.2, -0.1, 0.0]) * n
+    q0 = np.concatenate([on_plane + BALL_RADIUS * n, quat(rotation([0.3, 1.0, -0.4]))])
     q0, v0 = cs.project(q0, np.array([0.4, -0.3, 0.2, 1.5, -2.0, 3.0]))
     trajectory = mb.simulate(cs, q0, v0, 1.0, dt=0.05, method="DOP853", rtol=1e-12, atol=1e-14)
     return ball, cs, contact, n, trajectory
@@ -89,12 +89,12 @@ def test_ball_on_incline_trajectory_closed_form(incline_run):
     acceleration = 5.0 / 7.0 * G * np.sin(ALPHA)
     assert np.linalg.norm(x_dot[0]) > 0.3 and abs(omega[0] @ n) > 0.2  # a generic start: moving and spinning
     expected = x[0] + x_dot[0] * t + 0.5 * acceleration * d * t**2
-    assert relative_error(x, expected, scale=np.abs(x - x[0]).max()) <= 1e-9          # observed ~1e-12
+    assert relative_error(x, expected, scale=np.abs(x - x[0]).max()) <= 1e-9          # observed 2e-13
     assert relative_error(x_dot, x_dot[0] + acceleration * d * t, scale=np.abs(x_dot).max()) <= 1e-9
     assert relative_error(omega @ n, np.full(len(t), omega[0] @ n)) <= 1e-9
     friction = -2.0 / 7.0 * BALL_MASS * G * np.sin(ALPHA) * d
     lam_expected = np.concatenate([contact.frame[:, :2].T @ friction, [BALL_MASS * G * np.cos(ALPHA)]])
-    assert relative_error(trajectory.lam, np.tile(lam_expected, (len(t), 1)), scale=BALL_MASS * G) <= 1e-9
+    assert relative_error(trajectory.lam, np.tile(lam_expected, (len(t), 1)), scale=BALL_MASS * G) <= 1e-9  # 2e-14
     # The accelerations of the KKT solve at the recorded states: ẍ = R (a_lin + ω_B × v_lin).
     for k in range(0, len(t), 5):
         q, v = trajectory.q[k], trajectory.v[k]
@@ -108,13 +108,14 @@ def test_ball_on_incline_trajectory_closed_form(incline_run):
 
 # ============================================================================= 2. free-flyer vs five coordinates
 
-def _run_both_models(inertia_body, duration, seed):
-    """The same ball as a free-flyer (3 rows) and as the seed's five-coordinate model (2 rows)."""
+def _run_both_models(chaplygin, duration, seed):
+    """The same ball as a free-flyer (3 rows) and as the seed's five-coordinate model (2 rows):
+    uniform, or with the Chaplygin ball's unequal moments (``chaplygin=True``)."""
     rng = np.random.default_rng(seed)
-    if inertia_body is None:
-        free, five = free_ball(), five_coordinate_ball()
-    else:
+    if chaplygin:
         free, five = chaplygin_ball(), five_coordinate_ball(chaplygin_inertia())
+    else:
+        free, five = free_ball(), five_coordinate_ball()
     cs_free = mb.ConstrainedSystem(free, [mb.RollingSphere("ball", BALL_RADIUS)])
     cs_five = mb.ConstrainedSystem(five, [mb.RollingSphere("ball", BALL_RADIUS, normal=False)])
     q = np.concatenate([[0.3, -0.2, BALL_RADIUS], mb.spatial.rotation_to_quat(rotation(rng.uniform(-3, 3, 3)))])
@@ -144,7 +145,7 @@ def _assert_same_motion(tr_free, tr_five):
 def test_free_flyer_and_five_coordinate_ball_agree():
     """Uniform ball on a horizontal plane (2 s): same centre path and orientation to 1e-8 (observed
     ~1e-13), and both equal the closed form x₀ + ẋ₀ t, R(t) = exp(t [ω_W]×) R₀ (ω_W constant)."""
-    tr_free, tr_five = _run_both_models(None, 2.0, seed=11)
+    tr_free, tr_five = _run_both_models(False, 2.0, seed=11)
     _assert_same_motion(tr_free, tr_five)
     R0 = quat_to_rotation(tr_free.q[0, 3:])
     x_dot, omega = R0 @ tr_free.v[0, :3], R0 @ tr_free.v[0, 3:]
@@ -160,14 +161,14 @@ def test_free_flyer_and_five_coordinate_ball_agree():
 def test_free_flyer_and_five_coordinate_chaplygin_ball_agree():
     """The same comparison with unequal moments of inertia (1.5 s), where friction does act: the
     motions and the friction multipliers agree; the normal force is m g (the centre stays at height r)."""
-    tr_free, tr_five = _run_both_models(np.diag(CHAPLYGIN_MOMENTS), 1.5, seed=12)
+    tr_free, tr_five = _run_both_models(True, 1.5, seed=12)
     _assert_same_motion(tr_free, tr_five)
     assert np.abs(tr_five.lam).max() > 1e-3
     assert relative_error(tr_free.lam[:, :2], tr_five.lam) <= 1e-8
     assert relative_error(tr_free.lam[:, 2], np.full(len(tr_free.t), BALL_MASS * G)) <= 1e-9
 
 
-# ============================================================================= 3 + 5 + 6. long runs: energy, momentum, residual
+# ============================================================================= 3, 5, 6. long runs: energy, momentum, residual
 
 @pytest.fixture(scope="module")
 def horizontal_ball_run():
@@ -216,12 +217,12 @@ def test_chaplygin_ball_conserves_contact_angular_momentum_and_energy_10s(chaply
     literature = (np.einsum("nij,jk,nlk,nl->ni", R, inertia, R, omega)
                   + BALL_MASS * BALL_RADIUS**2 * (omega - omega[:, 2:3] * E_Z))
     assert relative_error(literature, K) <= 1e-9
-    assert relative_error(K, np.tile(K[0], (len(K), 1))) <= 1e-8                      # observed ~1e-11
+    assert relative_error(K, np.tile(K[0], (len(K), 1))) <= 1e-8                      # observed 2e-12
     # The motion is not trivial: the angular velocity turns and changes size in the world frame.
     assert np.ptp(omega, axis=0).max() > 0.3 * np.abs(omega).max()
     kinetic = mb.kinetic_energy(model, trajectory.q[0], trajectory.v[0])
-    assert np.abs(trajectory.energy - trajectory.energy[0]).max() <= 1e-9 * kinetic    # observed 3e-11
-    assert trajectory.residual.max() <= 1e-10                                         # observed 3e-13
+    assert np.abs(trajectory.energy - trajectory.energy[0]).max() <= 1e-9 * kinetic    # observed 2e-10
+    assert trajectory.residual.max() <= 1e-10                                         # observed 1e-12
     assert np.abs(trajectory.lam[:, :2]).max() > 1e-3                                  # friction does act
 
 
@@ -324,7 +325,7 @@ def coin_problem():
 @pytest.fixture(scope="module")
 def coin_run(coin_problem):
     p = coin_problem
-    return mb.simulate(p["cs"], p["q0"], p["v0"], 10.0, dt=0.05, method="DOP853", rtol=1e-12, atol=1e-14,
+    return mb.simulate(p["cs"], p["q0"], p["v0"], 10.0, dt=0.1, method="DOP853", rtol=1e-12, atol=1e-14,
                        project=False)
 
 
@@ -332,40 +333,42 @@ def test_coin_initial_state_mapping(coin_problem):
     """The mapped SymPy state rolls in our model (all three rows, the normal one included)."""
     p = coin_problem
     assert p["cs"].residual(p["q0"], p["v0"]) <= 1e-14
-    assert relative_error(p["contact"].contact_point(p["model"], p["q0"]), [COIN_Q0[3], COIN_Q0[4], 0.0], scale=1.0) <= 1e-15
+    contact = p["contact"].contact_point(p["model"], p["q0"])
+    assert relative_error(contact, [COIN_Q0[3], COIN_Q0[4], 0.0], scale=1.0) <= 1e-15
     # Lean 0.2 rad from upright: the axis makes 0.2 rad with the horizontal.
     axis = quat_to_rotation(p["q0"][3:]) @ E_Z
     assert np.arcsin(abs(axis[2])) == pytest.approx(COIN_Q0[1], abs=1e-14)
 
 
 def test_coin_matches_sympy_kanes_method(coin_problem, coin_run):
-    """Contact-point path and orientation matrix agree with SymPy's model over 2 s to 1e-8 (observed ~1e-12)."""
+    """Contact-point path, orientation matrix and velocities agree with SymPy's model to 1e-8: over
+    the 10 s run (observed 1e-12 after 2 s, 2e-10 after 10 s; both integrations at rtol 1e-12)."""
     p, trajectory = coin_problem, coin_run
-    reference = solve_ivp(p["rhs"], (0.0, 2.0), p["y0"], method="DOP853", rtol=1e-12, atol=1e-14, dense_output=True)
+    reference = solve_ivp(p["rhs"], (0.0, 10.0), p["y0"], method="DOP853", rtol=1e-12, atol=1e-14, dense_output=True)
     assert reference.success
-    compared = trajectory.t <= 2.0 + 1e-12
-    assert compared.sum() == 41
-    for t, q, v in zip(trajectory.t[compared], trajectory.q[compared], trajectory.v[compared]):
+    for t, q, v in zip(trajectory.t, trajectory.q, trajectory.v):
         y = reference.sol(t)
         q_ref, v_ref = sympy_to_ours(y, p["R_ND"], p["R_NL"], COIN_RADIUS)
         contact = p["contact"].contact_point(p["model"], q)
         assert relative_error(contact, [y[3], y[4], 0.0], scale=1.0) <= 1e-8
         assert relative_error(quat_to_rotation(q[3:]), quat_to_rotation(q_ref[3:]), scale=1.0) <= 1e-8
         assert relative_error(v, v_ref, scale=np.abs(v_ref).max()) <= 1e-8
-    # The coin did move: about a metre along a curved path, and its lean changed.
+    # The coin did move: metres along a curved path, its heading turned, and its lean wobbled.
     assert np.hypot(*(reference.y[3:5, -1] - reference.y[3:5, 0])) > 0.5
-    assert np.ptp(reference.y[1]) > 0.02
+    assert np.ptp(reference.y[0]) > 1.0
+    assert np.ptp(reference.y[1]) > 0.05
 
 
 def test_coin_conserves_energy_10s(coin_run, coin_problem):
     trajectory = coin_run
     assert trajectory.status == "completed" and trajectory.t[-1] == 10.0
     E0 = trajectory.energy[0]
-    assert np.abs(trajectory.energy - E0).max() <= 1e-9 * abs(E0)                      # observed 1e-10
-    assert trajectory.residual.max() <= 1e-10                                         # observed 6e-11
-    # Potential and kinetic energy are exchanged (the coin rises and falls as it leans).
+    assert np.abs(trajectory.energy - E0).max() <= 1e-9 * abs(E0)                      # observed 1e-11
+    assert trajectory.residual.max() <= 1e-10                                         # observed 1e-11
+    # Potential and kinetic energy are exchanged (the coin rises and falls as its lean changes),
+    # by ~0.09 J here: 10⁷ times the tolerance.
     potential = np.array([mb.potential_energy(coin_problem["model"], q) for q in trajectory.q])
-    assert np.ptp(potential) > 0.1 * abs(E0)
+    assert np.ptp(potential) > 0.005 * abs(E0)
 
 
 # ============================================================================= 11. Chaplygin sleigh
@@ -375,7 +378,7 @@ def sleigh_run():
     model, blade = sleigh()
     cs = mb.ConstrainedSystem(model, [blade])
     q0, v0 = cs.project(model.neutral(), np.array([0.5, -SLEIGH_B * 3.0, 3.0]))
-    trajectory = mb.simulate(cs, q0, v0, 10.0, dt=0.05, method="DOP853", rtol=1e-12, atol=1e-14, project=False)
+    trajectory = mb.simulate(cs, q0, v0, 10.0, dt=0.25, method="DOP853", rtol=1e-12, atol=1e-14, project=False)
     return model, cs, trajectory
 
 
@@ -395,17 +398,22 @@ def test_chaplygin_sleigh_stops_turning_and_conserves_energy(sleigh_run):
     V = np.sqrt(u[0] ** 2 + J * omega[0] ** 2 / SLEIGH_MASS)
     c = np.arctanh(u[0] / V)
     t = trajectory.t
-    assert relative_error(u, -V * np.tanh(k * V * t - c)) <= 1e-8
-    assert relative_error(omega, omega[0] * np.cosh(c) / np.cosh(k * V * t - c)) <= 1e-8
-    assert abs(omega[-1]) <= 1e-9 * abs(omega[0])
-    # Straight at the end: the heading stops changing and the path is a line along the blade.
+    assert relative_error(u, -V * np.tanh(k * V * t - c)) <= 1e-8                        # observed 3e-14
+    assert relative_error(omega, omega[0] * np.cosh(c) / np.cosh(k * V * t - c)) <= 1e-8  # observed 3e-14
+    assert abs(omega[-1]) <= 1e-9 * abs(omega[0])                          # observed 3e-12
+    # Heading θ = ∫ω = (ω₀ cosh c / kV) (gd(kVt − c) − gd(−c)), gd(x) = 2 atan(tanh(x/2)): it tends to a
+    # constant, and in the last second it changes by ~1e-10 rad only.
     heading = np.unwrap(np.arctan2(trajectory.q[:, 3], trajectory.q[:, 2]))
-    late = t >= 8.0
+    gd = lambda x: 2.0 * np.arctan(np.tanh(x / 2.0))  # noqa: E731
+    expected_heading = omega[0] * np.cosh(c) / (k * V) * (gd(k * V * t - c) - gd(-c))
+    assert relative_error(heading, expected_heading) <= 1e-8
+    late = t >= 9.0
     assert np.ptp(heading[late]) <= 1e-9
     direction = np.array([np.cos(heading[-1]), np.sin(heading[-1])])
     displacement = trajectory.q[late, :2] - trajectory.q[late][0, :2]
     assert np.abs(displacement @ np.array([-direction[1], direction[0]])).max() <= 1e-9
-    assert displacement[-1] @ direction < -1.0                             # moving backwards along the blade
+    # Backwards along the blade (centre of mass first) at the limit speed V = √(u₀² + J ω₀² / m).
+    assert displacement[-1] @ direction == pytest.approx(-V * (t[-1] - t[late][0]), rel=1e-8)
     kinetic0 = trajectory.energy[0]
     assert np.abs(trajectory.energy - kinetic0).max() <= 1e-9 * kinetic0     # no gravity: E = T
     assert trajectory.residual.max() <= 1e-10
@@ -504,20 +512,25 @@ def test_diff_drive_symmetric_torques_drive_straight():
     q0 = robot.neutral()
     assert cs.solve(q0, np.zeros(robot.nv), tau).rank == 3
     trajectory = mb.simulate(cs, q0, np.zeros(robot.nv), 1.0, dt=0.1, tau=tau, method="DOP853", rtol=1e-12, atol=1e-14)
-    acceleration = 2 * torque / (0.08 * (robot.total_mass + 2 * 0.00128 / 0.08**2))
+    total_mass, wheel_inertia, r = diff_drive_numbers()
+    acceleration = 2 * torque / (r * (total_mass + 2 * wheel_inertia / r**2))
     t = trajectory.t
     assert relative_error(trajectory.q[:, 0], 0.5 * acceleration * t**2) <= 1e-9
     assert np.abs(trajectory.q[:, 1]).max() <= 1e-12                     # y = 0
     assert np.abs(trajectory.q[:, 3]).max() <= 1e-12                     # sin(heading) = 0
     assert np.abs(trajectory.v[:, 2]).max() <= 1e-12                     # no turning
-    assert relative_error(trajectory.v[:, left], acceleration * t / 0.08) <= 1e-9
+    assert relative_error(trajectory.v[:, left], acceleration * t / r) <= 1e-9
+    assert relative_error(trajectory.v[:, right], acceleration * t / r) <= 1e-9
     assert trajectory.residual.max() <= 1e-10
 
 
 # ============================================================================= 13. the demo
 
 def test_demo_rolling_ball_writes_its_figures(tmp_path, capsys):
-    """``multibody demo rolling-ball --out DIR``. Slow: ~30 s (a 6 s simulation at rtol 1e-12 and a GIF)."""
+    """``multibody demo rolling-ball --out DIR``.
+
+    SLOW: ~30 s (~50 s on a loaded machine): a 6 s simulation at rtol 1e-12 and a 120-frame GIF. The
+    suite's only demo run; keep it that way."""
     from multibody import cli
 
     assert cli.main(["demo", "rolling-ball", "--out", str(tmp_path)]) == 0

@@ -14,8 +14,6 @@ hundred ulps at most; observed ~1e-13); finite differences at 1e-7 relative (see
 
 from __future__ import annotations
 
-import xml.etree.ElementTree as ET
-
 import numpy as np
 import pytest
 
@@ -29,6 +27,7 @@ from rolling_helpers import (
     G,
     chaplygin_ball,
     coin,
+    diff_drive_numbers,
     downhill,
     fd_gamma,
     free_ball,
@@ -123,6 +122,9 @@ def test_rolling_sphere_rows_are_slip_velocity():
     contact = mb.RollingSphere("ball", 0.2, center=centre, plane_normal=n, plane_point=[0.3, -0.1, 0.0],
                                surface_velocity=table)
     cs = mb.ConstrainedSystem(model, [contact])
+    E = contact.frame  # the plane frame [t₁ t₂ n]: orthonormal, right-handed, third axis n
+    assert np.allclose(E.T @ E, np.eye(3), atol=1e-15) and np.linalg.det(E) == pytest.approx(1.0)
+    assert np.allclose(E[:, 2], n, atol=1e-15)
     for _ in range(3):
         q, v, t = model.random_configuration(rng), rng.standard_normal(6), rng.uniform(0, 2)
         R, p = quat_to_rotation(q[3:]), q[:3]
@@ -179,7 +181,8 @@ def test_knife_edge_row_is_sideways_velocity():
 
 def _sphere_tilted():
     model = free_ball()
-    return model, [mb.RollingSphere("ball", BALL_RADIUS, plane_normal=tilted_normal(0.5, 0.3), plane_point=[0.1, 0.2, -0.3])]
+    return model, [mb.RollingSphere("ball", BALL_RADIUS, plane_normal=tilted_normal(0.5, 0.3),
+                                    plane_point=[0.1, 0.2, -0.3])]
 
 
 def _sphere_turntable_offset():
@@ -342,18 +345,6 @@ def test_diff_drive_matches_pinocchio_kkt(pin):
 
 # ============================================================================= 5. differential drive
 
-def _diff_drive_numbers():
-    """Masses, wheel spin inertia and wheel radius read from robots/diff_drive.urdf."""
-    root = ET.parse(mb.robots.path("diff_drive")).getroot()
-    masses = {link.get("name"): float(link.find("inertial/mass").get("value"))
-              for link in root.findall("link") if link.find("inertial") is not None}
-    wheels = [root.find(f"link[@name='{w}']") for w in ("left_wheel", "right_wheel")]
-    spin_inertia = {float(w.find("inertial/inertia").get("iyy")) for w in wheels}  # wheel axes are y
-    radius = {float(w.find("visual/geometry/cylinder").get("radius")) for w in wheels}
-    assert len(spin_inertia) == 1 and len(radius) == 1
-    return sum(masses.values()), spin_inertia.pop(), radius.pop()
-
-
 def test_diff_drive_straight_acceleration_closed_form():
     """Equal wheel torques τ: the robot accelerates straight ahead at
 
@@ -363,7 +354,7 @@ def test_diff_drive_straight_acceleration_closed_form():
     φ̇ = u / r for a wheel spinning about +y). From the URDF: m_total = 5 + 2·0.4 + 0.1 (the caster is
     fixed to the chassis) = 5.9 kg, I_w = 0.00128 kg m², r = 0.08 m: effective mass 6.3 kg."""
     robot, cs = _diff_drive_system()
-    total_mass, wheel_inertia, r = _diff_drive_numbers()
+    total_mass, wheel_inertia, r = diff_drive_numbers()
     assert total_mass == pytest.approx(robot.total_mass, rel=1e-12)
     assert total_mass + 2 * wheel_inertia / r**2 == pytest.approx(6.3, rel=1e-12)
     left = robot.idx_v[robot.joint_index("left_wheel_joint")]
@@ -511,3 +502,8 @@ def test_knife_edge_needs_a_model():
         blade.body_forces(system, np.zeros(1), np.zeros(1))
     with pytest.raises(TypeError, match="needs a multibody Model"):
         mb.ConstrainedSystem(system, [mb.RollingSphere("ball", 0.1)]).forward_dynamics(np.zeros(1), np.zeros(1))
+
+
+def test_knife_edge_refuses_a_zero_blade_direction():
+    with pytest.raises(ValueError, match="blade direction"):
+        mb.KnifeEdge("sleigh", direction=(0.0, 0.0, 0.0))
