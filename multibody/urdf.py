@@ -232,7 +232,8 @@ def load_urdf(source, *, floating_base=False, package_dirs=None, invalid_inertia
         package_dirs: directories searched for ``package://name/...`` meshes (a path or a list);
             ``package://name/rest`` is looked up as ``d/name/rest`` and ``d/rest`` for each ``d``,
             then in the directories of ``ROS_PACKAGE_PATH``. Nothing is read until
-            :func:`multibody.geometry.load_meshes` is called.
+            :func:`multibody.geometry.load_meshes` is called; meshes that cannot be found give one
+            ``UserWarning`` (the dynamics need only ``<inertial>``).
         invalid_inertia: what to do when a moving rigid body (a moving link lumped with the links
             fixed to it, as the dynamics sees it) has mass properties no real body can have: an
             inertia tensor that is not positive semi-definite or breaks the triangle inequality
@@ -351,4 +352,10 @@ def load_urdf(source, *, floating_base=False, package_dirs=None, invalid_inertia
                           "is not defined; the mimic relation is dropped", UserWarning, stacklevel=2)
     model = builder.build(check_inertia=False)
     _check_bodies(ctx, model, invalid_inertia)
+    missing = [g.uri for g in model.geometries if g.shape == "mesh" and g.filename is None]
+    if missing:
+        # One warning per file: the dynamics need no mesh, but the user should know before asking for them.
+        warnings.warn(f"{source_name}: {len(missing)} mesh file(s) not found, e.g. {missing[0]!r} "
+                      "(give package_dirs to resolve package:// paths); the dynamics are unaffected",
+                      UserWarning, stacklevel=2)
     return model

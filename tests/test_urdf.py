@@ -344,7 +344,10 @@ def test_missing_mesh_does_not_fail(tmp_path):
     xml = robot(link("a") + link("b", INERTIAL + visual), joint("j1", "a", "b"))
     path = tmp_path / "meshes.urdf"
     path.write_text(xml)
-    model = mb.load_urdf(str(path), package_dirs=[str(tmp_path)])
+    with pytest.warns(UserWarning, match="2 mesh file\\(s\\) not found") as record:
+        model = mb.load_urdf(str(path), package_dirs=[str(tmp_path)])
+    assert len([w for w in record if "mesh" in str(w.message)]) == 1  # one warning per file, not per mesh
+    assert mb.mass_matrix(model, np.zeros(model.nq)).shape == (1, 1)  # the dynamics are unaffected
     meshes = [g for g in model.geometries if g.shape == "mesh"]
     assert len(meshes) == 2
     assert all(g.filename is None for g in meshes)

@@ -1,0 +1,102 @@
+"""multibody: rigid multibody dynamics in pure Python, from Lagrangian mechanics.
+
+Public names are listed in ``docs/api.md``; conventions (vector ordering, frames, signs) in
+``docs/conventions.md``.
+"""
+
+from . import inertia, joints, robots, spatial
+from .constrained import ConstrainedSystem, ConstraintError, KKTSolution
+from .constraints import (
+    Distance,
+    Holonomic,
+    JointCoupling,
+    LoopClosure,
+    Pfaffian,
+    PointOnCurve,
+    PointOnSurface,
+    mimic_constraints,
+)
+from .dynamics import (
+    bias_forces,
+    coriolis_matrix,
+    forward_dynamics,
+    generalized_gravity,
+    inverse_dynamics,
+    inverse_mass_matrix,
+    joint_reaction_forces,
+    kinetic_energy,
+    mass_matrix,
+    potential_energy,
+)
+from .inertia import Inertia
+from .kinematics import (
+    forward_kinematics,
+    jacobian,
+    jacobian_time_variation,
+    point_acceleration,
+    point_velocity,
+)
+from .model import Geometry, Mimic, Model, ModelBuilder
+from .rolling import KnifeEdge, RollingDisc, RollingSphere
+from .simulation import SimulationError, Trajectory, simulate
+
+
+def __getattr__(name):
+    # The symbolic front-end (and SymPy with it) is imported on first use only.
+    if name in ("LagrangianSystem", "generalized_forces", "symbolic"):
+        import importlib
+
+        symbolic = importlib.import_module("multibody.symbolic")
+        return symbolic if name == "symbolic" else getattr(symbolic, name)
+    raise AttributeError(f"module 'multibody' has no attribute {name!r}")
+from .urdf import URDFError, load_urdf
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "ConstrainedSystem",
+    "ConstraintError",
+    "Distance",
+    "Holonomic",
+    "JointCoupling",
+    "KnifeEdge",
+    "LagrangianSystem",
+    "KKTSolution",
+    "LoopClosure",
+    "Pfaffian",
+    "PointOnCurve",
+    "PointOnSurface",
+    "RollingDisc",
+    "RollingSphere",
+    "SimulationError",
+    "Trajectory",
+    "mimic_constraints",
+    "simulate",
+    "bias_forces",
+    "coriolis_matrix",
+    "forward_dynamics",
+    "generalized_gravity",
+    "inverse_dynamics",
+    "inverse_mass_matrix",
+    "joint_reaction_forces",
+    "kinetic_energy",
+    "mass_matrix",
+    "potential_energy",
+    "Geometry",
+    "Inertia",
+    "Mimic",
+    "Model",
+    "ModelBuilder",
+    "URDFError",
+    "forward_kinematics",
+    "generalized_forces",
+    "inertia",
+    "jacobian",
+    "jacobian_time_variation",
+    "joints",
+    "load_urdf",
+    "point_acceleration",
+    "point_velocity",
+    "robots",
+    "spatial",
+]

@@ -1,0 +1,124 @@
+"""Cross-check a model against Pinocchio at random states (``multibody check URDF``).
+
+Pinocchio (``pip install pin``) is optional: this module imports it only when called.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import dynamics, joints, kinematics
+from .urdf import load_urdf
+
+#: Largest accepted relative error for quantities computed without solving a linear system.
+TOLERANCE = 1e-9
+
+
+@dataclass
+class Row:
+    quantity: str
+    error: float        # largest relative error over the samples
+    tolerance: float
+
+    @property
+    def ok(self):
+        return self.error <= self.tolerance
+
+
+def to_pinocchio_configuration(model, q):
+    """Our ``q`` in Pinocchio's layout: a continuous joint's angle θ becomes ``(cos θ, sin θ)``."""
+    blocks = []
+    for joint, start in zip(model.joints, model.idx_q):
+        block = q[..., start : start + joint.nq]
+        if isinstance(joint, joints.Continuous):
+            block = np.concatenate([np.cos(block), np.sin(block)], axis=-1)
+        blocks.append(block)
+    return np.concatenate(blocks, axis=-1) if blocks else q
+
+
+def _relative(ours, reference):
+    """``max |ours − reference| / max |reference|`` (absolute error when the reference is zero)."""
+    ours, reference = np.asarray(ours, dtype=float), np.asarray(reference, dtype=float)
+    scale = np.abs(reference).max(initial=0.0)
+    error = np.abs(ours - reference).max(initial=0.0)
+    return error / scale if scale > 0.0 else error
+
+
+def _symmetric(upper):
+    return np.triu(upper) + np.triu(upper, 1).T
+
+
+def compare_with_pinocchio(path, floating_base=False, samples=20, seed=0, package_dirs=None):
+    """Largest relative errors of every quantity against Pinocchio over ``samples`` random states.
+
+    Returns ``(model, rows, largest cond(M))``. ABA and ``M⁻¹`` solve a linear system, so their
+    forward error (the difference from Pinocchio's result) may grow with the condition number:
+    its tolerance is ``max(1e-9, 10 κ(M) ε)``. Their *backward* error, the residual in
+    Pinocchio's own ``M`` and RNEA relative to the sizes involved, must stay below 1e-9 whatever κ.
+    Raises ``RuntimeError`` when the two joint orders differ.
+    """
+    import pinocchio as pin
+
+    model = load_urdf(path, floating_base=floating_base, package_dirs=package_dirs, invalid_inertia="warn")
+    reference = pin.buildModelFromUrdf(str(path), pin.JointModelFreeFlyer()) if floating_base \
+        else pin.buildModelFromUrdf(str(path))
+    if list(reference.names)[1:] != list(model.joint_names):
+        raise RuntimeError(f"joint order differs from Pinocchio's: {list(reference.names)[1:]} vs {list(model.joint_names)}")
+    data = reference.createData()
+    rng = np.random.default_rng(seed)
+    errors, condition = {}, 1.0
+
+    def record(name, ours, theirs):
+        errors[name] = max(errors.get(name, 0.0), _relative(ours, theirs))
+
+    frame_ids = [reference.getFrameId(name, pin.BODY) for name in model.body_names]
+    for _ in range(samples):
+        q = model.random_configuration(rng)
+        v, a, tau = rng.standard_normal((3, model.nv))
+        f_ext = rng.standard_normal((model.njoints, 6))
+        q_pin = to_pinocchio_configuration(model, q)
+        f_pin = [pin.Force.Zero()] + [pin.Force(f) for f in f_ext]
+
+        pin.forwardKinematics(reference, data, q_pin)
+        pin.updateFramePlacements(reference, data)
+        pin.computeJointJacobians(reference, data, q_pin)
+        placements = kinematics.forward_kinematics(model, q)
+        for b, frame in enumerate(frame_ids):
+            if frame < reference.nframes:
+                record("forward kinematics", placements[b], data.oMf[frame].homogeneous)
+                record("jacobian", kinematics.jacobian(model, q, b),
+                       pin.getFrameJacobian(reference, data, frame, pin.LOCAL_WORLD_ALIGNED))
+        if model.nv == 0:
+            continue
+        M_pin = _symmetric(pin.crba(reference, data, q_pin))
+        condition = max(condition, np.linalg.cond(M_pin))
+        record("mass matrix (crba)", dynamics.mass_matrix(model, q), M_pin)
+        record("mass matrix (lagrangian)", dynamics.mass_matrix(model, q, method="lagrangian"), M_pin)
+        C_pin = pin.computeCoriolisMatrix(reference, data, q_pin, v)
+        record("coriolis (recursive)", dynamics.coriolis_matrix(model, q, v), C_pin)
+        if all(joint.nq == joint.nv for joint in model.joints):
+            record("coriolis (lagrangian)", dynamics.coriolis_matrix(model, q, v, method="lagrangian"), C_pin)
+        record("gravity g(q)", dynamics.generalized_gravity(model, q), pin.computeGeneralizedGravity(reference, data, q_pin))
+        record("bias h(q, v)", dynamics.bias_forces(model, q, v), pin.nonLinearEffects(reference, data, q_pin, v))
+        record("inverse dynamics (rnea, f_ext)", dynamics.inverse_dynamics(model, q, v, a, f_ext),
+               pin.rnea(reference, data, q_pin, v, a, f_pin))
+        a_ours = dynamics.forward_dynamics(model, q, v, tau, f_ext)
+        record("forward dynamics (aba, f_ext)", a_ours, pin.aba(reference, data, q_pin, v, tau, f_pin))
+        # Backward error: how far our a is from solving Pinocchio's own equations of motion.
+        residual = pin.rnea(reference, data, q_pin, v, a_ours, f_pin) - tau
+        backward = np.abs(residual).max() / (np.abs(M_pin).sum(axis=1).max() * np.abs(a_ours).max() + np.abs(tau).max())
+        errors["forward dynamics, backward error"] = max(errors.get("forward dynamics, backward error", 0.0), backward)
+        M_inv = dynamics.inverse_mass_matrix(model, q)
+        record("inverse mass matrix", M_inv, _symmetric(pin.computeMinverse(reference, data, q_pin)))
+        backward = np.abs(M_pin @ M_inv - np.eye(model.nv)).sum(axis=1).max() / (
+            np.abs(M_pin).sum(axis=1).max() * np.abs(M_inv).sum(axis=1).max())
+        errors["inverse mass matrix, backward error"] = max(errors.get("inverse mass matrix, backward error", 0.0), backward)
+        record("kinetic energy", dynamics.kinetic_energy(model, q, v), pin.computeKineticEnergy(reference, data, q_pin, v))
+        record("potential energy", dynamics.potential_energy(model, q), pin.computePotentialEnergy(reference, data, q_pin))
+
+    solve_tolerance = max(TOLERANCE, 10.0 * condition * np.finfo(float).eps)
+    rows = [Row(name, error, solve_tolerance if name in ("forward dynamics (aba, f_ext)", "inverse mass matrix") else TOLERANCE)
+            for name, error in errors.items()]
+    return model, rows, condition

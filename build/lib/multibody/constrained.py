@@ -1,0 +1,296 @@
+"""Constrained dynamics: the KKT system of ``M a + h = τ + Aᵀ λ``, ``A a = γ``.
+
+Eliminating ``a`` gives the multipliers from the *Delassus* matrix ``G = A M⁻¹ Aᵀ``
+(R. Featherstone, *Rigid Body Dynamics Algorithms*, §8.1, eq. 8.7 with our sign of λ):
+
+    a_free = M⁻¹ (τ − h)
+    G λ = γ − A a_free                     (minimum-norm λ when A is rank deficient)
+    a = a_free + M⁻¹ Aᵀ λ
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import dynamics
+from .model import Model
+
+
+class ConstraintError(RuntimeError):
+    """Constraints that cannot hold together (inconsistent), or a state that cannot be projected."""
+
+
+class ModelSystem:
+    """The mechanical-system interface of a :class:`Model`, as :class:`ConstrainedSystem` uses it.
+
+    Any other system (e.g. ``LagrangianSystem.numeric()``) provides the same members: ``nq``, ``nv``,
+    ``mass_matrix(q)``, ``bias_forces(q, v)``, ``integrate(q, v, dt)``, ``configuration_rate(q, v)``,
+    ``normalize(q)``, ``neutral()`` and ``energy(q, v)``.
+    """
+
+    def __init__(self, model: Model):
+        self.model = model
+        self.nq, self.nv = model.nq, model.nv
+
+    def mass_matrix(self, q):
+        return dynamics.mass_matrix(self.model, q)
+
+    def bias_forces(self, q, v):
+        return dynamics.bias_forces(self.model, q, v)
+
+    def integrate(self, q, v, dt=1.0):
+        return self.model.integrate(q, v, dt)
+
+    def configuration_rate(self, q, v):
+        return self.model.configuration_rate(q, v)
+
+    def normalize(self, q):
+        return self.model.normalize(q)
+
+    def neutral(self):
+        return self.model.neutral()
+
+    def energy(self, q, v):
+        """Kinetic plus gravitational potential energy (J)."""
+        return dynamics.kinetic_energy(self.model, q, v) + dynamics.potential_energy(self.model, q)
+
+
+def as_system(system):
+    """The mechanical-system interface of a Model, a ConstrainedSystem, or a system that already has it."""
+    if isinstance(system, Model):
+        return ModelSystem(system)
+    if isinstance(system, ConstrainedSystem):
+        return system.system
+    missing = [name for name in ("nq", "nv", "mass_matrix", "bias_forces", "integrate") if not hasattr(system, name)]
+    if missing:
+        raise TypeError(f"{type(system).__name__} is not a mechanical system: it lacks {', '.join(missing)}")
+    return system
+
+
+@dataclass
+class KKTSolution:
+    """Result of :meth:`ConstrainedSystem.solve`.
+
+    Attributes:
+        a: accelerations ``(nv,)``.
+        lam: multipliers ``(m,)``, one per constraint row (minimum-norm when rows are redundant).
+        rank: rank of the constraint Jacobian ``A`` (``m`` when no row is redundant).
+        A: the constraint Jacobian ``(m, nv)``; gamma: ``(m,)``.
+    """
+
+    a: np.ndarray
+    lam: np.ndarray
+    rank: int
+    A: np.ndarray
+    gamma: np.ndarray
+
+
+class ConstrainedSystem:
+    """A mechanical system with holonomic and nonholonomic constraints.
+
+    Args:
+        model: a :class:`Model`, or any system with ``nq``, ``nv``, ``mass_matrix(q)``,
+            ``bias_forces(q, v)`` and ``integrate(q, v, dt)`` (see :class:`ModelSystem`).
+        constraints: :mod:`multibody.constraints` instances (holonomic and Pfaffian mix freely).
+        baumgarte: ``None`` (no stabilisation), a rate ``α`` (1/s), or ``(α, β)``: the
+            acceleration-level rows become ``A a = γ − 2α (A v + b) − β² φ`` (``φ`` for holonomic
+            rows only; ``β = α`` when a single number is given, the critically damped choice).
+        rank_tolerance: relative singular-value threshold below which constraint rows count as redundant.
+    """
+
+    def __init__(self, model, constraints=(), *, baumgarte=None, rank_tolerance=1e-10):
+        self.system = as_system(model)
+        self.model = model if isinstance(model, Model) else None
+        self.constraints = list(constraints)
+        self.nq, self.nv = self.system.nq, self.system.nv
+        if baumgarte is None:
+            self.baumgarte = None
+        else:
+            alpha, beta = (baumgarte, baumgarte) if np.isscalar(baumgarte) else baumgarte
+            if alpha < 0 or beta < 0:
+                raise ValueError(f"Baumgarte gains must be non-negative, got {baumgarte!r}")
+            self.baumgarte = (float(alpha), float(beta))
+        self.rank_tolerance = rank_tolerance
+        self._rows = [c.rows(self.system) for c in self.constraints]
+        masks = [np.asarray(c.position_rows(self.system), dtype=bool) for c in self.constraints]
+        self._position_mask = np.concatenate(masks) if masks else np.zeros(0, dtype=bool)
+        self._has_position = [bool(mask.any()) for mask in masks]
+        self.row_names = [f"{c.name}[{k}]" for c, m in zip(self.constraints, self._rows) for k in range(m)]
+
+    @property
+    def num_rows(self) -> int:
+        """Total number of constraint rows ``m``."""
+        return int(sum(self._rows))
+
+    # ------------------------------------------------------------------ stacked constraint levels
+
+    def _stack(self, pieces, shape):
+        return np.concatenate(pieces, axis=-1 if len(shape) == 1 else -2) if pieces else np.zeros(shape)
+
+    def position_error(self, q, t=0.0):
+        """``φ(q, t)`` of the rows with a position level, zeros for the others: ``(m,)``."""
+        pieces = [c.position(self.system, q, t) if has_position else np.zeros(m)
+                  for c, m, has_position in zip(self.constraints, self._rows, self._has_position)]
+        return self._stack(pieces, (0,))
+
+    def jacobian(self, q, t=0.0):
+        """Stacked ``A(q, t)``: ``(m, nv)``."""
+        return self._stack([c.jacobian(self.system, q, t) for c in self.constraints], (0, self.nv))
+
+    def velocity_bias(self, q, t=0.0):
+        """Stacked ``b(q, t)``: ``(m,)``."""
+        return self._stack([c.velocity_bias(self.system, q, t) for c in self.constraints], (0,))
+
+    def velocity_error(self, q, v, t=0.0):
+        """``A v + b``: ``(m,)``."""
+        return self.jacobian(q, t) @ v + self.velocity_bias(q, t)
+
+    def acceleration_level(self, q, v, t=0.0):
+        """``(A, γ)``: the stacked rows of ``A a = γ``, Baumgarte terms included: ``(m, nv)``, ``(m,)``."""
+        levels = [c.evaluate(self.system, q, v, t) for c in self.constraints]
+        A = self._stack([level[0] for level in levels], (0, self.nv))
+        gamma = self._stack([level[2] for level in levels], (0,))
+        if self.baumgarte is not None and self.num_rows:
+            alpha, beta = self.baumgarte
+            velocity_error = A @ v + self._stack([level[1] for level in levels], (0,))
+            gamma = gamma - 2.0 * alpha * velocity_error - beta**2 * self.position_error(q, t)
+        return A, gamma
+
+    def acceleration_rhs(self, q, v, t=0.0):
+        """Stacked ``γ(q, v, t)``, Baumgarte terms included: ``(m,)``."""
+        return self.acceleration_level(q, v, t)[1]
+
+    def residual(self, q, v, t=0.0):
+        """Largest constraint violation: ``max(|φ|, |A v + b|)`` over all rows (0 without constraints)."""
+        if not self.num_rows:
+            return 0.0
+        return float(max(np.abs(self.position_error(q, t)).max(), np.abs(self.velocity_error(q, v, t)).max()))
+
+    # ------------------------------------------------------------------ dynamics
+
+    def _factor(self, q):
+        M = self.system.mass_matrix(q)
+        try:
+            return np.linalg.cholesky(M)
+        except np.linalg.LinAlgError:
+            raise ConstraintError("the mass matrix is not positive definite at this configuration") from None
+
+    @staticmethod
+    def _solve_factored(L, rhs):
+        """``M⁻¹ rhs`` from the Cholesky factor ``L`` (``M = L Lᵀ``)."""
+        return np.linalg.solve(L.T, np.linalg.solve(L, rhs))
+
+    def _multipliers(self, A, M_inv_At, rhs):
+        """Minimum-norm solution of ``G λ = rhs`` with ``G = A M⁻¹ Aᵀ``, the rank, and a consistency check."""
+        G = A @ M_inv_At
+        U, sigma, Vt = np.linalg.svd(G, hermitian=True)
+        cutoff = self.rank_tolerance * (sigma[0] if sigma.size else 0.0)
+        rank = int(np.sum(sigma > cutoff))
+        inverse = np.where(sigma > cutoff, 1.0 / np.where(sigma > cutoff, sigma, 1.0), 0.0)
+        lam = Vt.T @ (inverse * (U.T @ rhs))
+        # Consistency: the part of rhs outside the range of G cannot be met by any λ.
+        mismatch = rhs - G @ lam
+        scale = max(np.abs(rhs).max(initial=0.0), 1.0)
+        if np.abs(mismatch).max(initial=0.0) > 1e-8 * scale:
+            worst = int(np.argmax(np.abs(mismatch)))
+            raise ConstraintError(
+                f"inconsistent constraints: no accelerations satisfy all {A.shape[0]} rows (rank {rank}); "
+                f"row {self.row_names[worst]!r} is off by {mismatch[worst]:.3g}")
+        return lam, rank
+
+    def _tau(self, tau):
+        if tau is None:
+            return np.zeros(self.nv)
+        tau = np.asarray(tau, dtype=float)
+        if tau.shape != (self.nv,):
+            raise ValueError(f"tau must have shape ({self.nv},), got {tau.shape}")
+        return tau
+
+    def solve(self, q, v, tau=None, t=0.0) -> KKTSolution:
+        """Accelerations, multipliers and rank at one state; see :class:`KKTSolution`."""
+        q, v = np.asarray(q, dtype=float), np.asarray(v, dtype=float)
+        if q.shape != (self.nq,) or v.shape != (self.nv,):
+            raise ValueError(f"q and v must have shapes ({self.nq},) and ({self.nv},), got {q.shape} and {v.shape}")
+        tau = self._tau(tau)
+        L = self._factor(q)
+        # a_free = M⁻¹ (τ − h)
+        a_free = self._solve_factored(L, tau - self.system.bias_forces(q, v))
+        if not self.num_rows:
+            return KKTSolution(a_free, np.zeros(0), 0, np.zeros((0, self.nv)), np.zeros(0))
+        A, gamma = self.acceleration_level(q, v, t)
+        M_inv_At = self._solve_factored(L, A.T)
+        # (A M⁻¹ Aᵀ) λ = γ − A a_free ;  a = a_free + M⁻¹ Aᵀ λ
+        lam, rank = self._multipliers(A, M_inv_At, gamma - A @ a_free)
+        return KKTSolution(a_free + M_inv_At @ lam, lam, rank, A, gamma)
+
+    def forward_dynamics(self, q, v, tau=None, t=0.0):
+        """``(a, λ)`` with ``M a + h = τ + Aᵀ λ`` and ``A a = γ``: ``(nv,)``, ``(m,)``.
+
+        ``tau`` defaults to zero. Redundant rows get the minimum-norm multipliers; inconsistent
+        rows raise :class:`ConstraintError`.
+        """
+        solution = self.solve(q, v, tau, t)
+        return solution.a, solution.lam
+
+    def rank(self, q, t=0.0) -> int:
+        """Rank of the constraint Jacobian at ``q``: the number of independent rows."""
+        if not self.num_rows:
+            return 0
+        sigma = np.linalg.svd(self.jacobian(q, t), compute_uv=False)
+        return int(np.sum(sigma > self.rank_tolerance * sigma[0])) if sigma.size and sigma[0] > 0 else 0
+
+    # ------------------------------------------------------------------ projection onto the constraints
+
+    def project(self, q, v, t=0.0, *, tolerance=1e-12, max_iterations=50):
+        """The nearest consistent state: ``φ(q', t) = 0`` and ``A v' + b = 0``.
+
+        Positions by Gauss–Newton steps ``δ = −M⁻¹Aᵀ (A M⁻¹ Aᵀ)⁺ φ`` on the rows with a position level (the
+        smallest move in the kinetic-energy metric), then velocities by the ``M``-orthogonal
+        projection ``v' = v − M⁻¹Aᵀ (A M⁻¹ Aᵀ)⁺ (A v + b)``. Raises :class:`ConstraintError` when the
+        positions do not converge.
+        """
+        q = self.system.normalize(np.asarray(q, dtype=float)) if hasattr(self.system, "normalize") else np.asarray(q, dtype=float)
+        v = np.asarray(v, dtype=float)
+        if not self.num_rows:
+            return q, v
+        holonomic = self._position_mask
+        if holonomic.any():
+            for _ in range(max_iterations):
+                phi = self.position_error(q, t)[holonomic]
+                if np.abs(phi).max() <= tolerance:
+                    break
+                L = self._factor(q)
+                A = self.jacobian(q, t)[holonomic]
+                M_inv_At = self._solve_factored(L, A.T)
+                step = -M_inv_At @ (np.linalg.pinv(A @ M_inv_At, rcond=self.rank_tolerance, hermitian=True) @ phi)
+                q = self.system.integrate(q, step, 1.0)
+            else:
+                raise ConstraintError(f"projection onto the position constraints did not converge: "
+                                      f"|φ| = {np.abs(phi).max():.3g} after {max_iterations} iterations")
+        L = self._factor(q)
+        A = self.jacobian(q, t)
+        M_inv_At = self._solve_factored(L, A.T)
+        error = A @ v + self.velocity_bias(q, t)
+        v = v - M_inv_At @ (np.linalg.pinv(A @ M_inv_At, rcond=self.rank_tolerance, hermitian=True) @ error)
+        return q, v
+
+    def body_forces(self, q, lam, t=0.0):
+        """Spatial forces all constraints exert on the bodies: ``f_ext (njoints, 6)`` in joint frames.
+
+        Pass them to :func:`multibody.joint_reaction_forces` (with the accelerations of
+        :meth:`forward_dynamics`) to get the loads every joint carries in the closed mechanism.
+        """
+        lam = np.asarray(lam, dtype=float)
+        offsets = np.cumsum([0] + self._rows)
+        return sum(c.body_forces(self.system, q, lam[offsets[k]:offsets[k + 1]], t)
+                   for k, c in enumerate(self.constraints))
+
+    def energy(self, q, v):
+        """Mechanical energy of the underlying system (J), NaN if it does not define one."""
+        return self.system.energy(q, v) if hasattr(self.system, "energy") else float("nan")
+
+    def __repr__(self):
+        return f"ConstrainedSystem({self.nq=}, {self.nv=}, rows={self.num_rows}, constraints={self.constraints})"
+

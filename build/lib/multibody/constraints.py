@@ -1,0 +1,604 @@
+"""Constraints enforced through Lagrange multipliers.
+
+Every constraint contributes ``m`` rows to three levels (sign convention in ``docs/conventions.md``):
+
+* velocity: ``A(q, t) v + b(q, t) = 0``;
+* acceleration: ``A(q, t) a = γ(q, v, t)``, obtained by differentiating the velocity level in time;
+* position (holonomic constraints only): ``φ(q, t) = 0``, with ``A = ∂φ/∂q · ∂q/∂v`` and ``b = ∂φ/∂t``.
+
+The multipliers ``λ`` enter the equations of motion as ``M a + h = τ + Aᵀ λ``; for the built-in
+constraints they are the constraint forces named in each class.
+
+A constraint is evaluated for a mechanical *system* (a :class:`~multibody.model.Model`, or any
+object with ``nq``, ``nv`` and ``integrate(q, v, dt)``). Its methods take one state (no batch axes
+are required of user callables); built-in constraints also accept batches.
+
+Derivatives the user does not supply are taken numerically along the path ``q(s) = q ⊕ v s``,
+``t + s`` (constant generalized velocity, ``a = 0``) with fourth-order central differences.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from . import kinematics, spatial
+from .spatial import matvec, transpose
+
+# Steps of the numerical derivatives: fourth-order stencils keep the truncation error near
+# (h/L)⁴ for features of size L, and the rounding error near ε/h (first) or ε/h² (second derivative).
+_FIRST_STEP = 1e-3
+_SECOND_STEP = 2e-3
+
+
+def _first_derivative(f, h=_FIRST_STEP):
+    """``f'(0)`` by the five-point stencil ``(8 (f(h) − f(−h)) − (f(2h) − f(−2h))) / 12h``."""
+    return (8.0 * (f(h) - f(-h)) - (f(2.0 * h) - f(-2.0 * h))) / (12.0 * h)
+
+
+def _second_derivative(f, h=_SECOND_STEP):
+    """``f''(0)`` by the five-point stencil ``(−f(2h) + 16 f(h) − 30 f(0) + 16 f(−h) − f(−2h)) / 12h²``."""
+    return (-f(2.0 * h) + 16.0 * f(h) - 30.0 * f(0.0) + 16.0 * f(-h) - f(-2.0 * h)) / (12.0 * h * h)
+
+
+def _along_path(system, q, v, t, fn):
+    """``s ↦ fn(q ⊕ v s, t + s)``."""
+    return lambda s: fn(system.integrate(q, v, s), t + s)
+
+
+class Constraint:
+    """Base class. Subclasses define ``rows(system)``, ``jacobian``, and ``acceleration_rhs``;
+    holonomic ones also ``position``.
+
+    Attributes:
+        name: label used in errors and in :class:`~multibody.constrained.ConstrainedSystem` rows.
+        holonomic: ``True`` when a position-level ``φ(q, t) = 0`` exists.
+    """
+
+    holonomic = False
+
+    def __init__(self, name=None):
+        self.name = name or type(self).__name__
+
+    def rows(self, system) -> int:
+        """Number of rows ``m``."""
+        raise NotImplementedError
+
+    def position_rows(self, system):
+        """``(m,)`` boolean: the rows that have a position level ``φ = 0`` (all of a holonomic
+        constraint's, none of a Pfaffian's; a rolling contact's normal row is holonomic)."""
+        return np.full(self.rows(system), self.holonomic)
+
+    def position(self, system, q, t=0.0):
+        """``φ(q, t)`` ``(..., m)`` (holonomic constraints only)."""
+        raise TypeError(f"{self.name} is not holonomic: it has no position level")
+
+    def jacobian(self, system, q, t=0.0):
+        """``A(q, t)`` ``(..., m, nv)``."""
+        raise NotImplementedError
+
+    def velocity_bias(self, system, q, t=0.0):
+        """``b(q, t)`` ``(..., m)`` in ``A v + b = 0`` (zero for scleronomic constraints)."""
+        return np.zeros(np.shape(q)[:-1] + (self.rows(system),))
+
+    def acceleration_rhs(self, system, q, v, t=0.0):
+        """``γ(q, v, t)`` ``(..., m)`` in ``A a = γ``: ``γ = −(d/dt)(A v + b)`` at ``a = 0``."""
+        raise NotImplementedError
+
+    def evaluate(self, system, q, v, t=0.0):
+        """``(A, b, γ)`` at one state; built-in constraints share one kinematics pass between them."""
+        return self.jacobian(system, q, t), self.velocity_bias(system, q, t), self.acceleration_rhs(system, q, v, t)
+
+    def body_forces(self, system, q, lam, t=0.0):
+        """Spatial forces the constraint exerts on the bodies for multipliers ``lam (m,)``.
+
+        Returned in the ``f_ext`` layout of :func:`multibody.inverse_dynamics`: ``(njoints, 6)``,
+        each body's force in its joint frame, so that ``Σ Jᵀ f = Aᵀ λ``. Only constraints that act
+        through body points define it.
+        """
+        raise TypeError(f"{self.name} acts on generalized coordinates, not through body points: "
+                        "it has no body forces (its generalized force is Aᵀ λ)")
+
+    def __repr__(self):
+        return f"{type(self).__name__}({self.name!r})"
+
+
+# ============================================================================= user constraints
+
+class Holonomic(Constraint):
+    """A user constraint ``φ(q, t) = 0`` (scleronomic or rheonomic).
+
+    Args:
+        phi: ``phi(q, t) -> (m,)``.
+        jacobian: ``jacobian(q, t) -> (m, nv)``, the derivative with respect to ``v``
+            (``∂φ/∂q`` when ``v = q̇``); numerical when omitted.
+        name: label.
+        dphi_dt: ``dphi_dt(q, t) -> (m,)``, the explicit time derivative ``∂φ/∂t``; numerical when
+            omitted (exactly zero for a scleronomic ``phi``).
+        gamma: ``gamma(q, v, t) -> (m,)``, the acceleration-level right-hand side
+            ``γ = −(J̇ v + 2 ∂J/∂t v + ∂²φ/∂t²)``, i.e. ``−d²φ/dt²`` at ``a = 0``; numerical when omitted.
+    """
+
+    holonomic = True
+
+    def __init__(self, phi, jacobian=None, name=None, *, dphi_dt=None, gamma=None):
+        super().__init__(name or getattr(phi, "__name__", None))
+        self.phi, self._jacobian, self._dphi_dt, self._gamma = phi, jacobian, dphi_dt, gamma
+
+    def position(self, system, q, t=0.0):
+        return np.atleast_1d(np.asarray(self.phi(q, t), dtype=float))
+
+    def rows(self, system):
+        return self.position(system, _neutral(system), 0.0).shape[-1]
+
+    def jacobian(self, system, q, t=0.0):
+        if self._jacobian is not None:
+            return np.atleast_2d(np.asarray(self._jacobian(q, t), dtype=float))
+        # Column k: dφ/dε along q ⊕ ε e_k.
+        eye = np.eye(system.nv)
+        columns = [_first_derivative(lambda s, e=e: self.position(system, system.integrate(q, e, s), t)) for e in eye]
+        return np.stack(columns, axis=-1)
+
+    def velocity_bias(self, system, q, t=0.0):
+        if self._dphi_dt is not None:
+            return np.atleast_1d(np.asarray(self._dphi_dt(q, t), dtype=float))
+        return _first_derivative(lambda s: self.position(system, q, t + s))
+
+    def acceleration_rhs(self, system, q, v, t=0.0):
+        if self._gamma is not None:
+            return np.atleast_1d(np.asarray(self._gamma(q, v, t), dtype=float))
+        if self._jacobian is not None:
+            # γ = −d/ds [J v + ∂φ/∂t] along the path with a = 0.
+            return -_first_derivative(_along_path(
+                system, q, v, t, lambda qs, ts: self.jacobian(system, qs, ts) @ v + self.velocity_bias(system, qs, ts)))
+        # γ = −d²/ds² φ(q ⊕ v s, t + s)
+        return -_second_derivative(_along_path(system, q, v, t, lambda qs, ts: self.position(system, qs, ts)))
+
+
+class Pfaffian(Constraint):
+    """A nonholonomic (velocity-level) constraint ``A(q, t) v + b(q, t) = 0``.
+
+    Args:
+        A: ``A(q, t) -> (m, nv)``.
+        b: ``b(q, t) -> (m,)`` or ``None`` (scleronomic, ``b = 0``).
+        name: label.
+        gamma: ``gamma(q, v, t) -> (m,)``, ``γ = −(Ȧ v + ḃ)`` at ``a = 0``; numerical when omitted.
+    """
+
+    def __init__(self, A, b=None, name=None, *, gamma=None):
+        super().__init__(name or getattr(A, "__name__", None))
+        self._A, self._b, self._gamma = A, b, gamma
+
+    def rows(self, system):
+        return self.jacobian(system, _neutral(system), 0.0).shape[-2]
+
+    def jacobian(self, system, q, t=0.0):
+        return np.atleast_2d(np.asarray(self._A(q, t), dtype=float))
+
+    def velocity_bias(self, system, q, t=0.0):
+        if self._b is None:
+            return np.zeros(self.rows(system))
+        return np.atleast_1d(np.asarray(self._b(q, t), dtype=float))
+
+    def acceleration_rhs(self, system, q, v, t=0.0):
+        if self._gamma is not None:
+            return np.atleast_1d(np.asarray(self._gamma(q, v, t), dtype=float))
+        # γ = −d/ds [A v + b] along the path with a = 0.
+        return -_first_derivative(_along_path(
+            system, q, v, t, lambda qs, ts: self.jacobian(system, qs, ts) @ v + self.velocity_bias(system, qs, ts)))
+
+
+def _neutral(system):
+    return system.neutral() if hasattr(system, "neutral") else np.zeros(system.nq)
+
+
+# ============================================================================= built-in holonomic constraints
+
+def _require_model(system, constraint):
+    """The :class:`Model` behind ``system`` (a Model or its ``ModelSystem`` adapter)."""
+    from .model import Model
+
+    system = getattr(system, "model", system)
+    if not isinstance(system, Model):
+        raise TypeError(f"{constraint.name} refers to bodies, so it needs a multibody Model, got {type(system).__name__}")
+    return system
+
+
+def _frame(system, q, v, body, placement):
+    """``(R_WF, p_WF, J, J̇v)`` of a frame fixed in ``body`` (``None``: the world); see ``frame_kinematics``."""
+    v = np.zeros(np.shape(q)[:-1] + (system.nv,)) if v is None else v
+    return kinematics.frame_kinematics(system, q, v, body, placement)
+
+
+def _wrenches(model, q, loads):
+    """``f_ext (njoints, 6)`` from world-frame loads ``(body, force (3,), application point (3,), moment (3,))``."""
+    R_WJ, p_WJ = kinematics.joint_world_poses(model, q)
+    f_ext = np.zeros((model.njoints, 6))
+    for body, force, point, moment in loads:
+        if body is None:
+            continue  # the world takes it
+        joint = model.body_joints[model.body_index(body)]
+        if joint < 0:
+            continue
+        # World Plücker force at the origin: [f; p × f + n], then into the joint frame.
+        world = np.concatenate([force, spatial.cross(point, force) + moment])
+        f_ext[joint] += spatial.inverse_transform_force(R_WJ[joint], p_WJ[joint], world)
+    return f_ext
+
+
+def _point_placement(point):
+    placement = np.eye(4)
+    if point is not None:
+        point = np.asarray(point, dtype=float)
+        if point.shape != (3,):
+            raise ValueError(f"point must have shape (3,), got {point.shape}")
+        placement[:3, 3] = point
+    return placement
+
+
+def _placement(frame):
+    if frame is None:
+        return np.eye(4)
+    frame = np.asarray(frame, dtype=float)
+    if frame.shape != (4, 4):
+        raise ValueError(f"frame must be a 4x4 pose, got shape {frame.shape}")
+    return frame
+
+
+class PointOnCurve(Constraint):
+    """A body point stays on a fixed parametric curve ``r(s)`` (a bead on a wire).
+
+    Position level: ``φ = P(s*) (x − r(s*))`` with ``s*`` the curve parameter closest to the point
+    ``x`` and ``P = I − t tᵀ`` the projector normal to the unit tangent ``t``. The three rows have
+    rank 2, so the minimum-norm multipliers ``λ`` (3,) are the **normal force** the wire exerts on
+    the bead, in world axes (N).
+
+    Args:
+        body: body name or index.
+        curve: ``curve(s) -> (..., 3)``, vectorised over an array of parameters ``s``.
+        point: the point in body coordinates (default the body origin).
+        s_range: ``(s_min, s_max)`` parameter interval searched for the closest point.
+        samples: number of samples of the coarse search before Newton's refinement.
+        derivative, second_derivative: ``r'(s)``, ``r''(s)`` (vectorised); numerical when omitted.
+    """
+
+    holonomic = True
+
+    def __init__(self, body, curve, *, point=None, s_range=(0.0, 1.0), samples=2001, derivative=None,
+                 second_derivative=None, name=None):
+        super().__init__(name or f"point of {body} on curve")
+        self.body, self.curve, self.placement = body, curve, _point_placement(point)
+        self.s_grid = np.linspace(float(s_range[0]), float(s_range[1]), int(samples))
+        self._d1 = derivative or (lambda s: _first_derivative(lambda h: curve(s + h)))
+        self._d2 = second_derivative or (lambda s: _second_derivative(lambda h: curve(s + h)))
+
+    def rows(self, system):
+        return 3
+
+    def closest_parameter(self, x):
+        """Curve parameter ``s*`` of the point of the curve closest to ``x (..., 3)``: ``(...)``."""
+        x = np.asarray(x, dtype=float)
+        grid_points = self.curve(self.s_grid)  # (n, 3)
+        distances = np.sum((x[..., None, :] - grid_points) ** 2, axis=-1)
+        s = self.s_grid[np.argmin(distances, axis=-1)]
+        # Newton on g(s) = r'(s)·(x − r(s)) = 0, g'(s) = r''·(x − r) − |r'|².
+        for _ in range(50):
+            d1, d2, gap = self._d1(s), self._d2(s), x - self.curve(s)
+            g = np.sum(d1 * gap, axis=-1)
+            dg = np.sum(d2 * gap, axis=-1) - np.sum(d1 * d1, axis=-1)
+            step = np.where(dg < 0.0, g / np.where(dg < 0.0, dg, -1.0), 0.0)
+            s = s - step
+            if np.all(np.abs(step) <= 1e-15 * (1.0 + np.abs(s))):
+                break
+        low, high = self.s_grid[0], self.s_grid[-1]
+        if np.any((s < low) | (s > high)):
+            raise ValueError(f"{self.name}: the closest point of the curve lies outside s_range = ({low:g}, {high:g}) "
+                             "(the point has left the curve's parameter range); widen s_range")
+        return s
+
+    def _geometry(self, x):
+        s = self.closest_parameter(x)
+        d1 = self._d1(s)
+        tangent = d1 / np.linalg.norm(d1, axis=-1, keepdims=True)
+        projector = np.eye(3) - tangent[..., :, None] * tangent[..., None, :]
+        return s, d1, tangent, projector
+
+    def position(self, system, q, t=0.0):
+        _, x, _, _ = _frame(_require_model(system, self), q, None, self.body, self.placement)
+        s, _, _, projector = self._geometry(x)
+        return matvec(projector, x - self.curve(s))
+
+    def body_forces(self, system, q, lam, t=0.0):
+        model = _require_model(system, self)
+        _, x, _, _ = _frame(model, q, None, self.body, self.placement)
+        # Aᵀλ = Jᵀ P λ: the force P λ at the bead
+        return _wrenches(model, q, [(self.body, self._geometry(x)[3] @ lam, x, np.zeros(3))])
+
+    def jacobian(self, system, q, t=0.0):
+        _, x, J, _ = _frame(_require_model(system, self), q, None, self.body, self.placement)
+        return self._geometry(x)[3] @ J[..., :3, :]
+
+    def acceleration_rhs(self, system, q, v, t=0.0):
+        return self.evaluate(system, q, v, t)[2]
+
+    def evaluate(self, system, q, v, t=0.0):
+        _, x, J, J_dot_v = _frame(_require_model(system, self), q, v, self.body, self.placement)
+        s, d1, tangent, projector = self._geometry(x)
+        x_dot = matvec(J[..., :3, :], v)
+        # ṫ = P r'' ṡ / |r'| with ṡ = r'·ẋ / |r'|²;  Ṗ ẋ = −ṫ (t·ẋ) − t (ṫ·ẋ)
+        speed2 = np.sum(d1 * d1, axis=-1, keepdims=True)
+        s_dot = np.sum(d1 * x_dot, axis=-1, keepdims=True) / speed2
+        t_dot = matvec(projector, self._d2(s)) * s_dot / np.sqrt(speed2)
+        P_dot_x_dot = -t_dot * np.sum(tangent * x_dot, axis=-1, keepdims=True) \
+            - tangent * np.sum(t_dot * x_dot, axis=-1, keepdims=True)
+        # γ = −P (Ṗ ẋ + J̇v): the rows P J are orthogonal to t, so only γ's normal part can be met
+        # (its tangential part vanishes on the velocity manifold anyway).
+        gamma = -matvec(projector, P_dot_x_dot + J_dot_v[..., :3])
+        return projector @ J[..., :3, :], np.zeros_like(gamma), gamma
+
+
+class PointOnSurface(Constraint):
+    """A body point stays on a fixed implicit surface ``f(x) = 0``.
+
+    One row, ``φ = f(x)``; with a unit-gradient ``f`` (a signed distance) the multiplier is the
+    normal force (N) along ``∇f``.
+
+    Args:
+        body: body name or index.
+        surface: ``f(x) -> (...)`` for points ``x (..., 3)``.
+        point: the point in body coordinates (default the body origin).
+        gradient: ``∇f(x) -> (..., 3)``; hessian: ``∇²f(x) -> (..., 3, 3)``; numerical when omitted.
+    """
+
+    holonomic = True
+
+    def __init__(self, body, surface, *, point=None, gradient=None, hessian=None, name=None):
+        super().__init__(name or f"point of {body} on surface")
+        self.body, self.surface, self.placement = body, surface, _point_placement(point)
+        eye = np.eye(3)
+        self._gradient = gradient or (lambda x: np.stack(
+            [_first_derivative(lambda h, e=e: surface(x + h * e)) for e in eye], axis=-1))
+        self._hessian = hessian or (lambda x: np.stack(
+            [_first_derivative(lambda h, e=e: self._gradient(x + h * e)) for e in eye], axis=-1))
+
+    def rows(self, system):
+        return 1
+
+    def position(self, system, q, t=0.0):
+        _, x, _, _ = _frame(_require_model(system, self), q, None, self.body, self.placement)
+        return np.asarray(self.surface(x), dtype=float)[..., None]
+
+    def body_forces(self, system, q, lam, t=0.0):
+        model = _require_model(system, self)
+        _, x, _, _ = _frame(model, q, None, self.body, self.placement)
+        # Aᵀλ = Jᵀ ∇f λ: the force ∇f λ at the point
+        return _wrenches(model, q, [(self.body, self._gradient(x) * lam[0], x, np.zeros(3))])
+
+    def jacobian(self, system, q, t=0.0):
+        _, x, J, _ = _frame(_require_model(system, self), q, None, self.body, self.placement)
+        return matvec(transpose(J[..., :3, :]), self._gradient(x))[..., None, :]
+
+    def acceleration_rhs(self, system, q, v, t=0.0):
+        return self.evaluate(system, q, v, t)[2]
+
+    def evaluate(self, system, q, v, t=0.0):
+        _, x, J, J_dot_v = _frame(_require_model(system, self), q, v, self.body, self.placement)
+        gradient = self._gradient(x)
+        x_dot = matvec(J[..., :3, :], v)
+        # γ = −(ẋᵀ ∇²f ẋ + ∇f · J̇v)
+        curvature = np.einsum("...i,...ij,...j->...", x_dot, self._hessian(x), x_dot)
+        gamma = -(curvature + np.sum(gradient * J_dot_v[..., :3], axis=-1))[..., None]
+        return matvec(transpose(J[..., :3, :]), gradient)[..., None, :], np.zeros_like(gamma), gamma
+
+
+class Distance(Constraint):
+    """Two points (on bodies, or fixed in the world) stay a given distance apart: a massless rod.
+
+    One row, ``φ = d − |x_a − x_b|``; the multiplier is the rod's **tension** (N, positive when it
+    pulls the points together).
+
+    Args:
+        body_a, body_b: body names or indices, ``None`` for the world.
+        distance: ``d`` (m).
+        point_a, point_b: points in the bodies' frames (world coordinates for ``None``).
+    """
+
+    holonomic = True
+
+    def __init__(self, body_a, body_b, distance, *, point_a=None, point_b=None, name=None):
+        super().__init__(name or f"distance {body_a}-{body_b}")
+        if not distance > 0.0:
+            raise ValueError(f"distance must be positive, got {distance!r}")
+        self.body_a, self.body_b, self.distance = body_a, body_b, float(distance)
+        self.placement_a, self.placement_b = _point_placement(point_a), _point_placement(point_b)
+
+    def rows(self, system):
+        return 1
+
+    def _points(self, system, q, v):
+        model = _require_model(system, self)
+        return _frame(model, q, v, self.body_a, self.placement_a), _frame(model, q, v, self.body_b, self.placement_b)
+
+    def position(self, system, q, t=0.0):
+        (_, x_a, _, _), (_, x_b, _, _) = self._points(system, q, None)
+        return (self.distance - np.linalg.norm(x_a - x_b, axis=-1))[..., None]
+
+    def body_forces(self, system, q, lam, t=0.0):
+        (_, x_a, _, _), (_, x_b, _, _) = self._points(system, q, None)
+        u = (x_a - x_b) / np.linalg.norm(x_a - x_b)
+        # Aᵀλ = J_aᵀ(−u λ) + J_bᵀ(u λ): the rod pulls a towards b and b towards a
+        zero = np.zeros(3)
+        return _wrenches(_require_model(system, self), q,
+                         [(self.body_a, -u * lam[0], x_a, zero), (self.body_b, u * lam[0], x_b, zero)])
+
+    def jacobian(self, system, q, t=0.0):
+        return self.evaluate(system, q, np.zeros(system.nv), t)[0]
+
+    def acceleration_rhs(self, system, q, v, t=0.0):
+        return self.evaluate(system, q, v, t)[2]
+
+    def evaluate(self, system, q, v, t=0.0):
+        (_, x_a, J_a, Jv_a), (_, x_b, J_b, Jv_b) = self._points(system, q, v)
+        delta = x_a - x_b
+        length = np.linalg.norm(delta, axis=-1)
+        u = delta / length[..., None]
+        J_delta = J_a[..., :3, :] - J_b[..., :3, :]
+        # φ̇ = −u · Δ̇; the force on a, −λ u, pulls it towards b when λ > 0
+        A = -matvec(transpose(J_delta), u)[..., None, :]
+        delta_dot = matvec(J_delta, v)
+        # φ̈ = −u·Δ̈ − (|Δ̇|² − (u·Δ̇)²)/|Δ| = A a − u·(J̇v_a − J̇v_b) − (...) = 0
+        normal_part = (np.sum(delta_dot**2, axis=-1) - np.sum(u * delta_dot, axis=-1) ** 2) / length
+        gamma = (np.sum(u * (Jv_a[..., :3] - Jv_b[..., :3]), axis=-1) + normal_part)[..., None]
+        return A, np.zeros_like(gamma), gamma
+
+
+class LoopClosure(Constraint):
+    """Closes a kinematic loop between frame A (fixed in ``body_a``) and frame B (in ``body_b``).
+
+    Position rows: the position of B's origin relative to A's, expressed in frame A,
+    ``r = R_WAᵀ (p_B − p_A)``, keeping the components along ``position_axes`` of A.
+    Orientation rows: for each pair ``(i, j)`` in ``aligned_axes``, ``e_i^A · e_j^B = 0`` (axis i of A
+    perpendicular to axis j of B).
+
+    ``kind`` chooses both:
+
+    ===========  ==========================  ==========================================  ====
+    kind         position axes of A          perpendicular axis pairs (A, B)             rows
+    ===========  ==========================  ==========================================  ====
+    "point"      x, y, z                     —                                           3
+    "planar"     x, y (the loop's plane)     —                                           2
+    "revolute"   x, y, z                     (x, z), (y, z): B's z stays along A's z     5
+    "weld"       x, y, z                     (y, z), (z, x), (x, y): axes stay aligned   6
+    ===========  ==========================  ==========================================  ====
+
+    The multipliers of the position rows are the reaction force on body B at B's origin, in frame A
+    axes (N); those of the orientation rows are the moments (N m) about ``e_i^A × e_j^B``.
+
+    Args:
+        body_a, body_b: body names or indices (``None``: the world).
+        frame_a, frame_b: 4×4 poses of A and B in their bodies (world poses for ``None``).
+    """
+
+    holonomic = True
+    KINDS = {
+        "point": ((0, 1, 2), ()),
+        "planar": ((0, 1), ()),
+        "revolute": ((0, 1, 2), ((0, 2), (1, 2))),
+        "weld": ((0, 1, 2), ((1, 2), (2, 0), (0, 1))),
+    }
+
+    def __init__(self, body_a, body_b, *, frame_a=None, frame_b=None, kind="point", name=None):
+        super().__init__(name or f"{kind} loop closure {body_a}-{body_b}")
+        if kind not in self.KINDS:
+            raise ValueError(f"kind must be one of {sorted(self.KINDS)}, got {kind!r}")
+        self.body_a, self.body_b, self.kind = body_a, body_b, kind
+        self.frame_a, self.frame_b = _placement(frame_a), _placement(frame_b)
+        self.position_axes, self.aligned_axes = self.KINDS[kind]
+
+    def rows(self, system):
+        return len(self.position_axes) + len(self.aligned_axes)
+
+    def _frames(self, system, q, v):
+        model = _require_model(system, self)
+        return _frame(model, q, v, self.body_a, self.frame_a), _frame(model, q, v, self.body_b, self.frame_b)
+
+    def position(self, system, q, t=0.0):
+        (R_a, p_a, _, _), (R_b, p_b, _, _) = self._frames(system, q, None)
+        relative = matvec(transpose(R_a), p_b - p_a)[..., list(self.position_axes)]
+        aligned = [np.sum(R_a[..., :, i] * R_b[..., :, j], axis=-1) for i, j in self.aligned_axes]
+        return np.concatenate([relative] + [x[..., None] for x in aligned], axis=-1)
+
+    def jacobian(self, system, q, t=0.0):
+        (R_a, p_a, J_a, _), (R_b, p_b, J_b, _) = self._frames(system, q, None)
+        return self._rows(R_a, p_a, J_a, R_b, p_b, J_b)
+
+    def body_forces(self, system, q, lam, t=0.0):
+        (R_a, _, _, _), (R_b, p_b, _, _) = self._frames(system, q, None)
+        k = len(self.position_axes)
+        # Position rows: the force R_a Sᵀ λ on B at p_B, and its opposite on A at the same point.
+        force = R_a[:, list(self.position_axes)] @ lam[:k]
+        # Orientation rows: the moment Σ (e_i × f_j) λ on A, and its opposite on B.
+        moment = sum((spatial.cross(R_a[:, i], R_b[:, j]) * lam[k + r] for r, (i, j) in enumerate(self.aligned_axes)),
+                     np.zeros(3))
+        return _wrenches(_require_model(system, self), q,
+                         [(self.body_b, force, p_b, -moment), (self.body_a, -force, p_b, moment)])
+
+    def _rows(self, R_a, p_a, J_a, R_b, p_b, J_b):
+        # d/dt R_aᵀ(p_b − p_a) = R_aᵀ (ẋ_b − ẋ_a − ω_a × Δ): B's velocity relative to the point of
+        # body a that coincides with B's origin.
+        delta = p_b - p_a
+        relative = J_b[..., :3, :] - J_a[..., :3, :] + spatial.skew(delta) @ J_a[..., 3:, :]
+        rows = [(transpose(R_a) @ relative)[..., list(self.position_axes), :]]
+        # d/dt (e_i · f_j) = (e_i × f_j) · (ω_a − ω_b)
+        for i, j in self.aligned_axes:
+            axis = spatial.cross(R_a[..., :, i], R_b[..., :, j])
+            rows.append(matvec(transpose(J_a[..., 3:, :] - J_b[..., 3:, :]), axis)[..., None, :])
+        return np.concatenate(rows, axis=-2)
+
+    def acceleration_rhs(self, system, q, v, t=0.0):
+        return self.evaluate(system, q, v, t)[2]
+
+    def evaluate(self, system, q, v, t=0.0):
+        (R_a, p_a, J_a, Jv_a), (R_b, p_b, J_b, Jv_b) = self._frames(system, q, v)
+        w_a, w_b = matvec(J_a[..., 3:, :], v), matvec(J_b[..., 3:, :], v)
+        delta = p_b - p_a
+        delta_dot = matvec(J_b[..., :3, :] - J_a[..., :3, :], v)
+        # r̈ = R_aᵀ [Δ̈ − ω̇_a × Δ − 2 ω_a × Δ̇ + ω_a × (ω_a × Δ)]; the a-free part with Δ̈ → J̇v_b − J̇v_a,
+        # ω̇_a → J̇v_a (angular).
+        free = (Jv_b[..., :3] - Jv_a[..., :3] - spatial.cross(Jv_a[..., 3:], delta) - 2.0 * spatial.cross(w_a, delta_dot)
+                + spatial.cross(w_a, spatial.cross(w_a, delta)))
+        gamma = [-matvec(transpose(R_a), free)[..., list(self.position_axes)]]
+        for i, j in self.aligned_axes:
+            e, f = R_a[..., :, i], R_b[..., :, j]
+            e_dot, f_dot = spatial.cross(w_a, e), spatial.cross(w_b, f)
+            axis, axis_dot = spatial.cross(e, f), spatial.cross(e_dot, f) + spatial.cross(e, f_dot)
+            # d²/dt² (e·f) = (e×f)·(ω̇_a − ω̇_b) + d/dt(e×f)·(ω_a − ω_b)
+            value = np.sum(axis * (Jv_a[..., 3:] - Jv_b[..., 3:]), axis=-1) + np.sum(axis_dot * (w_a - w_b), axis=-1)
+            gamma.append(-value[..., None])
+        gamma = np.concatenate(gamma, axis=-1)
+        return self._rows(R_a, p_a, J_a, R_b, p_b, J_b), np.zeros_like(gamma), gamma
+
+
+class JointCoupling(Constraint):
+    """Two one-coordinate joints geared together: ``q_b = ratio · q_a + offset`` (a URDF mimic).
+
+    One row, ``φ = q_b − ratio q_a − offset``; the multiplier is the coupling torque (or force) on
+    joint b, with ``−ratio`` times it on joint a.
+    """
+
+    holonomic = True
+
+    def __init__(self, joint_a, joint_b, ratio=1.0, offset=0.0, name=None):
+        super().__init__(name or f"coupling {joint_a}-{joint_b}")
+        self.joint_a, self.joint_b, self.ratio, self.offset = joint_a, joint_b, float(ratio), float(offset)
+
+    def rows(self, system):
+        return 1
+
+    def _indices(self, system):
+        model = _require_model(system, self)
+        out = []
+        for joint in (self.joint_a, self.joint_b):
+            i = model.joint_index(joint)
+            if model.joints[i].nq != 1 or model.joints[i].nv != 1:
+                raise ValueError(f"{self.name}: joint {model.joint_names[i]!r} must have one coordinate")
+            out.append((model.idx_q[i], model.idx_v[i]))
+        return out
+
+    def position(self, system, q, t=0.0):
+        (qa, _), (qb, _) = self._indices(system)
+        return (q[..., qb] - self.ratio * q[..., qa] - self.offset)[..., None]
+
+    def jacobian(self, system, q, t=0.0):
+        (_, va), (_, vb) = self._indices(system)
+        row = np.zeros(system.nv)
+        row[vb] += 1.0
+        row[va] -= self.ratio
+        return np.broadcast_to(row, np.shape(q)[:-1] + (1, system.nv)).copy()
+
+    def acceleration_rhs(self, system, q, v, t=0.0):
+        return np.zeros(np.broadcast_shapes(np.shape(q)[:-1], np.shape(v)[:-1]) + (1,))
+
+
+def mimic_constraints(model):
+    """One :class:`JointCoupling` per recorded URDF mimic relation of ``model``."""
+    return [JointCoupling(m.mimicked, m.joint, m.multiplier, m.offset, name=f"mimic {m.joint}") for m in model.mimic]

@@ -1,0 +1,212 @@
+"""Forward kinematics, Jacobians and their time variation, batched over leading axes.
+
+Naming: ``R_WJ, p_WJ`` is the pose of joint frame J in the world W; a *world Plücker* motion
+vector is expressed in world axes and taken at the world origin (its linear part is the velocity
+of the body point that currently coincides with the world origin). Velocities of a point are
+*world-aligned*: world axes, taken at the point (Pinocchio's ``LOCAL_WORLD_ALIGNED``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from . import spatial
+from .spatial import matvec
+
+
+def joint_transforms(model, q):
+    """Joint transforms ``X_J(q)`` of all joints, one vectorised call per joint type.
+
+    Returns ``R (..., nj, 3, 3)``, ``p (..., nj, 3)``: the pose of each joint frame in its pre-joint frame.
+    """
+    batch = q.shape[:-1]
+    if len(model.joint_groups) == 1:
+        kind, _, q_index, constants = model.joint_groups[0]
+        return kind.group_transform(constants, q[..., q_index])
+    R, p = np.empty(batch + (model.njoints, 3, 3)), np.empty(batch + (model.njoints, 3))
+    for kind, index, q_index, constants in model.joint_groups:
+        R[..., index, :, :], p[..., index, :] = kind.group_transform(constants, q[..., q_index])
+    return R, p
+
+
+def joint_local_poses(model, q):
+    """Pose ``X_λ(i),i(q) = X_T,i X_J,i(q_i)`` of each joint frame in its parent joint frame.
+
+    Returns ``R (..., nj, 3, 3)``, ``p (..., nj, 3)`` (RBDA §4.1: the tree transform ``X_T`` is the
+    joint's placement, followed by the joint transform ``X_J``).
+    """
+    R_J, p_J = joint_transforms(model, q)
+    X_T = model.joint_placements
+    return spatial.compose(X_T[:, :3, :3], X_T[:, :3, 3], R_J, p_J)
+
+
+def joint_world_poses(model, q):
+    """World pose of every joint frame: ``R_WJ (..., nj, 3, 3)``, ``p_WJ (..., nj, 3)``.
+
+    ``X_W,i = X_W,λ(i) X_λ(i),i`` level by level down the tree: all joints of one depth at once.
+    """
+    q = np.asarray(q, dtype=float)
+    R_local, p_local = joint_local_poses(model, q)
+    batch = q.shape[:-1]
+    R_world, p_world = np.empty(batch + (model.njoints, 3, 3)), np.empty(batch + (model.njoints, 3))
+    for level, (index, parents) in enumerate(model.levels):
+        if level == 0:
+            R_world[..., index, :, :], p_world[..., index, :] = R_local[..., index, :, :], p_local[..., index, :]
+        else:
+            R_world[..., index, :, :], p_world[..., index, :] = spatial.compose(
+                R_world[..., parents, :, :], p_world[..., parents, :], R_local[..., index, :, :], p_local[..., index, :])
+    return R_world, p_world
+
+
+def _body_world_poses(model, R_WJ, p_WJ):
+    """World poses of all bodies from the joint poses: ``X_WB = X_WJ(b) X_J(b),B``."""
+    batch = R_WJ.shape[:-3]
+    # A body fixed to the world uses the identity as its "joint" pose; index -1 picks that slot.
+    R_ext = np.concatenate([R_WJ, np.broadcast_to(np.eye(3), batch + (1, 3, 3))], axis=-3)
+    p_ext = np.concatenate([p_WJ, np.zeros(batch + (1, 3))], axis=-2)
+    R_JB, p_JB = model.body_placements[:, :3, :3], model.body_placements[:, :3, 3]
+    return spatial.compose(R_ext[..., model.body_joints, :, :], p_ext[..., model.body_joints, :], R_JB, p_JB)
+
+
+def forward_kinematics(model, q):
+    """World placements of every body: ``(..., nbodies, 4, 4)``, in ``model.body_names`` order.
+
+    ``q (..., nq)``. Pinocchio counterpart: ``forwardKinematics`` + ``updateFramePlacements``.
+    """
+    q = model.check_configuration(q)
+    R_WB, p_WB = _body_world_poses(model, *joint_world_poses(model, q))
+    return spatial.pose_matrix(R_WB, p_WB)
+
+
+def world_motion_subspaces(model, R_WJ, p_WJ):
+    """Each velocity coordinate's unit motion as a world Plücker vector: ``(..., nv, 6)``.
+
+    For coordinate k of joint j with subspace column ``s = [s_v; s_ω]`` (joint frame):
+    ``ω_k = R_Wj s_ω``, ``v_k = R_Wj s_v + p_Wj × ω_k``.
+    """
+    R = R_WJ[..., model.dof_joint, :, :]
+    p = p_WJ[..., model.dof_joint, :]
+    S = model.motion_subspaces
+    angular = matvec(R, S[:, 3:])
+    linear = matvec(R, S[:, :3]) + spatial.cross(p, angular)
+    return np.concatenate([linear, angular], axis=-1)
+
+
+def _point_in_world(model, R_WB, p_WB, point):
+    """World position of a point given in body coordinates (default the body origin)."""
+    if point is None:
+        return p_WB
+    point = np.asarray(point, dtype=float)
+    if point.shape[-1:] != (3,):
+        raise ValueError(f"point must have shape (..., 3), got {point.shape}")
+    return matvec(R_WB, point) + p_WB
+
+
+def _body_pose(model, q, body):
+    b = model.body_index(body)
+    R_WJ, p_WJ = joint_world_poses(model, q)
+    R_WB, p_WB = _body_world_poses(model, R_WJ, p_WJ)
+    return b, R_WJ, p_WJ, R_WB[..., b, :, :], p_WB[..., b, :]
+
+
+def _point_columns(xi, x, support):
+    """World-aligned point Jacobian from world Plücker columns ``xi (..., nv, 6)`` at point ``x (..., 3)``.
+
+    ``v_x = v_O + ω × x`` for each column; coordinates that do not move the body give zero columns.
+    """
+    linear = xi[..., :3] + spatial.cross(xi[..., 3:], x[..., None, :])
+    # The point's batch axes may be wider than the configuration's: broadcast the angular rows too.
+    angular = np.broadcast_to(xi[..., 3:], linear.shape)
+    J = np.concatenate([linear, angular], axis=-1) * support[:, None]
+    return spatial.transpose(J)
+
+
+def jacobian(model, q, body, point=None):
+    """World-aligned Jacobian of a body point: ``(..., 6, nv)``, rows ``[linear; angular]``.
+
+    ``[ẋ; ω] = J(q) v`` where ``x`` is ``point`` (body-frame coordinates, m; default the body
+    origin) and both rows are in world axes. ``body`` is a name from ``model.body_names`` or an index.
+    Pinocchio counterpart: ``getFrameJacobian(..., LOCAL_WORLD_ALIGNED)``.
+    """
+    q = model.check_configuration(q)
+    b, R_WJ, p_WJ, R_WB, p_WB = _body_pose(model, q, body)
+    x = _point_in_world(model, R_WB, p_WB, point)
+    xi = world_motion_subspaces(model, R_WJ, p_WJ)
+    return _point_columns(xi, x, model.body_support[b])
+
+
+def joint_velocities(model, xi, v):
+    """World Plücker velocity of every joint frame, ``V_j = Σ_{k supports j} ξ_k v_k``: ``(..., nj, 6)``."""
+    return np.einsum("jk,...kc,...k->...jc", model.joint_support.astype(float), xi, v)
+
+
+def jacobian_time_variation(model, q, v, body, point=None):
+    """Time derivative ``J̇(q, v)`` of :func:`jacobian` along the motion: ``(..., 6, nv)``.
+
+    A column ξ_k fixed in its joint's frame moves with that joint: ``ξ̇_k = V_j(k) × ξ_k`` (RBDA
+    eq. 2.37). Then, for the point ``x`` moving with velocity ``ẋ = v_O,b + ω_b × x``:
+    ``d/dt (v_k + ω_k × x) = v̇_k + ω̇_k × x + ω_k × ẋ``.
+    Together with the Jacobian, ``J a + J̇ v`` is the point's classical acceleration.
+    Pinocchio counterpart: ``getFrameJacobianTimeVariation(..., LOCAL_WORLD_ALIGNED)``.
+    """
+    q = model.check_configuration(q)
+    v = model.check_velocity(v)
+    b, R_WJ, p_WJ, R_WB, p_WB = _body_pose(model, q, body)
+    x = _point_in_world(model, R_WB, p_WB, point)
+    return _point_jacobian_rate(model, world_motion_subspaces(model, R_WJ, p_WJ), v, b, x)
+
+
+def _point_jacobian_rate(model, xi, v, b, x):
+    """``J̇`` of the world point ``x`` of body ``b`` from the world Plücker columns ``xi``."""
+    V = joint_velocities(model, xi, v)
+    xi_dot = spatial.motion_cross(V[..., model.dof_joint, :], xi)
+    j = model.body_joints[b]
+    V_b = V[..., j, :] if j >= 0 else np.zeros(V.shape[:-2] + (6,))
+    x_dot = V_b[..., :3] + spatial.cross(V_b[..., 3:], x)
+    linear = xi_dot[..., :3] + spatial.cross(xi_dot[..., 3:], x[..., None, :]) + spatial.cross(xi[..., 3:], x_dot[..., None, :])
+    angular = np.broadcast_to(xi_dot[..., 3:], linear.shape)
+    J_dot = np.concatenate([linear, angular], axis=-1) * model.body_support[b][:, None]
+    return spatial.transpose(J_dot)
+
+
+def frame_kinematics(model, q, v, body, placement=None):
+    """Everything a constraint needs about one frame F fixed in a body, from a single tree pass.
+
+    ``placement`` is the 4×4 pose of F in the body frame (default identity); ``body`` a name or
+    index, or ``None`` for a frame fixed in the world (then ``placement`` is its world pose).
+    Returns ``(R_WF (..., 3, 3), p_WF (..., 3), J (..., 6, nv), J̇v (..., 6))``: the world pose,
+    the world-aligned Jacobian of F's origin, and the velocity-product acceleration ``J̇ v``
+    (classical linear acceleration of the origin and angular acceleration when ``a = 0``).
+    """
+    q = model.check_configuration(q)
+    v = model.check_velocity(v)
+    batch = np.broadcast_shapes(q.shape[:-1], v.shape[:-1])
+    X_BF = np.eye(4) if placement is None else np.asarray(placement, dtype=float)
+    if X_BF.shape != (4, 4):
+        raise ValueError(f"placement must have shape (4, 4), got {X_BF.shape}")
+    if body is None:
+        R = np.broadcast_to(X_BF[:3, :3], batch + (3, 3))
+        p = np.broadcast_to(X_BF[:3, 3], batch + (3,))
+        return R, p, np.zeros(batch + (6, model.nv)), np.zeros(batch + (6,))
+    b, R_WJ, p_WJ, R_WB, p_WB = _body_pose(model, q, body)
+    R_WF, p_WF = spatial.compose(R_WB, p_WB, X_BF[:3, :3], X_BF[:3, 3])
+    xi = world_motion_subspaces(model, R_WJ, p_WJ)
+    J = _point_columns(xi, p_WF, model.body_support[b])
+    J_dot = _point_jacobian_rate(model, xi, v, b, p_WF)
+    return (np.broadcast_to(R_WF, batch + (3, 3)), np.broadcast_to(p_WF, batch + (3,)),
+            np.broadcast_to(J, batch + (6, model.nv)), matvec(J_dot, v))
+
+
+def point_velocity(model, q, v, body, point=None):
+    """``[ẋ; ω]`` of a body point in world axes (m/s, rad/s): ``J v``. ``-> (..., 6)``."""
+    return matvec(jacobian(model, q, body, point), model.check_velocity(v))
+
+
+def point_acceleration(model, q, v, a, body, point=None):
+    """``[ẍ; ω̇]`` of a body point in world axes (m/s², rad/s²): ``J a + J̇ v``. ``-> (..., 6)``.
+
+    ``ẍ`` is the classical (not spatial) acceleration. With ``a = 0`` this is the velocity-product
+    term ``J̇ v`` that acceleration-level constraints need.
+    """
+    a = model.check_velocity(a, "a")
+    return matvec(jacobian(model, q, body, point), a) + matvec(jacobian_time_variation(model, q, v, body, point), v)

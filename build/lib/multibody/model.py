@@ -1,0 +1,588 @@
+"""The kinematic-tree model (immutable) and the builder that makes one.
+
+Frames. Every moving joint ``i`` owns a *joint frame* fixed in the rigid body it moves; that body is
+the lump of every link attached to it by fixed joints. ``joint_placements[i]`` is the pose of joint
+frame i in the joint frame of its parent ``parents[i]`` (the world when ``-1``) at the joint's
+neutral configuration. Each link ("body") sits at ``body_placements[b]`` in the joint frame of
+``body_joints[b]`` (the world frame when ``-1``). See ``docs/conventions.md``.
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass, field
+from functools import cached_property
+
+import numpy as np
+
+from . import joints as jt
+from . import spatial
+from .inertia import Inertia
+
+STANDARD_GRAVITY = (0.0, 0.0, -9.81)
+
+
+@dataclass(frozen=True, eq=False)
+class Geometry:
+    """A visual or collision shape attached to a body (loaded on demand, see :mod:`multibody.geometry`).
+
+    ``shape`` is ``"mesh"``, ``"box"``, ``"sphere"`` or ``"cylinder"``; ``placement`` the 4×4 pose of the
+    shape in the body frame; ``filename`` the resolved mesh path (``None`` if it could not be found),
+    ``uri`` the mesh reference as written; ``scale`` (3,); ``size`` the primitive's dimensions
+    (box: edge lengths; sphere: radius; cylinder: radius, length).
+    """
+
+    body: str
+    kind: str
+    shape: str
+    placement: np.ndarray
+    uri: str | None = None
+    filename: str | None = None
+    scale: tuple = (1.0, 1.0, 1.0)
+    size: tuple = ()
+
+
+@dataclass(frozen=True)
+class Mimic:
+    """A URDF mimic relation ``q[joint] = multiplier · q[mimicked] + offset``.
+
+    The model keeps both joints as independent coordinates (as Pinocchio's ``buildModelFromUrdf``
+    does by default); the relation is recorded so that it can be enforced as a coupling constraint.
+    """
+
+    joint: str
+    mimicked: str
+    multiplier: float = 1.0
+    offset: float = 0.0
+
+
+def _index(indices):
+    """A contiguous increasing index array as a slice (a view when used), else the array itself."""
+    indices = np.asarray(indices, dtype=int)
+    if indices.size and np.all(np.diff(indices) == 1):
+        return slice(int(indices[0]), int(indices[-1]) + 1)
+    return indices
+
+
+def _frozen(array, dtype=float):
+    array = np.array(array, dtype=dtype)
+    array.setflags(write=False)
+    return array
+
+
+@dataclass(frozen=True, eq=False)
+class Model:
+    """An immutable kinematic tree with mass properties.
+
+    Attributes (``nj`` moving joints, ``nb`` bodies):
+        name: model name.
+        joints: joint types, ``(nj,)`` in model order (parents before children).
+        joint_names: ``(nj,)`` names of the moving joints.
+        parents: ``(nj,)`` index of each joint's parent joint, ``-1`` for the world.
+        joint_placements: ``(nj, 4, 4)`` pose of each joint frame in its parent joint frame (neutral q).
+        body_names: ``(nb,)`` names of every body (URDF link), including fixed-attached ones.
+        body_joints: ``(nb,)`` joint that moves each body, ``-1`` if fixed to the world.
+        body_placements: ``(nb, 4, 4)`` pose of each body frame in its joint frame.
+        body_inertias: ``(nb,)`` :class:`Inertia` of each body in its own frame.
+        lower, upper: ``(nq,)`` configuration limits (``±inf`` when unbounded).
+        gravity: ``(3,)`` gravitational acceleration in the world frame, m/s².
+        geometries: visual and collision shapes (see :class:`Geometry`).
+        mimic: recorded mimic relations (see :class:`Mimic`).
+    """
+
+    name: str
+    joints: tuple
+    joint_names: tuple
+    parents: np.ndarray
+    joint_placements: np.ndarray
+    body_names: tuple
+    body_joints: np.ndarray
+    body_placements: np.ndarray
+    body_inertias: tuple
+    lower: np.ndarray
+    upper: np.ndarray
+    gravity: np.ndarray = field(default_factory=lambda: _frozen(STANDARD_GRAVITY))
+    geometries: tuple = ()
+    mimic: tuple = ()
+
+    def __post_init__(self):
+        nj, nb = len(self.joints), len(self.body_names)
+        set_ = lambda name, value: object.__setattr__(self, name, value)  # noqa: E731
+        set_("joints", tuple(self.joints))
+        set_("joint_names", tuple(self.joint_names))
+        set_("body_names", tuple(self.body_names))
+        set_("body_inertias", tuple(self.body_inertias))
+        set_("parents", _frozen(self.parents, int).reshape(nj))
+        set_("body_joints", _frozen(self.body_joints, int).reshape(nb))
+        set_("joint_placements", _frozen(self.joint_placements).reshape(nj, 4, 4))
+        set_("body_placements", _frozen(self.body_placements).reshape(nb, 4, 4))
+        set_("gravity", _frozen(self.gravity).reshape(3))
+        set_("lower", _frozen(self.lower).reshape(-1))
+        set_("upper", _frozen(self.upper).reshape(-1))
+        if len(self.joint_names) != nj or len(self.body_inertias) != nb:
+            raise ValueError("Model: joints/joint_names and body_names/body_inertias must have equal lengths")
+        if any(not -1 <= p < i for i, p in enumerate(self.parents)):
+            raise ValueError("Model: every joint's parent must come before it (parents[i] < i)")
+        if any(not -1 <= j < nj for j in self.body_joints):
+            raise ValueError("Model: body_joints must index joints (or be -1 for the world)")
+        if self.lower.shape != (self.nq,) or self.upper.shape != (self.nq,):
+            raise ValueError(f"Model: lower and upper limits must have shape ({self.nq},)")
+        for names, what in ((self.joint_names, "joint"), (self.body_names, "body")):
+            if len(set(names)) != len(names):
+                raise ValueError(f"Model: {what} names must be unique")
+
+    # ------------------------------------------------------------------ sizes and indices
+
+    @cached_property
+    def nq(self) -> int:
+        """Size of the configuration vector ``q``."""
+        return int(sum(j.nq for j in self.joints))
+
+    @cached_property
+    def nv(self) -> int:
+        """Size of the velocity vector ``v``."""
+        return int(sum(j.nv for j in self.joints))
+
+    @property
+    def njoints(self) -> int:
+        """Number of moving joints."""
+        return len(self.joints)
+
+    @property
+    def nbodies(self) -> int:
+        """Number of bodies (links), fixed-attached ones included."""
+        return len(self.body_names)
+
+    @cached_property
+    def idx_q(self) -> np.ndarray:
+        """``(nj,)`` start of each joint's block in ``q``."""
+        return _frozen(np.cumsum([0] + [j.nq for j in self.joints])[:-1], int)
+
+    @cached_property
+    def idx_v(self) -> np.ndarray:
+        """``(nj,)`` start of each joint's block in ``v``."""
+        return _frozen(np.cumsum([0] + [j.nv for j in self.joints])[:-1], int)
+
+    @cached_property
+    def dof_joint(self) -> np.ndarray:
+        """``(nv,)`` index of the joint each velocity coordinate belongs to."""
+        return _frozen(np.repeat(np.arange(self.njoints), [j.nv for j in self.joints]), int)
+
+    @cached_property
+    def motion_subspaces(self) -> np.ndarray:
+        """``(nv, 6)``: column ``k`` of its joint's motion subspace, in that joint's frame."""
+        if self.nv == 0:
+            return _frozen(np.zeros((0, 6)))
+        return _frozen(np.concatenate([j.motion_subspace.T for j in self.joints], axis=0))
+
+    @cached_property
+    def ancestors(self) -> np.ndarray:
+        """``(nj, nj)`` boolean: ``ancestors[i, j]`` is true when joint j is i or lies between i and the world."""
+        out = np.zeros((self.njoints, self.njoints), dtype=bool)
+        for i, parent in enumerate(self.parents):
+            if parent >= 0:
+                out[i] = out[parent]
+            out[i, i] = True
+        return _frozen(out, bool)
+
+    @cached_property
+    def joint_support(self) -> np.ndarray:
+        """``(nj, nv)`` boolean: velocity coordinate k moves joint frame i."""
+        return _frozen(self.ancestors[:, self.dof_joint], bool)
+
+    @cached_property
+    def dof_ancestor(self) -> np.ndarray:
+        """``(nv, nv)`` boolean: coordinate k's joint is l's joint or one of its ancestors."""
+        return _frozen(self.ancestors[np.ix_(self.dof_joint, self.dof_joint)].T, bool)
+
+    @cached_property
+    def own_dofs(self) -> np.ndarray:
+        """``(nj, nv)`` boolean: velocity coordinate k belongs to joint i."""
+        return _frozen(self.dof_joint[None, :] == np.arange(self.njoints)[:, None], bool)
+
+    @cached_property
+    def dof_same_joint(self) -> np.ndarray:
+        """``(nv, nv)`` boolean: coordinates k and l belong to the same joint."""
+        return _frozen(self.dof_joint[:, None] == self.dof_joint[None, :], bool)
+
+    @cached_property
+    def body_support(self) -> np.ndarray:
+        """``(nb, nv)`` boolean: velocity coordinate k moves body b."""
+        out = np.zeros((self.nbodies, self.nv), dtype=bool)
+        moving = self.body_joints >= 0
+        out[moving] = self.joint_support[self.body_joints[moving]]
+        return _frozen(out, bool)
+
+    @cached_property
+    def descendants(self) -> np.ndarray:
+        """``(nj, nj)`` boolean: ``descendants[i, j]`` is true when joint j is i or lies in i's subtree."""
+        return _frozen(self.ancestors.T, bool)
+
+    @cached_property
+    def joint_groups(self) -> tuple:
+        """Joints grouped by type, so that each type's transform runs once for all its joints.
+
+        Tuple of ``(joint type, joint indices (n,), indices into q (n, nq), type constants)``.
+        """
+        members = {}
+        for i, joint in enumerate(self.joints):
+            members.setdefault(type(joint), []).append(i)
+        return tuple(
+            (kind, _index(np.array(idx)), np.array([np.arange(self.idx_q[i], self.idx_q[i] + kind.nq) for i in idx]),
+             kind.group_constants([self.joints[i] for i in idx]))
+            for kind, idx in members.items()
+        )
+
+    @cached_property
+    def levels(self) -> tuple:
+        """Joints by depth in the tree: ``(joint indices, their parents)`` per level, root level first.
+
+        Indices are slices when contiguous, so that a chain costs no fancy indexing.
+        """
+        depth = np.zeros(self.njoints, dtype=int)
+        for i, parent in enumerate(self.parents):
+            depth[i] = 0 if parent < 0 else depth[parent] + 1
+        return tuple((_index(np.flatnonzero(depth == d)), _index(self.parents[depth == d]))
+                     for d in range(depth.max(initial=-1) + 1))
+
+    def body_index(self, body) -> int:
+        """Index of a body given by name or index; ``ValueError`` names the valid choices."""
+        if isinstance(body, (int, np.integer)):
+            if not -self.nbodies <= body < self.nbodies:
+                raise ValueError(f"body index {body} out of range for {self.nbodies} bodies")
+            return int(body) % self.nbodies
+        try:
+            return self.body_names.index(body)
+        except ValueError:
+            raise ValueError(f"unknown body {body!r}; bodies are {list(self.body_names)}") from None
+
+    def joint_index(self, joint) -> int:
+        """Index of a moving joint given by name or index."""
+        if isinstance(joint, (int, np.integer)):
+            if not -self.njoints <= joint < self.njoints:
+                raise ValueError(f"joint index {joint} out of range for {self.njoints} joints")
+            return int(joint) % self.njoints
+        try:
+            return self.joint_names.index(joint)
+        except ValueError:
+            raise ValueError(f"unknown joint {joint!r}; moving joints are {list(self.joint_names)}") from None
+
+    # ------------------------------------------------------------------ mass properties
+
+    @cached_property
+    def joint_inertias(self) -> tuple:
+        """``(nj,)`` :class:`Inertia` of each moving rigid body (its links lumped), in its joint frame."""
+        lumped = [Inertia.zero() for _ in self.joints]
+        for b, j in enumerate(self.body_joints):
+            if j >= 0:
+                lumped[j] = lumped[j] + self.body_inertias[b].transformed(self.body_placements[b])
+        return tuple(lumped)
+
+    @cached_property
+    def spatial_inertias(self) -> np.ndarray:
+        """``(nj, 6, 6)`` spatial inertia of each moving body about its joint-frame origin."""
+        if self.njoints == 0:
+            return _frozen(np.zeros((0, 6, 6)))
+        return _frozen(np.stack([inertia.spatial for inertia in self.joint_inertias]))
+
+    @property
+    def total_mass(self) -> float:
+        """Sum of all body masses (kg), links fixed to the world included."""
+        return float(sum(inertia.mass for inertia in self.body_inertias))
+
+    # ------------------------------------------------------------------ configuration space
+
+    def neutral(self) -> np.ndarray:
+        """Neutral configuration ``(nq,)``: zero angles and displacements, identity quaternions."""
+        return np.concatenate([j.neutral() for j in self.joints]) if self.joints else np.zeros(0)
+
+    def random_configuration(self, rng=None, shape=()) -> np.ndarray:
+        """Random configurations ``shape + (nq,)`` within the limits.
+
+        Unbounded angles are drawn in ``[−π, π]``, unbounded translations in ``[−1, 1]`` m, and
+        quaternions uniformly over rotations. ``rng`` is a ``numpy.random.Generator`` or a seed.
+        """
+        rng = np.random.default_rng(rng)
+        shape = tuple(np.atleast_1d(shape)) if shape != () else ()
+        blocks = [
+            joint.random(rng, self.lower[s : s + joint.nq], self.upper[s : s + joint.nq], shape)
+            for joint, s in zip(self.joints, self.idx_q)
+        ]
+        return np.concatenate(blocks, axis=-1) if blocks else np.zeros(shape + (0,))
+
+    def integrate(self, q, v, dt=1.0) -> np.ndarray:
+        """Configuration exponential ``q ⊕ v dt``: each joint moves with constant ``v`` for ``dt``.
+
+        Quaternions stay on the unit sphere. ``q (..., nq)``, ``v (..., nv)`` -> ``(..., nq)``.
+        """
+        q = self.check_configuration(q)
+        v = self.check_velocity(v) * dt
+        return self._per_joint(lambda joint, qi, vi: joint.integrate(qi, vi), q, v, out="q")
+
+    def difference(self, q0, q1) -> np.ndarray:
+        """Configuration logarithm: the ``v`` with ``integrate(q0, v) = q1``. ``-> (..., nv)``."""
+        q0, q1 = self.check_configuration(q0, "q0"), self.check_configuration(q1, "q1")
+        return self._per_joint(lambda joint, a, b: joint.difference(a, b), q0, q1, second="q", out="v")
+
+    def configuration_rate(self, q, v) -> np.ndarray:
+        """``q̇`` of a configuration moving with velocity ``v``: ``(..., nq)``.
+
+        Equal to ``v`` for angles and displacements; quaternions get ``½ q ⊗ (ω, 0)``, free-flyer
+        positions ``R v_lin``, planar joints ``R(θ) (vx, vy)`` and ``ω (−sin θ, cos θ)``.
+        """
+        q, v = self.check_configuration(q), self.check_velocity(v)
+        return self._per_joint(lambda joint, qi, vi: joint.configuration_rate(qi, vi), q, v, out="q")
+
+    def normalize(self, q) -> np.ndarray:
+        """``q`` with every quaternion (and planar ``(cos θ, sin θ)`` pair) scaled to unit norm."""
+        q = np.asarray(q, dtype=float)
+        self._require_last_axis(q, self.nq, "q")
+        blocks = [joint.normalize(q[..., s : s + joint.nq]) for joint, s in zip(self.joints, self.idx_q)]
+        return np.concatenate(blocks, axis=-1) if blocks else q.copy()
+
+    def _per_joint(self, fn, a, b, second="v", out="q"):
+        """Apply ``fn(joint, a_block, b_block)`` joint by joint and concatenate the results."""
+        idx_b = self.idx_v if second == "v" else self.idx_q
+        size_b = (lambda j: j.nv) if second == "v" else (lambda j: j.nq)
+        blocks = [
+            fn(joint, a[..., sa : sa + joint.nq], b[..., sb : sb + size_b(joint)])
+            for joint, sa, sb in zip(self.joints, self.idx_q, idx_b)
+        ]
+        size = self.nq if out == "q" else self.nv
+        if not blocks:
+            return np.zeros(np.broadcast_shapes(a.shape[:-1], b.shape[:-1]) + (size,))
+        shape = np.broadcast_shapes(*(blk.shape[:-1] for blk in blocks))
+        return np.concatenate([np.broadcast_to(blk, shape + blk.shape[-1:]) for blk in blocks], axis=-1)
+
+    # ------------------------------------------------------------------ input checking
+
+    @staticmethod
+    def _require_last_axis(x, size, name):
+        if x.ndim == 0 or x.shape[-1] != size:
+            raise ValueError(f"{name} must have shape (..., {size}), got {x.shape}")
+
+    @staticmethod
+    def _as_float_array(x, name):
+        x = np.asarray(x)
+        if x.dtype == object or not (np.issubdtype(x.dtype, np.number) or x.dtype == bool):
+            raise ValueError(f"{name} must be a real numeric array, got dtype {x.dtype}")
+        if np.iscomplexobj(x):
+            raise ValueError(f"{name} must be real, got dtype {x.dtype}")
+        x = x.astype(float, copy=False)
+        if not np.all(np.isfinite(x)):
+            warnings.warn(f"{name} contains NaN or infinite values; results will contain NaN", RuntimeWarning, stacklevel=3)
+        return x
+
+    def check_configuration(self, q, name="q") -> np.ndarray:
+        """``q`` as a float array of shape ``(..., nq)``, or ``ValueError``.
+
+        Quaternions must have unit norm within :data:`multibody.joints.UNIT_NORM_TOLERANCE`
+        (they are then used as normalised). Non-finite values warn and propagate as NaN.
+        """
+        q = self._as_float_array(q, name)
+        self._require_last_axis(q, self.nq, name)
+        # NaN norms compare false, so non-finite entries pass here and propagate (with the warning above).
+        for joint, joint_name, start in self._unit_norm_blocks:
+            joint.validate(q[..., start : start + joint.nq], joint_name)
+        return q
+
+    @cached_property
+    def _unit_norm_blocks(self):
+        """``(joint, name, start in q)`` of the joints whose configuration must have unit norm."""
+        return tuple((joint, name, start) for joint, name, start in zip(self.joints, self.joint_names, self.idx_q)
+                     if type(joint).validate is not jt.Joint.validate)
+
+    def check_velocity(self, v, name="v") -> np.ndarray:
+        """``v`` as a float array of shape ``(..., nv)``, or ``ValueError``."""
+        v = self._as_float_array(v, name)
+        self._require_last_axis(v, self.nv, name)
+        return v
+
+    def __repr__(self):
+        return (
+            f"Model({self.name!r}: {self.njoints} joints, {self.nbodies} bodies, nq={self.nq}, nv={self.nv}, "
+            f"mass={self.total_mass:.6g} kg)"
+        )
+
+
+# ============================================================================= builder
+
+@dataclass
+class _BodySpec:
+    name: str
+    parent: str | None
+    joint: jt.Joint
+    joint_name: str
+    placement: np.ndarray
+    inertia: Inertia
+    lower: np.ndarray
+    upper: np.ndarray
+
+
+class ModelBuilder:
+    """Build a :class:`Model` body by body.
+
+    Example (a planar double pendulum swinging about y, links of 1 m, point masses at the tips)::
+
+        b = ModelBuilder("double_pendulum")
+        b.add_body("link1", joint=Revolute([0, 1, 0]), inertia=point_mass(1.0, [0, 0, -1]))
+        b.add_body("link2", parent="link1", joint=Revolute([0, 1, 0]),
+                   placement=pose_from_xyz_rpy([0, 0, -1]), inertia=point_mass(1.0, [0, 0, -1]))
+        model = b.build()
+
+    Bodies must be added parents first; the joints of the model come in the order their bodies
+    were added. Bodies attached by :class:`~multibody.joints.Fixed` joints are lumped into their
+    moving parent but keep their names and placements.
+    """
+
+    def __init__(self, name: str = "model", gravity=STANDARD_GRAVITY):
+        self.name = name
+        self.gravity = np.array(gravity, dtype=float).reshape(3)
+        self._bodies: list[_BodySpec] = []
+        self._names: set[str] = set()
+        self._joint_names: set[str] = set()
+        self.geometries: list[Geometry] = []
+        self.mimic: list[Mimic] = []
+
+    def add_body(self, name, joint=None, *, parent=None, placement=None, inertia=None, joint_name=None,
+                 lower=None, upper=None) -> str:
+        """Add a body moved by ``joint`` relative to ``parent``.
+
+        Args:
+            name: unique body name.
+            joint: a :mod:`multibody.joints` instance; default :class:`~multibody.joints.Fixed`.
+            parent: name of the parent body, or ``None`` for the world.
+            placement: 4×4 pose of the joint's pre-joint frame in the parent body frame (default
+                identity). At the neutral configuration the new body's frame is this frame.
+            inertia: :class:`Inertia` in the new body's frame (default massless).
+            joint_name: unique name of the joint (default ``name + "_joint"``).
+            lower, upper: configuration limits, ``(joint.nq,)`` (default: the joint's own).
+        Returns:
+            ``name``.
+        """
+        joint = jt.Fixed() if joint is None else joint
+        if not isinstance(joint, jt.Joint):
+            raise TypeError(f"joint must be a multibody.joints.Joint, got {type(joint).__name__}")
+        if name in self._names:
+            raise ValueError(f"duplicate body name {name!r}")
+        if parent is not None and parent not in self._names:
+            raise ValueError(f"parent body {parent!r} of {name!r} has not been added (add parents first)")
+        joint_name = f"{name}_joint" if joint_name is None else joint_name
+        if joint_name in self._joint_names:
+            raise ValueError(f"duplicate joint name {joint_name!r}")
+        placement = np.eye(4) if placement is None else np.array(placement, dtype=float)
+        if placement.shape != (4, 4):
+            raise ValueError(f"placement must have shape (4, 4), got {placement.shape}")
+        default_lower, default_upper = joint.default_limits
+        lower = default_lower if lower is None else np.array(lower, dtype=float).reshape(-1)
+        upper = default_upper if upper is None else np.array(upper, dtype=float).reshape(-1)
+        if lower.shape != (joint.nq,) or upper.shape != (joint.nq,):
+            raise ValueError(f"limits of joint {joint_name!r} must have shape ({joint.nq},)")
+        self._bodies.append(_BodySpec(name, parent, joint, joint_name, placement,
+                                      Inertia.zero() if inertia is None else inertia, lower, upper))
+        self._names.add(name)
+        self._joint_names.add(joint_name)
+        return name
+
+    def add_geometry(self, geometry: Geometry):
+        """Attach a visual or collision :class:`Geometry` to an existing body."""
+        if geometry.body not in self._names:
+            raise ValueError(f"geometry attached to unknown body {geometry.body!r}")
+        self.geometries.append(geometry)
+
+    def add_mimic(self, mimic: Mimic):
+        """Record a mimic relation between two joints (both stay independent coordinates)."""
+        self.mimic.append(mimic)
+
+    def build(self, check_inertia=True) -> Model:
+        """Lump fixed attachments and return the immutable :class:`Model`.
+
+        With ``check_inertia`` a moving rigid body (a link with everything fixed to it) whose mass
+        properties no real body can have raises ``ValueError`` (see :func:`inertia_problems`).
+        """
+        joints, joint_names, parents, joint_placements, lower, upper = [], [], [], [], [], []
+        body_joint, body_placement = {}, {}
+        for spec in self._bodies:
+            if spec.parent is None:
+                parent_joint, X_parent = -1, np.eye(4)
+            else:
+                parent_joint, X_parent = body_joint[spec.parent], body_placement[spec.parent]
+            # Pose of the pre-joint frame in the frame of the joint that moves the parent body.
+            X_joint_pre = X_parent @ spec.placement
+            if spec.joint.nv == 0:
+                body_joint[spec.name], body_placement[spec.name] = parent_joint, X_joint_pre
+                continue
+            body_joint[spec.name], body_placement[spec.name] = len(joints), np.eye(4)
+            joints.append(spec.joint)
+            joint_names.append(spec.joint_name)
+            parents.append(parent_joint)
+            joint_placements.append(X_joint_pre)
+            lower.append(spec.lower)
+            upper.append(spec.upper)
+        names = [spec.name for spec in self._bodies]
+        model = Model(
+            name=self.name,
+            joints=tuple(joints),
+            joint_names=tuple(joint_names),
+            parents=np.array(parents, dtype=int),
+            joint_placements=np.array(joint_placements).reshape(-1, 4, 4),
+            body_names=tuple(names),
+            body_joints=np.array([body_joint[n] for n in names], dtype=int),
+            body_placements=np.array([body_placement[n] for n in names]).reshape(-1, 4, 4),
+            body_inertias=tuple(spec.inertia for spec in self._bodies),
+            lower=np.concatenate(lower) if lower else np.zeros(0),
+            upper=np.concatenate(upper) if upper else np.zeros(0),
+            gravity=self.gravity,
+            geometries=tuple(self.geometries),
+            mimic=tuple(self.mimic),
+        )
+        if check_inertia:
+            problems = inertia_problems(model)
+            if problems:
+                raise ValueError("invalid mass properties: " + "; ".join(
+                    f"body of joint {model.joint_names[j]!r} ({', '.join(links)}): {', '.join(text)}"
+                    for j, links, text in problems))
+        return model
+
+
+def inertia_problems(model):
+    """Physically impossible mass properties of the moving rigid bodies of ``model``.
+
+    Checked per rigid body that the dynamics integrates (a moving link lumped with the links
+    fixed to it), with :meth:`Inertia.problems`. Returns a list of
+    ``(joint index, names of the links with mass in that body, problems)``.
+    """
+    out = []
+    for j, inertia in enumerate(model.joint_inertias):
+        problems = inertia.problems()
+        if problems:
+            links = [model.body_names[b] for b in np.flatnonzero(model.body_joints == j)
+                     if model.body_inertias[b].mass > 0.0 or np.any(model.body_inertias[b].rotational)]
+            out.append((j, links, problems))
+    return out
+
+
+def suspicious_inertias(model, placeholder_mass=1e-5):
+    """Mass properties that are legal but probably not what the author meant, as messages.
+
+    Reported per link: impossible numbers (see :meth:`Inertia.problems`), placeholder masses below
+    ``placeholder_mass`` kg, and point masses (mass without rotational inertia). Reported per
+    moving rigid body: no mass at all with no massive body further down the tree, which makes the
+    mass matrix singular.
+    """
+    out = []
+    for b, (name, inertia) in enumerate(zip(model.body_names, model.body_inertias)):
+        for problem in inertia.problems():
+            out.append(f"link {name!r}: {problem}")
+        if 0.0 < inertia.mass < placeholder_mass:
+            out.append(f"link {name!r}: placeholder mass {inertia.mass:g} kg")
+        if inertia.mass > 0.0 and not np.any(inertia.rotational) and model.body_joints[b] >= 0:
+            out.append(f"link {name!r}: point mass ({inertia.mass:g} kg, zero rotational inertia)")
+    subtree_mass = np.array([inertia.mass for inertia in model.joint_inertias])
+    for i in range(model.njoints - 1, -1, -1):
+        if model.parents[i] >= 0:
+            subtree_mass[model.parents[i]] += subtree_mass[i]
+    for i, mass in enumerate(subtree_mass):
+        if mass == 0.0:
+            out.append(f"joint {model.joint_names[i]!r} moves no mass: the mass matrix is singular")
+    return out

@@ -1,0 +1,354 @@
+"""URDF loader: ``load_urdf(source, floating_base=False, package_dirs=None)``.
+
+The model follows Pinocchio's ``buildModelFromUrdf`` exactly where both are defined:
+
+* Joint order: depth-first from the root link; the child joints of a link are visited in
+  ascending order of joint name (urdfdom keeps them in a name-sorted map).
+* Links attached by fixed joints are lumped into the moving body they hang from; they keep their
+  names and placements in ``model.body_names`` / ``model.body_placements``.
+* ``continuous`` joints are plain angles here (``nq = 1``); Pinocchio stores ``(cos θ, sin θ)``.
+* ``planar`` joints move in the x–y plane of the joint frame (Pinocchio ignores the axis too).
+* ``floating`` joints, and ``floating_base=True``, give free-flyer joints (``q = [p, quat]``).
+* Mimic joints stay independent coordinates; the relation is recorded in ``model.mimic``.
+* A link without ``<inertial>`` is massless.
+
+Malformed files raise :class:`URDFError` naming the file, the element and the problem.
+"""
+
+from __future__ import annotations
+
+import os
+import warnings
+import xml.etree.ElementTree as ET
+
+import numpy as np
+
+from . import joints as jt
+from . import spatial
+from .inertia import Inertia
+from .model import Geometry, Mimic, ModelBuilder, inertia_problems
+
+
+class URDFError(ValueError):
+    """A URDF that cannot describe a valid model."""
+
+
+class _Context:
+    """Where we are in the document, for error messages."""
+
+    def __init__(self, source_name):
+        self.source_name = source_name
+
+    def error(self, element_path, problem):
+        return URDFError(f"{self.source_name}: {element_path}: {problem}")
+
+
+def _floats(ctx, element, attribute, path, count, default=None):
+    text = element.get(attribute) if element is not None else None
+    if text is None:
+        if default is None:
+            raise ctx.error(path, f"missing attribute {attribute!r}")
+        return np.array(default, dtype=float)
+    try:
+        values = np.array([float(token) for token in text.split()], dtype=float)
+    except ValueError:
+        raise ctx.error(path, f"attribute {attribute}={text!r} is not a list of numbers") from None
+    if values.shape != (count,) or not np.all(np.isfinite(values)):
+        raise ctx.error(path, f"attribute {attribute}={text!r} must be {count} finite number(s)")
+    return values
+
+
+def _origin(ctx, element, path):
+    """4×4 pose from an ``<origin xyz rpy>`` child (identity when absent)."""
+    origin = element.find("origin")
+    if origin is None:
+        return np.eye(4)
+    xyz = _floats(ctx, origin, "xyz", path + "/<origin>", 3, (0.0, 0.0, 0.0))
+    rpy = _floats(ctx, origin, "rpy", path + "/<origin>", 3, (0.0, 0.0, 0.0))
+    return spatial.pose_from_xyz_rpy(xyz, rpy)
+
+
+def _inertial(ctx, link, path, invalid_inertia):
+    """The link's :class:`Inertia` in the link frame, from ``<inertial>`` (massless when absent)."""
+    inertial = link.find("inertial")
+    if inertial is None:
+        return Inertia.zero()
+    path = path + "/<inertial>"
+    mass_element = inertial.find("mass")
+    if mass_element is None:
+        raise ctx.error(path, "missing <mass>")
+    mass = _floats(ctx, mass_element, "value", path + "/<mass>", 1)[0]
+    if mass < 0.0:
+        raise ctx.error(path + "/<mass>", f"negative mass {mass:g}")
+    tensor_element = inertial.find("inertia")
+    if tensor_element is None:
+        tensor = np.zeros((3, 3))
+    else:
+        get = lambda key: _floats(ctx, tensor_element, key, path + "/<inertia>", 1, (0.0,))[0]  # noqa: E731
+        ixx, ixy, ixz, iyy, iyz, izz = (get(k) for k in ("ixx", "ixy", "ixz", "iyy", "iyz", "izz"))
+        tensor = np.array([[ixx, ixy, ixz], [ixy, iyy, iyz], [ixz, iyz, izz]])
+    # The inertial frame may be offset and rotated from the link frame.
+    X_link_inertial = _origin(ctx, inertial, path)
+    inertia = Inertia(mass, np.zeros(3), tensor).transformed(X_link_inertial)
+    non_finite = [p for p in inertia.problems() if p.startswith("non-finite")]
+    if non_finite:
+        raise ctx.error(path, non_finite[0])
+    return inertia
+
+
+def _check_bodies(ctx, model, invalid_inertia):
+    """Refuse (or report) moving rigid bodies whose lumped mass properties are impossible."""
+    for _, links, problems in inertia_problems(model):
+        where = f"<link name='{links[0]}'>/<inertial>" if len(links) == 1 else \
+            "rigid body of links " + ", ".join(f"<link name='{name}'>" for name in links)
+        message = "; ".join(problems)
+        if invalid_inertia == "error":
+            raise ctx.error(where, message + " (pass invalid_inertia='warn' to load it anyway)")
+        if invalid_inertia == "warn":
+            warnings.warn(f"{ctx.source_name}: {where}: {message}", UserWarning, stacklevel=3)
+
+
+def _joint_type(ctx, joint, path, name):
+    kind = joint.get("type")
+    axis_element = joint.find("axis")
+    axis = _floats(ctx, axis_element, "xyz", path + "/<axis>", 3, (1.0, 0.0, 0.0)) if axis_element is not None \
+        else np.array([1.0, 0.0, 0.0])
+    if kind in ("revolute", "continuous", "prismatic") and np.linalg.norm(axis) < 1e-12:
+        raise ctx.error(path + "/<axis>", "axis must be non-zero")
+    if kind == "revolute":
+        return jt.Revolute(axis)
+    if kind == "continuous":
+        return jt.Continuous(axis)
+    if kind == "prismatic":
+        return jt.Prismatic(axis)
+    if kind == "fixed":
+        return jt.Fixed()
+    if kind == "floating":
+        return jt.FreeFlyer()
+    if kind == "planar":
+        if axis_element is not None and np.linalg.norm(np.cross(axis, [0.0, 0.0, 1.0])) > 1e-9 * np.linalg.norm(axis):
+            warnings.warn(
+                f"{ctx.source_name}: {path}/<axis>: planar joints move in the x-y plane of the joint frame; "
+                f"the axis {axis.tolist()} is ignored (as in Pinocchio)",
+                UserWarning,
+                stacklevel=4,
+            )
+        return jt.Planar()
+    if kind is None:
+        raise ctx.error(path, "missing attribute 'type'")
+    raise ctx.error(
+        path, f"unknown joint type {kind!r} (expected revolute, continuous, prismatic, fixed, floating or planar)"
+    )
+
+
+def _limits(ctx, joint_element, joint, path):
+    lower, upper = joint.default_limits
+    limit = joint_element.find("limit")
+    if limit is None or joint.nq != 1 or isinstance(joint, jt.Continuous):
+        return lower, upper
+    lower = _floats(ctx, limit, "lower", path + "/<limit>", 1, lower)
+    upper = _floats(ctx, limit, "upper", path + "/<limit>", 1, upper)
+    if lower[0] > upper[0]:
+        raise ctx.error(path + "/<limit>", f"lower limit {lower[0]:g} exceeds upper limit {upper[0]:g}")
+    return lower, upper
+
+
+def _resolve_mesh(uri, base_dir, package_dirs):
+    """Absolute path of a mesh reference, or ``None``."""
+    if uri.startswith("package://"):
+        relative = uri[len("package://"):]
+        candidates = [os.path.join(d, relative) for d in package_dirs]
+        # package://name/rest may also be looked up with the package name stripped.
+        package, _, rest = relative.partition("/")
+        candidates += [os.path.join(d, package, rest) for d in package_dirs]
+        candidates += [os.path.join(d, rest) for d in package_dirs if os.path.basename(os.path.normpath(d)) == package]
+    elif uri.startswith("file://"):
+        candidates = [uri[len("file://"):]]
+    else:
+        candidates = [uri if os.path.isabs(uri) else os.path.join(base_dir or os.getcwd(), uri)]
+    for candidate in candidates:
+        if os.path.isfile(candidate):
+            return os.path.abspath(candidate)
+    return None
+
+
+def _geometries(ctx, link, path, base_dir, package_dirs):
+    out = []
+    for kind in ("visual", "collision"):
+        for element in link.findall(kind):
+            element_path = f"{path}/<{kind}>"
+            geometry = element.find("geometry")
+            if geometry is None or len(geometry) == 0:
+                continue
+            shape_element = geometry[0]
+            placement = _origin(ctx, element, element_path)
+            shape = shape_element.tag
+            if shape == "mesh":
+                uri = shape_element.get("filename", "")
+                filename = _resolve_mesh(uri, base_dir, package_dirs)
+                scale = tuple(_floats(ctx, shape_element, "scale", element_path + "/<mesh>", 3, (1.0, 1.0, 1.0)))
+                out.append(Geometry(link.get("name"), kind, "mesh", placement, uri=uri, filename=filename, scale=scale))
+            elif shape == "box":
+                size = tuple(_floats(ctx, shape_element, "size", element_path + "/<box>", 3))
+                out.append(Geometry(link.get("name"), kind, "box", placement, size=size))
+            elif shape == "sphere":
+                size = tuple(_floats(ctx, shape_element, "radius", element_path + "/<sphere>", 1))
+                out.append(Geometry(link.get("name"), kind, "sphere", placement, size=size))
+            elif shape == "cylinder":
+                radius = _floats(ctx, shape_element, "radius", element_path + "/<cylinder>", 1)[0]
+                length = _floats(ctx, shape_element, "length", element_path + "/<cylinder>", 1)[0]
+                out.append(Geometry(link.get("name"), kind, "cylinder", placement, size=(radius, length)))
+    return out
+
+
+def _parse_source(source):
+    """``(root element, display name, base directory)`` from a path or an XML string."""
+    text = str(source)
+    is_xml = text.lstrip().startswith("<")
+    name = "<URDF string>" if is_xml else os.fspath(source)
+    try:
+        if is_xml:
+            root = ET.fromstring(text)
+            base_dir = None
+        else:
+            if not os.path.isfile(name):
+                raise FileNotFoundError(f"URDF file not found: {name}")
+            root = ET.parse(name).getroot()
+            base_dir = os.path.dirname(os.path.abspath(name))
+    except ET.ParseError as exc:
+        raise URDFError(f"{name}: XML syntax error: {exc}") from None
+    if root.tag != "robot":
+        raise URDFError(f"{name}: <{root.tag}>: the root element must be <robot>")
+    return root, name, base_dir
+
+
+def load_urdf(source, *, floating_base=False, package_dirs=None, invalid_inertia="error"):
+    """Build a :class:`~multibody.model.Model` from a URDF file path or XML string.
+
+    Args:
+        source: path to a ``.urdf`` file, or the XML text itself.
+        floating_base: put a free-flyer joint named ``"root_joint"`` between the world and the root
+            link (``q`` gains ``[x, y, z, qx, qy, qz, qw]`` in front, ``v`` gains ``[v_lin, ω]``).
+        package_dirs: directories searched for ``package://name/...`` meshes (a path or a list);
+            ``package://name/rest`` is looked up as ``d/name/rest`` and ``d/rest`` for each ``d``,
+            then in the directories of ``ROS_PACKAGE_PATH``. Nothing is read until
+            :func:`multibody.geometry.load_meshes` is called.
+        invalid_inertia: what to do when a moving rigid body (a moving link lumped with the links
+            fixed to it, as the dynamics sees it) has mass properties no real body can have: an
+            inertia tensor that is not positive semi-definite or breaks the triangle inequality
+            ``I₁ + I₂ ≥ I₃``. ``"error"`` (default) raises :class:`URDFError`; ``"warn"`` loads it
+            with a warning; ``"ignore"`` loads it silently (as Pinocchio does). A placeholder link
+            with impossible numbers that is fixed to a valid body does not make that body invalid;
+            ``multibody info`` lists such links as suspicious. Negative masses are always refused.
+
+    Raises:
+        URDFError: malformed XML, missing links, cycles, several roots, unknown joint types,
+            negative masses, invalid inertias, zero axes, duplicate names.
+        FileNotFoundError: ``source`` is neither an existing file nor XML text.
+    """
+    if invalid_inertia not in ("error", "warn", "ignore"):
+        raise ValueError(f"invalid_inertia must be 'error', 'warn' or 'ignore', got {invalid_inertia!r}")
+    root, source_name, base_dir = _parse_source(source)
+    ctx = _Context(source_name)
+    if isinstance(package_dirs, (str, os.PathLike)):
+        package_dirs = [package_dirs]
+    package_dirs = [os.fspath(d) for d in (package_dirs or [])]
+    # Like ROS tools and Pinocchio, also look where ROS_PACKAGE_PATH points.
+    package_dirs += [d for d in os.environ.get("ROS_PACKAGE_PATH", "").split(os.pathsep) if d]
+
+    links = {}
+    for link in root.findall("link"):
+        name = link.get("name")
+        if not name:
+            raise ctx.error("<link>", "missing attribute 'name'")
+        if name in links:
+            raise ctx.error(f"<link name='{name}'>", "duplicate link name")
+        links[name] = link
+
+    children, parent_joint, joint_names = {}, {}, set()
+    for joint in root.findall("joint"):
+        name = joint.get("name")
+        path = f"<joint name='{name}'>"
+        if not name:
+            raise ctx.error("<joint>", "missing attribute 'name'")
+        if name in joint_names:
+            raise ctx.error(path, "duplicate joint name")
+        joint_names.add(name)
+        ends = {}
+        for end in ("parent", "child"):
+            element = joint.find(end)
+            link_name = element.get("link") if element is not None else None
+            if not link_name:
+                raise ctx.error(path, f"missing <{end} link=...>")
+            if link_name not in links:
+                raise ctx.error(f"{path}/<{end}>", f"{end} link {link_name!r} is not defined")
+            ends[end] = link_name
+        if ends["child"] in parent_joint:
+            raise ctx.error(path, f"link {ends['child']!r} has two parent joints "
+                                  f"({parent_joint[ends['child']].get('name')!r} and {name!r})")
+        parent_joint[ends["child"]] = joint
+        children.setdefault(ends["parent"], []).append(joint)
+
+    if not links:
+        raise ctx.error("<robot>", "no <link> elements")
+    roots = [name for name in links if name not in parent_joint]
+    if len(roots) != 1:
+        if not roots:
+            raise ctx.error("<robot>", f"the joints {sorted(joint_names)} form a cycle: no link is without a parent")
+        raise ctx.error("<robot>", f"several root links {roots}: a URDF must describe a single tree")
+    root_link = roots[0]
+
+    builder = ModelBuilder(root.get("name") or "robot")
+    mimics = []
+
+    def add_link(name, parent, joint, joint_name, placement, lower=None, upper=None):
+        path = f"<link name='{name}'>"
+        inertia = _inertial(ctx, links[name], path, invalid_inertia)
+        builder.add_body(name, joint, parent=parent, placement=placement, inertia=inertia,
+                         joint_name=joint_name, lower=lower, upper=upper)
+        for geometry in _geometries(ctx, links[name], path, base_dir, package_dirs):
+            builder.add_geometry(geometry)
+
+    # The root link is the world itself when it is called "world" and the base is fixed.
+    world_root = root_link if (root_link == "world" and not floating_base) else None
+    if floating_base:
+        add_link(root_link, None, jt.FreeFlyer(), "root_joint", np.eye(4))
+    elif world_root is None:
+        add_link(root_link, None, jt.Fixed(), f"{root_link}_to_world", np.eye(4))
+
+    # Depth-first, child joints by name; an explicit stack keeps deep chains off Python's recursion limit.
+    visited = {root_link}
+    stack = [(root_link, joint) for joint in sorted(children.get(root_link, []), key=lambda j: j.get("name"), reverse=True)]
+    while stack:
+        parent_link, joint = stack.pop()
+        name = joint.get("name")
+        path = f"<joint name='{name}'>"
+        child = joint.find("child").get("link")
+        visited.add(child)
+        joint_type = _joint_type(ctx, joint, path, name)
+        lower, upper = _limits(ctx, joint, joint_type, path)
+        add_link(child, None if parent_link == world_root else parent_link, joint_type, name, _origin(ctx, joint, path), lower, upper)
+        mimic = joint.find("mimic")
+        if mimic is not None:
+            mimics.append(Mimic(
+                name,
+                mimic.get("joint"),
+                _floats(ctx, mimic, "multiplier", path + "/<mimic>", 1, (1.0,))[0],
+                _floats(ctx, mimic, "offset", path + "/<mimic>", 1, (0.0,))[0],
+            ))
+        stack.extend((child, j) for j in sorted(children.get(child, []), key=lambda j: j.get("name"), reverse=True))
+
+    unreached = [name for name in links if name not in visited]
+    if unreached:
+        cycle = [parent_joint[name].get("name") for name in unreached if name in parent_joint]
+        raise ctx.error("<robot>", f"the joints {cycle} form a cycle: links {unreached} are not reachable "
+                                   f"from root {root_link!r}")
+    for mimic in mimics:
+        if mimic.mimicked in joint_names:
+            builder.add_mimic(mimic)
+        else:
+            warnings.warn(f"{source_name}: <joint name='{mimic.joint}'>/<mimic>: mimicked joint {mimic.mimicked!r} "
+                          "is not defined; the mimic relation is dropped", UserWarning, stacklevel=2)
+    model = builder.build(check_inertia=False)
+    _check_bodies(ctx, model, invalid_inertia)
+    return model
