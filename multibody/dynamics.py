@@ -19,7 +19,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import spatial
-from .kinematics import joint_world_poses, world_motion_subspaces
+from .kinematics import joint_velocities, joint_world_poses, world_motion_subspaces
 from .spatial import force_cross, matvec, motion_cross, transform_force, transpose
 
 
@@ -59,7 +59,7 @@ def _support(model):
 
 def _velocities(model, xi, v):
     """World velocities ``V_j = Σ_{k ⪯ j} ξ_k v_k`` ``(..., nj, 6)`` and column rates ``ξ̇_k = V_j(k) × ξ_k``."""
-    V = _support(model) @ (xi * v[..., :, None])
+    V = joint_velocities(model, xi, v)
     return V, motion_cross(V[..., model.dof_joint, :], xi)
 
 
