@@ -1,1 +1,0 @@
-"""URDF models shipped with multibody (installed as ``multibody.robot_files``; see ``multibody.robots``)."""
