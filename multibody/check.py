@@ -35,7 +35,7 @@ def to_pinocchio_configuration(model, q):
         if isinstance(joint, joints.Continuous):
             block = np.concatenate([np.cos(block), np.sin(block)], axis=-1)
         blocks.append(block)
-    return np.concatenate(blocks, axis=-1) if blocks else q
+    return np.concatenate(blocks, axis=-1) if blocks else q.copy()
 
 
 def _relative(ours, reference):

@@ -20,6 +20,7 @@ import numpy as np
 import pytest
 
 import multibody as mb
+from multibody.check import to_pinocchio_configuration
 from multibody import joints as jt
 from multibody.spatial import pose_from_xyz_rpy
 
@@ -81,14 +82,7 @@ def pin():
 
 def q_to_pinocchio(model, q):
     """Our ``q (..., nq)`` as Pinocchio's: each continuous angle θ becomes ``(cos θ, sin θ)``."""
-    q = np.asarray(q, dtype=float)
-    blocks = []
-    for joint, s in zip(model.joints, model.idx_q):
-        block = q[..., s : s + joint.nq]
-        if isinstance(joint, jt.Continuous):
-            block = np.concatenate([np.cos(block), np.sin(block)], axis=-1)
-        blocks.append(block)
-    return np.concatenate(blocks, axis=-1) if blocks else q.copy()
+    return to_pinocchio_configuration(model, np.asarray(q, dtype=float))
 
 
 def q_from_pinocchio(model, q_pin):
