@@ -153,7 +153,11 @@ def main(argv=None) -> int:
     if args.command is None:
         parser.print_help()
         return 0
-    return args.run(args)
+    try:
+        return args.run(args)
+    except (ValueError, FileNotFoundError) as error:  # malformed URDFs (URDFError), unknown names, bad paths
+        print(f"multibody {args.command}: {error}", file=sys.stderr)
+        return 2
 
 
 if __name__ == "__main__":
