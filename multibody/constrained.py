@@ -135,17 +135,24 @@ class ConstrainedSystem:
                   for c, m, has_position in zip(self.constraints, self._rows, self._has_position)]
         return self._stack(pieces, (0,))
 
+    def velocity_level(self, q, t=0.0):
+        """Stacked ``(A, b)`` of ``A v + b = 0``: ``(m, nv)``, ``(m,)``."""
+        levels = [c.velocity_level(self.system, q, t) for c in self.constraints]
+        return (self._stack([level[0] for level in levels], (0, self.nv)),
+                self._stack([level[1] for level in levels], (0,)))
+
     def jacobian(self, q, t=0.0):
         """Stacked ``A(q, t)``: ``(m, nv)``."""
         return self._stack([c.jacobian(self.system, q, t) for c in self.constraints], (0, self.nv))
 
     def velocity_bias(self, q, t=0.0):
         """Stacked ``b(q, t)``: ``(m,)``."""
-        return self._stack([c.velocity_bias(self.system, q, t) for c in self.constraints], (0,))
+        return self.velocity_level(q, t)[1]
 
     def velocity_error(self, q, v, t=0.0):
         """``A v + b``: ``(m,)``."""
-        return self.jacobian(q, t) @ v + self.velocity_bias(q, t)
+        A, b = self.velocity_level(q, t)
+        return A @ v + b
 
     def acceleration_level(self, q, v, t=0.0):
         """``(A, γ)``: the stacked rows of ``A a = γ``, Baumgarte terms included: ``(m, nv)``, ``(m,)``."""
@@ -270,9 +277,9 @@ class ConstrainedSystem:
                 raise ConstraintError(f"projection onto the position constraints did not converge: "
                                       f"|φ| = {np.abs(phi).max():.3g} after {max_iterations} iterations")
         L = self._factor(q)
-        A = self.jacobian(q, t)
+        A, b = self.velocity_level(q, t)
         M_inv_At = self._solve_factored(L, A.T)
-        error = A @ v + self.velocity_bias(q, t)
+        error = A @ v + b
         v = v - M_inv_At @ (np.linalg.pinv(A @ M_inv_At, rcond=self.rank_tolerance, hermitian=True) @ error)
         return q, v
 

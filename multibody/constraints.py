@@ -88,6 +88,10 @@ class Constraint:
         """``(A, b, γ)`` at one state; built-in constraints share one kinematics pass between them."""
         return self.jacobian(system, q, t), self.velocity_bias(system, q, t), self.acceleration_rhs(system, q, v, t)
 
+    def velocity_level(self, system, q, t=0.0):
+        """``(A, b)`` of ``A v + b = 0`` at one configuration."""
+        return self.jacobian(system, q, t), self.velocity_bias(system, q, t)
+
     def body_forces(self, system, q, lam, t=0.0):
         """Spatial forces the constraint exerts on the bodies for multipliers ``lam (m,)``.
 

@@ -53,10 +53,6 @@ def _world_tree(model, q):
     return R_WJ, p_WJ, xi, spatial.transform_inertia(R_WJ, p_WJ, model.spatial_inertias)
 
 
-def _support(model):
-    return model.joint_support.astype(float)
-
-
 def _velocities(model, xi, v):
     """World velocities ``V_j = Σ_{k ⪯ j} ξ_k v_k`` ``(..., nj, 6)`` and column rates ``ξ̇_k = V_j(k) × ξ_k``."""
     V = joint_velocities(model, xi, v)
@@ -90,13 +86,13 @@ def _rnea_forces(model, q, v, a, f_ext):
     R_WJ, p_WJ, xi, inertia = _world_tree(model, q)
     # Forward: v_i = v_λ + ξ_i q̇_i ;  a_i = a_λ + ξ_i q̈_i + ξ̇_i q̇_i  (summed over each support)
     V, xi_dot = _velocities(model, xi, v)
-    A = _gravity_acceleration(model) + _support(model) @ (xi * a[..., :, None] + xi_dot * v[..., :, None])
+    A = _gravity_acceleration(model) + model.joint_support @ (xi * a[..., :, None] + xi_dot * v[..., :, None])
     # f_i = I_i a_i + v_i ×* I_i v_i − f_ext_i
     F = matvec(inertia, A) + force_cross(V, matvec(inertia, V))
     if f_ext is not None:
         F = F - transform_force(R_WJ, p_WJ, f_ext)
     # Backward: the force a joint transmits is the sum over its subtree;  τ_k = ξ_kᵀ f_subtree(j(k))
-    return R_WJ, p_WJ, xi, model.descendants.astype(float) @ F
+    return R_WJ, p_WJ, xi, model.descendants @ F
 
 
 def joint_reaction_forces(model, q, v, a, f_ext=None):
@@ -157,7 +153,7 @@ def _mass_matrix_crba(model, q):
     _, _, xi, inertia = _world_tree(model, q)
     batch = q.shape[:-1]
     # Composite inertias: in world coordinates, I^c_i is the plain sum of the subtree's inertias.
-    composite = (model.descendants.astype(float) @ inertia.reshape(batch + (model.njoints, 36))).reshape(
+    composite = (model.descendants @ inertia.reshape(batch + (model.njoints, 36))).reshape(
         batch + (model.njoints, 6, 6))
     # F_l = I^c_j(l) ξ_l ;  M_kl = ξ_kᵀ F_l when k's joint supports l's (RBDA eq. 6.14)
     F = matvec(composite[..., model.dof_joint, :, :], xi)
@@ -250,7 +246,7 @@ def mass_matrix_derivative(model, q):
     strict = model.ancestors[model.dof_joint][:, model.dof_joint].T & (model.dof_joint[:, None] != model.dof_joint[None, :])
     d_xi = motion_cross(xi[..., :, None, :], xi[..., None, :, :]) * strict[:, :, None]  # [k, l, 6]
     # ∂J_b/∂q_k: columns l of body b, (..., k, b, 6, l)
-    d_jacobians = np.einsum("...klc,bl->...kbcl", d_xi, support.astype(float))
+    d_jacobians = np.einsum("...klc,bl->...kbcl", d_xi, support)
     jacobians = transpose(xi)[..., None, :, :] * support[:, None, :]  # (..., b, 6, l)
     d_inertias = (spatial.force_cross_matrix(xi)[..., :, None, :, :] @ inertias[..., None, :, :, :]
                   - inertias[..., None, :, :, :] @ spatial.motion_cross_matrix(xi)[..., :, None, :, :])
@@ -346,7 +342,7 @@ def forward_dynamics(model, q, v, tau, f_ext=None):
     U, D_inv, projected = _articulated_inertias(model, xi, inertia)
     V, xi_dot = _velocities(model, xi, v)
     # c_i = ξ̇_i q̇_i (the joint's own columns) ;  p^A_i = v_i ×* I_i v_i − f_ext_i
-    bias = model.own_dofs.astype(float) @ (xi_dot * v[..., :, None])
+    bias = model.own_dofs @ (xi_dot * v[..., :, None])
     p_art = force_cross(V, matvec(inertia, V))
     if f_ext is not None:
         p_art = p_art - transform_force(R_WJ, p_WJ, f_ext)

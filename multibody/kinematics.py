@@ -137,7 +137,7 @@ def jacobian(model, q, body, point=None):
 
 def joint_velocities(model, xi, v):
     """World Plücker velocity of every joint frame, ``V_j = Σ_{k supports j} ξ_k v_k``: ``(..., nj, 6)``."""
-    return model.joint_support.astype(float) @ (xi * v[..., :, None])
+    return model.joint_support @ (xi * v[..., :, None])  # boolean masks promote to float
 
 
 def jacobian_time_variation(model, q, v, body, point=None):

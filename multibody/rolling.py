@@ -93,16 +93,22 @@ class _RollingOnPlane(Constraint):
         contact_acceleration = J_dot_v[:3] + spatial.cross(J_dot_v[3:], d) + spatial.cross(omega, d_dot)
         if self.surface_velocity is not None:
             # d/dt v_surface(c(q(s)), t + s) along the motion, numerically.
-            contact = lambda s: self._contact(system, system.integrate(q, v, s), v, t + s)  # noqa: E731
-            surface = _first_derivative(lambda s: self._surface_velocity(contact(s)[1] + contact(s)[5], t + s))
+            def surface_at(s):
+                _, x_s, _, _, _, d_s, _ = self._contact(system, system.integrate(q, v, s), v, t + s)
+                return self._surface_velocity(x_s + d_s, t + s)
+
+            surface = _first_derivative(surface_at)
             contact_acceleration = contact_acceleration - surface
         return A, b, -transpose(E) @ contact_acceleration
 
+    def velocity_level(self, system, q, t=0.0):
+        return self.evaluate(system, q, np.zeros(system.nv), t)[:2]
+
     def jacobian(self, system, q, t=0.0):
-        return self.evaluate(system, q, np.zeros(system.nv), t)[0]
+        return self.velocity_level(system, q, t)[0]
 
     def velocity_bias(self, system, q, t=0.0):
-        return self.evaluate(system, q, np.zeros(system.nv), t)[1]
+        return self.velocity_level(system, q, t)[1]
 
     def acceleration_rhs(self, system, q, v, t=0.0):
         return self.evaluate(system, q, v, t)[2]

@@ -192,8 +192,12 @@ class LagrangianSystem:
 
     # ------------------------------------------------------------------ numbers
 
-    def _substitution(self, values):
-        names = {str(s): s for s in self._parameters()}
+    def _substitution(self, values, expressions=None):
+        """``{symbol: value}`` for the parameters of ``expressions`` (default ``L`` and the forces),
+        given by name; an unknown or a missing name raises ``ValueError`` naming it."""
+        expressions = [self.L] + self.forces if expressions is None else expressions
+        symbols = set().union(*(sp.sympify(e).free_symbols for e in expressions)) - {_t}
+        names = {str(s): s for s in symbols}
         unknown = sorted(set(values) - set(names))
         if unknown:
             raise ValueError(f"unknown parameter(s) {unknown}; the parameters are {sorted(names)}")
@@ -201,11 +205,6 @@ class LagrangianSystem:
         if missing:
             raise ValueError(f"missing value for parameter(s) {missing}")
         return {names[k]: v for k, v in values.items()}
-
-    def _parameters(self):
-        expressions = [self.L] + self.forces
-        symbols = set().union(*(e.free_symbols for e in expressions)) - {_t}
-        return sorted(symbols, key=str)
 
     def _plain(self):
         """Plain symbols for ``q``, ``q̇`` (functions of time cannot be lambdified directly)."""
@@ -244,7 +243,7 @@ class LagrangianSystem:
         the acceleration term ``γ = −(d²φ/dt²)|_{q̈=0}`` are derived exactly.
         """
         phi = sp.Matrix(phi if isinstance(phi, (list, tuple, sp.MatrixBase)) else [phi])
-        substitution = self._substitution_for(phi, values)
+        substitution = self._substitution(values, [phi])
         phi = phi.subs(substitution)
         q_symbols, v_symbols, plain = self._plain()
         jacobian = phi.jacobian(self.q)
@@ -268,7 +267,7 @@ class LagrangianSystem:
         """
         A = sp.Matrix(A)
         b = sp.zeros(A.rows, 1) if b is None else sp.Matrix(b)
-        substitution = self._substitution_for(A.row_join(b), values)
+        substitution = self._substitution(values, [A, b])
         A, b = A.subs(substitution), b.subs(substitution)
         q_symbols, v_symbols, plain = self._plain()
         velocity_level = A * sp.Matrix(self.qd) + b
@@ -281,13 +280,6 @@ class LagrangianSystem:
             name=name,
             gamma=_vector(sp.lambdify([q_symbols, v_symbols, _t], plain(gamma), "numpy"), with_velocity=True),
         )
-
-    def _substitution_for(self, expression, values):
-        symbols = {str(s): s for s in expression.free_symbols - {_t}}
-        missing = sorted(set(symbols) - set(values))
-        if missing:
-            raise ValueError(f"missing value for parameter(s) {missing}")
-        return {symbols[k]: v for k, v in values.items() if k in symbols}
 
 
 def _vector(fn, with_velocity=False):
