@@ -266,10 +266,7 @@ def _joint_columns(model, xi, i):
 
 def _inverse(D):
     """Inverse of the small SPD matrices ``D (..., n, n)``; a reciprocal when ``n = 1``."""
-    if D.shape[-1] == 1:
-        with np.errstate(divide="ignore"):  # a zero pivot is reported by the caller, by joint name
-            return 1.0 / D
-    return np.linalg.inv(D)
+    return 1.0 / D if D.shape[-1] == 1 else np.linalg.inv(D)
 
 
 def _articulated_inertias(model, xi, inertia):
@@ -284,14 +281,13 @@ def _articulated_inertias(model, xi, inertia):
     for i in range(n - 1, -1, -1):
         S = _joint_columns(model, xi, i)
         U[i] = articulated[i] @ S
-        try:
-            D_inv[i] = _inverse(transpose(S) @ U[i])
-        except np.linalg.LinAlgError:
-            D_inv[i] = None
-        if D_inv[i] is None or not np.all(np.isfinite(D_inv[i])[np.isfinite(U[i]).all(axis=(-1, -2))]):
+        D = transpose(S) @ U[i]
+        # A zero pivot means the joint moves no inertia; NaN input (already warned about) just propagates.
+        if np.any(np.linalg.det(D[np.isfinite(D).all(axis=(-1, -2))]) == 0.0):
             raise np.linalg.LinAlgError(
                 f"the mass matrix is singular: joint {model.joint_names[i]!r} moves no inertia "
                 "(its articulated inertia Sᵀ I^A S is singular); give the bodies it carries mass and inertia")
+        D_inv[i] = _inverse(D)
         parent = model.parents[i]
         if parent >= 0:
             # I^a_i = I^A_i − U_i D_i⁻¹ U_iᵀ ;  I^A_λ += I^a_i
