@@ -11,16 +11,17 @@ Conventions (``docs/conventions.md``): spatial vectors are ``[linear; angular]``
 a fictitious acceleration ``a₀ = [−g; 0]`` of the world (RBDA §5.3); external forces ``f_ext`` have
 shape ``(..., njoints, 6)``: the spatial force on the rigid body of each joint, expressed in that
 joint's frame at its origin (Pinocchio's ``fext``).
-Every function accepts leading batch axes on its array arguments and broadcasts them.
+Every function accepts leading batch axes on its array arguments and broadcasts them; inside, the
+recursive algorithms compute on lanes (:mod:`multibody.lanes`), every state a column.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from . import spatial
-from .kinematics import joint_velocities, joint_world_poses, world_motion_subspaces
-from .spatial import force_cross, matvec, motion_cross, transform_force, transpose
+from . import lanes, spatial
+from .kinematics import joint_velocities, motion_subspaces, world_poses
+from .spatial import matvec, motion_cross, transpose
 
 
 # ============================================================================= shared pieces
@@ -41,22 +42,31 @@ def _check(model, q, v=None, a=None, tau=None, f_ext=None):
 
 
 def _gravity_acceleration(model):
-    """Fictitious base acceleration ``a₀ = [−g; 0]`` that accounts for gravity (RBDA §5.3)."""
-    return np.concatenate([-model.gravity, np.zeros(3)])
+    """Fictitious base acceleration ``a₀ = [−g; 0]`` that accounts for gravity (RBDA §5.3), on lanes ``(6, 1)``."""
+    return np.concatenate([-model.gravity, np.zeros(3)])[:, None]
 
 
-def _world_tree(model, q):
-    """World poses of the joint frames, world Plücker motion subspaces ``ξ (..., nv, 6)`` and
-    world inertias ``ᵂI_i = ᵂX_i* I_i ⁱX_W`` ``(..., nj, 6, 6)`` (RBDA eq. 2.66)."""
-    R_WJ, p_WJ = joint_world_poses(model, q)
-    xi = world_motion_subspaces(model, R_WJ, p_WJ)
-    return R_WJ, p_WJ, xi, spatial.transform_inertia(R_WJ, p_WJ, model.spatial_inertias)
+def _tree(model, q):
+    """One pass down the tree on lanes (``q (nq, N)``): world poses of the joint frames
+    ``R_WJ (nj, 3, 3, N)``, ``p_WJ (nj, 3, N)``, world Plücker motion subspaces ``ξ (nv, 6, N)`` and
+    world inertias ``ᵂI_i = ᵂX_i* I_i ⁱX_W`` ``(nj, 6, 6, N)`` (RBDA eq. 2.66)."""
+    R_WJ, p_WJ = world_poses(model, q)
+    return R_WJ, p_WJ, motion_subspaces(model, R_WJ, p_WJ), lanes.world_inertias(*model.inertia_parameters, R_WJ, p_WJ)
 
 
 def _velocities(model, xi, v):
-    """World velocities ``V_j = Σ_{k ⪯ j} ξ_k v_k`` ``(..., nj, 6)`` and column rates ``ξ̇_k = V_j(k) × ξ_k``."""
-    V = joint_velocities(model, xi, v)
-    return V, motion_cross(V[..., model.dof_joint, :], xi)
+    """World velocities ``V_j = Σ_{k ⪯ j} ξ_k v_k`` ``(nj, 6, N)`` and the column rates times speeds,
+    ``ξ̇_k v_k = V_j(k) × ξ_k v_k`` ``(nv, 6, N)`` (RBDA eq. 2.37; a column moves with its own joint)."""
+    xi_v = xi * v[:, None, :]
+    V = lanes.tree_sum(model.joint_support, xi_v)
+    return V, lanes.motion_cross(V if model.one_dof_per_joint else V[model.dof_joint], xi_v)
+
+
+def _world_tree(model, q):
+    """:func:`_tree` with leading batch axes, for the Lagrangian assemblies: ``R_WJ (..., nj, 3, 3)``,
+    ``p_WJ (..., nj, 3)``, ``ξ (..., nv, 6)``, inertias ``(..., nj, 6, 6)``."""
+    batch = q.shape[:-1]
+    return tuple(lanes.from_lanes(x, batch) for x in _tree(model, lanes.to_lanes(q, 1, batch)))
 
 
 # ============================================================================= RNEA
@@ -65,8 +75,8 @@ def inverse_dynamics(model, q, v, a, f_ext=None):
     """Joint forces ``τ = M(q) a + C(q, v) v + g(q) − Σ Jᵢᵀ f_ext,i`` by Recursive Newton–Euler.
 
     RBDA Table 5.1, written in world Plücker coordinates (RBDA §5.3, "RNEA in base coordinates"),
-    where every recursion becomes a sum over the subtree or the support of a joint, so all
-    joints are processed at once. Shapes: ``q (..., nq)``, ``v, a (..., nv)``,
+    where every recursion but the poses' becomes a sum over the subtree or the support of a joint,
+    so all joints are processed at once. Shapes: ``q (..., nq)``, ``v, a (..., nv)``,
     ``f_ext (..., njoints, 6)`` (see module docstring) -> ``τ (..., nv)`` (N or N m per coordinate).
     Pinocchio counterpart: ``rnea``.
     """
@@ -76,23 +86,32 @@ def inverse_dynamics(model, q, v, a, f_ext=None):
 
 def _rnea(model, q, v, a, f_ext, batch):
     """:func:`inverse_dynamics` on validated arrays with common batch shape ``batch``."""
-    _, _, xi, F_subtree = _rnea_forces(model, q, v, a, f_ext)
-    tau = np.sum(xi * F_subtree[..., model.dof_joint, :], axis=-1)
-    return np.broadcast_to(tau, batch + (model.nv,))
+    _, _, xi, F_subtree = _rnea_forces(model, q, v, a, f_ext, batch)
+    # τ_k = ξ_kᵀ f_j(k)
+    tau = lanes.dot(xi, F_subtree if model.one_dof_per_joint else F_subtree[model.dof_joint])
+    return _from_lanes(tau, batch)
 
 
-def _rnea_forces(model, q, v, a, f_ext):
-    """RNEA up to the joint forces: world poses, ``ξ``, and the force each joint transmits (world Plücker)."""
-    R_WJ, p_WJ, xi, inertia = _world_tree(model, q)
+def _from_lanes(x, batch):
+    """A lane result ``(*c, N)`` with the common batch shape (one lane broadcasts to all states)."""
+    if x.shape[-1] == 1 and batch != ():
+        x = np.broadcast_to(x, x.shape[:-1] + (int(np.prod(batch)),))
+    return lanes.from_lanes(x, batch)
+
+
+def _rnea_forces(model, q, v, a, f_ext, batch):
+    """RNEA up to the joint forces on lanes: world poses, ``ξ``, and the force each joint transmits."""
+    R_WJ, p_WJ, xi, inertia = _tree(model, lanes.to_lanes(q, 1, batch))
+    v, a = lanes.to_lanes(v, 1, batch), lanes.to_lanes(a, 1, batch)
     # Forward: v_i = v_λ + ξ_i q̇_i ;  a_i = a_λ + ξ_i q̈_i + ξ̇_i q̇_i  (summed over each support)
-    V, xi_dot = _velocities(model, xi, v)
-    A = _gravity_acceleration(model) + model.joint_support @ (xi * a[..., :, None] + xi_dot * v[..., :, None])
+    V, xi_dot_v = _velocities(model, xi, v)
+    A = _gravity_acceleration(model) + lanes.tree_sum(model.joint_support, xi * a[:, None, :] + xi_dot_v)
     # f_i = I_i a_i + v_i ×* I_i v_i − f_ext_i
-    F = matvec(inertia, A) + force_cross(V, matvec(inertia, V))
+    F = lanes.matvec(inertia, A) + lanes.force_cross(V, lanes.matvec(inertia, V))
     if f_ext is not None:
-        F = F - transform_force(R_WJ, p_WJ, f_ext)
+        F = F - lanes.transform_force(R_WJ, p_WJ, lanes.to_lanes(f_ext, 2, batch))
     # Backward: the force a joint transmits is the sum over its subtree;  τ_k = ξ_kᵀ f_subtree(j(k))
-    return R_WJ, p_WJ, xi, model.descendants @ F
+    return R_WJ, p_WJ, xi, lanes.tree_sum(model.descendants, F)
 
 
 def joint_reaction_forces(model, q, v, a, f_ext=None):
@@ -105,8 +124,8 @@ def joint_reaction_forces(model, q, v, a, f_ext=None):
     ``ConstrainedSystem.body_forces``). Shapes as :func:`inverse_dynamics`.
     """
     q, v, a, _, f_ext, batch = _check(model, q, v, a, f_ext=f_ext)
-    R_WJ, p_WJ, _, F_subtree = _rnea_forces(model, q, v, a, f_ext)
-    return np.broadcast_to(spatial.inverse_transform_force(R_WJ, p_WJ, F_subtree), batch + (model.njoints, 6))
+    R_WJ, p_WJ, _, F_subtree = _rnea_forces(model, q, v, a, f_ext, batch)
+    return _from_lanes(lanes.inverse_transform_force(R_WJ, p_WJ, F_subtree), batch)
 
 
 def generalized_gravity(model, q):
@@ -115,8 +134,8 @@ def generalized_gravity(model, q):
     Pinocchio counterpart: ``computeGeneralizedGravity``.
     """
     q = model.check_configuration(q)
-    zeros = np.zeros(q.shape[:-1] + (model.nv,))
-    return _rnea(model, q, zeros, zeros, None, q.shape[:-1])
+    zero = np.zeros(model.nv)
+    return _rnea(model, q, zero, zero, None, q.shape[:-1])
 
 
 def bias_forces(model, q, v):
@@ -125,7 +144,7 @@ def bias_forces(model, q, v):
     Pinocchio counterpart: ``nonLinearEffects``.
     """
     q, v, *_, batch = _check(model, q, v)
-    return _rnea(model, q, v, np.zeros(batch + (model.nv,)), None, batch)
+    return _rnea(model, q, v, np.zeros(model.nv), None, batch)
 
 
 # ============================================================================= mass matrix
@@ -139,7 +158,8 @@ def mass_matrix(model, q, method="crba"):
     Pinocchio counterpart: ``crba`` (upper triangle, symmetrised).
     """
     if method == "crba":
-        return _mass_matrix_crba(model, model.check_configuration(q))
+        q = model.check_configuration(q)
+        return lanes.from_lanes(_mass_matrix_crba(model, lanes.to_lanes(q)), q.shape[:-1])
     if method == "lagrangian":
         q = model.check_configuration(q)
         jacobians, inertias = _world_body_jacobians_and_inertias(model, q)
@@ -150,17 +170,16 @@ def mass_matrix(model, q, method="crba"):
 
 
 def _mass_matrix_crba(model, q):
-    _, _, xi, inertia = _world_tree(model, q)
-    batch = q.shape[:-1]
+    """CRBA on lanes: ``q (nq, N) -> M (nv, nv, N)``."""
+    _, _, xi, inertia = _tree(model, q)
     # Composite inertias: in world coordinates, I^c_i is the plain sum of the subtree's inertias.
-    composite = (model.descendants @ inertia.reshape(batch + (model.njoints, 36))).reshape(
-        batch + (model.njoints, 6, 6))
+    composite = lanes.tree_sum(model.descendants, inertia)
     # F_l = I^c_j(l) ξ_l ;  M_kl = ξ_kᵀ F_l when k's joint supports l's (RBDA eq. 6.14)
-    F = matvec(composite[..., model.dof_joint, :, :], xi)
-    products = xi @ transpose(F)
-    upper = np.where(model.dof_ancestor, products, 0.0)
-    M = upper + transpose(np.where(model.dof_same_joint, 0.0, upper))
-    return 0.5 * (M + transpose(M))  # exactly symmetric
+    F = lanes.matvec(composite if model.one_dof_per_joint else composite[model.dof_joint], xi)
+    products = np.sum(xi[:, None] * F[None, :], axis=-2)
+    upper = np.where(model.dof_ancestor[:, :, None], products, 0.0)
+    M = upper + np.swapaxes(np.where(model.dof_same_joint[:, :, None], 0.0, upper), 0, 1)
+    return 0.5 * (M + np.swapaxes(M, 0, 1))  # exactly symmetric
 
 
 def _world_body_jacobians_and_inertias(model, q):
@@ -208,7 +227,8 @@ def _bar_force_cross_matrix(f):
 def _coriolis_recursive(model, q, v):
     _, _, xi, inertias = _world_tree(model, q)
     # J̇ column k: ξ̇_k = V_j(k) × ξ_k, the column moves with its own joint.
-    V, xi_dot = _velocities(model, xi, v)
+    V = joint_velocities(model, xi, v)
+    xi_dot = motion_cross(V[..., model.dof_joint, :], xi)
     support = model.joint_support[:, None, :]
     jacobians = transpose(xi)[..., None, :, :] * support
     jacobian_rates = transpose(xi_dot)[..., None, :, :] * support
@@ -258,70 +278,93 @@ def mass_matrix_derivative(model, q):
 
 # ============================================================================= ABA
 
-def _joint_columns(model, xi, i):
-    """World motion subspace of joint i as a ``(..., 6, nv_i)`` matrix."""
-    start = model.idx_v[i]
-    return transpose(xi[..., start : start + model.joints[i].nv, :])
-
-
-def _inverse(D):
-    """Inverse of the small SPD matrices ``D (..., n, n)``; a reciprocal when ``n = 1``."""
-    return 1.0 / D if D.shape[-1] == 1 else np.linalg.inv(D)
-
-
 def _articulated_inertias(model, xi, inertia):
     """Backward pass of ABA for the q-dependent part (RBDA Table 7.1, second loop), in world coordinates.
 
-    Returns per joint ``U_i = I^A_i S_i``, ``D_i⁻¹ = (S_iᵀ U_i)⁻¹`` and ``I^a_i = I^A_i − U_i D_i⁻¹ U_iᵀ``.
-    In world coordinates a child's articulated inertia adds to its parent's without transformation.
+    On lanes, level by level from the leaves, all joints of one depth and size at once. Returns per
+    level group ``U_i = I^A_i S_i (k, 6, n, N)``, ``U_i D_i⁻¹`` and ``D_i⁻¹ = (S_iᵀ U_i)⁻¹ (k, n, n, N)``, and
+    ``I^a_i = I^A_i − U_i D_i⁻¹ U_iᵀ (nj, 6, 6, N)``. In world coordinates a child's articulated inertia
+    adds to its parent's without transformation.
     """
-    n = model.njoints
-    articulated = [inertia[..., i, :, :] for i in range(n)]
-    U, D_inv, projected = [None] * n, [None] * n, [None] * n
-    for i in range(n - 1, -1, -1):
-        S = _joint_columns(model, xi, i)
-        U[i] = articulated[i] @ S
-        D = transpose(S) @ U[i]
-        # A zero pivot means the joint moves no inertia; NaN input (already warned about) just propagates.
-        if np.any(np.linalg.det(D[np.isfinite(D).all(axis=(-1, -2))]) == 0.0):
-            raise np.linalg.LinAlgError(
-                f"the mass matrix is singular: joint {model.joint_names[i]!r} moves no inertia "
-                "(its articulated inertia Sᵀ I^A S is singular); give the bodies it carries mass and inertia")
-        D_inv[i] = _inverse(D)
-        parent = model.parents[i]
-        if parent >= 0:
-            # I^a_i = I^A_i − U_i D_i⁻¹ U_iᵀ ;  I^A_λ += I^a_i
-            projected[i] = articulated[i] - U[i] @ D_inv[i] @ transpose(U[i])
-            articulated[parent] = articulated[parent] + projected[i]
-    return U, D_inv, projected
+    articulated = inertia.copy()
+    projected = np.empty_like(articulated)
+    factors = {}
+    for group in reversed(model.level_groups):
+        S = xi[group.dofs]  # (k, n, 6, N)
+        I_A = articulated[group.joints]
+        # U_i = I^A_i S_i ;  D_i = S_iᵀ U_i
+        U = np.sum(I_A[:, :, None] * S[:, None], axis=-2)
+        D = np.sum(S[:, :, :, None] * U[:, None], axis=-3)
+        D_inv = _inverse(model, group, D)
+        U_D_inv = lanes.matmul(U, D_inv)
+        # I^a_i = I^A_i − U_i D_i⁻¹ U_iᵀ ;  I^A_λ += I^a_i
+        projected[group.joints] = I_A - lanes.matmul(U_D_inv, lanes.transpose(U))
+        _add_to_parents(articulated, group, projected[group.joints])
+        factors[group] = U, U_D_inv, D_inv
+    return factors, projected
 
 
-def _aba_bias_and_accelerations(model, xi, U, D_inv, projected, bias, p_art, tau, a0):
+def _add_to_parents(x, group, values):
+    """``x[λ(i)] += values_i`` for the joints of a level group (several may share a parent)."""
+    if group.parents is None:
+        return
+    if group.shared_parents:
+        np.add.at(x, group.parents, values)
+    else:
+        x[group.parents] += values
+
+
+def _inverse(model, group, D):
+    """``D⁻¹`` of the joint-space articulated inertias ``D (k, n, n, N)``, or an error naming a singular joint."""
+    if group.nv == 1:
+        singular = D[:, 0, 0] == 0.0
+    else:
+        with np.errstate(invalid="ignore"):
+            singular = np.linalg.det(np.moveaxis(D, -1, 1)) == 0.0
+    # NaN input (already warned about) just propagates.
+    if np.any(singular):
+        i = np.arange(model.njoints)[group.joints][np.flatnonzero(singular.any(axis=-1))[0]]
+        raise np.linalg.LinAlgError(
+            f"the mass matrix is singular: joint {model.joint_names[i]!r} moves no inertia "
+            "(its articulated inertia Sᵀ I^A S is singular); give the bodies it carries mass and inertia")
+    if group.nv == 1:
+        return 1.0 / D
+    return np.moveaxis(np.linalg.inv(np.moveaxis(D, -1, 1)), 1, -1)
+
+
+def _aba_bias_and_accelerations(model, xi, factors, projected, bias, p_art, tau, a0):
     """Bias-force backward pass and acceleration forward pass of ABA (RBDA Table 7.1), world coordinates.
 
-    ``bias[i] = c_i`` (velocity-product acceleration of joint i), ``p_art[i] = p^A_i`` (bias forces);
-    all arguments broadcast against each other over their leading axes.
+    On lanes: ``bias (nj, 6, N)`` holds ``c_i`` (velocity-product acceleration of joint i) and
+    ``p_art (nj, 6, N)`` the bias forces ``p^A_i`` (``None`` for zero); ``tau (nv, N)``; ``a0 (6, N)``.
+    Returns ``q̈ (nv, N)``.
     """
-    n = model.njoints
-    p_art = list(p_art)
-    u = [None] * n
-    for i in range(n - 1, -1, -1):
-        start, parent = model.idx_v[i], model.parents[i]
-        S = _joint_columns(model, xi, i)
+    n = max(x.shape[-1] for x in (xi, tau, bias, p_art) if x is not None)
+    p_art = np.zeros((model.njoints, 6, n)) if p_art is None else np.broadcast_to(p_art, p_art.shape[:-1] + (n,)).copy()
+    u = {}
+    for group in reversed(model.level_groups):
+        U, U_D_inv, _ = factors[group]
+        p_i = p_art[group.joints]
         # u_i = τ_i − S_iᵀ p^A_i
-        u[i] = tau[..., start : start + model.joints[i].nv] - matvec(transpose(S), p_art[i])
-        if parent >= 0:
-            # p^a_i = p^A_i + I^a_i c_i + U_i D_i⁻¹ u_i ;  p^A_λ += p^a_i
-            p_art[parent] = p_art[parent] + p_art[i] + matvec(projected[i], bias[i]) + matvec(U[i], matvec(D_inv[i], u[i]))
+        u[group] = tau[group.dofs] - np.sum(xi[group.dofs] * p_i[:, None], axis=-2)
+        # p^a_i = p^A_i + I^a_i c_i + U_i D_i⁻¹ u_i ;  p^A_λ += p^a_i
+        p_a = p_i + lanes.matvec(U_D_inv, u[group])
+        if bias is not None:
+            p_a = p_a + lanes.matvec(projected[group.joints], bias[group.joints])
+        _add_to_parents(p_art, group, p_a)
 
-    qdd, accelerations = [None] * n, [None] * n
-    for i, parent in enumerate(model.parents):
+    qdd = np.empty((model.nv, n))
+    accelerations = np.empty(p_art.shape)
+    for group in model.level_groups:
+        U, _, D_inv = factors[group]
         # a'_i = a_λ + c_i ;  q̈_i = D_i⁻¹ (u_i − U_iᵀ a'_i) ;  a_i = a'_i + S_i q̈_i
-        a_prime = (a0 if parent < 0 else accelerations[parent]) + bias[i]
-        qdd[i] = matvec(D_inv[i], u[i] - matvec(transpose(U[i]), a_prime))
-        accelerations[i] = a_prime + matvec(_joint_columns(model, xi, i), qdd[i])
-    shape = np.broadcast_shapes(*(x.shape[:-1] for x in qdd))
-    return np.concatenate([np.broadcast_to(x, shape + x.shape[-1:]) for x in qdd], axis=-1)
+        a_prime = a0[None] if group.parents is None else accelerations[group.parents]
+        if bias is not None:
+            a_prime = a_prime + bias[group.joints]
+        qdd_i = lanes.matvec(D_inv, u[group] - np.sum(U * a_prime[:, :, None], axis=-3))
+        accelerations[group.joints] = a_prime + np.sum(xi[group.dofs] * qdd_i[:, :, None], axis=1)
+        qdd[group.dofs] = qdd_i
+    return qdd
 
 
 def forward_dynamics(model, q, v, tau, f_ext=None):
@@ -334,40 +377,40 @@ def forward_dynamics(model, q, v, tau, f_ext=None):
     q, v, _, tau, f_ext, batch = _check(model, q, v, tau=tau, f_ext=f_ext)
     if model.nv == 0:
         return np.zeros(batch + (0,))
-    R_WJ, p_WJ, xi, inertia = _world_tree(model, q)
-    U, D_inv, projected = _articulated_inertias(model, xi, inertia)
-    V, xi_dot = _velocities(model, xi, v)
+    R_WJ, p_WJ, xi, inertia = _tree(model, lanes.to_lanes(q, 1, batch))
+    factors, projected = _articulated_inertias(model, xi, inertia)
+    V, xi_dot_v = _velocities(model, xi, lanes.to_lanes(v, 1, batch))
     # c_i = ξ̇_i q̇_i (the joint's own columns) ;  p^A_i = v_i ×* I_i v_i − f_ext_i
-    bias = model.own_dofs @ (xi_dot * v[..., :, None])
-    p_art = force_cross(V, matvec(inertia, V))
+    bias = xi_dot_v if model.one_dof_per_joint else lanes.tree_sum(model.own_dofs, xi_dot_v)
+    p_art = lanes.force_cross(V, lanes.matvec(inertia, V))
     if f_ext is not None:
-        p_art = p_art - transform_force(R_WJ, p_WJ, f_ext)
-    a = _aba_bias_and_accelerations(model, xi, U, D_inv, projected, [bias[..., i, :] for i in range(model.njoints)],
-                                    [p_art[..., i, :] for i in range(model.njoints)], tau, _gravity_acceleration(model))
-    return np.broadcast_to(a, batch + (model.nv,)).copy()
+        p_art = p_art - lanes.transform_force(R_WJ, p_WJ, lanes.to_lanes(f_ext, 2, batch))
+    a = _aba_bias_and_accelerations(model, xi, factors, projected, bias, p_art, lanes.to_lanes(tau, 1, batch),
+                                    _gravity_acceleration(model))
+    return _from_lanes(a, batch)
 
 
 def inverse_mass_matrix(model, q):
     """``M(q)⁻¹`` by the Articulated Body Algorithm: ``(..., nq) -> (..., nv, nv)``.
 
     Column k is ABA's acceleration for a unit force on coordinate k with ``v = 0`` and no gravity;
-    the articulated inertias are computed once and shared by all columns.
+    the articulated inertias are computed once and shared by all columns (each column a lane).
     Pinocchio counterpart: ``computeMinverse``.
     """
     q = model.check_configuration(q)
-    batch = q.shape[:-1]
-    if model.nv == 0:
+    batch, nv = q.shape[:-1], model.nv
+    if nv == 0:
         return np.zeros(batch + (0, 0))
-    _, _, xi, inertia = _world_tree(model, q)
-    U, D_inv, projected = _articulated_inertias(model, xi, inertia)
-    # A new axis (of length nv, one per unit force) just before the vector/matrix axes.
-    expand = lambda items: [None if x is None else x[..., None, :, :] for x in items]  # noqa: E731
-    U, D_inv, projected = expand(U), expand(D_inv), expand(projected)
-    zero = [np.zeros(6)] * model.njoints
-    columns = _aba_bias_and_accelerations(model, xi[..., None, :, :], U, D_inv, projected, zero, zero,
-                                          np.eye(model.nv), np.zeros(6))
-    # columns[..., k, :] is M⁻¹ e_k; M⁻¹ is symmetric, so this is already M⁻¹ row by row.
-    return np.broadcast_to(columns, batch + (model.nv, model.nv)).copy()
+    _, _, xi, inertia = _tree(model, lanes.to_lanes(q, 1, batch))
+    factors, projected = _articulated_inertias(model, xi, inertia)
+    n = xi.shape[-1]
+    # Lane s nv + k: state s, unit force on coordinate k.
+    repeat = lambda x: np.repeat(x, nv, axis=-1)  # noqa: E731
+    factors = {group: tuple(repeat(x) for x in values) for group, values in factors.items()}
+    columns = _aba_bias_and_accelerations(model, repeat(xi), factors, None, None, None, np.tile(np.eye(nv), n),
+                                          np.zeros((6, 1)))
+    # columns[:, s nv + k] is (M⁻¹ e_k) of state s; M⁻¹ is symmetric.
+    return lanes.from_lanes(columns.reshape(nv, n, nv).transpose(0, 2, 1), batch)
 
 
 # ============================================================================= energies
@@ -377,10 +420,10 @@ def kinetic_energy(model, q, v):
 
     Pinocchio counterpart: ``computeKineticEnergy``.
     """
-    q, v, *_ = _check(model, q, v)
-    _, _, xi, inertia = _world_tree(model, q)
-    V, _ = _velocities(model, xi, v)
-    return 0.5 * np.sum(V * matvec(inertia, V), axis=(-1, -2))
+    q, v, *_, batch = _check(model, q, v)
+    _, _, xi, inertia = _tree(model, lanes.to_lanes(q, 1, batch))
+    V, _ = _velocities(model, xi, lanes.to_lanes(v, 1, batch))
+    return _from_lanes(0.5 * np.sum(V * lanes.matvec(inertia, V), axis=(0, 1)), batch)
 
 
 def potential_energy(model, q):
@@ -390,8 +433,9 @@ def potential_energy(model, q):
     ``computePotentialEnergy``. ``(..., nq) -> (...)``.
     """
     q = model.check_configuration(q)
-    R_WJ, p_WJ = joint_world_poses(model, q)
-    masses = np.array([inertia.mass for inertia in model.joint_inertias])
-    coms = np.array([inertia.com for inertia in model.joint_inertias]).reshape(-1, 3)
-    world_coms = matvec(R_WJ, coms) + p_WJ
-    return -np.einsum("j,...jc,c->...", masses, world_coms, model.gravity)
+    batch = q.shape[:-1]
+    R_WJ, p_WJ = world_poses(model, lanes.to_lanes(q, 1, batch))
+    mass, first_moment, _ = model.inertia_parameters
+    # m c_W = R m c_J + m p
+    moments = lanes.matvec(R_WJ, first_moment) + mass[:, None, None] * p_WJ
+    return _from_lanes(-np.einsum("c,jcn->n", model.gravity, moments), batch)

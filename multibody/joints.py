@@ -32,7 +32,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from . import spatial
+from . import lanes, spatial
 
 #: Largest accepted ``| |q| − 1 |`` for a quaternion or a planar ``(cos θ, sin θ)`` pair.
 UNIT_NORM_TOLERANCE = 1e-6
@@ -102,19 +102,38 @@ class Joint:
 
     def transform(self, q):
         """Pose ``(R (..., 3, 3), p (..., 3))`` of the joint frame in the pre-joint frame."""
-        R, p = self.group_transform(self.group_constants([self]), q[..., None, :])
-        return R[..., 0, :, :], p[..., 0, :]
+        q = np.asarray(q, dtype=float)
+        constants = self.group_constants([self], np.eye(4)[None])
+        R, p = self.group_transform(constants, lanes.to_lanes(q)[None])
+        batch = q.shape[:-1]
+        return (lanes.from_lanes(np.broadcast_to(R[0], (3, 3, R.shape[-1])), batch),
+                lanes.from_lanes(np.broadcast_to(p[0], (3, p.shape[-1])), batch))
 
     @classmethod
-    def group_constants(cls, joints):
-        """Constants that :meth:`group_transform` needs for several joints of this type (e.g. axes)."""
-        return None
+    def group_constants(cls, joints, placements):
+        """Constants that :meth:`group_transform` needs for ``joints`` of this type with tree
+        transforms ``placements (n, 4, 4)`` (pose of each pre-joint frame in its parent joint frame).
+
+        The base version holds the placements as lane constants ``R_T (n, 3, 3, 1)``, ``p_T (n, 3, 1)``.
+        """
+        placements = np.asarray(placements, dtype=float)
+        return placements[:, :3, :3, None], placements[:, :3, 3, None]
 
     @staticmethod
     def group_transform(constants, q):
-        """Transforms of a group of joints of one type at once: ``q (..., n, nq)`` ->
-        ``R (..., n, 3, 3)``, ``p (..., n, 3)``. The algorithms call this once per joint type."""
+        """Poses of a group of joints of one type in their parent joint frames, all at once.
+
+        ``X_λ,i = X_T,i X_J,i(q_i)`` (RBDA §4.1) on lanes: ``q (n, nq, N)`` -> ``R (n, 3, 3, N)``,
+        ``p (n, 3, N)`` (either may have a lane axis of length 1 when it does not depend on q).
+        The algorithms call this once per joint type.
+        """
         raise NotImplementedError
+
+    @staticmethod
+    def _placed(constants, R_J, p_J):
+        """``X_T X_J`` on lanes, from a type's joint transform ``(R_J, p_J)`` and the base constants."""
+        R_T, p_T = constants[:2]
+        return lanes.matmul(R_T, R_J), lanes.matvec(R_T, p_J) + p_T
 
     def integrate(self, q, v):
         """Configuration reached from ``q`` by moving with constant velocity ``v`` for unit time."""
@@ -164,16 +183,18 @@ class Revolute(Joint):
         object.__setattr__(self, "motion_subspace", _constant(np.concatenate([np.zeros(3), axis])[:, None]))
 
     @classmethod
-    def group_constants(cls, joints):
-        K = spatial.skew(np.stack([joint.axis for joint in joints]))
-        return K, K @ K
+    def group_constants(cls, joints, placements):
+        R_T, p_T = Joint.group_constants(joints, placements)
+        K = spatial.skew(np.stack([joint.axis for joint in joints]))[..., None]
+        R_T_K = lanes.matmul(R_T, K)
+        return R_T, p_T, R_T_K, lanes.matmul(R_T_K, K)
 
     @staticmethod
     def group_transform(constants, q):
-        # Rodrigues: R = I + sin θ [a]× + (1 − cos θ) [a]×²
-        K, K2 = constants
-        angle = q[..., 0, None, None]
-        return np.eye(3) + np.sin(angle) * K + (1.0 - np.cos(angle)) * K2, np.zeros(q.shape[:-1] + (3,))
+        # Rodrigues, R_J = 1 + sin θ [a]× + (1 − cos θ) [a]×², placed: R = R_T R_J, p = p_T
+        R_T, p_T, R_T_K, R_T_K2 = constants
+        angle = q[:, :, None, :]
+        return R_T + np.sin(angle) * R_T_K + (1.0 - np.cos(angle)) * R_T_K2, p_T
 
     def random(self, rng, lower, upper, shape=()):
         return _random_uniform(rng, lower, upper, np.pi, shape)
@@ -204,12 +225,15 @@ class Prismatic(Joint):
         object.__setattr__(self, "motion_subspace", _constant(np.concatenate([axis, np.zeros(3)])[:, None]))
 
     @classmethod
-    def group_constants(cls, joints):
-        return np.stack([joint.axis for joint in joints])
+    def group_constants(cls, joints, placements):
+        R_T, p_T = Joint.group_constants(joints, placements)
+        return R_T, p_T, lanes.matvec(R_T, np.stack([joint.axis for joint in joints])[..., None])
 
     @staticmethod
-    def group_transform(axes, q):
-        return np.broadcast_to(np.eye(3), q.shape[:-1] + (3, 3)), q[..., :1] * axes
+    def group_transform(constants, q):
+        # R = R_T, p = p_T + q R_T a
+        R_T, p_T, R_T_axis = constants
+        return R_T, p_T + q * R_T_axis
 
     def describe(self):
         return f"{self.kind} axis {np.round(self.axis, 6).tolist()}"
@@ -226,7 +250,9 @@ class Translation(Joint):
 
     @staticmethod
     def group_transform(constants, q):
-        return np.broadcast_to(np.eye(3), q.shape[:-1] + (3, 3)), q
+        # R = R_T, p = p_T + R_T q
+        R_T, p_T = constants
+        return R_T, p_T + lanes.matvec(R_T, q)
 
 
 @dataclass(frozen=True, eq=False)
@@ -247,17 +273,15 @@ class Planar(Joint):
     def neutral(self):
         return np.array([0.0, 0.0, 1.0, 0.0])
 
-    @staticmethod
-    def group_transform(constants, q):
-        c, s = q[..., 2], q[..., 3]
-        norm = np.hypot(c, s)
-        c, s = c / norm, s / norm
-        zero, one = np.zeros_like(c), np.ones_like(c)
-        R = np.stack(
-            [np.stack([c, -s, zero], -1), np.stack([s, c, zero], -1), np.stack([zero, zero, one], -1)], -2
-        )
-        p = np.concatenate([q[..., :2], zero[..., None]], axis=-1)
-        return R, p
+    @classmethod
+    def group_transform(cls, constants, q):
+        norm = np.hypot(q[:, 2], q[:, 3])
+        c, s = q[:, 2] / norm, q[:, 3] / norm
+        R_J = np.zeros(q.shape[:1] + (3, 3) + q.shape[-1:])
+        R_J[:, 0, 0], R_J[:, 0, 1], R_J[:, 1, 0], R_J[:, 1, 1], R_J[:, 2, 2] = c, -s, s, c, 1.0
+        p_J = np.zeros(q.shape[:1] + (3,) + q.shape[-1:])
+        p_J[:, :2] = q[:, :2]
+        return cls._placed(constants, R_J, p_J)
 
     @staticmethod
     def _se2_v(theta):
@@ -327,9 +351,10 @@ class Spherical(Joint):
     def neutral(self):
         return np.array([0.0, 0.0, 0.0, 1.0])
 
-    @staticmethod
-    def group_transform(constants, q):
-        return spatial.quat_to_rotation(q), np.zeros(q.shape[:-1] + (3,))
+    @classmethod
+    def group_transform(cls, constants, q):
+        R_T, p_T = constants
+        return lanes.matmul(R_T, lanes.quat_to_rotation(q)), p_T
 
     def integrate(self, q, v):
         # q ⊗ exp(ω): the body-frame angular velocity acts on the right.
@@ -372,9 +397,9 @@ class FreeFlyer(Joint):
     def neutral(self):
         return np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0])
 
-    @staticmethod
-    def group_transform(constants, q):
-        return spatial.quat_to_rotation(q[..., 3:]), q[..., :3]
+    @classmethod
+    def group_transform(cls, constants, q):
+        return cls._placed(constants, lanes.quat_to_rotation(q[:, 3:]), q[:, :3])
 
     def integrate(self, q, v):
         R0 = spatial.quat_to_rotation(q[..., 3:])
@@ -420,4 +445,4 @@ class Fixed(Joint):
 
     @staticmethod
     def group_transform(constants, q):
-        return np.broadcast_to(np.eye(3), q.shape[:-1] + (3, 3)), np.zeros(q.shape[:-1] + (3,))
+        return constants

@@ -10,52 +10,59 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import spatial
+from . import lanes, spatial
 from .spatial import matvec
 
 
-def joint_transforms(model, q):
-    """Joint transforms ``X_J(q)`` of all joints, one vectorised call per joint type.
+def local_poses(model, q):
+    """Pose ``X_λ(i),i(q) = X_T,i X_J,i(q_i)`` of every joint frame in its parent joint frame, on lanes.
 
-    Returns ``R (..., nj, 3, 3)``, ``p (..., nj, 3)``: the pose of each joint frame in its pre-joint frame.
+    ``q (nq, N)`` -> ``R (nj, 3, 3, N)``, ``p (nj, 3, N)`` (RBDA §4.1: the tree transform ``X_T`` is
+    the joint's placement, followed by the joint transform ``X_J``); one call per joint type.
     """
-    batch = q.shape[:-1]
-    if len(model.joint_groups) == 1:
-        kind, _, q_index, constants = model.joint_groups[0]
-        return kind.group_transform(constants, q[..., q_index])
-    R, p = np.empty(batch + (model.njoints, 3, 3)), np.empty(batch + (model.njoints, 3))
+    shape = (model.njoints,)
+    R, p = np.empty(shape + (3, 3, q.shape[-1])), np.empty(shape + (3, q.shape[-1]))
     for kind, index, q_index, constants in model.joint_groups:
-        R[..., index, :, :], p[..., index, :] = kind.group_transform(constants, q[..., q_index])
+        R[index], p[index] = kind.group_transform(constants, q[q_index])
     return R, p
 
 
-def joint_local_poses(model, q):
-    """Pose ``X_λ(i),i(q) = X_T,i X_J,i(q_i)`` of each joint frame in its parent joint frame.
-
-    Returns ``R (..., nj, 3, 3)``, ``p (..., nj, 3)`` (RBDA §4.1: the tree transform ``X_T`` is the
-    joint's placement, followed by the joint transform ``X_J``).
-    """
-    R_J, p_J = joint_transforms(model, q)
-    X_T = model.joint_placements
-    return spatial.compose(X_T[:, :3, :3], X_T[:, :3, 3], R_J, p_J)
-
-
-def joint_world_poses(model, q):
-    """World pose of every joint frame: ``R_WJ (..., nj, 3, 3)``, ``p_WJ (..., nj, 3)``.
+def world_poses(model, q):
+    """World pose of every joint frame on lanes: ``q (nq, N)`` -> ``R_WJ (nj, 3, 3, N)``, ``p_WJ (nj, 3, N)``.
 
     ``X_W,i = X_W,λ(i) X_λ(i),i`` level by level down the tree: all joints of one depth at once.
     """
-    q = np.asarray(q, dtype=float)
-    R_local, p_local = joint_local_poses(model, q)
-    batch = q.shape[:-1]
-    R_world, p_world = np.empty(batch + (model.njoints, 3, 3)), np.empty(batch + (model.njoints, 3))
+    R_local, p_local = local_poses(model, q)
+    R_world, p_world = np.empty_like(R_local), np.empty_like(p_local)
     for level, (index, parents) in enumerate(model.levels):
         if level == 0:
-            R_world[..., index, :, :], p_world[..., index, :] = R_local[..., index, :, :], p_local[..., index, :]
+            R_world[index], p_world[index] = R_local[index], p_local[index]
         else:
-            R_world[..., index, :, :], p_world[..., index, :] = spatial.compose(
-                R_world[..., parents, :, :], p_world[..., parents, :], R_local[..., index, :, :], p_local[..., index, :])
+            R_parent, p_parent = R_world[parents], p_world[parents]
+            R_world[index] = lanes.matmul(R_parent, R_local[index])
+            p_world[index] = lanes.matvec(R_parent, p_local[index]) + p_parent
     return R_world, p_world
+
+
+def motion_subspaces(model, R_WJ, p_WJ):
+    """Each velocity coordinate's unit motion as a world Plücker vector, on lanes: ``ξ (nv, 6, N)``.
+
+    For coordinate k of joint j with subspace column ``s = [s_v; s_ω]`` (joint frame):
+    ``ω_k = R_Wj s_ω``, ``v_k = R_Wj s_v + p_Wj × ω_k``.
+    """
+    if not model.one_dof_per_joint:
+        R_WJ, p_WJ = R_WJ[model.dof_joint], p_WJ[model.dof_joint]
+    # [R s_v, R s_ω] in one product
+    columns = lanes.matmul(R_WJ, model.subspace_columns)
+    angular = columns[:, :, 1]
+    return np.concatenate([columns[:, :, 0] + lanes.cross(p_WJ, angular), angular], axis=-2)
+
+
+def joint_world_poses(model, q):
+    """World pose of every joint frame: ``R_WJ (..., nj, 3, 3)``, ``p_WJ (..., nj, 3)``."""
+    q = np.asarray(q, dtype=float)
+    R, p = world_poses(model, lanes.to_lanes(q))
+    return lanes.from_lanes(R, q.shape[:-1]), lanes.from_lanes(p, q.shape[:-1])
 
 
 def _body_world_poses(model, R_WJ, p_WJ):
@@ -79,17 +86,11 @@ def forward_kinematics(model, q):
 
 
 def world_motion_subspaces(model, R_WJ, p_WJ):
-    """Each velocity coordinate's unit motion as a world Plücker vector: ``(..., nv, 6)``.
-
-    For coordinate k of joint j with subspace column ``s = [s_v; s_ω]`` (joint frame):
-    ``ω_k = R_Wj s_ω``, ``v_k = R_Wj s_v + p_Wj × ω_k``.
-    """
-    R = R_WJ[..., model.dof_joint, :, :]
-    p = p_WJ[..., model.dof_joint, :]
-    S = model.motion_subspaces
-    angular = matvec(R, S[:, 3:])
-    linear = matvec(R, S[:, :3]) + spatial.cross(p, angular)
-    return np.concatenate([linear, angular], axis=-1)
+    """:func:`motion_subspaces` for poses with leading batch axes: ``(..., nj, 3, 3), (..., nj, 3) -> (..., nv, 6)``."""
+    batch = np.broadcast_shapes(R_WJ.shape[:-3], p_WJ.shape[:-2])
+    xi = motion_subspaces(model, lanes.to_lanes(np.broadcast_to(R_WJ, batch + R_WJ.shape[-3:]), 3),
+                          lanes.to_lanes(np.broadcast_to(p_WJ, batch + p_WJ.shape[-2:]), 2))
+    return lanes.from_lanes(xi, batch)
 
 
 def _point_in_world(model, R_WB, p_WB, point):

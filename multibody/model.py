@@ -56,6 +56,22 @@ class Mimic:
     offset: float = 0.0
 
 
+@dataclass(frozen=True, eq=False)
+class LevelGroup:
+    """Joints of one tree depth with ``nv`` velocity coordinates each (see ``Model.level_groups``).
+
+    ``joints`` and ``parents`` index joints (``parents`` is ``None`` at the root level), ``dofs``
+    indexes ``v`` to give a ``(k, nv)`` block, ``shared_parents`` tells whether two joints of the
+    group have the same parent (then sums into parents must accumulate).
+    """
+
+    joints: object
+    parents: object
+    dofs: object
+    nv: int
+    shared_parents: bool
+
+
 def _index(indices):
     """A contiguous increasing index array as a slice (a view when used), else the array itself."""
     indices = np.asarray(indices, dtype=int)
@@ -229,9 +245,19 @@ class Model:
             members.setdefault(type(joint), []).append(i)
         return tuple(
             (kind, _index(np.array(idx)), np.array([np.arange(self.idx_q[i], self.idx_q[i] + kind.nq) for i in idx]),
-             kind.group_constants([self.joints[i] for i in idx]))
+             kind.group_constants([self.joints[i] for i in idx], self.joint_placements[idx]))
             for kind, idx in members.items()
         )
+
+    @cached_property
+    def one_dof_per_joint(self) -> bool:
+        """Whether every joint has exactly one velocity coordinate (then ``dof_joint`` is the identity)."""
+        return all(joint.nv == 1 for joint in self.joints)
+
+    @cached_property
+    def subspace_columns(self) -> np.ndarray:
+        """``(nv, 3, 2, 1)``: the motion subspace columns ``[s_v, s_ω]`` side by side, as lane constants."""
+        return _frozen(np.stack([self.motion_subspaces[:, :3], self.motion_subspaces[:, 3:]], axis=-1)[..., None])
 
     @cached_property
     def levels(self) -> tuple:
@@ -244,6 +270,31 @@ class Model:
             depth[i] = 0 if parent < 0 else depth[parent] + 1
         return tuple((_index(np.flatnonzero(depth == d)), _index(self.parents[depth == d]))
                      for d in range(depth.max(initial=-1) + 1))
+
+    @cached_property
+    def level_groups(self) -> tuple:
+        """The joints of each tree level, split by number of velocity coordinates, root level first.
+
+        Each :class:`LevelGroup` lets the recursive algorithms treat its ``k`` joints of ``n``
+        coordinates each with single array operations; indices are views where the tree allows.
+        """
+        groups = []
+        for index, _ in self.levels:
+            joints = np.arange(self.njoints)[index]
+            for n in sorted({self.joints[i].nv for i in joints}):
+                members = np.array([i for i in joints if self.joints[i].nv == n])
+                if n == 0:
+                    continue
+                parents = self.parents[members]
+                dofs = self.idx_v[members][:, None] + np.arange(n)
+                if len(members) == 1:
+                    dofs = (None, slice(int(dofs[0, 0]), int(dofs[0, -1]) + 1))
+                elif n == 1 and isinstance(_index(dofs[:, 0]), slice):
+                    dofs = (_index(dofs[:, 0]), None)
+                shared = len(set(parents.tolist())) < len(parents)
+                groups.append(LevelGroup(_index(members), None if parents[0] < 0 else (parents if shared else _index(parents)),
+                                         dofs, n, shared))
+        return tuple(groups)
 
     def body_index(self, body) -> int:
         """Index of a body given by name or index; ``ValueError`` names the valid choices."""
@@ -284,6 +335,15 @@ class Model:
         if self.njoints == 0:
             return _frozen(np.zeros((0, 6, 6)))
         return _frozen(np.stack([inertia.spatial for inertia in self.joint_inertias]))
+
+    @cached_property
+    def inertia_parameters(self) -> tuple:
+        """Each moving body's mass ``(nj,)``, first moment ``m c (nj, 3, 1)`` and rotational inertia
+        about its joint-frame origin ``(nj, 3, 3, 1)``, in its joint frame, as lane constants."""
+        I = self.spatial_inertias
+        # I = [[m 1, −[m c]×], [[m c]×, Ī_O]]
+        first_moment = np.stack([I[:, 5, 1], I[:, 3, 2], I[:, 4, 0]], axis=-1)
+        return _frozen(I[:, 0, 0]), _frozen(first_moment[..., None]), _frozen(I[:, 3:, 3:, None])
 
     @property
     def total_mass(self) -> float:
@@ -363,6 +423,12 @@ class Model:
 
     @staticmethod
     def _as_float_array(x, name):
+        if type(x) is np.ndarray and x.dtype == np.float64:
+            # The common case, checked cheaply: a non-finite entry makes the sum non-finite.
+            if not np.isfinite(np.add.reduce(x, axis=None)) and not np.all(np.isfinite(x)):
+                warnings.warn(f"{name} contains NaN or infinite values; results will contain NaN", RuntimeWarning,
+                              stacklevel=3)
+            return x
         x = np.asarray(x)
         if x.dtype == object or not (np.issubdtype(x.dtype, np.number) or x.dtype == bool):
             raise ValueError(f"{name} must be a real numeric array, got dtype {x.dtype}")

@@ -1,0 +1,191 @@
+"""Spatial algebra in the *lane* layout that the batched algorithms compute in.
+
+The public functions take arrays with leading batch axes, ``q (..., nq)``. Small matrix products
+over such arrays (``np.matmul`` on a stack of 3×3 matrices) are dominated by per-matrix overhead.
+Inside the algorithms every state is therefore a *lane*: an array holds each component of a
+vector or matrix as one contiguous row over the ``N`` states, with the state axis last:
+
+=================  ========================  ========================================
+quantity           public layout             lane layout
+=================  ========================  ========================================
+configuration      ``(..., nq)``             ``(nq, N)``
+rotations          ``(..., nj, 3, 3)``       ``(nj, 3, 3, N)``
+spatial vectors    ``(..., nj, 6)``          ``(nj, 6, N)``
+spatial inertias   ``(..., nj, 6, 6)``       ``(nj, 6, 6, N)``
+=================  ========================  ========================================
+
+A product of two 3×3 matrices then costs a handful of whole-row NumPy operations for all states
+and all joints at once. Constants (axes, placements, inertias) carry a lane axis of length 1 and
+broadcast. The functions here mirror :mod:`multibody.spatial` (same conventions: motion vectors
+``[v; ω]``, force vectors ``[f; n]``) with the component axes just before the lane axis.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+
+# ----------------------------------------------------------------------------- layout changes
+
+def to_lanes(x, components=1, batch=None):
+    """``x (..., *c)`` -> ``(*c, N)``: the last ``components`` axes kept, the batch axes flattened into N.
+
+    With ``batch`` given, an ``x`` without batch axes keeps a single lane (it broadcasts against
+    the others); any other ``x`` is first broadcast to ``batch``.
+    """
+    shape = x.shape[x.ndim - components:]
+    if batch is not None and x.shape[:-components] not in ((), batch):
+        x = np.broadcast_to(x, batch + shape)
+    return np.moveaxis(x.reshape((math.prod(x.shape[:x.ndim - components]),) + shape), 0, -1)
+
+
+def from_lanes(x, batch):
+    """``(*components, N)`` -> ``batch + components``: the inverse of :func:`to_lanes`, contiguous."""
+    moved = np.moveaxis(x, -1, 0)
+    return np.ascontiguousarray(moved).reshape(batch + moved.shape[1:])
+
+
+# ----------------------------------------------------------------------------- 3-D algebra
+
+def matmul(A, B):
+    """``A B`` on lanes: ``(..., i, j, N), (..., j, k, N) -> (..., i, k, N)``."""
+    # (A B)_ik = Σ_j A_ij B_jk
+    return np.sum(A[..., :, :, None, :] * B[..., None, :, :, :], axis=-3)
+
+
+def matvec(A, x):
+    """``A x`` on lanes: ``(..., i, j, N), (..., j, N) -> (..., i, N)``."""
+    return np.sum(A * x[..., None, :, :], axis=-2)
+
+
+def transpose(A):
+    """Swap the two matrix axes of ``(..., i, j, N)``."""
+    return np.swapaxes(A, -2, -3)
+
+
+def dot(a, b):
+    """``aᵀ b`` on lanes: ``(..., n, N), (..., n, N) -> (..., N)``."""
+    return np.sum(a * b, axis=-2)
+
+
+# (a × b)_i = a_{i+1} b_{i+2} − a_{i+2} b_{i+1}: the six products in one pass, then one difference.
+_CROSS_LEFT = np.array([1, 2, 0, 2, 0, 1])
+_CROSS_RIGHT = np.array([2, 0, 1, 1, 2, 0])
+
+
+def cross(a, b):
+    """``a × b`` on lanes: ``(..., 3, N), (..., 3, N) -> (..., 3, N)``."""
+    products = a[..., _CROSS_LEFT, :] * b[..., _CROSS_RIGHT, :]
+    return products[..., :3, :] - products[..., 3:, :]
+
+
+# Row-major entries of [w]×: w_{index} times sign (index 0 with sign 0 on the diagonal).
+_SKEW_INDEX = np.array([0, 2, 1, 2, 0, 0, 1, 0, 0])
+_SKEW_SIGN = np.array([0.0, -1.0, 1.0, 1.0, 0.0, -1.0, -1.0, 1.0, 0.0])[:, None]
+
+
+def skew(w):
+    """Cross-product matrix ``[w]×`` on lanes: ``(..., 3, N) -> (..., 3, 3, N)``."""
+    return (w[..., _SKEW_INDEX, :] * _SKEW_SIGN).reshape(w.shape[:-2] + (3, 3, w.shape[-1]))
+
+
+def quat_to_rotation(quat):
+    """Rotation matrix of the quaternion ``[x, y, z, w]`` on lanes: ``(..., 4, N) -> (..., 3, 3, N)``.
+
+    ``R = 1 + 2 (w [u]× + u uᵀ − uᵀu 1) / |q|²`` with ``u = (x, y, z)`` (``[u]×² = u uᵀ − uᵀu 1``);
+    dividing by ``|q|²`` gives the rotation of ``q / |q|``, as :func:`multibody.spatial.quat_to_rotation`.
+    """
+    u, w = quat[..., :3, :], quat[..., 3:, :]
+    scale = 2.0 / dot(quat, quat)[..., None, None, :]
+    R = scale * (w[..., None, :] * skew(u) + u[..., :, None, :] * u[..., None, :, :])
+    R[..., [0, 1, 2], [0, 1, 2], :] += 1.0 - scale[..., 0, :] * dot(u, u)[..., None, :]
+    return R
+
+
+# ----------------------------------------------------------------------------- spatial vectors
+
+# The three cross products of [v1; ω1] × [v2; ω2] = [ω1 × v2 + v1 × ω2; ω1 × ω2] in one pass:
+# component i of ω1 × v2, v1 × ω2 and ω1 × ω2 (nine rows), each a difference of two products.
+_MOTION_LEFT = np.concatenate([_CROSS_LEFT[:3] + 3, _CROSS_LEFT[:3], _CROSS_LEFT[:3] + 3,
+                               _CROSS_LEFT[3:] + 3, _CROSS_LEFT[3:], _CROSS_LEFT[3:] + 3])
+_MOTION_RIGHT = np.concatenate([_CROSS_RIGHT[:3], _CROSS_RIGHT[:3] + 3, _CROSS_RIGHT[:3] + 3,
+                                _CROSS_RIGHT[3:], _CROSS_RIGHT[3:] + 3, _CROSS_RIGHT[3:] + 3])
+
+
+def motion_cross(m1, m2):
+    """Spatial motion cross product ``m1 × m2`` on lanes (RBDA eq. 2.31). ``(..., 6, N)`` each."""
+    # [v1; ω1] × [v2; ω2] = [ω1 × v2 + v1 × ω2; ω1 × ω2]
+    products = m1[..., _MOTION_LEFT, :] * m2[..., _MOTION_RIGHT, :]
+    terms = products[..., :9, :] - products[..., 9:, :]
+    out = terms[..., 3:, :].copy()
+    out[..., :3, :] += terms[..., :3, :]
+    return out
+
+
+_SWAP_HALVES = np.array([3, 4, 5, 0, 1, 2])
+
+
+def force_cross(m, f):
+    """Spatial force cross product ``m ×* f`` on lanes (RBDA eq. 2.32). ``(..., 6, N)`` each."""
+    # [v; ω] ×* [f; n] = [ω × f; ω × n + v × f]: the motion product's rows with the roles of
+    # linear and angular parts of f exchanged.
+    swapped = f[..., _SWAP_HALVES, :]
+    products = m[..., _MOTION_LEFT, :] * swapped[..., _MOTION_RIGHT, :]
+    terms = products[..., :9, :] - products[..., 9:, :]
+    # terms: ω × n, v × f, ω × f
+    out = np.empty(np.broadcast_shapes(m.shape, f.shape))
+    out[..., :3, :] = terms[..., 6:, :]
+    np.add(terms[..., :3, :], terms[..., 3:6, :], out=out[..., 3:, :])
+    return out
+
+
+# ----------------------------------------------------------------------------- spatial inertia
+
+def world_inertias(mass, first_moment, rotational, R_WJ, p_WJ):
+    """Spatial inertias about the world origin, in world axes, of bodies posed at ``(R_WJ, p_WJ)``.
+
+    Each body is given in its own frame J by its mass ``m (nj,)``, first moment ``m c_J (nj, 3, 1)``
+    and rotational inertia about J's origin ``Ī_J (nj, 3, 3, 1)``. In world axes, with
+    ``g = R m c_J`` and the body origin at ``p``, the first moment about the world origin is
+    ``h = g + m p`` and the rotational inertia about it (parallel-axis theorem, RBDA eq. 2.63)
+    ``Ī_O = R Ī_J Rᵀ − p gᵀ − g pᵀ − m p pᵀ + (2 gᵀp + m pᵀp) 1``; then
+    ``I = [[m 1, −[h]×], [[h]×, Ī_O]]``. Returns ``(nj, 6, 6, N)``.
+    """
+    m = mass[:, None, None]
+    g = matvec(R_WJ, first_moment)
+    h = g + m * p_WJ
+    outer = p_WJ[:, :, None, :] * g[:, None, :, :]
+    rotational_O = matmul(matmul(R_WJ, rotational), transpose(R_WJ)) - outer - transpose(outer)
+    rotational_O -= m[..., None] * (p_WJ[:, :, None, :] * p_WJ[:, None, :, :])
+    diagonal = rotational_O[:, [0, 1, 2], [0, 1, 2], :]
+    rotational_O[:, [0, 1, 2], [0, 1, 2], :] = diagonal + 2.0 * dot(g, p_WJ)[:, None, :] + m * dot(p_WJ, p_WJ)[:, None, :]
+    H = skew(h)
+    out = np.zeros(rotational_O.shape[:1] + (6, 6) + rotational_O.shape[-1:])
+    out[:, [0, 1, 2], [0, 1, 2], :] = m
+    out[:, :3, 3:, :] = -H
+    out[:, 3:, :3, :] = H
+    out[:, 3:, 3:, :] = rotational_O
+    return out
+
+
+def transform_force(R_AB, p_AB, f_B):
+    """Force vector from B- to A-coordinates on lanes: ``[R f_B; R n_B + p × (R f_B)]``. ``(..., 6, N)``."""
+    f_A = matvec(R_AB, f_B[..., :3, :])
+    return np.concatenate([f_A, matvec(R_AB, f_B[..., 3:, :]) + cross(p_AB, f_A)], axis=-2)
+
+
+def inverse_transform_force(R_AB, p_AB, f_A):
+    """Force vector from A- to B-coordinates on lanes: ``[Rᵀ f_A; Rᵀ (n_A − p × f_A)]``. ``(..., 6, N)``."""
+    R_BA = transpose(R_AB)
+    linear = f_A[..., :3, :]
+    return np.concatenate([matvec(R_BA, linear), matvec(R_BA, f_A[..., 3:, :] - cross(p_AB, linear))], axis=-2)
+
+
+def tree_sum(mask, x):
+    """``y_i = Σ_k mask[i, k] x_k`` over the leading axis of ``x (n, ...)``: ``mask (m, n) -> (m, ...)``.
+
+    The subtree and support sums of the world-coordinate algorithms, as one matrix product.
+    """
+    return (mask @ x.reshape(x.shape[0], math.prod(x.shape[1:]))).reshape(mask.shape[:1] + x.shape[1:])
