@@ -17,6 +17,8 @@ recursive algorithms compute on lanes (:mod:`multibody.lanes`), every state a co
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from . import lanes, spatial
@@ -65,8 +67,33 @@ def _velocities(model, xi, v):
 def _world_tree(model, q):
     """:func:`_tree` with leading batch axes, for the Lagrangian assemblies: ``R_WJ (..., nj, 3, 3)``,
     ``p_WJ (..., nj, 3)``, ``ξ (..., nv, 6)``, inertias ``(..., nj, 6, 6)``."""
-    batch = q.shape[:-1]
-    return tuple(lanes.from_lanes(x, batch) for x in _tree(model, lanes.to_lanes(q, 1, batch)))
+    return _in_blocks(model, lambda q: _tree(model, q), q.shape[:-1], (q, 1))
+
+
+def _in_blocks(model, kernel, batch, *arrays, block=None):
+    """Run a lane algorithm on arrays with leading batch axes, a block of states at a time.
+
+    ``arrays`` are ``(x, k)`` pairs (``x (..., *c)`` with ``k`` component axes) or ``None``; each is
+    put on lanes and ``kernel(*lane arrays)`` returns a lane array ``(*c, n)`` or a tuple of them,
+    given back as ``batch + c``. Blocks of ``model.lane_block`` states (or ``block``) keep the
+    temporaries small enough to stay in cache and out of the operating system's page allocator,
+    which costs more than the arithmetic for large batches.
+    """
+    lane_arrays = [None if x is None else lanes.to_lanes(x[0], x[1], batch) for x in arrays]
+    n, size = math.prod(batch), block or model.lane_block
+    if n <= size:
+        result = kernel(*lane_arrays)
+        return tuple(_from_lanes(x, batch) for x in result) if isinstance(result, tuple) else _from_lanes(result, batch)
+    out = None
+    for start in range(0, n, size):
+        part = kernel(*(x if x is None or x.shape[-1] == 1 else x[..., start : start + size] for x in lane_arrays))
+        parts = part if isinstance(part, tuple) else (part,)
+        if out is None:
+            out = [np.empty((n,) + x.shape[:-1]) for x in parts]
+        for target, x in zip(out, parts):
+            target[start : start + size] = np.moveaxis(x, -1, 0)
+    out = [x.reshape(batch + x.shape[1:]) for x in out]
+    return tuple(out) if isinstance(part, tuple) else out[0]
 
 
 # ============================================================================= RNEA
@@ -86,10 +113,12 @@ def inverse_dynamics(model, q, v, a, f_ext=None):
 
 def _rnea(model, q, v, a, f_ext, batch):
     """:func:`inverse_dynamics` on validated arrays with common batch shape ``batch``."""
-    _, _, xi, F_subtree = _rnea_forces(model, q, v, a, f_ext, batch)
-    # τ_k = ξ_kᵀ f_j(k)
-    tau = lanes.dot(xi, F_subtree if model.one_dof_per_joint else F_subtree[model.dof_joint])
-    return _from_lanes(tau, batch)
+    def kernel(q, v, a, f_ext):
+        _, _, xi, F_subtree = _rnea_forces(model, q, v, a, f_ext)
+        # τ_k = ξ_kᵀ f_j(k)
+        return lanes.dot(xi, F_subtree if model.one_dof_per_joint else F_subtree[model.dof_joint])
+
+    return _in_blocks(model, kernel, batch, (q, 1), (v, 1), (a, 1), None if f_ext is None else (f_ext, 2))
 
 
 def _from_lanes(x, batch):
@@ -99,17 +128,16 @@ def _from_lanes(x, batch):
     return lanes.from_lanes(x, batch)
 
 
-def _rnea_forces(model, q, v, a, f_ext, batch):
+def _rnea_forces(model, q, v, a, f_ext):
     """RNEA up to the joint forces on lanes: world poses, ``ξ``, and the force each joint transmits."""
-    R_WJ, p_WJ, xi, inertia = _tree(model, lanes.to_lanes(q, 1, batch))
-    v, a = lanes.to_lanes(v, 1, batch), lanes.to_lanes(a, 1, batch)
+    R_WJ, p_WJ, xi, inertia = _tree(model, q)
     # Forward: v_i = v_λ + ξ_i q̇_i ;  a_i = a_λ + ξ_i q̈_i + ξ̇_i q̇_i  (summed over each support)
     V, xi_dot_v = _velocities(model, xi, v)
     A = _gravity_acceleration(model) + lanes.tree_sum(model.joint_support, xi * a[:, None, :] + xi_dot_v)
     # f_i = I_i a_i + v_i ×* I_i v_i − f_ext_i
     F = lanes.matvec(inertia, A) + lanes.force_cross(V, lanes.matvec(inertia, V))
     if f_ext is not None:
-        F = F - lanes.transform_force(R_WJ, p_WJ, lanes.to_lanes(f_ext, 2, batch))
+        F = F - lanes.transform_force(R_WJ, p_WJ, f_ext)
     # Backward: the force a joint transmits is the sum over its subtree;  τ_k = ξ_kᵀ f_subtree(j(k))
     return R_WJ, p_WJ, xi, lanes.tree_sum(model.descendants, F)
 
@@ -124,8 +152,11 @@ def joint_reaction_forces(model, q, v, a, f_ext=None):
     ``ConstrainedSystem.body_forces``). Shapes as :func:`inverse_dynamics`.
     """
     q, v, a, _, f_ext, batch = _check(model, q, v, a, f_ext=f_ext)
-    R_WJ, p_WJ, _, F_subtree = _rnea_forces(model, q, v, a, f_ext, batch)
-    return _from_lanes(lanes.inverse_transform_force(R_WJ, p_WJ, F_subtree), batch)
+    def kernel(q, v, a, f_ext):
+        R_WJ, p_WJ, _, F_subtree = _rnea_forces(model, q, v, a, f_ext)
+        return lanes.inverse_transform_force(R_WJ, p_WJ, F_subtree)
+
+    return _in_blocks(model, kernel, batch, (q, 1), (v, 1), (a, 1), None if f_ext is None else (f_ext, 2))
 
 
 def generalized_gravity(model, q):
@@ -159,7 +190,7 @@ def mass_matrix(model, q, method="crba"):
     """
     if method == "crba":
         q = model.check_configuration(q)
-        return lanes.from_lanes(_mass_matrix_crba(model, lanes.to_lanes(q)), q.shape[:-1])
+        return _in_blocks(model, lambda q: _mass_matrix_crba(model, q), q.shape[:-1], (q, 1))
     if method == "lagrangian":
         q = model.check_configuration(q)
         jacobians, inertias = _world_body_jacobians_and_inertias(model, q)
@@ -377,17 +408,21 @@ def forward_dynamics(model, q, v, tau, f_ext=None):
     q, v, _, tau, f_ext, batch = _check(model, q, v, tau=tau, f_ext=f_ext)
     if model.nv == 0:
         return np.zeros(batch + (0,))
-    R_WJ, p_WJ, xi, inertia = _tree(model, lanes.to_lanes(q, 1, batch))
+    return _in_blocks(model, lambda *arrays: _aba(model, *arrays), batch,
+                      (q, 1), (v, 1), (tau, 1), None if f_ext is None else (f_ext, 2))
+
+
+def _aba(model, q, v, tau, f_ext):
+    """ABA on lanes: ``q (nq, N)``, ``v, tau (nv, N)``, ``f_ext (nj, 6, N)`` or ``None`` -> ``a (nv, N)``."""
+    R_WJ, p_WJ, xi, inertia = _tree(model, q)
     factors, projected = _articulated_inertias(model, xi, inertia)
-    V, xi_dot_v = _velocities(model, xi, lanes.to_lanes(v, 1, batch))
+    V, xi_dot_v = _velocities(model, xi, v)
     # c_i = ξ̇_i q̇_i (the joint's own columns) ;  p^A_i = v_i ×* I_i v_i − f_ext_i
     bias = xi_dot_v if model.one_dof_per_joint else lanes.tree_sum(model.own_dofs, xi_dot_v)
     p_art = lanes.force_cross(V, lanes.matvec(inertia, V))
     if f_ext is not None:
-        p_art = p_art - lanes.transform_force(R_WJ, p_WJ, lanes.to_lanes(f_ext, 2, batch))
-    a = _aba_bias_and_accelerations(model, xi, factors, projected, bias, p_art, lanes.to_lanes(tau, 1, batch),
-                                    _gravity_acceleration(model))
-    return _from_lanes(a, batch)
+        p_art = p_art - lanes.transform_force(R_WJ, p_WJ, f_ext)
+    return _aba_bias_and_accelerations(model, xi, factors, projected, bias, p_art, tau, _gravity_acceleration(model))
 
 
 def inverse_mass_matrix(model, q):
@@ -401,16 +436,20 @@ def inverse_mass_matrix(model, q):
     batch, nv = q.shape[:-1], model.nv
     if nv == 0:
         return np.zeros(batch + (0, 0))
-    _, _, xi, inertia = _tree(model, lanes.to_lanes(q, 1, batch))
-    factors, projected = _articulated_inertias(model, xi, inertia)
-    n = xi.shape[-1]
-    # Lane s nv + k: state s, unit force on coordinate k.
-    repeat = lambda x: np.repeat(x, nv, axis=-1)  # noqa: E731
-    factors = {group: tuple(repeat(x) for x in values) for group, values in factors.items()}
-    columns = _aba_bias_and_accelerations(model, repeat(xi), factors, None, None, None, np.tile(np.eye(nv), n),
-                                          np.zeros((6, 1)))
-    # columns[:, s nv + k] is (M⁻¹ e_k) of state s; M⁻¹ is symmetric.
-    return lanes.from_lanes(columns.reshape(nv, n, nv).transpose(0, 2, 1), batch)
+
+    def kernel(q):
+        _, _, xi, inertia = _tree(model, q)
+        factors, _ = _articulated_inertias(model, xi, inertia)
+        n = xi.shape[-1]
+        # Lane s nv + k: state s, unit force on coordinate k.
+        repeat = lambda x: np.repeat(x, nv, axis=-1)  # noqa: E731
+        factors = {group: tuple(repeat(x) for x in values) for group, values in factors.items()}
+        columns = _aba_bias_and_accelerations(model, repeat(xi), factors, None, None, None, np.tile(np.eye(nv), n),
+                                              np.zeros((6, 1)))
+        # columns[:, s nv + k] is (M⁻¹ e_k) of state s; M⁻¹ is symmetric.
+        return columns.reshape(nv, n, nv).transpose(0, 2, 1)
+
+    return _in_blocks(model, kernel, batch, (q, 1), block=max(1, model.lane_block // nv))
 
 
 # ============================================================================= energies
@@ -421,9 +460,13 @@ def kinetic_energy(model, q, v):
     Pinocchio counterpart: ``computeKineticEnergy``.
     """
     q, v, *_, batch = _check(model, q, v)
-    _, _, xi, inertia = _tree(model, lanes.to_lanes(q, 1, batch))
-    V, _ = _velocities(model, xi, lanes.to_lanes(v, 1, batch))
-    return _from_lanes(0.5 * np.sum(V * lanes.matvec(inertia, V), axis=(0, 1)), batch)
+
+    def kernel(q, v):
+        _, _, xi, inertia = _tree(model, q)
+        V, _ = _velocities(model, xi, v)
+        return 0.5 * np.sum(V * lanes.matvec(inertia, V), axis=(0, 1))
+
+    return _in_blocks(model, kernel, batch, (q, 1), (v, 1))
 
 
 def potential_energy(model, q):
@@ -433,9 +476,12 @@ def potential_energy(model, q):
     ``computePotentialEnergy``. ``(..., nq) -> (...)``.
     """
     q = model.check_configuration(q)
-    batch = q.shape[:-1]
-    R_WJ, p_WJ = world_poses(model, lanes.to_lanes(q, 1, batch))
-    mass, first_moment, _ = model.inertia_parameters
-    # m c_W = R m c_J + m p
-    moments = lanes.matvec(R_WJ, first_moment) + mass[:, None, None] * p_WJ
-    return _from_lanes(-np.einsum("c,jcn->n", model.gravity, moments), batch)
+
+    def kernel(q):
+        R_WJ, p_WJ = world_poses(model, q)
+        mass, first_moment, _ = model.inertia_parameters
+        # m c_W = R m c_J + m p
+        moments = lanes.matvec(R_WJ, first_moment) + mass[:, None, None] * p_WJ
+        return -np.einsum("c,jcn->n", model.gravity, moments)
+
+    return _in_blocks(model, kernel, q.shape[:-1], (q, 1))

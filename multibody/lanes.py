@@ -49,15 +49,18 @@ def from_lanes(x, batch):
 
 # ----------------------------------------------------------------------------- 3-D algebra
 
+# np.einsum runs these small contractions in compiled loops over the lanes; on lanes it is about
+# twice as fast as broadcasting a product and reducing it, for one state as for hundreds.
+
 def matmul(A, B):
     """``A B`` on lanes: ``(..., i, j, N), (..., j, k, N) -> (..., i, k, N)``."""
     # (A B)_ik = Σ_j A_ij B_jk
-    return np.sum(A[..., :, :, None, :] * B[..., None, :, :, :], axis=-3)
+    return np.einsum("...ijn,...jkn->...ikn", A, B)
 
 
 def matvec(A, x):
     """``A x`` on lanes: ``(..., i, j, N), (..., j, N) -> (..., i, N)``."""
-    return np.sum(A * x[..., None, :, :], axis=-2)
+    return np.einsum("...ijn,...jn->...in", A, x)
 
 
 def transpose(A):
@@ -67,7 +70,7 @@ def transpose(A):
 
 def dot(a, b):
     """``aᵀ b`` on lanes: ``(..., n, N), (..., n, N) -> (..., N)``."""
-    return np.sum(a * b, axis=-2)
+    return np.einsum("...in,...in->...n", a, b)
 
 
 # (a × b)_i = a_{i+1} b_{i+2} − a_{i+2} b_{i+1}: the six products in one pass, then one difference.
@@ -106,39 +109,18 @@ def quat_to_rotation(quat):
 
 # ----------------------------------------------------------------------------- spatial vectors
 
-# The three cross products of [v1; ω1] × [v2; ω2] = [ω1 × v2 + v1 × ω2; ω1 × ω2] in one pass:
-# component i of ω1 × v2, v1 × ω2 and ω1 × ω2 (nine rows), each a difference of two products.
-_MOTION_LEFT = np.concatenate([_CROSS_LEFT[:3] + 3, _CROSS_LEFT[:3], _CROSS_LEFT[:3] + 3,
-                               _CROSS_LEFT[3:] + 3, _CROSS_LEFT[3:], _CROSS_LEFT[3:] + 3])
-_MOTION_RIGHT = np.concatenate([_CROSS_RIGHT[:3], _CROSS_RIGHT[:3] + 3, _CROSS_RIGHT[:3] + 3,
-                                _CROSS_RIGHT[3:], _CROSS_RIGHT[3:] + 3, _CROSS_RIGHT[3:] + 3])
-
-
 def motion_cross(m1, m2):
     """Spatial motion cross product ``m1 × m2`` on lanes (RBDA eq. 2.31). ``(..., 6, N)`` each."""
+    v1, w1, v2, w2 = m1[..., :3, :], m1[..., 3:, :], m2[..., :3, :], m2[..., 3:, :]
     # [v1; ω1] × [v2; ω2] = [ω1 × v2 + v1 × ω2; ω1 × ω2]
-    products = m1[..., _MOTION_LEFT, :] * m2[..., _MOTION_RIGHT, :]
-    terms = products[..., :9, :] - products[..., 9:, :]
-    out = terms[..., 3:, :].copy()
-    out[..., :3, :] += terms[..., :3, :]
-    return out
-
-
-_SWAP_HALVES = np.array([3, 4, 5, 0, 1, 2])
+    return np.concatenate([cross(w1, v2) + cross(v1, w2), cross(w1, w2)], axis=-2)
 
 
 def force_cross(m, f):
     """Spatial force cross product ``m ×* f`` on lanes (RBDA eq. 2.32). ``(..., 6, N)`` each."""
-    # [v; ω] ×* [f; n] = [ω × f; ω × n + v × f]: the motion product's rows with the roles of
-    # linear and angular parts of f exchanged.
-    swapped = f[..., _SWAP_HALVES, :]
-    products = m[..., _MOTION_LEFT, :] * swapped[..., _MOTION_RIGHT, :]
-    terms = products[..., :9, :] - products[..., 9:, :]
-    # terms: ω × n, v × f, ω × f
-    out = np.empty(np.broadcast_shapes(m.shape, f.shape))
-    out[..., :3, :] = terms[..., 6:, :]
-    np.add(terms[..., :3, :], terms[..., 3:6, :], out=out[..., 3:, :])
-    return out
+    v, w, linear, angular = m[..., :3, :], m[..., 3:, :], f[..., :3, :], f[..., 3:, :]
+    # [v; ω] ×* [f; n] = [ω × f; ω × n + v × f]
+    return np.concatenate([cross(w, linear), cross(w, angular) + cross(v, linear)], axis=-2)
 
 
 # ----------------------------------------------------------------------------- spatial inertia

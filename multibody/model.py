@@ -260,6 +260,15 @@ class Model:
         return _frozen(np.stack([self.motion_subspaces[:, :3], self.motion_subspaces[:, 3:]], axis=-1)[..., None])
 
     @cached_property
+    def lane_block(self) -> int:
+        """Number of states the batched algorithms process at once (see ``multibody.lanes``).
+
+        Large enough to amortise NumPy's per-call cost, small enough that a per-joint array of
+        6×6 matrices (``36 nj`` numbers per state) stays near 512 kB (a core's L2 cache on common x86 machines).
+        """
+        return int(max(64, 2 ** np.round(np.log2(2**19 / (8 * 36 * max(self.njoints, 1))))))
+
+    @cached_property
     def levels(self) -> tuple:
         """Joints by depth in the tree: ``(joint indices, their parents)`` per level, root level first.
 
