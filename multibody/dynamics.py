@@ -60,8 +60,30 @@ def _velocities(model, xi, v):
     """World velocities ``V_j = Σ_{k ⪯ j} ξ_k v_k`` ``(nj, 6, N)`` and the column rates times speeds,
     ``ξ̇_k v_k = V_j(k) × ξ_k v_k`` ``(nv, 6, N)`` (RBDA eq. 2.37; a column moves with its own joint)."""
     xi_v = xi * v[:, None, :]
-    V = lanes.tree_sum(model.joint_support, xi_v)
+    V = _support_sums(model, xi_v)
     return V, lanes.motion_cross(V if model.one_dof_per_joint else V[model.dof_joint], xi_v)
+
+
+def _support_sums(model, x):
+    """``y_j = Σ_{k ⪯ j} x_k``, the sum over the coordinates that move joint j: ``x (nv, ...) -> (nj, ...)``.
+
+    The forward pass of a recursion such as ``v_i = v_λ(i) + ξ_i q̇_i``, done level by level.
+    """
+    y = x.copy() if model.one_dof_per_joint else lanes.tree_sum(model.own_dofs, x)
+    for index, parents in model.levels[1:]:
+        y[index] += y[parents]
+    return y
+
+
+def _subtree_sums(model, x):
+    """``y_i = Σ_{j in subtree(i)} x_j``: ``x (nj, ...) -> (nj, ...)``.
+
+    The backward pass of a recursion such as ``f_λ(i) += f_i``, done level by level from the leaves.
+    """
+    y = x.copy()
+    for index, parents in model.upward_levels:
+        y[parents] += y[index]
+    return y
 
 
 def _world_tree(model, q):
@@ -133,13 +155,13 @@ def _rnea_forces(model, q, v, a, f_ext):
     R_WJ, p_WJ, xi, inertia = _tree(model, q)
     # Forward: v_i = v_λ + ξ_i q̇_i ;  a_i = a_λ + ξ_i q̈_i + ξ̇_i q̇_i  (summed over each support)
     V, xi_dot_v = _velocities(model, xi, v)
-    A = _gravity_acceleration(model) + lanes.tree_sum(model.joint_support, xi * a[:, None, :] + xi_dot_v)
+    A = _gravity_acceleration(model) + _support_sums(model, xi * a[:, None, :] + xi_dot_v)
     # f_i = I_i a_i + v_i ×* I_i v_i − f_ext_i
     F = lanes.matvec(inertia, A) + lanes.force_cross(V, lanes.matvec(inertia, V))
     if f_ext is not None:
         F = F - lanes.transform_force(R_WJ, p_WJ, f_ext)
     # Backward: the force a joint transmits is the sum over its subtree;  τ_k = ξ_kᵀ f_subtree(j(k))
-    return R_WJ, p_WJ, xi, lanes.tree_sum(model.descendants, F)
+    return R_WJ, p_WJ, xi, _subtree_sums(model, F)
 
 
 def joint_reaction_forces(model, q, v, a, f_ext=None):
@@ -204,10 +226,10 @@ def _mass_matrix_crba(model, q):
     """CRBA on lanes: ``q (nq, N) -> M (nv, nv, N)``."""
     _, _, xi, inertia = _tree(model, q)
     # Composite inertias: in world coordinates, I^c_i is the plain sum of the subtree's inertias.
-    composite = lanes.tree_sum(model.descendants, inertia)
+    composite = _subtree_sums(model, inertia)
     # F_l = I^c_j(l) ξ_l ;  M_kl = ξ_kᵀ F_l when k's joint supports l's (RBDA eq. 6.14)
     F = lanes.matvec(composite if model.one_dof_per_joint else composite[model.dof_joint], xi)
-    products = np.sum(xi[:, None] * F[None, :], axis=-2)
+    products = np.einsum("kcn,lcn->kln", xi, F)
     upper = np.where(model.dof_ancestor[:, :, None], products, 0.0)
     M = upper + np.swapaxes(np.where(model.dof_same_joint[:, :, None], 0.0, upper), 0, 1)
     return 0.5 * (M + np.swapaxes(M, 0, 1))  # exactly symmetric
@@ -337,12 +359,8 @@ def _articulated_inertias(model, xi, inertia):
 
 def _add_to_parents(x, group, values):
     """``x[λ(i)] += values_i`` for the joints of a level group (several may share a parent)."""
-    if group.parents is None:
-        return
-    if group.shared_parents:
-        np.add.at(x, group.parents, values)
-    else:
-        x[group.parents] += values
+    for positions, parents in group.parent_rounds:
+        x[parents] += values[positions]
 
 
 def _inverse(model, group, D):

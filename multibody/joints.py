@@ -30,6 +30,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import ClassVar
 
+import math
+
 import numpy as np
 
 from . import lanes, spatial
@@ -104,36 +106,38 @@ class Joint:
         """Pose ``(R (..., 3, 3), p (..., 3))`` of the joint frame in the pre-joint frame."""
         q = np.asarray(q, dtype=float)
         constants = self.group_constants([self], np.eye(4)[None])
-        R, p = self.group_transform(constants, lanes.to_lanes(q)[None])
-        batch = q.shape[:-1]
-        return (lanes.from_lanes(np.broadcast_to(R[0], (3, 3, R.shape[-1])), batch),
-                lanes.from_lanes(np.broadcast_to(p[0], (3, p.shape[-1])), batch))
+        X = self.group_transform(constants, lanes.to_lanes(q)[None])[0]
+        X = lanes.from_lanes(np.broadcast_to(X, (3, 4, math.prod(q.shape[:-1]))), q.shape[:-1])
+        return X[..., :3], X[..., 3]
 
     @classmethod
     def group_constants(cls, joints, placements):
         """Constants that :meth:`group_transform` needs for ``joints`` of this type with tree
         transforms ``placements (n, 4, 4)`` (pose of each pre-joint frame in its parent joint frame).
 
-        The base version holds the placements as lane constants ``R_T (n, 3, 3, 1)``, ``p_T (n, 3, 1)``.
+        The base version holds the placements as lane constants ``X_T = [R_T | p_T] (n, 3, 4, 1)``.
         """
-        placements = np.asarray(placements, dtype=float)
-        return placements[:, :3, :3, None], placements[:, :3, 3, None]
+        return np.asarray(placements, dtype=float)[:, :3, :, None]
 
     @staticmethod
     def group_transform(constants, q):
         """Poses of a group of joints of one type in their parent joint frames, all at once.
 
-        ``X_λ,i = X_T,i X_J,i(q_i)`` (RBDA §4.1) on lanes: ``q (n, nq, N)`` -> ``R (n, 3, 3, N)``,
-        ``p (n, 3, N)`` (either may have a lane axis of length 1 when it does not depend on q).
-        The algorithms call this once per joint type.
+        ``X_λ,i = X_T,i X_J,i(q_i)`` (RBDA §4.1) on lanes: ``q (n, nq, N)`` -> ``X = [R | p] (n, 3, 4, N)``,
+        the pose's rotation and translation side by side (lane axis of length 1 when it does not
+        depend on q). The algorithms call this once per joint type.
         """
         raise NotImplementedError
 
     @staticmethod
-    def _placed(constants, R_J, p_J):
-        """``X_T X_J`` on lanes, from a type's joint transform ``(R_J, p_J)`` and the base constants."""
-        R_T, p_T = constants[:2]
-        return lanes.matmul(R_T, R_J), lanes.matvec(R_T, p_J) + p_T
+    def _placed(X_T, R_J, p_J):
+        """``X_T X_J = [R_T R_J | R_T p_J + p_T]`` on lanes, from a type's joint transform ``(R_J, p_J)``."""
+        n = max(R_J.shape[-1], p_J.shape[-1])
+        X_J = np.concatenate([np.broadcast_to(R_J, R_J.shape[:-1] + (n,)),
+                              np.broadcast_to(p_J[:, :, None], p_J.shape[:2] + (1, n))], axis=-2)
+        X = lanes.matmul(X_T[:, :, :3], X_J)
+        X[:, :, 3] += X_T[:, :, 3]
+        return X
 
     def integrate(self, q, v):
         """Configuration reached from ``q`` by moving with constant velocity ``v`` for unit time."""
@@ -184,17 +188,20 @@ class Revolute(Joint):
 
     @classmethod
     def group_constants(cls, joints, placements):
-        R_T, p_T = Joint.group_constants(joints, placements)
+        X_T = Joint.group_constants(joints, placements)
         K = spatial.skew(np.stack([joint.axis for joint in joints]))[..., None]
-        R_T_K = lanes.matmul(R_T, K)
-        return R_T, p_T, R_T_K, lanes.matmul(R_T_K, K)
+        R_T_K = np.zeros_like(X_T)
+        R_T_K[:, :, :3] = lanes.matmul(X_T[:, :, :3], K)
+        R_T_K2 = np.zeros_like(X_T)
+        R_T_K2[:, :, :3] = lanes.matmul(R_T_K[:, :, :3], K)
+        return X_T, R_T_K, R_T_K2
 
     @staticmethod
     def group_transform(constants, q):
         # Rodrigues, R_J = 1 + sin θ [a]× + (1 − cos θ) [a]×², placed: R = R_T R_J, p = p_T
-        R_T, p_T, R_T_K, R_T_K2 = constants
+        X_T, R_T_K, R_T_K2 = constants
         angle = q[:, :, None, :]
-        return R_T + np.sin(angle) * R_T_K + (1.0 - np.cos(angle)) * R_T_K2, p_T
+        return X_T + np.sin(angle) * R_T_K + (1.0 - np.cos(angle)) * R_T_K2
 
     def random(self, rng, lower, upper, shape=()):
         return _random_uniform(rng, lower, upper, np.pi, shape)
@@ -226,14 +233,16 @@ class Prismatic(Joint):
 
     @classmethod
     def group_constants(cls, joints, placements):
-        R_T, p_T = Joint.group_constants(joints, placements)
-        return R_T, p_T, lanes.matvec(R_T, np.stack([joint.axis for joint in joints])[..., None])
+        X_T = Joint.group_constants(joints, placements)
+        R_T_axis = np.zeros_like(X_T)
+        R_T_axis[:, :, 3] = lanes.matvec(X_T[:, :, :3], np.stack([joint.axis for joint in joints])[..., None])
+        return X_T, R_T_axis
 
     @staticmethod
     def group_transform(constants, q):
         # R = R_T, p = p_T + q R_T a
-        R_T, p_T, R_T_axis = constants
-        return R_T, p_T + q * R_T_axis
+        X_T, R_T_axis = constants
+        return X_T + q[:, :, None, :] * R_T_axis
 
     def describe(self):
         return f"{self.kind} axis {np.round(self.axis, 6).tolist()}"
@@ -248,11 +257,10 @@ class Translation(Joint):
     nv: ClassVar[int] = 3
     motion_subspace: ClassVar[np.ndarray] = _constant(np.vstack([np.eye(3), np.zeros((3, 3))]))
 
-    @staticmethod
-    def group_transform(constants, q):
+    @classmethod
+    def group_transform(cls, X_T, q):
         # R = R_T, p = p_T + R_T q
-        R_T, p_T = constants
-        return R_T, p_T + lanes.matvec(R_T, q)
+        return cls._placed(X_T, np.broadcast_to(np.eye(3)[..., None], X_T.shape[:1] + (3, 3, 1)), q)
 
 
 @dataclass(frozen=True, eq=False)
@@ -353,8 +361,7 @@ class Spherical(Joint):
 
     @classmethod
     def group_transform(cls, constants, q):
-        R_T, p_T = constants
-        return lanes.matmul(R_T, lanes.quat_to_rotation(q)), p_T
+        return cls._placed(constants, lanes.quat_to_rotation(q), np.zeros(q.shape[:1] + (3, 1)))
 
     def integrate(self, q, v):
         # q ⊗ exp(ω): the body-frame angular velocity acts on the right.

@@ -17,14 +17,13 @@ from .spatial import matvec
 def local_poses(model, q):
     """Pose ``X_λ(i),i(q) = X_T,i X_J,i(q_i)`` of every joint frame in its parent joint frame, on lanes.
 
-    ``q (nq, N)`` -> ``R (nj, 3, 3, N)``, ``p (nj, 3, N)`` (RBDA §4.1: the tree transform ``X_T`` is
-    the joint's placement, followed by the joint transform ``X_J``); one call per joint type.
+    ``q (nq, N)`` -> ``X = [R | p] (nj, 3, 4, N)`` (RBDA §4.1: the tree transform ``X_T`` is the
+    joint's placement, followed by the joint transform ``X_J``); one call per joint type.
     """
-    shape = (model.njoints,)
-    R, p = np.empty(shape + (3, 3, q.shape[-1])), np.empty(shape + (3, q.shape[-1]))
+    X = np.empty((model.njoints, 3, 4, q.shape[-1]))
     for kind, index, q_index, constants in model.joint_groups:
-        R[index], p[index] = kind.group_transform(constants, q[q_index])
-    return R, p
+        X[index] = kind.group_transform(constants, q[q_index])
+    return X
 
 
 def world_poses(model, q):
@@ -32,16 +31,18 @@ def world_poses(model, q):
 
     ``X_W,i = X_W,λ(i) X_λ(i),i`` level by level down the tree: all joints of one depth at once.
     """
-    R_local, p_local = local_poses(model, q)
-    R_world, p_world = np.empty_like(R_local), np.empty_like(p_local)
+    X_local = local_poses(model, q)
+    X_world = np.empty_like(X_local)
     for level, (index, parents) in enumerate(model.levels):
         if level == 0:
-            R_world[index], p_world[index] = R_local[index], p_local[index]
+            X_world[index] = X_local[index]
         else:
-            R_parent, p_parent = R_world[parents], p_world[parents]
-            R_world[index] = lanes.matmul(R_parent, R_local[index])
-            p_world[index] = lanes.matvec(R_parent, p_local[index]) + p_parent
-    return R_world, p_world
+            # [R | p]_W,i = R_W,λ [R | p]_λ,i + [0 | p_W,λ]
+            X_parent = X_world[parents]
+            X = lanes.matmul(X_parent[:, :, :3], X_local[index])
+            X[:, :, 3] += X_parent[:, :, 3]
+            X_world[index] = X
+    return X_world[:, :, :3], X_world[:, :, 3]
 
 
 def motion_subspaces(model, R_WJ, p_WJ):

@@ -166,8 +166,6 @@ def inverse_transform_force(R_AB, p_AB, f_A):
 
 
 def tree_sum(mask, x):
-    """``y_i = Σ_k mask[i, k] x_k`` over the leading axis of ``x (n, ...)``: ``mask (m, n) -> (m, ...)``.
-
-    The subtree and support sums of the world-coordinate algorithms, as one matrix product.
-    """
-    return (mask @ x.reshape(x.shape[0], math.prod(x.shape[1:]))).reshape(mask.shape[:1] + x.shape[1:])
+    """``y_i = Σ_k mask[i, k] x_k`` over the leading axis of ``x (n, ...)``: ``mask (m, n) -> (m, ...)``."""
+    # einsum rather than a BLAS product: BLAS threads cost more than these small sums.
+    return np.einsum("ik,k...->i...", mask.astype(float), x)

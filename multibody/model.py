@@ -61,15 +61,27 @@ class LevelGroup:
     """Joints of one tree depth with ``nv`` velocity coordinates each (see ``Model.level_groups``).
 
     ``joints`` and ``parents`` index joints (``parents`` is ``None`` at the root level), ``dofs``
-    indexes ``v`` to give a ``(k, nv)`` block, ``shared_parents`` tells whether two joints of the
-    group have the same parent (then sums into parents must accumulate).
+    indexes ``v`` to give a ``(k, nv)`` block. ``parent_rounds`` splits the members into rounds
+    ``(positions in the group, their parents)`` in which every parent appears once, so that a sum
+    into the parents, ``x[parents] += values[positions]``, is exact.
     """
 
     joints: object
     parents: object
     dofs: object
     nv: int
-    shared_parents: bool
+    parent_rounds: tuple
+
+
+def _parent_rounds(parents):
+    """Split positions ``0..k-1`` with parents ``parents (k,)`` into rounds in which each parent appears
+    once: a tuple of ``(positions, parents)`` index pairs (slices where contiguous)."""
+    positions, rounds = np.arange(len(parents)), []
+    while len(positions):
+        first = positions[np.unique(parents[positions], return_index=True)[1]]
+        rounds.append((_index(first), _index(parents[first])))
+        positions = np.setdiff1d(positions, first)
+    return tuple(rounds)
 
 
 def _index(indices):
@@ -260,6 +272,20 @@ class Model:
         return _frozen(np.stack([self.motion_subspaces[:, :3], self.motion_subspaces[:, 3:]], axis=-1)[..., None])
 
     @cached_property
+    def upward_levels(self) -> tuple:
+        """``(joint indices, their parents)`` per level, leaves first, root level excluded: the order
+        of a backward pass that adds each joint into its parent, ``x[parents] += x[index]``.
+
+        Children of one parent in the same level go to separate rounds, so that within a round
+        every parent appears once and the in-place sum is exact.
+        """
+        rounds = []
+        for index, parents in reversed(self.levels[1:]):
+            joints = np.arange(self.njoints)[index]
+            rounds += [(_index(joints[positions]), parents_) for positions, parents_ in _parent_rounds(self.parents[joints])]
+        return tuple(rounds)
+
+    @cached_property
     def lane_block(self) -> int:
         """Number of states the batched algorithms process at once (see ``multibody.lanes``).
 
@@ -300,9 +326,8 @@ class Model:
                     dofs = (None, slice(int(dofs[0, 0]), int(dofs[0, -1]) + 1))
                 elif n == 1 and isinstance(_index(dofs[:, 0]), slice):
                     dofs = (_index(dofs[:, 0]), None)
-                shared = len(set(parents.tolist())) < len(parents)
-                groups.append(LevelGroup(_index(members), None if parents[0] < 0 else (parents if shared else _index(parents)),
-                                         dofs, n, shared))
+                groups.append(LevelGroup(_index(members), None if parents[0] < 0 else _index(parents), dofs, n,
+                                         () if parents[0] < 0 else _parent_rounds(parents)))
         return tuple(groups)
 
     def body_index(self, body) -> int:
