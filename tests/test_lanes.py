@@ -1,0 +1,127 @@
+"""The lane layout of the batched algorithms (``multibody.lanes``) and their processing in blocks.
+
+Each lane primitive must equal its counterpart of ``multibody.spatial`` (components last) on the
+same random data, after the layout change; the blocked evaluation of a batch larger than
+``model.lane_block`` must equal the states evaluated one by one, including the last, partial block
+and inputs that broadcast (one configuration for many velocities).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from numpy.testing import assert_allclose
+
+import multibody as mb
+from multibody import lanes, spatial
+from dyn_helpers import dynamics_calls, erd_urdf
+from conftest import random_tree_model
+
+RNG = np.random.default_rng(7)
+N = 5  # states per lane array
+
+
+def on_lanes(x, components):
+    return lanes.to_lanes(x, components)
+
+
+def off_lanes(x):
+    return lanes.from_lanes(x, (N,))
+
+
+def test_to_lanes_and_back_round_trip_with_batch_axes():
+    x = RNG.standard_normal((2, 3, 4, 6))
+    lane = lanes.to_lanes(x, 2)
+    assert lane.shape == (4, 6, 6)
+    assert_allclose(lane[:, :, 4], x[1, 1])
+    assert_allclose(lanes.from_lanes(lane, (2, 3)), x)
+
+
+def test_to_lanes_keeps_one_lane_for_an_unbatched_array_and_broadcasts_others():
+    assert lanes.to_lanes(np.arange(3.0), 1, (5,)).shape == (3, 1)
+    assert_allclose(lanes.to_lanes(np.ones((1, 3)), 1, (4,)), np.ones((3, 4)))
+
+
+@pytest.mark.parametrize("name, ours, theirs, shapes", [
+    ("matmul", lanes.matmul, lambda A, B: A @ B, [(3, 3), (3, 4)]),
+    ("matvec", lanes.matvec, spatial.matvec, [(6, 6), (6,)]),
+    ("cross", lanes.cross, spatial.cross, [(3,), (3,)]),
+    ("motion_cross", lanes.motion_cross, spatial.motion_cross, [(6,), (6,)]),
+    ("force_cross", lanes.force_cross, spatial.force_cross, [(6,), (6,)]),
+    ("dot", lanes.dot, lambda a, b: np.sum(a * b, axis=-1), [(6,), (6,)]),
+])
+def test_lane_primitive_equals_spatial(name, ours, theirs, shapes):
+    args = [RNG.standard_normal((N, 2) + shape) for shape in shapes]
+    lane_args = [np.moveaxis(x, 0, -1) for x in args]  # (2, *shape, N)
+    assert_allclose(np.moveaxis(ours(*lane_args), -1, 0), theirs(*args), rtol=1e-14, atol=1e-14, err_msg=name)
+
+
+def test_skew_and_quaternion_rotation_equal_spatial():
+    w = RNG.standard_normal((N, 3))
+    assert_allclose(off_lanes(lanes.skew(on_lanes(w, 1))), spatial.skew(w), atol=1e-15)
+    quat = RNG.standard_normal((N, 4)) * 1.3  # not unit: both divide by |q|²
+    assert_allclose(off_lanes(lanes.quat_to_rotation(on_lanes(quat, 1))), spatial.quat_to_rotation(quat), atol=1e-14)
+
+
+def test_force_transforms_equal_spatial():
+    R = spatial.quat_to_rotation(RNG.standard_normal((N, 4)))
+    p, f = RNG.standard_normal((N, 3)), RNG.standard_normal((N, 6))
+    R_l, p_l, f_l = on_lanes(R, 2), on_lanes(p, 1), on_lanes(f, 1)
+    assert_allclose(off_lanes(lanes.transform_force(R_l, p_l, f_l)), spatial.transform_force(R, p, f), atol=1e-14)
+    assert_allclose(off_lanes(lanes.inverse_transform_force(R_l, p_l, f_l)),
+                    spatial.inverse_transform_force(R, p, f), atol=1e-14)
+
+
+def test_world_inertias_equal_the_spatial_transform_of_the_joint_frame_inertias():
+    model = random_tree_model(0)
+    q = model.random_configuration(RNG, (N,))
+    R_WJ, p_WJ = mb.kinematics.joint_world_poses(model, q)
+    expected = spatial.transform_inertia(R_WJ, p_WJ, model.spatial_inertias)
+    world = lanes.world_inertias(*model.inertia_parameters, lanes.to_lanes(R_WJ, 3), lanes.to_lanes(p_WJ, 2))
+    assert_allclose(lanes.from_lanes(world, (N,)), expected, rtol=1e-13, atol=1e-13)
+
+
+def test_tree_sum_is_a_masked_sum_over_the_leading_axis():
+    mask = np.array([[True, False, True], [False, True, True]])
+    x = RNG.standard_normal((3, 2, 4))
+    assert_allclose(lanes.tree_sum(mask, x), np.stack([x[0] + x[2], x[1] + x[2]]))
+
+
+@pytest.mark.parametrize("model_name", ["random_tree", "talos_floating"])
+def test_batches_larger_than_a_block_equal_single_calls(model_name):
+    if model_name == "random_tree":
+        model = random_tree_model(1)
+    else:
+        model = mb.load_urdf(erd_urdf("talos_data/robots/talos_reduced.urdf"), floating_base=True)
+    n = model.lane_block + 7  # one full block and a partial one
+    rng = np.random.default_rng(3)
+    q = model.random_configuration(rng, (n,))
+    v, a = rng.standard_normal((2, n, model.nv))
+    f = rng.standard_normal((n, model.njoints, 6))
+    picks = [0, model.lane_block - 1, model.lane_block, n - 1]
+    for what, fn in dynamics_calls(model).items():
+        if what.startswith(("coriolis", "mass_matrix[lagrangian]", "mass_matrix_derivative")):
+            continue  # not computed on lanes
+        batched = fn(q, v, a, f)
+        assert batched.shape[0] == n, what
+        for k in picks:
+            single = fn(q[k], v[k], a[k], f[k])
+            assert_allclose(batched[k], single, rtol=1e-12, atol=1e-12 * max(1.0, np.abs(single).max()), err_msg=what)
+
+
+def test_one_configuration_with_a_block_sized_batch_of_velocities():
+    model = random_tree_model(2)
+    n = model.lane_block + 3
+    rng = np.random.default_rng(4)
+    q = model.random_configuration(rng)
+    v, tau = rng.standard_normal((2, n, model.nv))
+    a = mb.forward_dynamics(model, q, v, tau)
+    assert a.shape == (n, model.nv)
+    assert_allclose(a[-1], mb.forward_dynamics(model, q, v[-1], tau[-1]), rtol=1e-12, atol=1e-12)
+    assert_allclose(mb.inverse_dynamics(model, q, v, a), tau, rtol=1e-9, atol=1e-9)
+
+
+def test_lane_block_shrinks_with_the_number_of_joints():
+    small = mb.load_urdf(mb.robots.path("double_pendulum"))
+    large = mb.load_urdf(erd_urdf("talos_data/robots/talos_reduced.urdf"), floating_base=True)
+    assert small.lane_block > large.lane_block >= 64
