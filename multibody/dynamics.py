@@ -346,8 +346,8 @@ def _articulated_inertias(model, xi, inertia):
         S = xi[group.dofs]  # (k, n, 6, N)
         I_A = articulated[group.joints]
         # U_i = I^A_i S_i ;  D_i = S_iᵀ U_i
-        U = np.sum(I_A[:, :, None] * S[:, None], axis=-2)
-        D = np.sum(S[:, :, :, None] * U[:, None], axis=-3)
+        U = np.einsum("kcdn,kadn->kcan", I_A, S)
+        D = np.einsum("kacn,kcbn->kabn", S, U)
         D_inv = _inverse(model, group, D)
         U_D_inv = lanes.matmul(U, D_inv)
         # I^a_i = I^A_i − U_i D_i⁻¹ U_iᵀ ;  I^A_λ += I^a_i
@@ -395,7 +395,7 @@ def _aba_bias_and_accelerations(model, xi, factors, projected, bias, p_art, tau,
         U, U_D_inv, _ = factors[group]
         p_i = p_art[group.joints]
         # u_i = τ_i − S_iᵀ p^A_i
-        u[group] = tau[group.dofs] - np.sum(xi[group.dofs] * p_i[:, None], axis=-2)
+        u[group] = tau[group.dofs] - np.einsum("kacn,kcn->kan", xi[group.dofs], p_i)
         # p^a_i = p^A_i + I^a_i c_i + U_i D_i⁻¹ u_i ;  p^A_λ += p^a_i
         p_a = p_i + lanes.matvec(U_D_inv, u[group])
         if bias is not None:
@@ -410,8 +410,8 @@ def _aba_bias_and_accelerations(model, xi, factors, projected, bias, p_art, tau,
         a_prime = a0[None] if group.parents is None else accelerations[group.parents]
         if bias is not None:
             a_prime = a_prime + bias[group.joints]
-        qdd_i = lanes.matvec(D_inv, u[group] - np.sum(U * a_prime[:, :, None], axis=-3))
-        accelerations[group.joints] = a_prime + np.sum(xi[group.dofs] * qdd_i[:, :, None], axis=1)
+        qdd_i = lanes.matvec(D_inv, u[group] - np.einsum("kcan,kcn->kan", U, a_prime))
+        accelerations[group.joints] = a_prime + np.einsum("kacn,kan->kcn", xi[group.dofs], qdd_i)
         qdd[group.dofs] = qdd_i
     return qdd
 
