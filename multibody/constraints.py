@@ -92,6 +92,13 @@ class Constraint:
         """``(A, b)`` of ``A v + b = 0`` at one configuration."""
         return self.jacobian(system, q, t), self.velocity_bias(system, q, t)
 
+    def position_and_velocity_level(self, system, q, t=0.0):
+        """``(φ, A, b)``: ``φ`` ``(..., m)`` is zero in the rows without a position level (see
+        :meth:`position_rows`). What a residual check needs; built-in constraints share one kinematics pass."""
+        mask = np.asarray(self.position_rows(system), dtype=bool)
+        phi = self.position(system, q, t) if mask.any() else np.zeros(np.shape(q)[:-1] + (mask.size,))
+        return (phi * mask, *self.velocity_level(system, q, t))
+
     def body_forces(self, system, q, lam, t=0.0):
         """Spatial forces the constraint exerts on the bodies for multipliers ``lam (m,)``.
 

@@ -62,47 +62,66 @@ class _RollingOnPlane(Constraint):
         return np.array([False, False, True][self._row_axes])
 
     def _offset(self, R_WB, omega):
-        """Contact offset ``d`` from the centre and its rate ``ḋ`` (world axes)."""
+        """Contact offset ``d`` from the centre and its rate ``ḋ`` (world axes, ``(..., 3)`` each)."""
         raise NotImplementedError
+
+    @property
+    def batched(self):
+        """Every method takes leading batch axes, unless a user ``surface_velocity`` is involved."""
+        return self.surface_velocity is None
 
     def _contact(self, system, q, v, t):
         model = _require_model(system, self)
         R_WB, x_O, J, J_dot_v = _frame(model, q, v, self.body, self.placement)
-        omega = matvec(J[3:], v)
+        omega = matvec(J[..., 3:, :], v)
         d, d_dot = self._offset(R_WB, omega)
         return model, x_O, J, J_dot_v, omega, d, d_dot
 
     def position(self, system, q, t=0.0):
-        _, x_O, _, _, _, d, _ = self._contact(system, q, np.zeros(system.nv), t)
+        _, x_O, _, _, _, d, _ = self._contact(system, q, np.zeros(np.shape(q)[:-1] + (system.nv,)), t)
+        return self._position(x_O, d)
+
+    def _position(self, x_O, d):
         # Only the normal row has a position level: the contact point lies on the plane.
-        phi = np.zeros(self.rows(system))
+        phi = np.zeros(np.shape(x_O)[:-1] + (self.rows(None),))
         if self.include_normal:
-            phi[2] = self.normal @ (x_O + d - self.plane_point)
+            phi[..., 2] = (x_O + d - self.plane_point) @ self.normal
         return phi
 
     def _surface_velocity(self, point, t):
         return np.zeros(3) if self.surface_velocity is None else np.asarray(self.surface_velocity(point, t), float)
 
     def evaluate(self, system, q, v, t=0.0):
+        return self._levels(system, q, v, t)[:3]
+
+    def _levels(self, system, q, v, t):
+        """``(A, b, γ, φ)`` from one kinematics pass (shapes ``(..., k, nv)``, ``(..., k)`` ×3)."""
         model, x_O, J, J_dot_v, omega, d, d_dot = self._contact(system, q, v, t)
-        E = self.frame[:, self._row_axes]
-        # v_c = (J_O − [d]× J_ω) v
-        A = transpose(E) @ (J[:3] - spatial.skew(d) @ J[3:])
-        b = -transpose(E) @ self._surface_velocity(x_O + d, t)
+        E_T = self.frame[:, self._row_axes].T
+        # v_c = (J_O − [d]× J_ω) v, in the plane frame: Eᵀ J_O − (Eᵀ [d]×) J_ω, where row i of
+        # Eᵀ [d]× is (e_i × d)ᵀ.
+        A = E_T @ J[..., :3, :] - spatial.cross(E_T, d[..., None, :]) @ J[..., 3:, :]
         # d/dt v_c at a = 0: J̇v_O + ω̇₀ × d + ω × ḋ
-        contact_acceleration = J_dot_v[:3] + spatial.cross(J_dot_v[3:], d) + spatial.cross(omega, d_dot)
-        if self.surface_velocity is not None:
+        contact_acceleration = J_dot_v[..., :3] + spatial.cross(J_dot_v[..., 3:], d) + spatial.cross(omega, d_dot)
+        if self.surface_velocity is None:
+            b = np.zeros(np.shape(d)[:-1] + (E_T.shape[0],))
+        else:
+            b = -E_T @ self._surface_velocity(x_O + d, t)
+
             # d/dt v_surface(c(q(s)), t + s) along the motion, numerically.
             def surface_at(s):
                 _, x_s, _, _, _, d_s, _ = self._contact(system, system.integrate(q, v, s), v, t + s)
                 return self._surface_velocity(x_s + d_s, t + s)
 
-            surface = _first_derivative(surface_at)
-            contact_acceleration = contact_acceleration - surface
-        return A, b, -transpose(E) @ contact_acceleration
+            contact_acceleration = contact_acceleration - _first_derivative(surface_at)
+        return A, b, -contact_acceleration @ E_T.T, self._position(x_O, d)
 
     def velocity_level(self, system, q, t=0.0):
-        return self.evaluate(system, q, np.zeros(system.nv), t)[:2]
+        return self.evaluate(system, q, np.zeros(np.shape(q)[:-1] + (system.nv,)), t)[:2]
+
+    def position_and_velocity_level(self, system, q, t=0.0):
+        A, b, _, phi = self._levels(system, q, np.zeros(np.shape(q)[:-1] + (system.nv,)), t)
+        return phi, A, b
 
     def jacobian(self, system, q, t=0.0):
         return self.velocity_level(system, q, t)[0]
@@ -149,7 +168,8 @@ class RollingSphere(_RollingOnPlane):
 
     def _offset(self, R_WB, omega):
         # d = −r n is fixed in the world: ḋ = 0.
-        return -self.radius * self.normal, np.zeros(3)
+        d = np.broadcast_to(-self.radius * self.normal, np.shape(omega))
+        return d, np.zeros(np.shape(omega))
 
 
 class RollingDisc(_RollingOnPlane):
@@ -173,16 +193,17 @@ class RollingDisc(_RollingOnPlane):
 
     def _offset(self, R_WB, omega):
         n = self.normal
-        a = R_WB @ self.placement[:3, :3] @ self.axis
+        a = matvec(R_WB, self.placement[:3, :3] @ self.axis)
         a_dot = spatial.cross(omega, a)
-        u = n - (n @ a) * a
-        length = np.linalg.norm(u)
-        if length < 1e-9:
+        n_a = (a @ n)[..., None]
+        u = n - n_a * a
+        length = np.linalg.norm(u, axis=-1, keepdims=True)
+        if np.any(length < 1e-9):
             raise ValueError(f"{self.name}: the disc lies flat on the plane; its contact point is undefined")
         e = u / length
         # u̇ = −(n·ȧ) a − (n·a) ȧ ;  ė = (u̇ − e (e·u̇)) / |u|
-        u_dot = -(n @ a_dot) * a - (n @ a) * a_dot
-        e_dot = (u_dot - e * (e @ u_dot)) / length
+        u_dot = -(a_dot @ n)[..., None] * a - n_a * a_dot
+        e_dot = (u_dot - e * np.sum(e * u_dot, axis=-1, keepdims=True)) / length
         return -self.radius * e, -self.radius * e_dot
 
 

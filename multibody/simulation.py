@@ -1,11 +1,20 @@
 """Time integration of (constrained) equations of motion: ``mb.simulate``.
 
 The state is ``(q, v)`` with ``q̇ = G(q) v`` (``model.configuration_rate``) and ``v̇ = a`` from the
-KKT solve of :class:`~multibody.constrained.ConstrainedSystem`. Adaptive methods run through
-``scipy.integrate.solve_ivp`` (RK45, DOP853, Radau, ...) from one output time to the next;
-``"RK4"`` is the classical fixed-step method with step ``dt``. At every output time (every step
-for RK4) the state is put back on the configuration manifold (unit quaternions) and, with
-``project=True``, onto the constraints ``φ = 0`` and ``A v + b = 0``.
+KKT solve of :class:`~multibody.constrained.ConstrainedSystem`. Adaptive methods run through a
+``scipy.integrate`` solver (RK45, DOP853, Radau, ...). While the output interval ``dt`` spans several
+of its steps, each interval is integrated on its own and landed on exactly; once a single step covers
+an interval, one solver runs on to ``t_final`` and the output states at the requested times come from
+its dense output (continuous extension) inside each step, so a high output rate does not restrict
+the step size; with ``project=True`` those of them that violate
+the constraints by more than ``projection_tolerance`` are projected onto them (the integration
+itself goes on from its own states). ``"RK4"`` is the classical fixed-step method
+with step ``dt``. After every integrator step the state is put back on the configuration manifold
+(unit quaternions) and, with ``project=True``, when its constraint residual exceeds
+``projection_tolerance`` it is projected onto ``φ = 0`` and ``A v + b = 0`` and the integrator restarts
+from the projected state (with the step size it had reached). The multipliers, energies and residuals
+of all output states are computed afterwards, in one batched call when the system allows it; the
+residuals are those of the returned states.
 """
 
 from __future__ import annotations
@@ -14,11 +23,12 @@ import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.integrate import solve_ivp
+from scipy.integrate import BDF, DOP853, LSODA, RK23, RK45, Radau
 
 from .constrained import ConstrainedSystem, ConstraintError
 
-ADAPTIVE_METHODS = ("RK45", "DOP853", "Radau", "RK23", "BDF", "LSODA")
+METHODS = {"RK45": RK45, "DOP853": DOP853, "Radau": Radau, "RK23": RK23, "BDF": BDF, "LSODA": LSODA}
+ADAPTIVE_METHODS = tuple(METHODS)
 FIXED_STEP_METHODS = ("RK4",)
 
 
@@ -72,7 +82,7 @@ def _torque_function(tau, nv):
 
 
 def simulate(system, q0, v0, t_final, *, dt=None, method="RK45", tau=None, rtol=1e-8, atol=1e-10,
-             project=True, t0=0.0, max_step=np.inf):
+             project=True, projection_tolerance=1e-12, t0=0.0, max_step=np.inf):
     """Integrate the motion of a ``Model`` or ``ConstrainedSystem`` from ``(q0, v0)`` at ``t0`` to ``t_final``.
 
     Args:
@@ -80,12 +90,13 @@ def simulate(system, q0, v0, t_final, *, dt=None, method="RK45", tau=None, rtol=
         q0, v0: initial state ``(nq,)``, ``(nv,)``. An inconsistent state is projected onto the
             constraints with a warning giving the distance moved; if that fails, ``ConstraintError``.
         t_final: end time (s).
-        dt: output interval (s), which is also the projection interval, and the step of ``"RK4"``;
-            default ``(t_final − t0) / 500``.
+        dt: output interval (s), and the step of ``"RK4"``; default ``(t_final − t0) / 500``.
         method: ``"RK45"``, ``"DOP853"``, ``"Radau"`` (or ``"RK23"``, ``"BDF"``, ``"LSODA"``), or ``"RK4"``.
         tau: joint forces: ``None``, an array ``(nv,)``, or a callable ``tau(t, q, v) -> (nv,)``.
         rtol, atol: tolerances of the adaptive methods.
-        project: project onto the constraints at every output time (default ``True``).
+        project: keep the state on the constraints (default ``True``): after an integrator step whose
+            end state violates them by more than ``projection_tolerance``, project it and restart there.
+        projection_tolerance: largest residual ``max(|φ|, |A v + b|)`` left unprojected at a step end.
         max_step: largest internal step of the adaptive methods (s).
     Returns:
         :class:`Trajectory`.
@@ -122,67 +133,138 @@ def simulate(system, q0, v0, t_final, *, dt=None, method="RK45", tau=None, rtol=
         a, _ = constrained.forward_dynamics(q_t, v_t, torque(t, q_t, v_t), t)
         return np.concatenate([rate(q_t, v_t), a])
 
-    def rk4_step(t, y, h):
-        k1 = derivative(t, y)
-        k2 = derivative(t + h / 2, y + h / 2 * k1)
-        k3 = derivative(t + h / 2, y + h / 2 * k2)
-        k4 = derivative(t + h, y + h * k3)
-        return y + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
-
     def settle(t, y):
-        """Back onto the configuration manifold and, with ``project``, onto the constraints."""
+        """``y`` back onto the configuration manifold and, with ``project``, onto the constraints when
+        its residual exceeds the tolerance. Returns the state and whether it was projected."""
         if not np.all(np.isfinite(y)):
             raise SimulationError(f"the state became non-finite at t = {t:.6g} s", None)
         q_t, v_t = normalize(y[:nq]), y[nq:]
-        return constrained.project(q_t, v_t, t) if project else (q_t, v_t)
+        if project and constrained.num_rows and constrained.residual(q_t, v_t, t) > projection_tolerance:
+            return np.concatenate(constrained.project(q_t, v_t, t)), True
+        return np.concatenate([q_t, v_t]), False
 
-    step_size = None
+    tolerance = projection_tolerance if project else None
     n_intervals = int(np.ceil((t_final - t0) / dt - 1e-9))
     times = np.minimum(t0 + dt * np.arange(n_intervals + 1), t_final)
-    record = {"t": [], "q": [], "v": [], "lam": [], "energy": [], "residual": []}
-
-    def append(t, q, v):
-        solution = constrained.solve(q, v, torque(t, q, v), t)
-        record["t"].append(t)
-        record["q"].append(q)
-        record["v"].append(v)
-        record["lam"].append(solution.lam)
-        record["energy"].append(constrained.energy(q, v))
-        record["residual"].append(constrained.residual(q, v, t))
-
-    def trajectory(status):
-        n, m = len(record["t"]), constrained.num_rows
-        return Trajectory(
-            t=np.array(record["t"], dtype=float),
-            q=np.array(record["q"], dtype=float).reshape(n, nq),
-            v=np.array(record["v"], dtype=float).reshape(n, nv),
-            lam=np.array(record["lam"], dtype=float).reshape(n, m),
-            energy=np.array(record["energy"], dtype=float),
-            residual=np.array(record["residual"], dtype=float),
-            row_names=list(constrained.row_names),
-            status=status,
-        )
+    states = np.empty((len(times), nq + nv))
+    states[0] = np.concatenate([q, v])
+    done = 0  # output states filled so far
 
     try:
-        append(times[0], q, v)
-        for t_start, t_end in zip(times[:-1], times[1:]):
-            y = np.concatenate([q, v])
-            if method == "RK4":
-                q, v = settle(t_end, rk4_step(t_start, y, t_end - t_start))
-            else:
-                # Adaptive steps up to the next output time, then the projection; the next interval
-                # starts with the step size this one ended with, so no step-size search is repeated.
-                options = {"first_step": min(step_size, t_end - t_start)} if step_size else {}
-                result = solve_ivp(derivative, (t_start, t_end), y, method=method, rtol=rtol, atol=atol,
-                                   max_step=max_step, **options)
-                if not result.success:
-                    raise SimulationError(f"{method} failed at t = {t_start:.6g} s: {result.message}", None)
-                # The last step may have been shortened to land on t_end: take the longer of the last two.
-                step_size = np.diff(result.t)[-2:].max()
-                q, v = settle(t_end, result.y[:, -1])
-            append(t_end, q, v)
+        constrained.solve(q, v, torque(t0, q, v), t0)  # the initial state has a KKT solution
+        done = 1
+        if method == "RK4":
+            for k in range(1, len(times)):
+                states[k] = settle(times[k], _rk4_step(derivative, times[k - 1], states[k - 1], times[k] - times[k - 1]))[0]
+                done = k + 1
+        else:
+            solver_class = METHODS[method]
+
+            def start(t, y, t_bound, step_size):
+                first_step = None if step_size is None else min(step_size, t_bound - t)
+                return solver_class(derivative, t, y, t_bound, rtol=rtol, atol=atol, max_step=max_step,
+                                    first_step=first_step)
+
+            def advance(solver):
+                t_before = solver.t
+                message = solver.step()
+                if solver.status == "failed":
+                    raise SimulationError(f"{method} failed at t = {t_before:.6g} s: {message}", None)
+
+            # While the output intervals span several steps, each one is integrated on its own and landed
+            # on exactly (the next starts with the step size this one reached, so no step-size search is
+            # repeated). Once a single step covers an interval, one solver runs on to t_final and the
+            # output states inside its steps come from its dense output.
+            step_size = None
+            while done < len(times):
+                solver, steps = start(times[done - 1], states[done - 1], times[done], step_size), []
+                while solver.status == "running":
+                    advance(solver)
+                    steps.append(solver.step_size)
+                # The last step may have been shortened to land on the output time: take the longer of the last two.
+                step_size = max(steps[-2:])
+                states[done] = settle(times[done], solver.y)[0]
+                done += 1
+                if len(steps) == 1:
+                    break
+            solver = start(times[done - 1], states[done - 1], t_final, step_size) if done < len(times) else None
+            while done < len(times):
+                advance(solver)
+                y_end, projected = settle(solver.t, solver.y)
+                # Output times inside the step from the dense output; one landing on the step's end
+                # takes the (projected) end state itself.
+                inside = done + int(np.searchsorted(times[done:], solver.t, side="left"))
+                if inside > done:
+                    states[done:inside] = solver.dense_output()(times[done:inside]).T
+                    done = inside
+                if done < len(times) and times[done] == solver.t:
+                    states[done] = y_end
+                    done += 1
+                if projected and done < len(times):
+                    solver = start(solver.t, y_end, t_final, solver.step_size)
     except (SimulationError, ConstraintError, np.linalg.LinAlgError, ValueError, FloatingPointError) as exc:
-        t_fail = record["t"][-1] if record["t"] else t0
+        t_fail = times[max(done - 1, 0)]
         message = f"simulation stopped at t = {t_fail:.6g} s: {exc}"
-        raise SimulationError(message, trajectory(message)) from exc
-    return trajectory("completed")
+        raise SimulationError(message, _trajectory(constrained, times[:done], states[:done], torque, message, tolerance)) from exc
+    return _trajectory(constrained, times, states, torque, "completed", tolerance)
+
+
+def _rk4_step(derivative, t, y, h):
+    """One classical Runge–Kutta step of size ``h`` from ``(t, y)`` (Hairer, Nørsett & Wanner,
+    *Solving Ordinary Differential Equations I*, §II.1, Table 1.2)."""
+    k1 = derivative(t, y)
+    k2 = derivative(t + h / 2, y + h / 2 * k1)
+    k3 = derivative(t + h / 2, y + h / 2 * k2)
+    k4 = derivative(t + h, y + h * k3)
+    return y + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+
+
+def _trajectory(constrained, times, states, torque, status, projection_tolerance=None):
+    """The :class:`Trajectory` of output ``states (n, nq + nv)`` at ``times (n,)``.
+
+    Configurations are normalised; with a ``projection_tolerance``, states whose residual exceeds it
+    (dense-output states between integrator steps) are projected onto the constraints. ``λ``, energy
+    and residual are then evaluated at exactly the returned states, in one batched call each when the
+    system takes batches (else one state at a time).
+    """
+    nq, nv, m = constrained.nq, constrained.nv, constrained.num_rows
+    n = len(times)
+    batched = constrained.batched and n > 0
+    normalize = getattr(constrained.system, "normalize", lambda q: q)
+    q = normalize(states[:, :nq]) if batched else np.array([normalize(row) for row in states[:, :nq]]).reshape(n, nq)
+    v = states[:, nq:].copy()
+
+    def residuals(index):
+        if not m:
+            return np.zeros(len(index))
+        if batched:
+            return constrained.residual(q[index], v[index], times[index])
+        return np.array([constrained.residual(q[k], v[k], times[k]) for k in index])
+
+    residual = residuals(np.arange(n))
+    if projection_tolerance is not None and m:
+        off = np.flatnonzero(residual > projection_tolerance)
+        if off.size and batched:
+            q[off], v[off] = constrained.project(q[off], v[off], times[off])
+        for k in off if not batched else ():
+            q[k], v[k] = constrained.project(q[k], v[k], times[k])
+        if off.size:
+            residual[off] = residuals(off)
+    taus = [torque(t, q_k, v_k) for t, q_k, v_k in zip(times, q, v)]
+    if batched:
+        tau = np.stack([np.zeros(nv) if tau_k is None else np.asarray(tau_k, dtype=float) for tau_k in taus])
+        lam = constrained.solve(q, v, tau, times).lam
+        energy = np.broadcast_to(constrained.energy(q, v), (n,))
+    else:
+        lam = [constrained.solve(q_k, v_k, tau_k, t).lam for t, q_k, v_k, tau_k in zip(times, q, v, taus)]
+        energy = [constrained.energy(q_k, v_k) for q_k, v_k in zip(q, v)]
+    return Trajectory(
+        t=np.array(times, dtype=float),
+        q=q,
+        v=v,
+        lam=np.array(lam, dtype=float).reshape(n, m),
+        energy=np.array(energy, dtype=float).reshape(n),
+        residual=residual,
+        row_names=list(constrained.row_names),
+        status=status,
+    )
