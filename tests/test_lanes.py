@@ -21,10 +21,6 @@ RNG = np.random.default_rng(7)
 N = 5  # states per lane array
 
 
-def on_lanes(x, components):
-    return lanes.to_lanes(x, components)
-
-
 def off_lanes(x):
     return lanes.from_lanes(x, (N,))
 
@@ -58,15 +54,15 @@ def test_lane_primitive_equals_spatial(name, ours, theirs, shapes):
 
 def test_skew_and_quaternion_rotation_equal_spatial():
     w = RNG.standard_normal((N, 3))
-    assert_allclose(off_lanes(lanes.skew(on_lanes(w, 1))), spatial.skew(w), atol=1e-15)
+    assert_allclose(off_lanes(lanes.skew(lanes.to_lanes(w, 1))), spatial.skew(w), atol=1e-15)
     quat = RNG.standard_normal((N, 4)) * 1.3  # not unit: both divide by |q|²
-    assert_allclose(off_lanes(lanes.quat_to_rotation(on_lanes(quat, 1))), spatial.quat_to_rotation(quat), atol=1e-14)
+    assert_allclose(off_lanes(lanes.quat_to_rotation(lanes.to_lanes(quat, 1))), spatial.quat_to_rotation(quat), atol=1e-14)
 
 
 def test_force_transforms_equal_spatial():
     R = spatial.quat_to_rotation(RNG.standard_normal((N, 4)))
     p, f = RNG.standard_normal((N, 3)), RNG.standard_normal((N, 6))
-    R_l, p_l, f_l = on_lanes(R, 2), on_lanes(p, 1), on_lanes(f, 1)
+    R_l, p_l, f_l = lanes.to_lanes(R, 2), lanes.to_lanes(p, 1), lanes.to_lanes(f, 1)
     assert_allclose(off_lanes(lanes.transform_force(R_l, p_l, f_l)), spatial.transform_force(R, p, f), atol=1e-14)
     assert_allclose(off_lanes(lanes.inverse_transform_force(R_l, p_l, f_l)),
                     spatial.inverse_transform_force(R, p, f), atol=1e-14)
