@@ -40,7 +40,8 @@ def _check(model, q, v=None, a=None, tau=None, f_ext=None):
             raise ValueError(f"f_ext must have shape (..., {model.njoints}, 6) (one spatial force per moving "
                              f"joint, in its frame), got {f_ext.shape}")
         shapes.append(f_ext.shape[:-2])
-    return q, *arrays, f_ext, np.broadcast_shapes(*shapes)
+    # np.broadcast_shapes costs microseconds; equal shapes (the usual case) need no broadcasting.
+    return q, *arrays, f_ext, shapes[0] if shapes.count(shapes[0]) == len(shapes) else np.broadcast_shapes(*shapes)
 
 
 def _gravity_acceleration(model):
@@ -67,9 +68,13 @@ def _velocities(model, xi, v):
 def _support_sums(model, x):
     """``y_j = Σ_{k ⪯ j} x_k``, the sum over the coordinates that move joint j: ``x (nv, ...) -> (nj, ...)``.
 
-    The forward pass of a recursion such as ``v_i = v_λ(i) + ξ_i q̇_i``, done level by level.
+    The forward pass of a recursion such as ``v_i = v_λ(i) + ξ_i q̇_i``: one matrix product for small
+    arrays, else level by level.
     """
-    y = x.copy() if model.one_dof_per_joint else lanes.tree_sum(model.own_dofs, x)
+    support, _, own = model.tree_sum_weights
+    if lanes.small_tree_sum(support, x):
+        return lanes.tree_sum(support, x)
+    y = x.copy() if model.one_dof_per_joint else lanes.tree_sum(own, x)
     for index, parents in model.levels[1:]:
         y[index] += y[parents]
     return y
@@ -78,8 +83,12 @@ def _support_sums(model, x):
 def _subtree_sums(model, x):
     """``y_i = Σ_{j in subtree(i)} x_j``: ``x (nj, ...) -> (nj, ...)``.
 
-    The backward pass of a recursion such as ``f_λ(i) += f_i``, done level by level from the leaves.
+    The backward pass of a recursion such as ``f_λ(i) += f_i``: one matrix product for small
+    arrays, else level by level from the leaves.
     """
+    _, subtree, _ = model.tree_sum_weights
+    if lanes.small_tree_sum(subtree, x):
+        return lanes.tree_sum(subtree, x)
     y = x.copy()
     for index, parents in model.upward_levels:
         y[parents] += y[index]
@@ -346,8 +355,8 @@ def _articulated_inertias(model, xi, inertia):
         S = xi[group.dofs]  # (k, n, 6, N)
         I_A = articulated[group.joints]
         # U_i = I^A_i S_i ;  D_i = S_iᵀ U_i
-        U = np.einsum("kcdn,kadn->kcan", I_A, S)
-        D = np.einsum("kacn,kcbn->kabn", S, U)
+        U = lanes.matmul(I_A, lanes.transpose(S))
+        D = lanes.matmul(S, U)
         D_inv = _inverse(model, group, D)
         U_D_inv = lanes.matmul(U, D_inv)
         # I^a_i = I^A_i − U_i D_i⁻¹ U_iᵀ ;  I^A_λ += I^a_i
@@ -371,7 +380,7 @@ def _inverse(model, group, D):
         with np.errstate(invalid="ignore"):
             singular = np.linalg.det(np.moveaxis(D, -1, 1)) == 0.0
     # NaN input (already warned about) just propagates.
-    if np.any(singular):
+    if singular.any():
         i = np.arange(model.njoints)[group.joints][np.flatnonzero(singular.any(axis=-1))[0]]
         raise np.linalg.LinAlgError(
             f"the mass matrix is singular: joint {model.joint_names[i]!r} moves no inertia "
@@ -395,7 +404,7 @@ def _aba_bias_and_accelerations(model, xi, factors, projected, bias, p_art, tau,
         U, U_D_inv, _ = factors[group]
         p_i = p_art[group.joints]
         # u_i = τ_i − S_iᵀ p^A_i
-        u[group] = tau[group.dofs] - np.einsum("kacn,kcn->kan", xi[group.dofs], p_i)
+        u[group] = tau[group.dofs] - lanes.matvec(xi[group.dofs], p_i)
         # p^a_i = p^A_i + I^a_i c_i + U_i D_i⁻¹ u_i ;  p^A_λ += p^a_i
         p_a = p_i + lanes.matvec(U_D_inv, u[group])
         if bias is not None:
@@ -410,8 +419,8 @@ def _aba_bias_and_accelerations(model, xi, factors, projected, bias, p_art, tau,
         a_prime = a0[None] if group.parents is None else accelerations[group.parents]
         if bias is not None:
             a_prime = a_prime + bias[group.joints]
-        qdd_i = lanes.matvec(D_inv, u[group] - np.einsum("kcan,kcn->kan", U, a_prime))
-        accelerations[group.joints] = a_prime + np.einsum("kacn,kan->kcn", xi[group.dofs], qdd_i)
+        qdd_i = lanes.matvec(D_inv, u[group] - lanes.matvec(lanes.transpose(U), a_prime))
+        accelerations[group.joints] = a_prime + lanes.matvec(lanes.transpose(xi[group.dofs]), qdd_i)
         qdd[group.dofs] = qdd_i
     return qdd
 
@@ -436,7 +445,7 @@ def _aba(model, q, v, tau, f_ext):
     factors, projected = _articulated_inertias(model, xi, inertia)
     V, xi_dot_v = _velocities(model, xi, v)
     # c_i = ξ̇_i q̇_i (the joint's own columns) ;  p^A_i = v_i ×* I_i v_i − f_ext_i
-    bias = xi_dot_v if model.one_dof_per_joint else lanes.tree_sum(model.own_dofs, xi_dot_v)
+    bias = xi_dot_v if model.one_dof_per_joint else lanes.tree_sum(model.tree_sum_weights[2], xi_dot_v)
     p_art = lanes.force_cross(V, lanes.matvec(inertia, V))
     if f_ext is not None:
         p_art = p_art - lanes.transform_force(R_WJ, p_WJ, f_ext)

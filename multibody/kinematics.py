@@ -17,13 +17,17 @@ from .spatial import matvec
 def local_poses(model, q):
     """Pose ``X_λ(i),i(q) = X_T,i X_J,i(q_i)`` of every joint frame in its parent joint frame, on lanes.
 
-    ``q (nq, N)`` -> ``X = [R | p] (nj, 3, 4, N)`` (RBDA §4.1: the tree transform ``X_T`` is the
-    joint's placement, followed by the joint transform ``X_J``); one call per joint type.
+    ``q (nq, N)`` -> homogeneous ``X = [[R, p], [0, 1]] (nj, 4, 4, N)`` (RBDA §4.1: the tree transform
+    ``X_T`` is the joint's placement, followed by the joint transform ``X_J``); one call per joint type.
     """
-    X = np.empty((model.njoints, 3, 4, q.shape[-1]))
+    X = np.empty((model.njoints, 4, 4, q.shape[-1]))
+    X[:, 3] = _HOMOGENEOUS_ROW
     for kind, index, q_index, constants in model.joint_groups:
-        X[index] = kind.group_transform(constants, q[q_index])
+        X[index, :3] = kind.group_transform(constants, q[q_index])
     return X
+
+
+_HOMOGENEOUS_ROW = np.array([0.0, 0.0, 0.0, 1.0])[:, None]
 
 
 def world_poses(model, q):
@@ -32,16 +36,10 @@ def world_poses(model, q):
     ``X_W,i = X_W,λ(i) X_λ(i),i`` level by level down the tree: all joints of one depth at once.
     """
     X_local = local_poses(model, q)
-    X_world = np.empty_like(X_local)
+    X_world = np.empty((model.njoints, 3, 4, q.shape[-1]))
     for level, (index, parents) in enumerate(model.levels):
-        if level == 0:
-            X_world[index] = X_local[index]
-        else:
-            # [R | p]_W,i = R_W,λ [R | p]_λ,i + [0 | p_W,λ]
-            X_parent = X_world[parents]
-            X = lanes.matmul(X_parent[:, :, :3], X_local[index])
-            X[:, :, 3] += X_parent[:, :, 3]
-            X_world[index] = X
+        # [R | p]_W,i = [R | p]_W,λ [[R, p], [0, 1]]_λ,i : one product of a 3×4 and a 4×4 matrix
+        X_world[index] = X_local[index, :3] if level == 0 else lanes.matmul(X_world[parents], X_local[index])
     return X_world[:, :, :3], X_world[:, :, 3]
 
 

@@ -36,30 +36,41 @@ def to_lanes(x, components=1, batch=None):
     the others); any other ``x`` is first broadcast to ``batch``.
     """
     shape = x.shape[x.ndim - components:]
-    if batch is not None and x.shape[:-components] not in ((), batch):
+    if x.ndim == components:
+        return x.reshape(shape + (1,))
+    if batch is not None and x.shape[:-components] != batch:
         x = np.broadcast_to(x, batch + shape)
-    return np.moveaxis(x.reshape((math.prod(x.shape[:x.ndim - components]),) + shape), 0, -1)
+    # np.transpose with explicit axes: np.moveaxis costs several µs of argument handling per call.
+    return x.reshape((math.prod(x.shape[:-components]),) + shape).transpose(tuple(range(1, components + 1)) + (0,))
 
 
 def from_lanes(x, batch):
     """``(*components, N)`` -> ``batch + components``: the inverse of :func:`to_lanes`, contiguous."""
-    moved = np.moveaxis(x, -1, 0)
+    if x.shape[-1] == 1:
+        return x.reshape(batch + x.shape[:-1])
+    moved = x.transpose((x.ndim - 1,) + tuple(range(x.ndim - 1)))
     return np.ascontiguousarray(moved).reshape(batch + moved.shape[1:])
 
 
 # ----------------------------------------------------------------------------- 3-D algebra
 
 # np.einsum runs these small contractions in compiled loops over the lanes; on lanes it is about
-# twice as fast as broadcasting a product and reducing it, for one state as for hundreds.
+# twice as fast as broadcasting a product and reducing it. With a single lane, though, its inner
+# loop has length one and it pays its dispatch for every matrix entry: there np.matmul on the
+# matrices themselves (a view without the lane axis) is several times faster.
 
 def matmul(A, B):
     """``A B`` on lanes: ``(..., i, j, N), (..., j, k, N) -> (..., i, k, N)``."""
+    if A.shape[-1] == 1 == B.shape[-1]:
+        return np.matmul(A[..., 0], B[..., 0])[..., None]
     # (A B)_ik = Σ_j A_ij B_jk
     return np.einsum("...ijn,...jkn->...ikn", A, B)
 
 
 def matvec(A, x):
     """``A x`` on lanes: ``(..., i, j, N), (..., j, N) -> (..., i, N)``."""
+    if A.shape[-1] == 1 == x.shape[-1]:
+        return np.matmul(A[..., 0], x)
     return np.einsum("...ijn,...jn->...in", A, x)
 
 
@@ -70,17 +81,20 @@ def transpose(A):
 
 def dot(a, b):
     """``aᵀ b`` on lanes: ``(..., n, N), (..., n, N) -> (..., N)``."""
+    if a.shape[-1] == 1 == b.shape[-1]:
+        return np.matmul(a[..., None, :, 0], b)[..., 0, :]
     return np.einsum("...in,...in->...n", a, b)
 
 
 # (a × b)_i = a_{i+1} b_{i+2} − a_{i+2} b_{i+1}: the six products in one pass, then one difference.
+# ndarray.take: a gather along one axis costs less than the equivalent fancy index.
 _CROSS_LEFT = np.array([1, 2, 0, 2, 0, 1])
 _CROSS_RIGHT = np.array([2, 0, 1, 1, 2, 0])
 
 
 def cross(a, b):
     """``a × b`` on lanes: ``(..., 3, N), (..., 3, N) -> (..., 3, N)``."""
-    products = a[..., _CROSS_LEFT, :] * b[..., _CROSS_RIGHT, :]
+    products = a.take(_CROSS_LEFT, axis=-2) * b.take(_CROSS_RIGHT, axis=-2)
     return products[..., :3, :] - products[..., 3:, :]
 
 
@@ -91,7 +105,7 @@ _SKEW_SIGN = np.array([0.0, -1.0, 1.0, 1.0, 0.0, -1.0, -1.0, 1.0, 0.0])[:, None]
 
 def skew(w):
     """Cross-product matrix ``[w]×`` on lanes: ``(..., 3, N) -> (..., 3, 3, N)``."""
-    return (w[..., _SKEW_INDEX, :] * _SKEW_SIGN).reshape(w.shape[:-2] + (3, 3, w.shape[-1]))
+    return (w.take(_SKEW_INDEX, axis=-2) * _SKEW_SIGN).reshape(w.shape[:-2] + (3, 3, w.shape[-1]))
 
 
 def quat_to_rotation(quat):
@@ -132,24 +146,23 @@ def world_inertias(mass, first_moment, rotational, R_WJ, p_WJ):
     and rotational inertia about J's origin ``Ī_J (nj, 3, 3, 1)``. In world axes, with
     ``g = R m c_J`` and the body origin at ``p``, the first moment about the world origin is
     ``h = g + m p`` and the rotational inertia about it (parallel-axis theorem, RBDA eq. 2.63)
-    ``Ī_O = R Ī_J Rᵀ − p gᵀ − g pᵀ − m p pᵀ + (2 gᵀp + m pᵀp) 1``; then
-    ``I = [[m 1, −[h]×], [[h]×, Ī_O]]``. Returns ``(nj, 6, 6, N)``.
+    ``Ī_O = R Ī_J Rᵀ − [p]×[h]× − [g]×[p]×``; then ``I = [[m 1, −[h]×], [[h]×, Ī_O]]``.
+    Returns ``(nj, 6, 6, N)``.
     """
     m = mass[:, None, None]
     g = matvec(R_WJ, first_moment)
     h = g + m * p_WJ
-    outer = p_WJ[:, :, None, :] * g[:, None, :, :]
-    rotational_O = matmul(matmul(R_WJ, rotational), transpose(R_WJ)) - outer - transpose(outer)
-    rotational_O -= m[..., None] * (p_WJ[:, :, None, :] * p_WJ[:, None, :, :])
-    diagonal = rotational_O[:, [0, 1, 2], [0, 1, 2], :]
-    rotational_O[:, [0, 1, 2], [0, 1, 2], :] = diagonal + 2.0 * dot(g, p_WJ)[:, None, :] + m * dot(p_WJ, p_WJ)[:, None, :]
-    H = skew(h)
-    out = np.zeros(rotational_O.shape[:1] + (6, 6) + rotational_O.shape[-1:])
-    out[:, [0, 1, 2], [0, 1, 2], :] = m
-    out[:, :3, 3:, :] = -H
-    out[:, 3:, :3, :] = H
-    out[:, 3:, 3:, :] = rotational_O
+    P, H, G = skew(p_WJ), skew(h), skew(g)
+    rotational_O = matmul(matmul(R_WJ, rotational), transpose(R_WJ)) - matmul(P, H) - matmul(G, P)
+    out = np.empty(rotational_O.shape[:1] + (6, 6) + rotational_O.shape[-1:])
+    out[:, :3, :3] = m[..., None] * _IDENTITY
+    out[:, :3, 3:] = -H
+    out[:, 3:, :3] = H
+    out[:, 3:, 3:] = rotational_O
     return out
+
+
+_IDENTITY = np.eye(3)[:, :, None]
 
 
 def transform_force(R_AB, p_AB, f_B):
@@ -165,7 +178,21 @@ def inverse_transform_force(R_AB, p_AB, f_A):
     return np.concatenate([matvec(R_BA, linear), matvec(R_BA, f_A[..., 3:, :] - cross(p_AB, linear))], axis=-2)
 
 
-def tree_sum(mask, x):
-    """``y_i = Σ_k mask[i, k] x_k`` over the leading axis of ``x (n, ...)``: ``mask (m, n) -> (m, ...)``."""
-    # einsum rather than a BLAS product: BLAS threads cost more than these small sums.
-    return np.einsum("ik,k...->i...", mask.astype(float), x)
+def tree_sum(weights, x):
+    """``y_i = Σ_k weights[i, k] x_k`` over the leading axis of ``x (n, ...)``: ``weights (m, n) float -> (m, ...)``.
+
+    One matrix product: far fewer NumPy calls than a level-by-level pass, at ``m n`` rather than
+    ``n`` additions per component (see :func:`small_tree_sum`).
+    """
+    return (weights @ x.reshape(x.shape[0], math.prod(x.shape[1:]))).reshape(weights.shape[:1] + x.shape[1:])
+
+
+#: Largest ``m n K`` of a tree sum done as one matrix product; OpenBLAS runs products up to this
+#: size (65536 × 4) on one thread, and threads waiting on a busy machine cost milliseconds.
+SMALL_TREE_SUM = 2**18
+
+
+def small_tree_sum(weights, x):
+    """Whether :func:`tree_sum` of ``x`` with ``weights`` is small enough to beat a level-by-level pass."""
+    # m n K = m × (size of x)
+    return weights.shape[0] * x.size <= SMALL_TREE_SUM

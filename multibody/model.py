@@ -229,6 +229,12 @@ class Model:
         return _frozen(self.dof_joint[None, :] == np.arange(self.njoints)[:, None], bool)
 
     @cached_property
+    def tree_sum_weights(self) -> tuple:
+        """``joint_support``, ``descendants`` and ``own_dofs`` as float matrices ``(nj, nv)``, ``(nj, nj)``,
+        ``(nj, nv)``: tree sums as matrix products (:func:`multibody.lanes.tree_sum`)."""
+        return tuple(_frozen(mask, float) for mask in (self.joint_support, self.descendants, self.own_dofs))
+
+    @cached_property
     def dof_same_joint(self) -> np.ndarray:
         """``(nv, nv)`` boolean: coordinates k and l belong to the same joint."""
         return _frozen(self.dof_joint[:, None] == self.dof_joint[None, :], bool)
