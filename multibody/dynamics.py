@@ -22,7 +22,7 @@ import math
 import numpy as np
 
 from . import lanes, spatial
-from .kinematics import joint_velocities, motion_subspaces, world_poses
+from .kinematics import _in_blocks, _support_sums, _velocities, joint_velocities, motion_subspaces, world_poses
 from .spatial import matvec, motion_cross, transpose
 
 
@@ -57,29 +57,6 @@ def _tree(model, q):
     return R_WJ, p_WJ, motion_subspaces(model, R_WJ, p_WJ), lanes.world_inertias(*model.inertia_parameters, R_WJ, p_WJ)
 
 
-def _velocities(model, xi, v):
-    """World velocities ``V_j = Σ_{k ⪯ j} ξ_k v_k`` ``(nj, 6, N)`` and the column rates times speeds,
-    ``ξ̇_k v_k = V_j(k) × ξ_k v_k`` ``(nv, 6, N)`` (RBDA eq. 2.37; a column moves with its own joint)."""
-    xi_v = xi * v[:, None, :]
-    V = _support_sums(model, xi_v)
-    return V, lanes.motion_cross(V if model.one_dof_per_joint else V[model.dof_joint], xi_v)
-
-
-def _support_sums(model, x):
-    """``y_j = Σ_{k ⪯ j} x_k``, the sum over the coordinates that move joint j: ``x (nv, ...) -> (nj, ...)``.
-
-    The forward pass of a recursion such as ``v_i = v_λ(i) + ξ_i q̇_i``: one matrix product for small
-    arrays, else level by level.
-    """
-    support, _, own = model.tree_sum_weights
-    if lanes.small_tree_sum(support, x):
-        return lanes.tree_sum(support, x)
-    y = x.copy() if model.one_dof_per_joint else lanes.tree_sum(own, x)
-    for index, parents in model.levels[1:]:
-        y[index] += y[parents]
-    return y
-
-
 def _subtree_sums(model, x):
     """``y_i = Σ_{j in subtree(i)} x_j``: ``x (nj, ...) -> (nj, ...)``.
 
@@ -99,32 +76,6 @@ def _world_tree(model, q):
     """:func:`_tree` with leading batch axes, for the Lagrangian assemblies: ``R_WJ (..., nj, 3, 3)``,
     ``p_WJ (..., nj, 3)``, ``ξ (..., nv, 6)``, inertias ``(..., nj, 6, 6)``."""
     return _in_blocks(model, lambda q: _tree(model, q), q.shape[:-1], (q, 1))
-
-
-def _in_blocks(model, kernel, batch, *arrays, block=None):
-    """Run a lane algorithm on arrays with leading batch axes, a block of states at a time.
-
-    ``arrays`` are ``(x, k)`` pairs (``x (..., *c)`` with ``k`` component axes) or ``None``; each is
-    put on lanes and ``kernel(*lane arrays)`` returns a lane array ``(*c, n)`` or a tuple of them,
-    given back as ``batch + c``. Blocks of ``model.lane_block`` states (or ``block``) keep the
-    temporaries small enough to stay in cache and out of the operating system's page allocator,
-    which costs more than the arithmetic for large batches.
-    """
-    lane_arrays = [None if x is None else lanes.to_lanes(x[0], x[1], batch) for x in arrays]
-    n, size = math.prod(batch), block or model.lane_block
-    if n <= size:
-        result = kernel(*lane_arrays)
-        return tuple(_from_lanes(x, batch) for x in result) if isinstance(result, tuple) else _from_lanes(result, batch)
-    out = None
-    for start in range(0, n, size):
-        part = kernel(*(x if x is None or x.shape[-1] == 1 else x[..., start : start + size] for x in lane_arrays))
-        parts = part if isinstance(part, tuple) else (part,)
-        if out is None:
-            out = [np.empty((n,) + x.shape[:-1]) for x in parts]
-        for target, x in zip(out, parts):
-            target[start : start + size] = np.moveaxis(x, -1, 0)
-    out = [x.reshape(batch + x.shape[1:]) for x in out]
-    return tuple(out) if isinstance(part, tuple) else out[0]
 
 
 # ============================================================================= RNEA
@@ -150,13 +101,6 @@ def _rnea(model, q, v, a, f_ext, batch):
         return lanes.dot(xi, F_subtree if model.one_dof_per_joint else F_subtree[model.dof_joint])
 
     return _in_blocks(model, kernel, batch, (q, 1), (v, 1), (a, 1), None if f_ext is None else (f_ext, 2))
-
-
-def _from_lanes(x, batch):
-    """A lane result ``(*c, N)`` with the common batch shape (one lane broadcasts to all states)."""
-    if x.shape[-1] == 1 and batch != ():
-        x = np.broadcast_to(x, x.shape[:-1] + (int(np.prod(batch)),))
-    return lanes.from_lanes(x, batch)
 
 
 def _rnea_forces(model, q, v, a, f_ext):

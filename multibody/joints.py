@@ -132,11 +132,10 @@ class Joint:
     @staticmethod
     def _placed(X_T, R_J, p_J):
         """``X_T X_J = [R_T R_J | R_T p_J + p_T]`` on lanes, from a type's joint transform ``(R_J, p_J)``."""
-        n = max(R_J.shape[-1], p_J.shape[-1])
-        X_J = np.concatenate([np.broadcast_to(R_J, R_J.shape[:-1] + (n,)),
-                              np.broadcast_to(p_J[:, :, None], p_J.shape[:2] + (1, n))], axis=-2)
-        X = lanes.matmul(X_T[:, :, :3], X_J)
-        X[:, :, 3] += X_T[:, :, 3]
+        R_T = X_T[:, :, :3]
+        R, p = lanes.matmul(R_T, R_J), lanes.matvec(R_T, p_J) + X_T[:, :, 3]
+        X = np.empty(R.shape[:2] + (4, max(R.shape[-1], p.shape[-1])))
+        X[:, :, :3], X[:, :, 3] = R, p
         return X
 
     def integrate(self, q, v):

@@ -8,6 +8,8 @@ of the body point that currently coincides with the world origin). Velocities of
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from . import lanes, spatial
@@ -55,6 +57,62 @@ def motion_subspaces(model, R_WJ, p_WJ):
     columns = lanes.matmul(R_WJ, model.subspace_columns)
     angular = columns[:, :, 1]
     return np.concatenate([columns[:, :, 0] + lanes.cross(p_WJ, angular), angular], axis=-2)
+
+
+def _velocities(model, xi, v):
+    """World velocities ``V_j = Σ_{k ⪯ j} ξ_k v_k`` ``(nj, 6, N)`` and the column rates times speeds,
+    ``ξ̇_k v_k = V_j(k) × ξ_k v_k`` ``(nv, 6, N)`` (RBDA eq. 2.37; a column moves with its own joint)."""
+    xi_v = xi * v[:, None, :]
+    V = _support_sums(model, xi_v)
+    return V, lanes.motion_cross(V if model.one_dof_per_joint else V[model.dof_joint], xi_v)
+
+
+def _support_sums(model, x):
+    """``y_j = Σ_{k ⪯ j} x_k``, the sum over the coordinates that move joint j: ``x (nv, ...) -> (nj, ...)``.
+
+    The forward pass of a recursion such as ``v_i = v_λ(i) + ξ_i q̇_i``: one matrix product for small
+    arrays, else level by level.
+    """
+    support, _, own = model.tree_sum_weights
+    if lanes.small_tree_sum(support, x):
+        return lanes.tree_sum(support, x)
+    y = x.copy() if model.one_dof_per_joint else lanes.tree_sum(own, x)
+    for index, parents in model.levels[1:]:
+        y[index] += y[parents]
+    return y
+
+
+def _in_blocks(model, kernel, batch, *arrays, block=None):
+    """Run a lane algorithm on arrays with leading batch axes, a block of states at a time.
+
+    ``arrays`` are ``(x, k)`` pairs (``x (..., *c)`` with ``k`` component axes) or ``None``; each is
+    put on lanes and ``kernel(*lane arrays)`` returns a lane array ``(*c, n)`` or a tuple of them,
+    given back as ``batch + c``. Blocks of ``model.lane_block`` states (or ``block``) keep the
+    temporaries small enough to stay in cache and out of the operating system's page allocator,
+    which costs more than the arithmetic for large batches.
+    """
+    lane_arrays = [None if x is None else lanes.to_lanes(x[0], x[1], batch) for x in arrays]
+    n, size = math.prod(batch), block or model.lane_block
+    if n <= size:
+        result = kernel(*lane_arrays)
+        return tuple(_from_lanes(x, batch) for x in result) if isinstance(result, tuple) else _from_lanes(result, batch)
+    out = None
+    for start in range(0, n, size):
+        part = kernel(*(x if x is None or x.shape[-1] == 1 else x[..., start : start + size] for x in lane_arrays))
+        parts = part if isinstance(part, tuple) else (part,)
+        if out is None:
+            out = [np.empty((n,) + x.shape[:-1]) for x in parts]
+        for target, x in zip(out, parts):
+            target[start : start + size] = np.moveaxis(x, -1, 0)
+    out = [x.reshape(batch + x.shape[1:]) for x in out]
+    return tuple(out) if isinstance(part, tuple) else out[0]
+
+
+def _from_lanes(x, batch):
+    """A lane result ``(*c, N)`` with the common batch shape (one lane broadcasts to all states)."""
+    if x.shape[-1] == 1 and batch != ():
+        x = np.broadcast_to(x, x.shape[:-1] + (int(np.prod(batch)),))
+    return lanes.from_lanes(x, batch)
 
 
 def joint_world_poses(model, q):
@@ -129,10 +187,47 @@ def jacobian(model, q, body, point=None):
     Pinocchio counterpart: ``getFrameJacobian(..., LOCAL_WORLD_ALIGNED)``.
     """
     q = model.check_configuration(q)
-    b, R_WJ, p_WJ, R_WB, p_WB = _body_pose(model, q, body)
-    x = _point_in_world(model, R_WB, p_WB, point)
-    xi = world_motion_subspaces(model, R_WJ, p_WJ)
-    return _point_columns(xi, x, model.body_support[b])
+    b = model.body_index(body)
+    point = np.zeros(3) if point is None else np.asarray(point, dtype=float)
+    if point.shape[-1:] != (3,):
+        raise ValueError(f"point must have shape (..., 3), got {point.shape}")
+    batch = np.broadcast_shapes(q.shape[:-1], point.shape[:-1])
+    if model.body_joints[b] < 0:
+        return np.zeros(batch + (6, model.nv))
+    R_JB, p_JB = model.body_placements[b, :3, :3], model.body_placements[b, :3, 3]
+    return _in_blocks(model, lambda q, p_BF: _frame_on_lanes(model, b, R_JB, p_JB, p_BF, q)[2], batch,
+                      (q, 1), (point, 1))
+
+
+def _frame_on_lanes(model, b, R_JF, p_JB, p_BF, q, v=None):
+    """Pose, Jacobian and ``J̇ v`` of a frame F fixed in the moving body ``b``, on lanes.
+
+    F sits at ``p_JF = p_JB + R_JB p_BF`` in the body's joint frame with orientation ``R_JF``;
+    ``p_BF (3, N)`` may vary per state. Returns ``R_WF (3, 3, N)``, ``p_WF (3, N)``, the world-aligned
+    Jacobian of F's origin ``(6, nv, N)`` and, given ``v (nv, N)``, ``J̇ v (6, N)``.
+    """
+    R_WJ, p_WJ = world_poses(model, q)
+    xi = motion_subspaces(model, R_WJ, p_WJ)
+    j = model.body_joints[b]
+    R_WF = lanes.matmul(R_WJ[j], R_JF[:, :, None])
+    R_JB = model.body_placements[b, :3, :3, None]
+    p_WF = lanes.matvec(R_WJ[j], p_JB[:, None] + lanes.matvec(R_JB, p_BF)) + p_WJ[j]
+    support = model.tree_sum_weights[0][j]  # (nv,) float: the coordinates that move the body
+    # Column k at the point x: [v_k + ω_k × x; ω_k]
+    angular = xi[:, 3:]
+    linear = xi[:, :3] + lanes.cross(angular, p_WF)
+    # (points may vary per state where the configuration does not)
+    J = np.concatenate([linear, np.broadcast_to(angular, linear.shape)], axis=-2) * support[:, None, None]
+    if v is None:
+        return R_WF, p_WF, lanes.transpose(J)
+    # The body's velocity V_b and velocity-product acceleration A_b = Σ_k ξ̇_k v_k (world Plücker), then
+    # the classical acceleration of x at a = 0: a_O + α × x + ω × ẋ with ẋ = v_O + ω × x.
+    V, xi_dot_v = _velocities(model, xi, v)
+    A_b = lanes.tree_sum(support[None], xi_dot_v)[0]
+    omega = V[j, 3:]
+    x_dot = V[j, :3] + lanes.cross(omega, p_WF)
+    linear = A_b[:3] + lanes.cross(A_b[3:], p_WF) + lanes.cross(omega, x_dot)
+    return R_WF, p_WF, lanes.transpose(J), np.concatenate([linear, A_b[3:]], axis=-2)
 
 
 def joint_velocities(model, xi, v):
@@ -188,13 +283,15 @@ def frame_kinematics(model, q, v, body, placement=None):
         R = np.broadcast_to(X_BF[:3, :3], batch + (3, 3))
         p = np.broadcast_to(X_BF[:3, 3], batch + (3,))
         return R, p, np.zeros(batch + (6, model.nv)), np.zeros(batch + (6,))
-    b, R_WJ, p_WJ, R_WB, p_WB = _body_pose(model, q, body)
-    R_WF, p_WF = spatial.compose(R_WB, p_WB, X_BF[:3, :3], X_BF[:3, 3])
-    xi = world_motion_subspaces(model, R_WJ, p_WJ)
-    J = _point_columns(xi, p_WF, model.body_support[b])
-    J_dot = _point_jacobian_rate(model, xi, v, b, p_WF)
-    return (np.broadcast_to(R_WF, batch + (3, 3)), np.broadcast_to(p_WF, batch + (3,)),
-            np.broadcast_to(J, batch + (6, model.nv)), matvec(J_dot, v))
+    b = model.body_index(body)
+    if model.body_joints[b] < 0:
+        # A body fixed to the world: its placement is its world pose.
+        X_WF = model.body_placements[b] @ X_BF
+        return (np.broadcast_to(X_WF[:3, :3], batch + (3, 3)), np.broadcast_to(X_WF[:3, 3], batch + (3,)),
+                np.zeros(batch + (6, model.nv)), np.zeros(batch + (6,)))
+    R_JF = model.body_placements[b, :3, :3] @ X_BF[:3, :3]
+    return _in_blocks(model, lambda q, v: _frame_on_lanes(model, b, R_JF, model.body_placements[b, :3, 3],
+                                                          X_BF[:3, 3, None], q, v), batch, (q, 1), (v, 1))
 
 
 def point_velocity(model, q, v, body, point=None):

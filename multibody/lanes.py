@@ -103,6 +103,9 @@ _SKEW_INDEX = np.array([0, 2, 1, 2, 0, 0, 1, 0, 0])
 _SKEW_SIGN = np.array([0.0, -1.0, 1.0, 1.0, 0.0, -1.0, -1.0, 1.0, 0.0])[:, None]
 
 
+_IDENTITY = np.eye(3)[:, :, None]  # the 3×3 identity as a lane constant
+
+
 def skew(w):
     """Cross-product matrix ``[w]×`` on lanes: ``(..., 3, N) -> (..., 3, 3, N)``."""
     return (w.take(_SKEW_INDEX, axis=-2) * _SKEW_SIGN).reshape(w.shape[:-2] + (3, 3, w.shape[-1]))
@@ -117,24 +120,55 @@ def quat_to_rotation(quat):
     u, w = quat[..., :3, :], quat[..., 3:, :]
     scale = 2.0 / dot(quat, quat)[..., None, None, :]
     R = scale * (w[..., None, :] * skew(u) + u[..., :, None, :] * u[..., None, :, :])
-    R[..., [0, 1, 2], [0, 1, 2], :] += 1.0 - scale[..., 0, :] * dot(u, u)[..., None, :]
-    return R
+    return R + _IDENTITY * (1.0 - scale * dot(u, u)[..., None, None, :])
 
 
 # ----------------------------------------------------------------------------- spatial vectors
 
+# A spatial cross product as products of gathered components: rows [t₁; t₂; t₃; t₄] of six each, the
+# result (t₁ − t₂) + (t₃ − t₄). Motion vectors: [v; ω] × [v'; ω'] = [ω × v' + v × ω'; ω × ω'];
+# force vectors: [v; ω] ×* [f; n] = [ω × f; ω × n + v × f]. Rows with a single cross repeat one
+# product in t₃ and t₄, whose difference is exactly zero.
+def _cross_terms(first, second):
+    """Index arrays of ``x × y`` with ``x``, ``y`` the 3-vectors starting at ``first`` and ``second``:
+    the positions of ``x_{i+1}, y_{i+2}`` and of ``x_{i+2}, y_{i+1}`` in the operands."""
+    return ((first + _CROSS_LEFT[:3], second + _CROSS_RIGHT[:3]),
+            (first + _CROSS_LEFT[3:], second + _CROSS_RIGHT[3:]))
+
+
+def _spatial_cross_indices(rows):
+    """Left and right gather indices ``(24,)`` of a spatial cross product given, for each half
+    ``[linear, angular]``, its two cross products as ``(first, second)`` starts (the second may be None)."""
+    left, right = [[] for _ in range(4)], [[] for _ in range(4)]
+    for pair in rows:
+        (a, b), (c, d) = _cross_terms(*pair[0])
+        (e, f), (g, h) = _cross_terms(*pair[1]) if pair[1] else ((a, b), (a, b))
+        for k, (x, y) in enumerate(((a, b), (c, d), (e, f), (g, h))):
+            left[k].append(x)
+            right[k].append(y)
+    return np.concatenate([np.concatenate(x) for x in left]), np.concatenate([np.concatenate(x) for x in right])
+
+
+_MOTION_CROSS = _spatial_cross_indices((((3, 0), (0, 3)), ((3, 3), None)))
+_FORCE_CROSS = _spatial_cross_indices((((3, 0), None), ((3, 3), (0, 0))))
+
+
+def _spatial_cross(indices, m, x):
+    left, right = indices
+    t = m.take(left, axis=-2) * x.take(right, axis=-2)
+    return (t[..., 0:6, :] - t[..., 6:12, :]) + (t[..., 12:18, :] - t[..., 18:24, :])
+
+
 def motion_cross(m1, m2):
     """Spatial motion cross product ``m1 × m2`` on lanes (RBDA eq. 2.31). ``(..., 6, N)`` each."""
-    v1, w1, v2, w2 = m1[..., :3, :], m1[..., 3:, :], m2[..., :3, :], m2[..., 3:, :]
     # [v1; ω1] × [v2; ω2] = [ω1 × v2 + v1 × ω2; ω1 × ω2]
-    return np.concatenate([cross(w1, v2) + cross(v1, w2), cross(w1, w2)], axis=-2)
+    return _spatial_cross(_MOTION_CROSS, m1, m2)
 
 
 def force_cross(m, f):
     """Spatial force cross product ``m ×* f`` on lanes (RBDA eq. 2.32). ``(..., 6, N)`` each."""
-    v, w, linear, angular = m[..., :3, :], m[..., 3:, :], f[..., :3, :], f[..., 3:, :]
     # [v; ω] ×* [f; n] = [ω × f; ω × n + v × f]
-    return np.concatenate([cross(w, linear), cross(w, angular) + cross(v, linear)], axis=-2)
+    return _spatial_cross(_FORCE_CROSS, m, f)
 
 
 # ----------------------------------------------------------------------------- spatial inertia
@@ -161,8 +195,6 @@ def world_inertias(mass, first_moment, rotational, R_WJ, p_WJ):
     out[:, 3:, 3:] = rotational_O
     return out
 
-
-_IDENTITY = np.eye(3)[:, :, None]
 
 
 def transform_force(R_AB, p_AB, f_B):
