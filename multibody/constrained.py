@@ -256,7 +256,7 @@ class ConstrainedSystem:
         mismatch = np.abs(rhs - matvec(G, lam))
         scale = np.maximum(np.abs(rhs).max(axis=-1), 1.0)
         bad = mismatch.max(axis=-1) > 1e-8 * scale
-        if np.any(bad):
+        if bad.any():
             state = np.unravel_index(int(np.argmax(bad)), bad.shape) if bad.ndim else ()
             worst = int(np.argmax(mismatch[state]))
             rank = int(keep[state].sum())

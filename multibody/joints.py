@@ -62,12 +62,13 @@ def _constant(array):
 
 
 def _require_unit_norm(values, joint_name, what):
-    norms = np.linalg.norm(values, axis=-1)
-    bad = np.abs(norms - 1.0) > UNIT_NORM_TOLERANCE
-    if np.any(bad):
+    # |‖x‖ − 1| > tol  ⟺  ‖x‖² outside [(1 − tol)², (1 + tol)²]; squared norms avoid a square root per state.
+    squared = np.einsum("...i,...i->...", values, values)
+    bad = (squared < (1.0 - UNIT_NORM_TOLERANCE) ** 2) | (squared > (1.0 + UNIT_NORM_TOLERANCE) ** 2)
+    if bad.any():
         raise ValueError(
             f"joint {joint_name!r}: {what} must have unit norm (tolerance {UNIT_NORM_TOLERANCE:g}), "
-            f"got norm {norms[bad].flat[0]:.9g}; normalise it or use model.normalize(q)"
+            f"got norm {np.sqrt(squared[bad].flat[0]):.9g}; normalise it or use model.normalize(q)"
         )
 
 
@@ -115,8 +116,15 @@ class Joint:
         """Constants that :meth:`group_transform` needs for ``joints`` of this type with tree
         transforms ``placements (n, 4, 4)`` (pose of each pre-joint frame in its parent joint frame).
 
-        The base version holds the placements as lane constants ``X_T = [R_T | p_T] (n, 3, 4, 1)``.
+        The base version holds the placements as lane constants ``X_T = [R_T | p_T] (n, 3, 4, 1)``,
+        or ``None`` when they are all the identity (a free-flyer base, say), for :meth:`_placed`.
         """
+        X_T = Joint._tree_transforms(placements)
+        return None if np.array_equal(X_T[..., 0], np.broadcast_to(np.eye(4)[:3], X_T.shape[:-1])) else X_T
+
+    @staticmethod
+    def _tree_transforms(placements):
+        """``X_T = [R_T | p_T] (n, 3, 4, 1)`` from ``placements (n, 4, 4)``."""
         return np.asarray(placements, dtype=float)[:, :3, :, None]
 
     @staticmethod
@@ -131,9 +139,13 @@ class Joint:
 
     @staticmethod
     def _placed(X_T, R_J, p_J):
-        """``X_T X_J = [R_T R_J | R_T p_J + p_T]`` on lanes, from a type's joint transform ``(R_J, p_J)``."""
-        R_T = X_T[:, :, :3]
-        R, p = lanes.matmul(R_T, R_J), lanes.matvec(R_T, p_J) + X_T[:, :, 3]
+        """``X_T X_J = [R_T R_J | R_T p_J + p_T]`` on lanes, from a type's joint transform ``(R_J, p_J)``
+        (``X_T`` from :meth:`group_constants`; ``None`` for identity placements)."""
+        if X_T is None:
+            R, p = R_J, p_J
+        else:
+            R_T = X_T[:, :, :3]
+            R, p = lanes.matmul(R_T, R_J), lanes.matvec(R_T, p_J) + X_T[:, :, 3]
         X = np.empty(R.shape[:2] + (4, max(R.shape[-1], p.shape[-1])))
         X[:, :, :3], X[:, :, 3] = R, p
         return X
@@ -187,7 +199,7 @@ class Revolute(Joint):
 
     @classmethod
     def group_constants(cls, joints, placements):
-        X_T = Joint.group_constants(joints, placements)
+        X_T = Joint._tree_transforms(placements)
         K = spatial.skew(np.stack([joint.axis for joint in joints]))[..., None]
         R_T_K = np.zeros_like(X_T)
         R_T_K[:, :, :3] = lanes.matmul(X_T[:, :, :3], K)
@@ -232,7 +244,7 @@ class Prismatic(Joint):
 
     @classmethod
     def group_constants(cls, joints, placements):
-        X_T = Joint.group_constants(joints, placements)
+        X_T = Joint._tree_transforms(placements)
         R_T_axis = np.zeros_like(X_T)
         R_T_axis[:, :, 3] = lanes.matvec(X_T[:, :, :3], np.stack([joint.axis for joint in joints])[..., None])
         return X_T, R_T_axis
@@ -259,7 +271,7 @@ class Translation(Joint):
     @classmethod
     def group_transform(cls, X_T, q):
         # R = R_T, p = p_T + R_T q
-        return cls._placed(X_T, np.broadcast_to(np.eye(3)[..., None], X_T.shape[:1] + (3, 3, 1)), q)
+        return cls._placed(X_T, np.broadcast_to(np.eye(3)[..., None], q.shape[:1] + (3, 3, 1)), q)
 
 
 @dataclass(frozen=True, eq=False)

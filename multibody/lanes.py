@@ -32,11 +32,12 @@ import numpy as np
 def to_lanes(x, components=1, batch=None):
     """``x (..., *c)`` -> ``(*c, N)``: the last ``components`` axes kept, the batch axes flattened into N.
 
-    With ``batch`` given, an ``x`` without batch axes keeps a single lane (it broadcasts against
-    the others); any other ``x`` is first broadcast to ``batch``.
+    With ``batch`` given, an ``x`` of a single state (no batch axes, or axes of length one) keeps a
+    single lane, which broadcasts against the others, so that what is common to all states is
+    computed once; any other ``x`` is first broadcast to ``batch``.
     """
     shape = x.shape[x.ndim - components:]
-    if x.ndim == components:
+    if x.size == math.prod(shape):
         return x.reshape(shape + (1,))
     if batch is not None and x.shape[:-components] != batch:
         x = np.broadcast_to(x, batch + shape)

@@ -33,9 +33,11 @@ def test_to_lanes_and_back_round_trip_with_batch_axes():
     assert_allclose(lanes.from_lanes(lane, (2, 3)), x)
 
 
-def test_to_lanes_keeps_one_lane_for_an_unbatched_array_and_broadcasts_others():
+def test_to_lanes_keeps_one_lane_for_a_single_state_and_broadcasts_others():
     assert lanes.to_lanes(np.arange(3.0), 1, (5,)).shape == (3, 1)
-    assert_allclose(lanes.to_lanes(np.ones((1, 3)), 1, (4,)), np.ones((3, 4)))
+    assert lanes.to_lanes(np.ones((1, 1, 3)), 1, (4, 2)).shape == (3, 1)
+    x = np.arange(6.0).reshape(1, 2, 3)
+    assert_allclose(lanes.to_lanes(x, 1, (4, 2)), np.tile(x[0].T, (1, 4)))
 
 
 @pytest.mark.parametrize("name, ours, theirs, shapes", [
