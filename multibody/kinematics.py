@@ -96,6 +96,7 @@ def _in_blocks(model, kernel, batch, *arrays, block=None):
     if n <= size:
         result = kernel(*lane_arrays)
         return tuple(_from_lanes(x, batch) for x in result) if isinstance(result, tuple) else _from_lanes(result, batch)
+    _raise_allocator_thresholds()
     out = None
     for start in range(0, n, size):
         part = kernel(*(x if x is None or x.shape[-1] == 1 else x[..., start : start + size] for x in lane_arrays))
@@ -106,6 +107,21 @@ def _in_blocks(model, kernel, batch, *arrays, block=None):
             target[start : start + size] = np.moveaxis(x, -1, 0)
     out = [x.reshape(batch + x.shape[1:]) for x in out]
     return tuple(out) if isinstance(part, tuple) else out[0]
+
+
+def _raise_allocator_thresholds():
+    """Let the temporaries of consecutive lane blocks reuse memory instead of page-faulting anew.
+
+    glibc's malloc serves blocks above its mmap threshold by ``mmap`` and returns heap memory above
+    its trim threshold to the operating system on every ``free``; both thresholds rise when a block
+    served by ``mmap`` is freed, to its size and twice that (mallopt(3), ``M_MMAP_THRESHOLD``).
+    Until something in the process has freed a large array, a block's few MB of temporaries are
+    thus given back and faulted in again for the next block, which costs more than their
+    arithmetic (Panda RNEA at 4096 states: about 2 page faults and 2–3× the time per state).
+    Allocating and freeing one untouched 16 MB array (below glibc's 32 MB ceiling for the
+    adjustment) puts the thresholds where it would settle anyway; elsewhere it costs nothing.
+    """
+    np.empty(2**21)
 
 
 def _from_lanes(x, batch):
