@@ -220,30 +220,38 @@ def coriolis_matrix(model, q, v, method="recursive"):
     raise ValueError(f"method must be 'recursive' or 'lagrangian', got {method!r}")
 
 
-def _bar_force_cross_matrix(f):
-    """6×6 matrix of ``m ↦ m ×* f`` for a fixed force ``f = [f; n]``: ``[[0, −[f]×], [−[f]×, −[n]×]]``."""
-    F, N = spatial.skew(f[..., :3]), spatial.skew(f[..., 3:])
-    out = np.zeros(f.shape[:-1] + (6, 6))
-    out[..., :3, 3:] = -F
-    out[..., 3:, :3] = -F
-    out[..., 3:, 3:] = -N
-    return out
-
-
 def _coriolis_recursive(model, q, v):
-    _, _, xi, inertias = _world_tree(model, q)
-    # J̇ column k: ξ̇_k = V_j(k) × ξ_k, the column moves with its own joint.
-    V = joint_velocities(model, xi, v)
-    xi_dot = motion_cross(V[..., model.dof_joint, :], xi)
-    support = model.joint_support[:, None, :]
-    jacobians = transpose(xi)[..., None, :, :] * support
-    jacobian_rates = transpose(xi_dot)[..., None, :, :] * support
-    # B_i = ½ [(V_i×*) I_i + (I_i V_i)×̄* − I_i (V_i×)]
-    momentum = matvec(inertias, V)
-    B = 0.5 * (spatial.force_cross_matrix(V) @ inertias + _bar_force_cross_matrix(momentum)
-               - inertias @ spatial.motion_cross_matrix(V))
-    # C = Σ_i J_iᵀ (I_i J̇_i + B_i J_i)
-    return np.einsum("...ick,...icl->...kl", jacobians, inertias @ jacobian_rates + B @ jacobians, optimize=True)
+    return _in_blocks(model, lambda q, v: _coriolis_on_lanes(model, q, v), np.broadcast_shapes(q.shape[:-1], v.shape[:-1]),
+                      (q, 1), (v, 1))
+
+
+def _coriolis_on_lanes(model, q, v):
+    """``C = Σᵢ Jᵢᵀ (Iᵢ J̇ᵢ + Bᵢ Jᵢ)`` on lanes, summed over bodies by composites: ``-> (nv, nv, N)``.
+
+    Column l of ``Jᵢ`` is ``ξ_l`` when l's joint supports body i, so the bodies that both k and l
+    move are the subtree of the deeper of their joints, and (as in Pinocchio's
+    ``computeCoriolisMatrix``) ``C_kl = ξ_kᵀ (I^c_j ξ̇_l + B^c_j ξ_l)`` with ``j`` that joint and
+    ``I^c``, ``B^c`` subtree sums of ``Iᵢ`` and ``Bᵢ``; zero when neither joint supports the other.
+    """
+    _, _, xi, inertia = _tree(model, q)
+    V, _ = _velocities(model, xi, v)
+    # B_i = ½ [(V×*) I − I (V×) + (I V)×̄*] = ½ [(I V)×̄* − K − Kᵀ] with K = I (V×), as (V×*) = −(V×)ᵀ
+    K = lanes.matmul(inertia, lanes.motion_cross_matrix(V))
+    B = 0.5 * (lanes.bar_force_cross_matrix(lanes.matvec(inertia, V)) - K - lanes.transpose(K))
+    composite = _subtree_sums(model, lanes.concatenate([inertia, B], axis=1))  # [I^c; B^c] (nj, 12, 6, N)
+    if not model.one_dof_per_joint:
+        composite, V = composite[model.dof_joint], V[model.dof_joint]
+    I_c, B_c = composite[:, :6], composite[:, 6:]
+    # ξ̇_l = V_j(l) × ξ_l (the column moves with its own joint)
+    xi_dot = lanes.motion_cross(V, xi)
+    # l's joint supports k's: C_kl = (I^c_j(k) ξ_k)ᵀ ξ̇_l + (B^c_j(k)ᵀ ξ_k)ᵀ ξ_l
+    rows = lanes.concatenate([lanes.matvec(I_c, xi), lanes.matvec(lanes.transpose(B_c), xi)], axis=-2)
+    below = np.einsum("kcn,lcn->kln", rows, lanes.concatenate([xi_dot, xi], axis=-2))
+    # k's joint strictly supports l's: C_kl = ξ_kᵀ (I^c_j(l) ξ̇_l + B^c_j(l) ξ_l)
+    columns = lanes.matvec(I_c, xi_dot) + lanes.matvec(B_c, xi)
+    above = np.einsum("kcn,lcn->kln", xi, columns)
+    return np.where(model.dof_ancestor.T[:, :, None], below,
+                    np.where((model.dof_ancestor & ~model.dof_same_joint)[:, :, None], above, 0.0))
 
 
 def _coriolis_christoffel(model, q, v):

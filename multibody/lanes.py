@@ -53,6 +53,12 @@ def from_lanes(x, batch):
     return np.ascontiguousarray(moved).reshape(batch + moved.shape[1:])
 
 
+def concatenate(arrays, axis):
+    """``np.concatenate`` of lane arrays along a component ``axis``, a single lane broadcast to the others."""
+    n = max(x.shape[-1] for x in arrays)
+    return np.concatenate([x if x.shape[-1] == n else np.broadcast_to(x, x.shape[:-1] + (n,)) for x in arrays], axis=axis)
+
+
 # ----------------------------------------------------------------------------- 3-D algebra
 
 # np.einsum runs these small contractions in compiled loops over the lanes; on lanes it is about
@@ -110,6 +116,37 @@ _IDENTITY = np.eye(3)[:, :, None]  # the 3×3 identity as a lane constant
 def skew(w):
     """Cross-product matrix ``[w]×`` on lanes: ``(..., 3, N) -> (..., 3, 3, N)``."""
     return (w.take(_SKEW_INDEX, axis=-2) * _SKEW_SIGN).reshape(w.shape[:-2] + (3, 3, w.shape[-1]))
+
+
+def _block_skew_table(blocks):
+    """Gather index and sign ``(36,)`` that fill a 6×6 matrix from a 6-vector, given its 3×3 blocks as
+    ``{(row block, column block): (first component, sign)}``: ``sign [x[first:first+3]]×`` each."""
+    index, sign = np.zeros((6, 6), dtype=int), np.zeros((6, 6))
+    for (row, column), (first, factor) in blocks.items():
+        index[3 * row : 3 * row + 3, 3 * column : 3 * column + 3] = first + _SKEW_INDEX.reshape(3, 3)
+        sign[3 * row : 3 * row + 3, 3 * column : 3 * column + 3] = factor * _SKEW_SIGN.reshape(3, 3)
+    return index.ravel(), sign.reshape(36, 1)
+
+
+# m × = [[ω×, v×], [0, ω×]] for m = [v; ω] (RBDA eq. 2.31); for a force f = [f; n], the matrix of the
+# map m ↦ m ×* f is [[0, −f×], [−f×, −n×]].
+_MOTION_CROSS_MATRIX = _block_skew_table({(0, 0): (3, 1.0), (0, 1): (0, 1.0), (1, 1): (3, 1.0)})
+_BAR_FORCE_CROSS_MATRIX = _block_skew_table({(0, 1): (0, -1.0), (1, 0): (0, -1.0), (1, 1): (3, -1.0)})
+
+
+def _block_skew(table, x):
+    index, sign = table
+    return (x.take(index, axis=-2) * sign).reshape(x.shape[:-2] + (6, 6, x.shape[-1]))
+
+
+def motion_cross_matrix(m):
+    """``[m×] = [[ω×, v×], [0, ω×]]`` on lanes: ``(..., 6, N) -> (..., 6, 6, N)``; ``[m×] m' = m × m'``."""
+    return _block_skew(_MOTION_CROSS_MATRIX, m)
+
+
+def bar_force_cross_matrix(f):
+    """Matrix of ``m ↦ m ×* f`` for a fixed force ``f``, on lanes: ``(..., 6, N) -> (..., 6, 6, N)``."""
+    return _block_skew(_BAR_FORCE_CROSS_MATRIX, f)
 
 
 def quat_to_rotation(quat):
