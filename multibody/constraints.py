@@ -22,6 +22,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import kinematics, spatial
+from .model import Model
 from .spatial import matvec, transpose
 
 # Steps of the numerical derivatives: fourth-order stencils keep the truncation error near
@@ -206,8 +207,6 @@ def _neutral(system):
 
 def _require_model(system, constraint):
     """The :class:`Model` behind ``system`` (a Model or its ``ModelSystem`` adapter)."""
-    from .model import Model
-
     system = getattr(system, "model", system)
     if not isinstance(system, Model):
         raise TypeError(f"{constraint.name} refers to bodies, so it needs a multibody Model, got {type(system).__name__}")

@@ -231,9 +231,8 @@ def _frame_on_lanes(model, b, R_JF, p_JB, p_BF, q, v=None):
     support = model.tree_sum_weights[0][j]  # (nv,) float: the coordinates that move the body
     # Column k at the point x: [v_k + ω_k × x; ω_k]
     angular = xi[:, 3:]
-    linear = xi[:, :3] + lanes.cross(angular, p_WF)
-    # (points may vary per state where the configuration does not)
-    J = np.concatenate([linear, np.broadcast_to(angular, linear.shape)], axis=-2) * support[:, None, None]
+    linear = xi[:, :3] + lanes.cross(angular, p_WF)  # (points may vary per state where q does not)
+    J = lanes.concatenate([linear, angular], axis=-2) * support[:, None, None]
     if v is None:
         return R_WF, p_WF, lanes.transpose(J)
     # The body's velocity V_b and velocity-product acceleration A_b = Σ_k ξ̇_k v_k (world Plücker), then
