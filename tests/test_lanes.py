@@ -47,9 +47,14 @@ def test_to_lanes_keeps_one_lane_for_a_single_state_and_broadcasts_others():
     ("motion_cross", lanes.motion_cross, spatial.motion_cross, [(6,), (6,)]),
     ("force_cross", lanes.force_cross, spatial.force_cross, [(6,), (6,)]),
     ("dot", lanes.dot, lambda a, b: np.sum(a * b, axis=-1), [(6,), (6,)]),
+    ("motion_cross_matrix", lambda m, x: lanes.matvec(lanes.motion_cross_matrix(m), x), spatial.motion_cross,
+     [(6,), (6,)]),
+    ("bar_force_cross_matrix", lambda f, m: lanes.matvec(lanes.bar_force_cross_matrix(f), m),
+     lambda f, m: spatial.force_cross(m, f), [(6,), (6,)]),
 ])
-def test_lane_primitive_equals_spatial(name, ours, theirs, shapes):
-    args = [RNG.standard_normal((N, 2) + shape) for shape in shapes]
+@pytest.mark.parametrize("lanes_per_array", [N, 1])  # one lane: the np.matmul path
+def test_lane_primitive_equals_spatial(name, ours, theirs, shapes, lanes_per_array):
+    args = [RNG.standard_normal((lanes_per_array, 2) + shape) for shape in shapes]
     lane_args = [np.moveaxis(x, 0, -1) for x in args]  # (2, *shape, N)
     assert_allclose(np.moveaxis(ours(*lane_args), -1, 0), theirs(*args), rtol=1e-14, atol=1e-14, err_msg=name)
 
@@ -79,10 +84,29 @@ def test_world_inertias_equal_the_spatial_transform_of_the_joint_frame_inertias(
     assert_allclose(lanes.from_lanes(world, (N,)), expected, rtol=1e-13, atol=1e-13)
 
 
-def test_tree_sum_is_a_masked_sum_over_the_leading_axis():
-    mask = np.array([[True, False, True], [False, True, True]])
+def test_tree_sum_is_a_weighted_sum_over_the_leading_axis():
+    weights = np.array([[1.0, 0.0, 1.0], [0.0, 1.0, 1.0]])
     x = RNG.standard_normal((3, 2, 4))
-    assert_allclose(lanes.tree_sum(mask, x), np.stack([x[0] + x[2], x[1] + x[2]]))
+    assert_allclose(lanes.tree_sum(weights, x), np.stack([x[0] + x[2], x[1] + x[2]]))
+
+
+@pytest.mark.parametrize("lanes_per_array", [1, 4096])  # a matrix product, then level passes
+def test_support_and_subtree_sums_equal_explicit_sums_on_both_paths(lanes_per_array):
+    model = random_tree_model(4)
+    x_joints = RNG.standard_normal((model.njoints, 6, lanes_per_array))
+    x_dofs = RNG.standard_normal((model.nv, 6, lanes_per_array))
+    support, subtree, _ = model.tree_sum_weights
+    assert lanes.small_tree_sum(subtree, x_joints) == (lanes_per_array == 1)
+    expected_support = np.stack([x_dofs[model.joint_support[j]].sum(axis=0) for j in range(model.njoints)])
+    expected_subtree = np.stack([x_joints[model.descendants[j]].sum(axis=0) for j in range(model.njoints)])
+    assert_allclose(mb.kinematics._support_sums(model, x_dofs), expected_support, rtol=1e-13, atol=1e-13)
+    assert_allclose(mb.dynamics._subtree_sums(model, x_joints), expected_subtree, rtol=1e-13, atol=1e-13)
+
+
+def test_concatenate_broadcasts_a_single_lane():
+    one, many = RNG.standard_normal((2, 1)), RNG.standard_normal((3, 4))
+    joined = lanes.concatenate([one, many], axis=0)
+    assert_allclose(joined, np.concatenate([np.repeat(one, 4, axis=1), many]))
 
 
 @pytest.mark.parametrize("model_name", ["random_tree", "talos_floating"])
@@ -98,7 +122,7 @@ def test_batches_larger_than_a_block_equal_single_calls(model_name):
     f = rng.standard_normal((n, model.njoints, 6))
     picks = [0, model.lane_block - 1, model.lane_block, n - 1]
     for what, fn in dynamics_calls(model).items():
-        if what.startswith(("coriolis", "mass_matrix[lagrangian]", "mass_matrix_derivative")):
+        if what.startswith(("coriolis_matrix[lagrangian]", "mass_matrix[lagrangian]", "mass_matrix_derivative")):
             continue  # not computed on lanes
         batched = fn(q, v, a, f)
         assert batched.shape[0] == n, what
@@ -117,6 +141,9 @@ def test_one_configuration_with_a_block_sized_batch_of_velocities():
     assert a.shape == (n, model.nv)
     assert_allclose(a[-1], mb.forward_dynamics(model, q, v[-1], tau[-1]), rtol=1e-12, atol=1e-12)
     assert_allclose(mb.inverse_dynamics(model, q, v, a), tau, rtol=1e-9, atol=1e-9)
+    C = mb.coriolis_matrix(model, q, v)
+    assert C.shape == (n, model.nv, model.nv)
+    assert_allclose(C[-1], mb.coriolis_matrix(model, q, v[-1]), rtol=1e-12, atol=1e-12)
 
 
 def test_lane_block_shrinks_with_the_number_of_joints():
