@@ -417,12 +417,12 @@ class Model:
         """
         q = self.check_configuration(q)
         v = self.check_velocity(v) * dt
-        return self._per_joint(lambda joint, qi, vi: joint.integrate(qi, vi), q, v, out="q")
+        return self._per_joint("integrate", q, v, out="q")
 
     def difference(self, q0, q1) -> np.ndarray:
         """Configuration logarithm: the ``v`` with ``integrate(q0, v) = q1``. ``-> (..., nv)``."""
         q0, q1 = self.check_configuration(q0, "q0"), self.check_configuration(q1, "q1")
-        return self._per_joint(lambda joint, a, b: joint.difference(a, b), q0, q1, second="q", out="v")
+        return self._per_joint("difference", q0, q1, second="q", out="v")
 
     def configuration_rate(self, q, v) -> np.ndarray:
         """``q̇`` of a configuration moving with velocity ``v``: ``(..., nq)``.
@@ -431,7 +431,7 @@ class Model:
         positions ``R v_lin``, planar joints ``R(θ) (vx, vy)`` and ``ω (−sin θ, cos θ)``.
         """
         q, v = self.check_configuration(q), self.check_velocity(v)
-        return self._per_joint(lambda joint, qi, vi: joint.configuration_rate(qi, vi), q, v, out="q")
+        return self._per_joint("configuration_rate", q, v, out="q")
 
     def normalize(self, q) -> np.ndarray:
         """``q`` with every quaternion (and planar ``(cos θ, sin θ)`` pair) scaled to unit norm."""
@@ -440,19 +440,44 @@ class Model:
         blocks = [joint.normalize(q[..., s : s + joint.nq]) for joint, s in zip(self.joints, self.idx_q)]
         return np.concatenate(blocks, axis=-1) if blocks else q.copy()
 
-    def _per_joint(self, fn, a, b, second="v", out="q"):
-        """Apply ``fn(joint, a_block, b_block)`` joint by joint and concatenate the results."""
+    def _per_joint(self, method, a, b, second="v", out="q"):
+        """Apply the joint map ``method(a_block, b_block)`` joint by joint and assemble the result.
+
+        The joints that keep the base class's map (angles and displacements, where ``nq = nv`` and
+        the map is plain arithmetic) are handled together in one call on all their coordinates.
+        """
+        shared, others = self._vector_space_joints[method]
         idx_b = self.idx_v if second == "v" else self.idx_q
         size_b = (lambda j: j.nv) if second == "v" else (lambda j: j.nq)
-        blocks = [
-            fn(joint, a[..., sa : sa + joint.nq], b[..., sb : sb + size_b(joint)])
-            for joint, sa, sb in zip(self.joints, self.idx_q, idx_b)
-        ]
-        size = self.nq if out == "q" else self.nv
-        if not blocks:
-            return np.zeros(np.broadcast_shapes(a.shape[:-1], b.shape[:-1]) + (size,))
-        shape = np.broadcast_shapes(*(blk.shape[:-1] for blk in blocks))
-        return np.concatenate([np.broadcast_to(blk, shape + blk.shape[-1:]) for blk in blocks], axis=-1)
+        batch = np.broadcast_shapes(a.shape[:-1], b.shape[:-1])
+        result = np.empty(batch + ((self.nq if out == "q" else self.nv),))
+        if shared is not None:
+            joint, in_q, in_v = shared
+            result[..., in_q if out == "q" else in_v] = getattr(joint, method)(
+                a[..., in_q], b[..., in_v if second == "v" else in_q])
+        for i in others:
+            joint, sa, sb = self.joints[i], self.idx_q[i], idx_b[i]
+            so = self.idx_q[i] if out == "q" else self.idx_v[i]
+            block = getattr(joint, method)(a[..., sa : sa + joint.nq], b[..., sb : sb + size_b(joint)])
+            result[..., so : so + block.shape[-1]] = block
+        return result
+
+    @cached_property
+    def _vector_space_joints(self) -> dict:
+        """For each joint map of :meth:`_per_joint`: ``((a joint, their q indices, their v indices), other
+        joints)``, where the first part covers the joints that keep the base class's map."""
+        out = {}
+        for method in ("integrate", "difference", "configuration_rate"):
+            shared = [i for i, joint in enumerate(self.joints)
+                      if getattr(type(joint), method) is getattr(jt.Joint, method) and joint.nq == joint.nv]
+            others = tuple(i for i in range(self.njoints) if i not in shared)
+            if not shared:
+                out[method] = (None, others)
+                continue
+            in_q, in_v = (np.concatenate([np.arange(start[i], start[i] + self.joints[i].nq) for i in shared])
+                          for start in (self.idx_q, self.idx_v))
+            out[method] = ((self.joints[shared[0]], _index(in_q), _index(in_v)), others)
+        return out
 
     # ------------------------------------------------------------------ input checking
 
