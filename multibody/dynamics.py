@@ -183,9 +183,11 @@ def _mass_matrix_crba(model, q):
     # F_l = I^c_j(l) ξ_l ;  M_kl = ξ_kᵀ F_l when k's joint supports l's (RBDA eq. 6.14)
     F = lanes.matvec(composite if model.one_dof_per_joint else composite[model.dof_joint], xi)
     products = np.einsum("kcn,lcn->kln", xi, F)
-    upper = np.where(model.dof_ancestor[:, :, None], products, 0.0)
-    M = upper + np.swapaxes(np.where(model.dof_same_joint[:, :, None], 0.0, upper), 0, 1)
-    return 0.5 * (M + np.swapaxes(M, 0, 1))  # exactly symmetric
+    # M_kl is products[k, l] for k's joint supporting l's, mirrored below, zero off the branches: one
+    # gather (model.mass_matrix_entries) from the products and a row of zeros.
+    nv, n = products.shape[1:]
+    with_zero = np.concatenate([products.reshape(nv * nv, n), np.zeros((1, n))])
+    return with_zero[model.mass_matrix_entries]
 
 
 def _world_body_jacobians_and_inertias(model, q):

@@ -149,4 +149,4 @@ def test_one_configuration_with_a_block_sized_batch_of_velocities():
 def test_lane_block_shrinks_with_the_number_of_joints():
     small = mb.load_urdf(mb.robots.path("double_pendulum"))
     large = mb.load_urdf(erd_urdf("talos_data/robots/talos_reduced.urdf"), floating_base=True)
-    assert small.lane_block > large.lane_block >= 64
+    assert small.lane_block > large.lane_block >= 128
