@@ -31,10 +31,6 @@ class ModelSystem:
     ``normalize(q)``, ``neutral()`` and ``energy(q, v)``.
     """
 
-    #: Largest ``nv`` for which one batched RNEA call of ``nv + 2`` lanes is cheaper than CRBA + RNEA
-    #: (measured: double pendulum 2.3×, Panda (9) 1.4×, Solo-12 (18) 1.2× faster; Talos (38) 1.4× slower).
-    BATCHED_RNEA_MAX_NV = 24
-
     def __init__(self, model: Model):
         self.model = model
         self.nq, self.nv = model.nq, model.nv
@@ -43,28 +39,9 @@ class ModelSystem:
         return dynamics.mass_matrix(self.model, q)
 
     def mass_matrix_and_bias(self, q, v):
-        """``(M (..., nv, nv), h (..., nv))`` together, for one state or a batch.
-
-        Small models (``nv ≤ BATCHED_RNEA_MAX_NV``) take both from a single batched call of RNEA
-        (M. W. Walker and D. E. Orin, "Efficient dynamic computer simulation of robotic mechanisms",
-        J. Dyn. Sys., Meas., Control 104, 1982, method 1): ``h = ID(q, v, 0)``, ``g = ID(q, 0, 0)`` and
-        column ``k`` of ``M`` is ``ID(q, 0, e_k) − g``. Larger models, where CRBA's ``O(n²)`` beats
-        ``nv + 2`` RNEA passes, call CRBA and RNEA separately.
-        """
-        q, v = np.asarray(q, dtype=float), np.asarray(v, dtype=float)
-        if self.nv > self.BATCHED_RNEA_MAX_NV:
-            return dynamics.mass_matrix(self.model, q), dynamics.bias_forces(self.model, q, v)
-        batch = np.broadcast_shapes(q.shape[:-1], v.shape[:-1])
-        nv = self.nv
-        # Lane 0: (q, v, 0) → h; lane 1: (q, 0, 0) → g; lane 2 + k: (q, 0, e_k) → M e_k + g.
-        velocities = np.zeros(batch + (nv + 2, nv))
-        velocities[..., 0, :] = v
-        accelerations = np.zeros((nv + 2, nv))
-        accelerations[2:] = np.eye(nv)
-        forces = dynamics.inverse_dynamics(self.model, q[..., None, :], velocities, accelerations)
-        M = forces[..., 2:, :] - forces[..., 1:2, :]
-        # Row k of forces[2:] is column k of M; M is symmetric up to rounding, so symmetrise.
-        return 0.5 * (M + np.swapaxes(M, -1, -2)), forces[..., 0, :]
+        """``(M (..., nv, nv), h (..., nv))`` together, for one state or a batch, from one pass down the
+        tree (:func:`multibody.dynamics.mass_matrix_and_bias`)."""
+        return dynamics.mass_matrix_and_bias(self.model, q, v)
 
     def bias_forces(self, q, v):
         return dynamics.bias_forces(self.model, q, v)

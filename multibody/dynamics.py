@@ -103,9 +103,10 @@ def _rnea(model, q, v, a, f_ext, batch):
     return _in_blocks(model, kernel, batch, (q, 1), (v, 1), (a, 1), None if f_ext is None else (f_ext, 2))
 
 
-def _rnea_forces(model, q, v, a, f_ext):
-    """RNEA up to the joint forces on lanes: world poses, ``ξ``, and the force each joint transmits."""
-    R_WJ, p_WJ, xi, inertia = _tree(model, q)
+def _rnea_forces(model, q, v, a, f_ext, tree=None):
+    """RNEA up to the joint forces on lanes: world poses, ``ξ``, and the force each joint transmits.
+    ``tree`` is :func:`_tree` of ``q`` when already computed."""
+    R_WJ, p_WJ, xi, inertia = _tree(model, q) if tree is None else tree
     # Forward: v_i = v_λ + ξ_i q̇_i ;  a_i = a_λ + ξ_i q̈_i + ξ̇_i q̇_i  (summed over each support)
     V, xi_dot_v = _velocities(model, xi, v)
     A = _gravity_acceleration(model) + _support_sums(model, xi * a[:, None, :] + xi_dot_v)
@@ -175,9 +176,9 @@ def mass_matrix(model, q, method="crba"):
     raise ValueError(f"method must be 'crba' or 'lagrangian', got {method!r}")
 
 
-def _mass_matrix_crba(model, q):
-    """CRBA on lanes: ``q (nq, N) -> M (nv, nv, N)``."""
-    _, _, xi, inertia = _tree(model, q)
+def _mass_matrix_crba(model, q, tree=None):
+    """CRBA on lanes: ``q (nq, N) -> M (nv, nv, N)`` (``tree``: :func:`_tree` of ``q``, when at hand)."""
+    _, _, xi, inertia = _tree(model, q) if tree is None else tree
     # Composite inertias: in world coordinates, I^c_i is the plain sum of the subtree's inertias.
     composite = _subtree_sums(model, inertia)
     # F_l = I^c_j(l) ξ_l ;  M_kl = ξ_kᵀ F_l when k's joint supports l's (RBDA eq. 6.14)
@@ -188,6 +189,20 @@ def _mass_matrix_crba(model, q):
     nv, n = products.shape[1:]
     with_zero = np.concatenate([products.reshape(nv * nv, n), np.zeros((1, n))])
     return with_zero[model.mass_matrix_entries]
+
+
+def mass_matrix_and_bias(model, q, v):
+    """``(M(q) (..., nv, nv), h(q, v) (..., nv))`` from one pass down the tree: CRBA and RNEA at ``a = 0``
+    share the poses, ``ξ`` and world inertias (what a constrained or implicit step needs together)."""
+    q, v, *_, batch = _check(model, q, v)
+
+    def kernel(q, v):
+        tree = _tree(model, q)
+        _, _, xi, F_subtree = _rnea_forces(model, q, v, np.zeros((model.nv, 1)), None, tree)
+        h = lanes.dot(xi, F_subtree if model.one_dof_per_joint else F_subtree[model.dof_joint])
+        return _mass_matrix_crba(model, q, tree), h
+
+    return _in_blocks(model, kernel, batch, (q, 1), (v, 1))
 
 
 def _world_body_jacobians_and_inertias(model, q):

@@ -150,3 +150,23 @@ def test_lane_block_shrinks_with_the_number_of_joints():
     small = mb.load_urdf(mb.robots.path("double_pendulum"))
     large = mb.load_urdf(erd_urdf("talos_data/robots/talos_reduced.urdf"), floating_base=True)
     assert small.lane_block > large.lane_block >= 128
+
+
+@pytest.mark.parametrize("model_name", ["random_tree", "talos_floating"])
+def test_mass_matrix_and_bias_from_one_tree_pass_equal_crba_and_rnea(model_name):
+    if model_name == "random_tree":
+        model = random_tree_model(5)
+    else:
+        model = mb.load_urdf(erd_urdf("talos_data/robots/talos_reduced.urdf"), floating_base=True)
+    rng = np.random.default_rng(6)
+    n = model.lane_block + 5
+    q = model.random_configuration(rng, (n,))
+    v = rng.standard_normal((n, model.nv))
+    M, h = mb.dynamics.mass_matrix_and_bias(model, q, v)
+    assert_allclose(M, mb.mass_matrix(model, q), rtol=1e-13, atol=1e-12)
+    assert_allclose(h, mb.bias_forces(model, q, v), rtol=1e-13, atol=1e-12)
+    # one configuration, many velocities: M broadcast to every state
+    M, h = mb.dynamics.mass_matrix_and_bias(model, q[0], v[:3])
+    assert M.shape == (3, model.nv, model.nv)
+    assert_allclose(M[2], mb.mass_matrix(model, q[0]), rtol=1e-13, atol=1e-12)
+    assert_allclose(h[2], mb.bias_forces(model, q[0], v[2]), rtol=1e-13, atol=1e-12)
