@@ -384,7 +384,7 @@ class Spherical(Joint):
 
     def configuration_rate(self, q, v):
         # q̇ = ½ q ⊗ (ω, 0), ω in the joint frame
-        return 0.5 * spatial.quat_multiply(q, np.concatenate([v, np.zeros(v.shape[:-1] + (1,))], axis=-1))
+        return spatial.quat_rate(q, v)
 
     def random(self, rng, lower, upper, shape=()):
         return _random_unit_quaternion(rng, shape)
@@ -428,9 +428,8 @@ class FreeFlyer(Joint):
 
     def configuration_rate(self, q, v):
         # ṗ = R v_lin (v_lin is in the body frame);  q̇ = ½ q ⊗ (ω, 0)
-        p_dot = spatial.matvec(spatial.quat_to_rotation(q[..., 3:]), v[..., :3])
-        omega = np.concatenate([v[..., 3:], np.zeros(v.shape[:-1] + (1,))], axis=-1)
-        return np.concatenate([p_dot, 0.5 * spatial.quat_multiply(q[..., 3:], omega)], axis=-1)
+        quat = q[..., 3:]
+        return np.concatenate([spatial.quat_rotate(quat, v[..., :3]), spatial.quat_rate(quat, v[..., 3:])], axis=-1)
 
     def difference(self, q0, q1):
         R0, R1 = spatial.quat_to_rotation(q0[..., 3:]), spatial.quat_to_rotation(q1[..., 3:])

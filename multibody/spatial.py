@@ -137,6 +137,21 @@ def quat_multiply(q1, q2):
     return np.concatenate([u, w], axis=-1)
 
 
+def quat_rotate(quat, x):
+    """``R(q) x`` without forming ``R``: ``x + w t + u × t`` with ``t = 2 u × x / |q|²`` (the rotation of
+    ``q / |q|``, as :func:`quat_to_rotation`). ``(..., 4), (..., 3) -> (..., 3)``."""
+    u, w = quat[..., :3], quat[..., 3:]
+    t = (2.0 / np.sum(quat * quat, axis=-1, keepdims=True)) * cross(u, x)
+    return x + w * t + cross(u, t)
+
+
+def quat_rate(quat, omega):
+    """``q̇ = ½ q ⊗ (ω, 0)`` of a quaternion turning with body-frame angular velocity ``ω``:
+    ``½ [w ω + u × ω; −u·ω]``. ``(..., 4), (..., 3) -> (..., 4)``."""
+    u, w = quat[..., :3], quat[..., 3:]
+    return 0.5 * np.concatenate([w * omega + cross(u, omega), -np.sum(u * omega, axis=-1, keepdims=True)], axis=-1)
+
+
 def quat_conjugate(quat):
     """``[x, y, z, w] -> [−x, −y, −z, w]``."""
     quat = np.asarray(quat, dtype=float)

@@ -456,3 +456,11 @@ def test_batched_small_and_large_angles_mixed(rng):
     for k in range(4):
         assert_allclose(R[k], sp.so3_exp(w[k]), atol=1e-15)
     assert_allclose(sp.so3_log(R), w, atol=TOL)
+
+
+def test_quat_rotate_and_rate_equal_the_matrix_and_the_product(rng):
+    quat = rng.standard_normal((5, 4)) * 1.2  # not unit: rotations of q / |q|
+    x, omega = rng.standard_normal((2, 5, 3))
+    assert_allclose(sp.quat_rotate(quat, x), sp.matvec(sp.quat_to_rotation(quat), x), atol=1e-14)
+    pure = np.concatenate([omega, np.zeros((5, 1))], axis=-1)
+    assert_allclose(sp.quat_rate(quat, omega), 0.5 * sp.quat_multiply(quat, pure), atol=1e-14)
