@@ -185,12 +185,15 @@ class ConstrainedSystem:
         q, v = self._check_state(q, v)
         if not self.num_rows:
             return 0.0 if q.ndim == 1 else np.zeros(q.shape[:-1])
-        levels = [c.position_and_velocity_level(self.system, q, t) for c in self.constraints]
-        phi = self._stack([level[0] for level in levels], (0,))
-        A = self._stack([level[1] for level in levels], (0, self.nv))
-        b = self._stack([level[2] for level in levels], (0,))
+        phi, A, b = self._position_and_velocity_levels(q, t)
         worst = np.maximum(np.abs(phi).max(axis=-1), np.abs(matvec(A, v) + b).max(axis=-1))
         return float(worst) if q.ndim == 1 else worst
+
+    def _position_and_velocity_levels(self, q, t):
+        """Stacked ``(φ, A, b)``, each constraint evaluated once."""
+        levels = [c.position_and_velocity_level(self.system, q, t) for c in self.constraints]
+        return (self._stack([level[0] for level in levels], (0,)), self._stack([level[1] for level in levels], (0, self.nv)),
+                self._stack([level[2] for level in levels], (0,)))
 
     # ------------------------------------------------------------------ dynamics
 
@@ -325,16 +328,18 @@ class ConstrainedSystem:
             G_pinv = np.linalg.pinv(A @ M_inv_At, rcond=self.rank_tolerance, hermitian=True)
             return matvec(M_inv_At, matvec(G_pinv, error))
 
+        # Each pass gives φ, A and b together: A serves both the next position step and, at the end,
+        # the velocity projection.
+        phi, A, b = self._position_and_velocity_levels(q, t)
         if holonomic.any():
             for _ in range(max_iterations):
-                phi = self.position_error(q, t)[..., holonomic]
-                if np.abs(phi).max() <= tolerance:
+                if np.abs(phi[..., holonomic]).max() <= tolerance:
                     break
-                q = self.system.integrate(q, -correction(self.jacobian(q, t)[..., holonomic, :], phi), 1.0)
+                q = self.system.integrate(q, -correction(A[..., holonomic, :], phi[..., holonomic]), 1.0)
+                phi, A, b = self._position_and_velocity_levels(q, t)
             else:
                 raise ConstraintError(f"projection onto the position constraints did not converge: "
-                                      f"|φ| = {np.abs(phi).max():.3g} after {max_iterations} iterations")
-        A, b = self.velocity_level(q, t)
+                                      f"|φ| = {np.abs(phi[..., holonomic]).max():.3g} after {max_iterations} iterations")
         return q, v - correction(A, matvec(A, v) + b)
 
     def body_forces(self, q, lam, t=0.0):
