@@ -183,18 +183,6 @@ def _body_pose(model, q, body):
     return b, R_WJ, p_WJ, R_WB[..., b, :, :], p_WB[..., b, :]
 
 
-def _point_columns(xi, x, support):
-    """World-aligned point Jacobian from world Plücker columns ``xi (..., nv, 6)`` at point ``x (..., 3)``.
-
-    ``v_x = v_O + ω × x`` for each column; coordinates that do not move the body give zero columns.
-    """
-    linear = xi[..., :3] + spatial.cross(xi[..., 3:], x[..., None, :])
-    # The point's batch axes may be wider than the configuration's: broadcast the angular rows too.
-    angular = np.broadcast_to(xi[..., 3:], linear.shape)
-    J = np.concatenate([linear, angular], axis=-1) * support[:, None]
-    return spatial.transpose(J)
-
-
 def jacobian(model, q, body, point=None):
     """World-aligned Jacobian of a body point: ``(..., 6, nv)``, rows ``[linear; angular]``.
 
