@@ -8,6 +8,8 @@ and inputs that broadcast (one configuration for many velocities).
 
 from __future__ import annotations
 
+import sys
+
 import numpy as np
 import pytest
 from numpy.testing import assert_allclose
@@ -170,3 +172,19 @@ def test_mass_matrix_and_bias_from_one_tree_pass_equal_crba_and_rnea(model_name)
     assert M.shape == (3, model.nv, model.nv)
     assert_allclose(M[2], mb.mass_matrix(model, q[0]), rtol=1e-13, atol=1e-12)
     assert_allclose(h[2], mb.bias_forces(model, q[0], v[2]), rtol=1e-13, atol=1e-12)
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc malloc behaviour")
+def test_a_repeated_batched_call_does_not_page_fault_on_its_block_temporaries():
+    # Without _raise_allocator_thresholds, glibc hands each block's temporaries back to the
+    # operating system and this call faults about 5000 pages in again.
+    resource = pytest.importorskip("resource")
+    model = random_tree_model(0)
+    rng = np.random.default_rng(8)
+    n = 8 * model.lane_block
+    q = model.random_configuration(rng, (n,))
+    v, a = rng.standard_normal((2, n, model.nv))
+    mb.inverse_dynamics(model, q, v, a)
+    before = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
+    mb.inverse_dynamics(model, q, v, a)
+    assert resource.getrusage(resource.RUSAGE_SELF).ru_minflt - before < 200
