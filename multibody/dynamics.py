@@ -313,12 +313,11 @@ def _articulated_inertias(model, xi, inertia):
     """Backward pass of ABA for the q-dependent part (RBDA Table 7.1, second loop), in world coordinates.
 
     On lanes, level by level from the leaves, all joints of one depth and size at once. Returns per
-    level group ``U_i = I^A_i S_i (k, 6, n, N)``, ``U_i D_i⁻¹`` and ``D_i⁻¹ = (S_iᵀ U_i)⁻¹ (k, n, n, N)``, and
-    ``I^a_i = I^A_i − U_i D_i⁻¹ U_iᵀ (nj, 6, 6, N)``. In world coordinates a child's articulated inertia
-    adds to its parent's without transformation.
+    level group ``U_i = I^A_i S_i (k, 6, n, N)``, ``U_i D_i⁻¹`` and ``D_i⁻¹ = (S_iᵀ U_i)⁻¹ (k, n, n, N)``.
+    In world coordinates a child's articulated inertia ``I^a_i = I^A_i − U_i D_i⁻¹ U_iᵀ`` adds to its
+    parent's without transformation.
     """
     articulated = inertia.copy()
-    projected = np.empty_like(articulated)
     factors = {}
     for group in reversed(model.level_groups):
         S = xi[group.dofs]  # (k, n, 6, N)
@@ -328,11 +327,11 @@ def _articulated_inertias(model, xi, inertia):
         D = lanes.matmul(S, U)
         D_inv = _inverse(model, group, D)
         U_D_inv = lanes.matmul(U, D_inv)
-        # I^a_i = I^A_i − U_i D_i⁻¹ U_iᵀ ;  I^A_λ += I^a_i
-        projected[group.joints] = I_A - lanes.matmul(U_D_inv, lanes.transpose(U))
-        _add_to_parents(articulated, group, projected[group.joints])
+        if group.parents is not None:
+            # I^a_i = I^A_i − U_i D_i⁻¹ U_iᵀ ;  I^A_λ += I^a_i
+            _add_to_parents(articulated, group, I_A - lanes.matmul(U_D_inv, lanes.transpose(U)))
         factors[group] = U, U_D_inv, D_inv
-    return factors, projected
+    return factors
 
 
 def _add_to_parents(x, group, values):
@@ -359,37 +358,35 @@ def _inverse(model, group, D):
     return np.moveaxis(np.linalg.inv(np.moveaxis(D, -1, 1)), 1, -1)
 
 
-def _aba_bias_and_accelerations(model, xi, factors, projected, bias, p_art, tau, a0):
-    """Bias-force backward pass and acceleration forward pass of ABA (RBDA Table 7.1), world coordinates.
+def _articulated_solve(model, xi, factors, tau):
+    """``q̈ = M⁻¹ τ`` from the articulated inertias: the last two sweeps of RBDA Table 7.1 with no velocity
+    and no gravity (``c_i = 0``, ``p^A_i = 0``, ``a_0 = 0``), in world coordinates, on lanes.
 
-    On lanes: ``bias (nj, 6, N)`` holds ``c_i`` (velocity-product acceleration of joint i) and
-    ``p_art (nj, 6, N)`` the bias forces ``p^A_i`` (``None`` for zero); ``tau (nv, N)``; ``a0 (6, N)``.
-    Returns ``q̈ (nv, N)``.
+    ``tau (nv, N)``; the lanes of ``xi`` and ``factors`` broadcast against it. Returns ``q̈ (nv, N)``.
     """
-    n = max(x.shape[-1] for x in (xi, tau, bias, p_art) if x is not None)
-    p_art = np.zeros((model.njoints, 6, n)) if p_art is None else np.broadcast_to(p_art, p_art.shape[:-1] + (n,)).copy()
+    n = max(xi.shape[-1], tau.shape[-1])
+    p_art = np.zeros((model.njoints, 6, n))
     u = {}
     for group in reversed(model.level_groups):
-        U, U_D_inv, _ = factors[group]
+        _, U_D_inv, _ = factors[group]
         p_i = p_art[group.joints]
-        # u_i = τ_i − S_iᵀ p^A_i
+        # u_i = τ_i − S_iᵀ p^A_i ;  p^a_i = p^A_i + U_i D_i⁻¹ u_i ;  p^A_λ += p^a_i
         u[group] = tau[group.dofs] - lanes.matvec(xi[group.dofs], p_i)
-        # p^a_i = p^A_i + I^a_i c_i + U_i D_i⁻¹ u_i ;  p^A_λ += p^a_i
-        p_a = p_i + lanes.matvec(U_D_inv, u[group])
-        if bias is not None:
-            p_a = p_a + lanes.matvec(projected[group.joints], bias[group.joints])
-        _add_to_parents(p_art, group, p_a)
+        if group.parents is not None:
+            _add_to_parents(p_art, group, p_i + lanes.matvec(U_D_inv, u[group]))
 
     qdd = np.empty((model.nv, n))
     accelerations = np.empty(p_art.shape)
     for group in model.level_groups:
         U, _, D_inv = factors[group]
-        # a'_i = a_λ + c_i ;  q̈_i = D_i⁻¹ (u_i − U_iᵀ a'_i) ;  a_i = a'_i + S_i q̈_i
-        a_prime = a0[None] if group.parents is None else accelerations[group.parents]
-        if bias is not None:
-            a_prime = a_prime + bias[group.joints]
-        qdd_i = lanes.matvec(D_inv, u[group] - lanes.matvec(lanes.transpose(U), a_prime))
-        accelerations[group.joints] = a_prime + lanes.matvec(lanes.transpose(xi[group.dofs]), qdd_i)
+        # q̈_i = D_i⁻¹ (u_i − U_iᵀ a_λ) ;  a_i = a_λ + S_i q̈_i   (a_λ = 0 at the root)
+        if group.parents is None:
+            qdd_i = lanes.matvec(D_inv, u[group])
+            accelerations[group.joints] = lanes.matvec(lanes.transpose(xi[group.dofs]), qdd_i)
+        else:
+            a_parent = accelerations[group.parents]
+            qdd_i = lanes.matvec(D_inv, u[group] - lanes.matvec(lanes.transpose(U), a_parent))
+            accelerations[group.joints] = a_parent + lanes.matvec(lanes.transpose(xi[group.dofs]), qdd_i)
         qdd[group.dofs] = qdd_i
     return qdd
 
@@ -397,7 +394,10 @@ def _aba_bias_and_accelerations(model, xi, factors, projected, bias, p_art, tau,
 def forward_dynamics(model, q, v, tau, f_ext=None):
     """Accelerations ``a = M⁻¹ (τ + Σ Jᵀ f_ext − C v − g)`` by the Articulated Body Algorithm.
 
-    RBDA Table 7.1 (§7.3), in world coordinates. Shapes: ``q (..., nq)``, ``v, tau (..., nv)``,
+    RBDA Table 7.1 (§7.3), in world coordinates, with the velocity-product and gravity terms of the
+    bias force taken from RNEA instead of the sweeps: ``h = C v + g − Σ Jᵀ f_ext`` is RNEA at
+    ``a = 0`` (all joints at once, no level loop), and the articulated inertias with the two
+    remaining sweeps solve ``M a = τ − h``. Shapes: ``q (..., nq)``, ``v, tau (..., nv)``,
     ``f_ext (..., njoints, 6)`` -> ``a (..., nv)``. A joint that moves no inertia makes ``M``
     singular and raises ``numpy.linalg.LinAlgError`` naming it. Pinocchio counterpart: ``aba``.
     """
@@ -410,15 +410,13 @@ def forward_dynamics(model, q, v, tau, f_ext=None):
 
 def _aba(model, q, v, tau, f_ext):
     """ABA on lanes: ``q (nq, N)``, ``v, tau (nv, N)``, ``f_ext (nj, 6, N)`` or ``None`` -> ``a (nv, N)``."""
-    R_WJ, p_WJ, xi, inertia = _tree(model, q)
-    factors, projected = _articulated_inertias(model, xi, inertia)
-    V, xi_dot_v = _velocities(model, xi, v)
-    # c_i = ξ̇_i q̇_i (the joint's own columns) ;  p^A_i = v_i ×* I_i v_i − f_ext_i
-    bias = xi_dot_v if model.one_dof_per_joint else lanes.tree_sum(model.tree_sum_weights[2], xi_dot_v)
-    p_art = lanes.force_cross(V, lanes.matvec(inertia, V))
-    if f_ext is not None:
-        p_art = p_art - lanes.transform_force(R_WJ, p_WJ, f_ext)
-    return _aba_bias_and_accelerations(model, xi, factors, projected, bias, p_art, tau, _gravity_acceleration(model))
+    tree = _tree(model, q)
+    _, _, xi, inertia = tree
+    factors = _articulated_inertias(model, xi, inertia)
+    # h = C v + g − Σ Jᵀ f_ext: RNEA at a = 0 ;  M a = τ − h
+    _, _, _, F_subtree = _rnea_forces(model, q, v, np.zeros((model.nv, 1)), f_ext, tree)
+    h = lanes.dot(xi, F_subtree if model.one_dof_per_joint else F_subtree[model.dof_joint])
+    return _articulated_solve(model, xi, factors, tau - h)
 
 
 def inverse_mass_matrix(model, q):
@@ -435,13 +433,12 @@ def inverse_mass_matrix(model, q):
 
     def kernel(q):
         _, _, xi, inertia = _tree(model, q)
-        factors, _ = _articulated_inertias(model, xi, inertia)
+        factors = _articulated_inertias(model, xi, inertia)
         n = xi.shape[-1]
         # Lane s nv + k: state s, unit force on coordinate k.
         repeat = lambda x: np.repeat(x, nv, axis=-1)  # noqa: E731
         factors = {group: tuple(repeat(x) for x in values) for group, values in factors.items()}
-        columns = _aba_bias_and_accelerations(model, repeat(xi), factors, None, None, None, np.tile(np.eye(nv), n),
-                                              np.zeros((6, 1)))
+        columns = _articulated_solve(model, repeat(xi), factors, np.tile(np.eye(nv), n))
         # columns[:, s nv + k] is (M⁻¹ e_k) of state s; M⁻¹ is symmetric.
         return columns.reshape(nv, n, nv).transpose(0, 2, 1)
 
