@@ -315,22 +315,24 @@ def _articulated_inertias(model, xi, inertia):
     On lanes, level by level from the leaves, all joints of one depth and size at once. Returns per
     level group ``U_i = I^A_i S_i (k, 6, n, N)``, ``U_i D_i⁻¹`` and ``D_i⁻¹ = (S_iᵀ U_i)⁻¹ (k, n, n, N)``.
     In world coordinates a child's articulated inertia ``I^a_i = I^A_i − U_i D_i⁻¹ U_iᵀ`` adds to its
-    parent's without transformation.
+    parent's without transformation. A singular ``D_i`` leaves infinities (and NaN downstream), which
+    :func:`_require_nonsingular` reports: one check per call instead of one per level.
     """
     articulated = inertia.copy()
     factors = {}
-    for group in reversed(model.level_groups):
-        S = xi[group.dofs]  # (k, n, 6, N)
-        I_A = articulated[group.joints]
-        # U_i = I^A_i S_i ;  D_i = S_iᵀ U_i
-        U = lanes.matmul(I_A, lanes.transpose(S))
-        D = lanes.matmul(S, U)
-        D_inv = _inverse(model, group, D)
-        U_D_inv = lanes.matmul(U, D_inv)
-        if group.parents is not None:
-            # I^a_i = I^A_i − U_i D_i⁻¹ U_iᵀ ;  I^A_λ += I^a_i
-            _add_to_parents(articulated, group, I_A - lanes.matmul(U_D_inv, lanes.transpose(U)))
-        factors[group] = U, U_D_inv, D_inv
+    with np.errstate(divide="ignore", invalid="ignore"):
+        for group in reversed(model.level_groups):
+            S = xi[group.dofs]  # (k, n, 6, N)
+            I_A = articulated[group.joints]
+            # U_i = I^A_i S_i ;  D_i = S_iᵀ U_i
+            U = lanes.matmul(I_A, lanes.transpose(S))
+            D = lanes.matmul(S, U)
+            D_inv = _inverse(D)
+            U_D_inv = lanes.matmul(U, D_inv)
+            if group.parents is not None:
+                # I^a_i = I^A_i − U_i D_i⁻¹ U_iᵀ ;  I^A_λ += I^a_i
+                _add_to_parents(articulated, group, I_A - lanes.matmul(U_D_inv, lanes.transpose(U)))
+            factors[group] = U, U_D_inv, D_inv
     return factors
 
 
@@ -340,22 +342,32 @@ def _add_to_parents(x, group, values):
         x[parents] += values[positions]
 
 
-def _inverse(model, group, D):
-    """``D⁻¹`` of the joint-space articulated inertias ``D (k, n, n, N)``, or an error naming a singular joint."""
-    if group.nv == 1:
-        singular = D[:, 0, 0] == 0.0
-    else:
-        with np.errstate(invalid="ignore"):
-            singular = np.linalg.det(np.moveaxis(D, -1, 1)) == 0.0
-    # NaN input (already warned about) just propagates.
-    if singular.any():
-        i = np.arange(model.njoints)[group.joints][np.flatnonzero(singular.any(axis=-1))[0]]
-        raise np.linalg.LinAlgError(
-            f"the mass matrix is singular: joint {model.joint_names[i]!r} moves no inertia "
-            "(its articulated inertia Sᵀ I^A S is singular); give the bodies it carries mass and inertia")
-    if group.nv == 1:
+def _inverse(D):
+    """``D⁻¹`` of the joint-space articulated inertias ``D (k, n, n, N)``; a singular ``D`` gives
+    non-finite entries (see :func:`_require_nonsingular`)."""
+    if D.shape[1] == 1:
         return 1.0 / D
-    return np.moveaxis(np.linalg.inv(np.moveaxis(D, -1, 1)), 1, -1)
+    D = np.moveaxis(D, -1, 1)
+    singular = np.linalg.det(D) == 0.0
+    # np.linalg.inv would raise on a singular D: invert the identity there and mark it infinite.
+    inverse = np.linalg.inv(np.where(singular[..., None, None], np.eye(D.shape[-1]), D))
+    inverse[singular] = np.inf
+    return np.moveaxis(inverse, 1, -1)
+
+
+def _require_nonsingular(model, factors, result):
+    """``result``, or an error naming the first joint whose articulated inertia ``D_i`` is singular when
+    ``result`` is not finite (a NaN input, already warned about, just propagates)."""
+    if np.isfinite(result).all():
+        return result
+    for group, (_, _, D_inv) in factors.items():
+        singular = ~np.isfinite(D_inv).all(axis=(1, 2)) & ~np.isnan(D_inv).any(axis=(1, 2))
+        if singular.any():
+            i = np.arange(model.njoints)[group.joints][np.flatnonzero(singular.any(axis=-1))[0]]
+            raise np.linalg.LinAlgError(
+                f"the mass matrix is singular: joint {model.joint_names[i]!r} moves no inertia "
+                "(its articulated inertia Sᵀ I^A S is singular); give the bodies it carries mass and inertia")
+    return result
 
 
 def _articulated_solve(model, xi, factors, tau):
@@ -367,27 +379,27 @@ def _articulated_solve(model, xi, factors, tau):
     n = max(xi.shape[-1], tau.shape[-1])
     p_art = np.zeros((model.njoints, 6, n))
     u = {}
-    for group in reversed(model.level_groups):
-        _, U_D_inv, _ = factors[group]
-        p_i = p_art[group.joints]
-        # u_i = τ_i − S_iᵀ p^A_i ;  p^a_i = p^A_i + U_i D_i⁻¹ u_i ;  p^A_λ += p^a_i
-        u[group] = tau[group.dofs] - lanes.matvec(xi[group.dofs], p_i)
-        if group.parents is not None:
-            _add_to_parents(p_art, group, p_i + lanes.matvec(U_D_inv, u[group]))
-
     qdd = np.empty((model.nv, n))
     accelerations = np.empty(p_art.shape)
-    for group in model.level_groups:
-        U, _, D_inv = factors[group]
-        # q̈_i = D_i⁻¹ (u_i − U_iᵀ a_λ) ;  a_i = a_λ + S_i q̈_i   (a_λ = 0 at the root)
-        if group.parents is None:
-            qdd_i = lanes.matvec(D_inv, u[group])
-            accelerations[group.joints] = lanes.matvec(lanes.transpose(xi[group.dofs]), qdd_i)
-        else:
-            a_parent = accelerations[group.parents]
-            qdd_i = lanes.matvec(D_inv, u[group] - lanes.matvec(lanes.transpose(U), a_parent))
-            accelerations[group.joints] = a_parent + lanes.matvec(lanes.transpose(xi[group.dofs]), qdd_i)
-        qdd[group.dofs] = qdd_i
+    with np.errstate(invalid="ignore"):  # a singular D_i (see _articulated_inertias)
+        for group in reversed(model.level_groups):
+            _, U_D_inv, _ = factors[group]
+            p_i = p_art[group.joints]
+            # u_i = τ_i − S_iᵀ p^A_i ;  p^a_i = p^A_i + U_i D_i⁻¹ u_i ;  p^A_λ += p^a_i
+            u[group] = tau[group.dofs] - lanes.matvec(xi[group.dofs], p_i)
+            if group.parents is not None:
+                _add_to_parents(p_art, group, p_i + lanes.matvec(U_D_inv, u[group]))
+        for group in model.level_groups:
+            U, _, D_inv = factors[group]
+            # q̈_i = D_i⁻¹ (u_i − U_iᵀ a_λ) ;  a_i = a_λ + S_i q̈_i   (a_λ = 0 at the root)
+            if group.parents is None:
+                qdd_i = lanes.matvec(D_inv, u[group])
+                accelerations[group.joints] = lanes.matvec(lanes.transpose(xi[group.dofs]), qdd_i)
+            else:
+                a_parent = accelerations[group.parents]
+                qdd_i = lanes.matvec(D_inv, u[group] - lanes.matvec(lanes.transpose(U), a_parent))
+                accelerations[group.joints] = a_parent + lanes.matvec(lanes.transpose(xi[group.dofs]), qdd_i)
+            qdd[group.dofs] = qdd_i
     return qdd
 
 
@@ -416,7 +428,7 @@ def _aba(model, q, v, tau, f_ext):
     # h = C v + g − Σ Jᵀ f_ext: RNEA at a = 0 ;  M a = τ − h
     _, _, _, F_subtree = _rnea_forces(model, q, v, np.zeros((model.nv, 1)), f_ext, tree)
     h = lanes.dot(xi, F_subtree if model.one_dof_per_joint else F_subtree[model.dof_joint])
-    return _articulated_solve(model, xi, factors, tau - h)
+    return _require_nonsingular(model, factors, _articulated_solve(model, xi, factors, tau - h))
 
 
 def inverse_mass_matrix(model, q):
@@ -438,7 +450,7 @@ def inverse_mass_matrix(model, q):
         # Lane s nv + k: state s, unit force on coordinate k.
         repeat = lambda x: np.repeat(x, nv, axis=-1)  # noqa: E731
         factors = {group: tuple(repeat(x) for x in values) for group, values in factors.items()}
-        columns = _articulated_solve(model, repeat(xi), factors, np.tile(np.eye(nv), n))
+        columns = _require_nonsingular(model, factors, _articulated_solve(model, repeat(xi), factors, np.tile(np.eye(nv), n)))
         # columns[:, s nv + k] is (M⁻¹ e_k) of state s; M⁻¹ is symmetric.
         return columns.reshape(nv, n, nv).transpose(0, 2, 1)
 
