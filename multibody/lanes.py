@@ -218,14 +218,15 @@ def world_inertias(mass, first_moment, rotational, R_WJ, p_WJ):
     and rotational inertia about J's origin ``Ī_J (nj, 3, 3, 1)``. In world axes, with
     ``g = R m c_J`` and the body origin at ``p``, the first moment about the world origin is
     ``h = g + m p`` and the rotational inertia about it (parallel-axis theorem, RBDA eq. 2.63)
-    ``Ī_O = R Ī_J Rᵀ − [p]×[h]× − [g]×[p]×``; then ``I = [[m 1, −[h]×], [[h]×, Ī_O]]``.
-    Returns ``(nj, 6, 6, N)``.
+    ``Ī_O = R Ī_J Rᵀ − [p]×[h]× − [g]×[p]× = R Ī_J Rᵀ − h pᵀ − p gᵀ + pᵀ(h + g) 1``
+    (as ``[a]×[b]× = b aᵀ − aᵀb 1``); then ``I = [[m 1, −[h]×], [[h]×, Ī_O]]``. Returns ``(nj, 6, 6, N)``.
     """
     m = mass[:, None, None]
     g = matvec(R_WJ, first_moment)
     h = g + m * p_WJ
-    P, H, G = skew(p_WJ), skew(h), skew(g)
-    rotational_O = matmul(matmul(R_WJ, rotational), transpose(R_WJ)) - matmul(P, H) - matmul(G, P)
+    rotational_O = (matmul(matmul(R_WJ, rotational), transpose(R_WJ)) - h[:, :, None] * p_WJ[:, None]
+                    - p_WJ[:, :, None] * g[:, None] + _IDENTITY * dot(p_WJ, h + g)[:, None, None])
+    H = skew(h)
     out = np.empty(rotational_O.shape[:1] + (6, 6) + rotational_O.shape[-1:])
     out[:, :3, :3] = m[..., None] * _IDENTITY
     out[:, :3, 3:] = -H
