@@ -3,7 +3,8 @@
 Two families of algorithms, which check each other:
 
 * recursive (Featherstone, *Rigid Body Dynamics Algorithms* (RBDA), Springer 2008): Recursive
-  Newton–Euler (§5.3), Composite Rigid Body (§6.2), Articulated Body (§7.3), in joint frames;
+  Newton–Euler (§5.3), Composite Rigid Body (§6.2), Articulated Body (§7.3), in world Plücker
+  coordinates, where sums over subtrees and supports replace most of the recursions;
 * Lagrangian assembly from body Jacobians in world Plücker coordinates: ``T = ½ vᵀ M v`` with
   ``M = Σᵢ Jᵢᵀ Iᵢ Jᵢ``, and Christoffel symbols of ``M`` for ``C``.
 
@@ -17,13 +18,11 @@ recursive algorithms compute on lanes (:mod:`multibody.lanes`), every state a co
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 from . import lanes, spatial
-from .kinematics import _in_blocks, _support_sums, _velocities, joint_velocities, motion_subspaces, world_poses
-from .spatial import matvec, motion_cross, transpose
+from .kinematics import _at_dofs, _in_blocks, _spatial_velocities, _support_sums, _velocities, motion_subspaces, world_poses
+from .spatial import motion_cross, transpose
 
 
 # ============================================================================= shared pieces
@@ -97,8 +96,7 @@ def _rnea(model, q, v, a, f_ext, batch):
     """:func:`inverse_dynamics` on validated arrays with common batch shape ``batch``."""
     def kernel(q, v, a, f_ext):
         _, _, xi, F_subtree = _rnea_forces(model, q, v, a, f_ext)
-        # τ_k = ξ_kᵀ f_j(k)
-        return lanes.dot(xi, F_subtree if model.one_dof_per_joint else F_subtree[model.dof_joint])
+        return _joint_forces(model, xi, F_subtree)
 
     return _in_blocks(model, kernel, batch, (q, 1), (v, 1), (a, 1), None if f_ext is None else (f_ext, 2))
 
@@ -116,6 +114,11 @@ def _rnea_forces(model, q, v, a, f_ext, tree=None):
         F = F - lanes.transform_force(R_WJ, p_WJ, f_ext)
     # Backward: the force a joint transmits is the sum over its subtree;  τ_k = ξ_kᵀ f_subtree(j(k))
     return R_WJ, p_WJ, xi, _subtree_sums(model, F)
+
+
+def _joint_forces(model, xi, F_subtree):
+    """``τ_k = ξ_kᵀ f_j(k)``: each coordinate's share of the force its joint transmits ``(nj, 6, N) -> (nv, N)``."""
+    return lanes.dot(xi, _at_dofs(model, F_subtree))
 
 
 def joint_reaction_forces(model, q, v, a, f_ext=None):
@@ -182,7 +185,7 @@ def _mass_matrix_crba(model, q, tree=None):
     # Composite inertias: in world coordinates, I^c_i is the plain sum of the subtree's inertias.
     composite = _subtree_sums(model, inertia)
     # F_l = I^c_j(l) ξ_l ;  M_kl = ξ_kᵀ F_l when k's joint supports l's (RBDA eq. 6.14)
-    F = lanes.matvec(composite if model.one_dof_per_joint else composite[model.dof_joint], xi)
+    F = lanes.matvec(_at_dofs(model, composite), xi)
     products = np.einsum("kcn,lcn->kln", xi, F)
     # M_kl is products[k, l] for k's joint supporting l's, mirrored below, zero off the branches: one
     # gather (model.mass_matrix_entries) from the products and a row of zeros.
@@ -199,8 +202,7 @@ def mass_matrix_and_bias(model, q, v):
     def kernel(q, v):
         tree = _tree(model, q)
         _, _, xi, F_subtree = _rnea_forces(model, q, v, np.zeros((model.nv, 1)), None, tree)
-        h = lanes.dot(xi, F_subtree if model.one_dof_per_joint else F_subtree[model.dof_joint])
-        return _mass_matrix_crba(model, q, tree), h
+        return _mass_matrix_crba(model, q, tree), _joint_forces(model, xi, F_subtree)
 
     return _in_blocks(model, kernel, batch, (q, 1), (v, 1))
 
@@ -229,17 +231,12 @@ def coriolis_matrix(model, q, v, method="recursive"):
 
     Shapes: ``q (..., nq)``, ``v (..., nv)`` -> ``(..., nv, nv)``.
     """
-    q, v, *_ = _check(model, q, v)
+    q, v, *_, batch = _check(model, q, v)
     if method == "recursive":
-        return _coriolis_recursive(model, q, v)
+        return _in_blocks(model, lambda q, v: _coriolis_on_lanes(model, q, v), batch, (q, 1), (v, 1))
     if method == "lagrangian":
         return _coriolis_christoffel(model, q, v)
     raise ValueError(f"method must be 'recursive' or 'lagrangian', got {method!r}")
-
-
-def _coriolis_recursive(model, q, v):
-    return _in_blocks(model, lambda q, v: _coriolis_on_lanes(model, q, v), np.broadcast_shapes(q.shape[:-1], v.shape[:-1]),
-                      (q, 1), (v, 1))
 
 
 def _coriolis_on_lanes(model, q, v):
@@ -251,16 +248,15 @@ def _coriolis_on_lanes(model, q, v):
     ``I^c``, ``B^c`` subtree sums of ``Iᵢ`` and ``Bᵢ``; zero when neither joint supports the other.
     """
     _, _, xi, inertia = _tree(model, q)
-    V, _ = _velocities(model, xi, v)
+    V = _spatial_velocities(model, xi, v)
     # B_i = ½ [(V×*) I − I (V×) + (I V)×̄*] = ½ [(I V)×̄* − K − Kᵀ] with K = I (V×), as (V×*) = −(V×)ᵀ
     K = lanes.matmul(inertia, lanes.motion_cross_matrix(V))
     B = 0.5 * (lanes.bar_force_cross_matrix(lanes.matvec(inertia, V)) - K - lanes.transpose(K))
     composite = _subtree_sums(model, lanes.concatenate([inertia, B], axis=1))  # [I^c; B^c] (nj, 12, 6, N)
-    if not model.one_dof_per_joint:
-        composite, V = composite[model.dof_joint], V[model.dof_joint]
+    composite = _at_dofs(model, composite)
     I_c, B_c = composite[:, :6], composite[:, 6:]
     # ξ̇_l = V_j(l) × ξ_l (the column moves with its own joint)
-    xi_dot = lanes.motion_cross(V, xi)
+    xi_dot = lanes.motion_cross(_at_dofs(model, V), xi)
     # l's joint supports k's: C_kl = (I^c_j(k) ξ_k)ᵀ ξ̇_l + (B^c_j(k)ᵀ ξ_k)ᵀ ξ_l
     rows = lanes.concatenate([lanes.matvec(I_c, xi), lanes.matvec(lanes.transpose(B_c), xi)], axis=-2)
     below = np.einsum("kcn,lcn->kln", rows, lanes.concatenate([xi_dot, xi], axis=-2))
@@ -427,7 +423,7 @@ def _aba(model, q, v, tau, f_ext):
     factors = _articulated_inertias(model, xi, inertia)
     # h = C v + g − Σ Jᵀ f_ext: RNEA at a = 0 ;  M a = τ − h
     _, _, _, F_subtree = _rnea_forces(model, q, v, np.zeros((model.nv, 1)), f_ext, tree)
-    h = lanes.dot(xi, F_subtree if model.one_dof_per_joint else F_subtree[model.dof_joint])
+    h = _joint_forces(model, xi, F_subtree)
     return _require_nonsingular(model, factors, _articulated_solve(model, xi, factors, tau - h))
 
 
@@ -468,7 +464,7 @@ def kinetic_energy(model, q, v):
 
     def kernel(q, v):
         _, _, xi, inertia = _tree(model, q)
-        V, _ = _velocities(model, xi, v)
+        V = _spatial_velocities(model, xi, v)
         return 0.5 * np.sum(V * lanes.matvec(inertia, V), axis=(0, 1))
 
     return _in_blocks(model, kernel, batch, (q, 1), (v, 1))

@@ -51,20 +51,28 @@ def motion_subspaces(model, R_WJ, p_WJ):
     For coordinate k of joint j with subspace column ``s = [s_v; s_ω]`` (joint frame):
     ``ω_k = R_Wj s_ω``, ``v_k = R_Wj s_v + p_Wj × ω_k``.
     """
-    if not model.one_dof_per_joint:
-        R_WJ, p_WJ = R_WJ[model.dof_joint], p_WJ[model.dof_joint]
     # [R s_v, R s_ω] in one product
-    columns = lanes.matmul(R_WJ, model.subspace_columns)
+    columns = lanes.matmul(_at_dofs(model, R_WJ), model.subspace_columns)
     angular = columns[:, :, 1]
-    return np.concatenate([columns[:, :, 0] + lanes.cross(p_WJ, angular), angular], axis=-2)
+    return np.concatenate([columns[:, :, 0] + lanes.cross(_at_dofs(model, p_WJ), angular), angular], axis=-2)
+
+
+def _at_dofs(model, x):
+    """A per-joint lane array ``(nj, ...)`` taken at each velocity coordinate's joint: ``(nv, ...)``."""
+    return x if model.one_dof_per_joint else x[model.dof_joint]
+
+
+def _spatial_velocities(model, xi, v):
+    """World velocity of every joint frame, ``V_j = Σ_{k ⪯ j} ξ_k v_k``, on lanes: ``(nj, 6, N)``."""
+    return _support_sums(model, xi * v[:, None, :])
 
 
 def _velocities(model, xi, v):
-    """World velocities ``V_j = Σ_{k ⪯ j} ξ_k v_k`` ``(nj, 6, N)`` and the column rates times speeds,
-    ``ξ̇_k v_k = V_j(k) × ξ_k v_k`` ``(nv, 6, N)`` (RBDA eq. 2.37; a column moves with its own joint)."""
+    """World velocities ``V_j`` ``(nj, 6, N)`` (:func:`_spatial_velocities`) and the column rates times
+    speeds, ``ξ̇_k v_k = V_j(k) × ξ_k v_k`` ``(nv, 6, N)`` (RBDA eq. 2.37; a column moves with its own joint)."""
     xi_v = xi * v[:, None, :]
     V = _support_sums(model, xi_v)
-    return V, lanes.motion_cross(V if model.one_dof_per_joint else V[model.dof_joint], xi_v)
+    return V, lanes.motion_cross(_at_dofs(model, V), xi_v)
 
 
 def _support_sums(model, x):
@@ -158,29 +166,12 @@ def forward_kinematics(model, q):
     return spatial.pose_matrix(R_WB, p_WB)
 
 
-def world_motion_subspaces(model, R_WJ, p_WJ):
-    """:func:`motion_subspaces` for poses with leading batch axes: ``(..., nj, 3, 3), (..., nj, 3) -> (..., nv, 6)``."""
-    batch = np.broadcast_shapes(R_WJ.shape[:-3], p_WJ.shape[:-2])
-    xi = motion_subspaces(model, lanes.to_lanes(np.broadcast_to(R_WJ, batch + R_WJ.shape[-3:]), 3),
-                          lanes.to_lanes(np.broadcast_to(p_WJ, batch + p_WJ.shape[-2:]), 2))
-    return lanes.from_lanes(xi, batch)
-
-
-def _point_in_world(model, R_WB, p_WB, point):
-    """World position of a point given in body coordinates (default the body origin)."""
-    if point is None:
-        return p_WB
-    point = np.asarray(point, dtype=float)
+def _point(point):
+    """A body-frame point ``(..., 3)`` (m) as a float array, the body origin for ``None``."""
+    point = np.zeros(3) if point is None else np.asarray(point, dtype=float)
     if point.shape[-1:] != (3,):
         raise ValueError(f"point must have shape (..., 3), got {point.shape}")
-    return matvec(R_WB, point) + p_WB
-
-
-def _body_pose(model, q, body):
-    b = model.body_index(body)
-    R_WJ, p_WJ = joint_world_poses(model, q)
-    R_WB, p_WB = _body_world_poses(model, R_WJ, p_WJ)
-    return b, R_WJ, p_WJ, R_WB[..., b, :, :], p_WB[..., b, :]
+    return point
 
 
 def jacobian(model, q, body, point=None):
@@ -190,52 +181,12 @@ def jacobian(model, q, body, point=None):
     origin) and both rows are in world axes. ``body`` is a name from ``model.body_names`` or an index.
     Pinocchio counterpart: ``getFrameJacobian(..., LOCAL_WORLD_ALIGNED)``.
     """
-    q = model.check_configuration(q)
-    b = model.body_index(body)
-    point = np.zeros(3) if point is None else np.asarray(point, dtype=float)
-    if point.shape[-1:] != (3,):
-        raise ValueError(f"point must have shape (..., 3), got {point.shape}")
+    q, b, point = model.check_configuration(q), model.body_index(body), _point(point)
     batch = np.broadcast_shapes(q.shape[:-1], point.shape[:-1])
     if model.body_joints[b] < 0:
         return np.zeros(batch + (6, model.nv))
-    R_JB, p_JB = model.body_placements[b, :3, :3], model.body_placements[b, :3, 3]
-    return _in_blocks(model, lambda q, p_BF: _frame_on_lanes(model, b, R_JB, p_JB, p_BF, q)[2], batch,
+    return _in_blocks(model, lambda q, p_BF: lanes.transpose(_frame_on_lanes(model, b, _EYE, p_BF, q)[3]), batch,
                       (q, 1), (point, 1))
-
-
-def _frame_on_lanes(model, b, R_JF, p_JB, p_BF, q, v=None):
-    """Pose, Jacobian and ``J̇ v`` of a frame F fixed in the moving body ``b``, on lanes.
-
-    F sits at ``p_JF = p_JB + R_JB p_BF`` in the body's joint frame with orientation ``R_JF``;
-    ``p_BF (3, N)`` may vary per state. Returns ``R_WF (3, 3, N)``, ``p_WF (3, N)``, the world-aligned
-    Jacobian of F's origin ``(6, nv, N)`` and, given ``v (nv, N)``, ``J̇ v (6, N)``.
-    """
-    R_WJ, p_WJ = world_poses(model, q)
-    xi = motion_subspaces(model, R_WJ, p_WJ)
-    j = model.body_joints[b]
-    R_WF = lanes.matmul(R_WJ[j], R_JF[:, :, None])
-    R_JB = model.body_placements[b, :3, :3, None]
-    p_WF = lanes.matvec(R_WJ[j], p_JB[:, None] + lanes.matvec(R_JB, p_BF)) + p_WJ[j]
-    support = model.tree_sum_weights[0][j]  # (nv,) float: the coordinates that move the body
-    # Column k at the point x: [v_k + ω_k × x; ω_k]
-    angular = xi[:, 3:]
-    linear = xi[:, :3] + lanes.cross(angular, p_WF)  # (points may vary per state where q does not)
-    J = lanes.concatenate([linear, angular], axis=-2) * support[:, None, None]
-    if v is None:
-        return R_WF, p_WF, lanes.transpose(J)
-    # The body's velocity V_b and velocity-product acceleration A_b = Σ_k ξ̇_k v_k (world Plücker), then
-    # the classical acceleration of x at a = 0: a_O + α × x + ω × ẋ with ẋ = v_O + ω × x.
-    V, xi_dot_v = _velocities(model, xi, v)
-    A_b = lanes.tree_sum(support[None], xi_dot_v)[0]
-    omega = V[j, 3:]
-    x_dot = V[j, :3] + lanes.cross(omega, p_WF)
-    linear = A_b[:3] + lanes.cross(A_b[3:], p_WF) + lanes.cross(omega, x_dot)
-    return R_WF, p_WF, lanes.transpose(J), np.concatenate([linear, A_b[3:]], axis=-2)
-
-
-def joint_velocities(model, xi, v):
-    """World Plücker velocity of every joint frame, ``V_j = Σ_{k supports j} ξ_k v_k``: ``(..., nj, 6)``."""
-    return model.joint_support @ (xi * v[..., :, None])  # boolean masks promote to float
 
 
 def jacobian_time_variation(model, q, v, body, point=None):
@@ -247,24 +198,44 @@ def jacobian_time_variation(model, q, v, body, point=None):
     Together with the Jacobian, ``J a + J̇ v`` is the point's classical acceleration.
     Pinocchio counterpart: ``getFrameJacobianTimeVariation(..., LOCAL_WORLD_ALIGNED)``.
     """
-    q = model.check_configuration(q)
-    v = model.check_velocity(v)
-    b, R_WJ, p_WJ, R_WB, p_WB = _body_pose(model, q, body)
-    x = _point_in_world(model, R_WB, p_WB, point)
-    return _point_jacobian_rate(model, world_motion_subspaces(model, R_WJ, p_WJ), v, b, x)
+    q, v, b, point = model.check_configuration(q), model.check_velocity(v), model.body_index(body), _point(point)
+    batch = np.broadcast_shapes(q.shape[:-1], v.shape[:-1], point.shape[:-1])
+    if model.body_joints[b] < 0:
+        return np.zeros(batch + (6, model.nv))
+
+    def kernel(q, v, p_BF):
+        _, x, xi, J = _frame_on_lanes(model, b, _EYE, p_BF, q)
+        V = _spatial_velocities(model, xi, v)
+        j = model.body_joints[b]
+        xi_dot = lanes.motion_cross(_at_dofs(model, V), xi)
+        x_dot = V[j, :3] + lanes.cross(V[j, 3:], x)
+        linear = xi_dot[:, :3] + lanes.cross(xi_dot[:, 3:], x) + lanes.cross(xi[:, 3:], x_dot)
+        J_dot = lanes.concatenate([linear, xi_dot[:, 3:]], axis=-2) * model.tree_sum_weights[0][j][:, None, None]
+        return lanes.transpose(J_dot)
+
+    return _in_blocks(model, kernel, batch, (q, 1), (v, 1), (point, 1))
 
 
-def _point_jacobian_rate(model, xi, v, b, x):
-    """``J̇`` of the world point ``x`` of body ``b`` from the world Plücker columns ``xi``."""
-    V = joint_velocities(model, xi, v)
-    xi_dot = spatial.motion_cross(V[..., model.dof_joint, :], xi)
-    j = model.body_joints[b]
-    V_b = V[..., j, :] if j >= 0 else np.zeros(V.shape[:-2] + (6,))
-    x_dot = V_b[..., :3] + spatial.cross(V_b[..., 3:], x)
-    linear = xi_dot[..., :3] + spatial.cross(xi_dot[..., 3:], x[..., None, :]) + spatial.cross(xi[..., 3:], x_dot[..., None, :])
-    angular = np.broadcast_to(xi_dot[..., 3:], linear.shape)
-    J_dot = np.concatenate([linear, angular], axis=-1) * model.body_support[b][:, None]
-    return spatial.transpose(J_dot)
+_EYE = np.eye(3)
+
+
+def _frame_on_lanes(model, b, R_BF, p_BF, q):
+    """Pose and Jacobian of a frame F fixed in the moving body ``b``, on lanes.
+
+    F has orientation ``R_BF (3, 3)`` and origin ``p_BF (3, N)`` (which may vary per state) in the
+    body frame. Returns ``R_WF (3, 3, N)``, ``p_WF (3, N)``, the columns ``ξ (nv, 6, N)`` and the
+    world-aligned Jacobian of F's origin by columns ``(nv, 6, N)`` (zero for coordinates that do not
+    move the body).
+    """
+    R_WJ, p_WJ = world_poses(model, q)
+    xi = motion_subspaces(model, R_WJ, p_WJ)
+    j, X_JB = model.body_joints[b], model.body_placements[b]
+    R_WF = lanes.matmul(R_WJ[j], (X_JB[:3, :3] @ R_BF)[:, :, None])
+    p_WF = lanes.matvec(R_WJ[j], X_JB[:3, 3, None] + lanes.matvec(X_JB[:3, :3, None], p_BF)) + p_WJ[j]
+    # Column k at the point x: [v_k + ω_k × x; ω_k]
+    linear = xi[:, :3] + lanes.cross(xi[:, 3:], p_WF)  # (points may vary per state where q does not)
+    J = lanes.concatenate([linear, xi[:, 3:]], axis=-2) * model.tree_sum_weights[0][j][:, None, None]
+    return R_WF, p_WF, xi, J
 
 
 def frame_kinematics(model, q, v, body, placement=None):
@@ -292,9 +263,20 @@ def frame_kinematics(model, q, v, body, placement=None):
         X_WF = model.body_placements[b] @ X_BF
         return (np.broadcast_to(X_WF[:3, :3], batch + (3, 3)), np.broadcast_to(X_WF[:3, 3], batch + (3,)),
                 np.zeros(batch + (6, model.nv)), np.zeros(batch + (6,)))
-    R_JF = model.body_placements[b, :3, :3] @ X_BF[:3, :3]
-    return _in_blocks(model, lambda q, v: _frame_on_lanes(model, b, R_JF, model.body_placements[b, :3, 3],
-                                                          X_BF[:3, 3, None], q, v), batch, (q, 1), (v, 1))
+
+    def kernel(q, v):
+        R_WF, x, xi, J = _frame_on_lanes(model, b, X_BF[:3, :3], X_BF[:3, 3, None], q)
+        # J̇ v (jacobian_time_variation) summed over the columns first: with the body's velocity V_b and
+        # velocity-product acceleration A_b = Σ_k ξ̇_k v_k (world Plücker), the classical acceleration
+        # of x at a = 0 is a_O + α × x + ω × ẋ, ẋ = v_O + ω × x.
+        V, xi_dot_v = _velocities(model, xi, v)
+        j = model.body_joints[b]
+        A_b = lanes.tree_sum(model.tree_sum_weights[0][j][None], xi_dot_v)[0]
+        x_dot = V[j, :3] + lanes.cross(V[j, 3:], x)
+        linear = A_b[:3] + lanes.cross(A_b[3:], x) + lanes.cross(V[j, 3:], x_dot)
+        return R_WF, x, lanes.transpose(J), np.concatenate([linear, A_b[3:]], axis=-2)
+
+    return _in_blocks(model, kernel, batch, (q, 1), (v, 1))
 
 
 def point_velocity(model, q, v, body, point=None):

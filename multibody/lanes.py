@@ -165,30 +165,24 @@ def quat_to_rotation(quat):
 
 # A spatial cross product as products of gathered components: rows [t₁; t₂; t₃; t₄] of six each, the
 # result (t₁ − t₂) + (t₃ − t₄). Motion vectors: [v; ω] × [v'; ω'] = [ω × v' + v × ω'; ω × ω'];
-# force vectors: [v; ω] ×* [f; n] = [ω × f; ω × n + v × f]. Rows with a single cross repeat one
+# force vectors: [v; ω] ×* [f; n] = [ω × f; ω × n + v × f]. A half with a single cross repeats one
 # product in t₃ and t₄, whose difference is exactly zero.
-def _cross_terms(first, second):
-    """Index arrays of ``x × y`` with ``x``, ``y`` the 3-vectors starting at ``first`` and ``second``:
-    the positions of ``x_{i+1}, y_{i+2}`` and of ``x_{i+2}, y_{i+1}`` in the operands."""
-    return ((first + _CROSS_LEFT[:3], second + _CROSS_RIGHT[:3]),
-            (first + _CROSS_LEFT[3:], second + _CROSS_RIGHT[3:]))
+def _spatial_cross_indices(linear, angular):
+    """Left and right gather indices ``(24,)``; ``linear`` and ``angular`` list the cross products
+    ``x × y`` of each half as the starts ``(x, y)`` of their operands in the two 6-vectors."""
+    left, right = np.empty((4, 2, 3), dtype=int), np.empty((4, 2, 3), dtype=int)
+    for half, crosses in enumerate((linear, angular)):
+        for k, (x, y) in enumerate(crosses):
+            # x × y = [x_{i+1} y_{i+2}] − [x_{i+2} y_{i+1}]: rows t_{2k+1} and t_{2k+2}
+            left[2 * k, half], right[2 * k, half] = x + _CROSS_LEFT[:3], y + _CROSS_RIGHT[:3]
+            left[2 * k + 1, half], right[2 * k + 1, half] = x + _CROSS_LEFT[3:], y + _CROSS_RIGHT[3:]
+        if len(crosses) == 1:
+            left[2:, half], right[2:, half] = left[0, half], right[0, half]
+    return left.reshape(24), right.reshape(24)
 
 
-def _spatial_cross_indices(rows):
-    """Left and right gather indices ``(24,)`` of a spatial cross product given, for each half
-    ``[linear, angular]``, its two cross products as ``(first, second)`` starts (the second may be None)."""
-    left, right = [[] for _ in range(4)], [[] for _ in range(4)]
-    for pair in rows:
-        (a, b), (c, d) = _cross_terms(*pair[0])
-        (e, f), (g, h) = _cross_terms(*pair[1]) if pair[1] else ((a, b), (a, b))
-        for k, (x, y) in enumerate(((a, b), (c, d), (e, f), (g, h))):
-            left[k].append(x)
-            right[k].append(y)
-    return np.concatenate([np.concatenate(x) for x in left]), np.concatenate([np.concatenate(x) for x in right])
-
-
-_MOTION_CROSS = _spatial_cross_indices((((3, 0), (0, 3)), ((3, 3), None)))
-_FORCE_CROSS = _spatial_cross_indices((((3, 0), None), ((3, 3), (0, 0))))
+_MOTION_CROSS = _spatial_cross_indices(linear=[(3, 0), (0, 3)], angular=[(3, 3)])
+_FORCE_CROSS = _spatial_cross_indices(linear=[(3, 0)], angular=[(3, 3), (0, 0)])
 
 
 def _spatial_cross(indices, m, x):
@@ -233,7 +227,6 @@ def world_inertias(mass, first_moment, rotational, R_WJ, p_WJ):
     out[:, 3:, :3] = H
     out[:, 3:, 3:] = rotational_O
     return out
-
 
 
 def transform_force(R_AB, p_AB, f_B):

@@ -25,7 +25,7 @@ import numpy as np
 
 from . import spatial
 from .constraints import Constraint, _first_derivative, _frame, _point_placement, _require_model, _wrenches
-from .spatial import matvec, transpose
+from .spatial import matvec
 
 
 def _plane_frame(normal):

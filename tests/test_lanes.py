@@ -27,6 +27,13 @@ def off_lanes(x):
     return lanes.from_lanes(x, (N,))
 
 
+def lane_test_model(name, seed):
+    """A random tree of all joint types, or Talos on a free-flyer (deep, branched, several blocks)."""
+    if name == "random_tree":
+        return random_tree_model(seed)
+    return mb.load_urdf(erd_urdf("talos_data/robots/talos_reduced.urdf"), floating_base=True)
+
+
 def test_to_lanes_and_back_round_trip_with_batch_axes():
     x = RNG.standard_normal((2, 3, 4, 6))
     lane = lanes.to_lanes(x, 2)
@@ -113,10 +120,7 @@ def test_concatenate_broadcasts_a_single_lane():
 
 @pytest.mark.parametrize("model_name", ["random_tree", "talos_floating"])
 def test_batches_larger_than_a_block_equal_single_calls(model_name):
-    if model_name == "random_tree":
-        model = random_tree_model(1)
-    else:
-        model = mb.load_urdf(erd_urdf("talos_data/robots/talos_reduced.urdf"), floating_base=True)
+    model = lane_test_model(model_name, seed=1)
     n = model.lane_block + 7  # one full block and a partial one
     rng = np.random.default_rng(3)
     q = model.random_configuration(rng, (n,))
@@ -156,10 +160,7 @@ def test_lane_block_shrinks_with_the_number_of_joints():
 
 @pytest.mark.parametrize("model_name", ["random_tree", "talos_floating"])
 def test_mass_matrix_and_bias_from_one_tree_pass_equal_crba_and_rnea(model_name):
-    if model_name == "random_tree":
-        model = random_tree_model(5)
-    else:
-        model = mb.load_urdf(erd_urdf("talos_data/robots/talos_reduced.urdf"), floating_base=True)
+    model = lane_test_model(model_name, seed=5)
     rng = np.random.default_rng(6)
     n = model.lane_block + 5
     q = model.random_configuration(rng, (n,))
