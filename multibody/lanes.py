@@ -48,7 +48,7 @@ def to_lanes(x, components=1, batch=None):
 def from_lanes(x, batch):
     """``(*components, N)`` -> ``batch + components``: the inverse of :func:`to_lanes`, contiguous."""
     if x.shape[-1] == 1:
-        return x.reshape(batch + x.shape[:-1])
+        return np.ascontiguousarray(x.reshape(batch + x.shape[:-1]))  # (a transposed lane array is a strided view)
     moved = x.transpose((x.ndim - 1,) + tuple(range(x.ndim - 1)))
     return np.ascontiguousarray(moved).reshape(batch + moved.shape[1:])
 
