@@ -48,9 +48,10 @@ def to_lanes(x, components=1, batch=None):
 def from_lanes(x, batch):
     """``(*components, N)`` -> ``batch + components``: the inverse of :func:`to_lanes`, contiguous."""
     if x.shape[-1] == 1:
-        return np.ascontiguousarray(x.reshape(batch + x.shape[:-1]))  # (a transposed lane array is a strided view)
+        # (a transposed lane array is a strided view; np.ascontiguousarray would make a 0-d result 1-d)
+        return np.asarray(x.reshape(batch + x.shape[:-1]), order="C")
     moved = x.transpose((x.ndim - 1,) + tuple(range(x.ndim - 1)))
-    return np.ascontiguousarray(moved).reshape(batch + moved.shape[1:])
+    return np.asarray(moved, order="C").reshape(batch + moved.shape[1:])
 
 
 def concatenate(arrays, axis):

@@ -42,6 +42,15 @@ def test_to_lanes_and_back_round_trip_with_batch_axes():
     assert_allclose(lanes.from_lanes(lane, (2, 3)), x)
 
 
+@pytest.mark.parametrize("lane_shape, batch, expected", [((1,), (), ()), ((3, 1), (), (3,)), ((1,), (1,), (1,)),
+                                                         ((2, 3, 1), (1, 1), (1, 1, 2, 3)), ((4,), (2, 2), (2, 2))])
+def test_from_lanes_gives_contiguous_arrays_of_the_batch_shape_even_for_a_scalar_per_state(lane_shape, batch, expected):
+    x = RNG.standard_normal(lane_shape[::-1]).T  # a transposed, strided view, as the lane algorithms return
+    out = lanes.from_lanes(x, batch)
+    assert out.shape == expected and out.flags.c_contiguous
+    assert_allclose(out.reshape(-1), np.moveaxis(x, -1, 0).reshape(-1))
+
+
 def test_to_lanes_keeps_one_lane_for_a_single_state_and_broadcasts_others():
     assert lanes.to_lanes(np.arange(3.0), 1, (5,)).shape == (3, 1)
     assert lanes.to_lanes(np.ones((1, 1, 3)), 1, (4, 2)).shape == (3, 1)
