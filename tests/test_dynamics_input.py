@@ -380,3 +380,8 @@ def test_nan_warns_once_per_call():
     with pytest.warns(RuntimeWarning) as record:
         mb.bias_forces(model, np.zeros(2), np.array([np.nan, 0.0]))
     assert len(record) == 1
+    for q, v in [(np.zeros(2), np.array([np.nan, 0.0])), (np.array([np.nan, 0.0]), np.zeros(2)),
+                 (np.zeros((3, 2)), np.array([[np.nan, 0.0]] * 3))]:
+        with pytest.warns(RuntimeWarning) as record:
+            a = mb.forward_dynamics(model, q, v, np.zeros(2))
+        assert len(record) == 1 and np.isnan(a).all()
