@@ -405,10 +405,8 @@ def forward_dynamics(model, q, v, tau, f_ext=None):
     RBDA Table 7.1 (§7.3), in world coordinates, with the velocity-product and gravity terms of the
     bias force taken from RNEA instead of the sweeps: ``h = C v + g − Σ Jᵀ f_ext`` is RNEA at
     ``a = 0`` (all joints at once, no level loop), and the articulated inertias with the two
-    remaining sweeps solve ``M a = τ − h``. For a single configuration the sweeps' level loops
-    cost more NumPy calls than forming ``M`` by CRBA from the same tree pass and solving
-    ``M a = τ − h`` by LU (``nv³/3`` flops are nothing at robot sizes): 2–3× faster there, equal
-    to ABA within rounding. Shapes: ``q (..., nq)``, ``v, tau (..., nv)``,
+    remaining sweeps solve ``M a = τ − h`` (for a single configuration, CRBA's ``M`` and LU instead:
+    fewer NumPy calls, equal within rounding). Shapes: ``q (..., nq)``, ``v, tau (..., nv)``,
     ``f_ext (..., njoints, 6)`` -> ``a (..., nv)``. A joint that moves no inertia makes ``M``
     singular and raises ``numpy.linalg.LinAlgError`` naming it. Pinocchio counterpart: ``aba``.
     """
@@ -426,18 +424,29 @@ def _aba(model, q, v, tau, f_ext):
     # h = C v + g − Σ Jᵀ f_ext: RNEA at a = 0 ;  M a = τ − h
     _, _, _, F_subtree = _rnea_forces(model, q, v, np.zeros((model.nv, 1)), f_ext, tree)
     h = _joint_forces(model, xi, F_subtree)
-    if q.shape[-1] == 1:
-        # One configuration (the lanes of v and τ share it): M by CRBA, then LU. A singular or
-        # non-finite M goes on to the sweeps, which name the joint or propagate the NaN.
-        M = _mass_matrix_crba(model, q, tree)[..., 0]
-        try:
-            a = np.linalg.solve(M, tau - h)
-        except np.linalg.LinAlgError:
-            a = None
-        if a is not None and np.isfinite(a).all():
-            return a
+    a = _single_configuration_solve(model, q, tree, tau - h)
+    if a is not None:
+        return a
     factors = _articulated_inertias(model, xi, inertia)
     return _require_nonsingular(model, factors, _articulated_solve(model, xi, factors, tau - h))
+
+
+def _single_configuration_solve(model, q, tree, rhs):
+    """``M⁻¹ rhs`` by CRBA and LU when ``q (nq, 1)`` is one configuration (``rhs (nv, k)``, any ``k``
+    lanes sharing it), else ``None``; ``None`` too when ``M`` is singular or the result not finite,
+    for the articulated sweeps to name the joint or propagate the NaN.
+
+    For one configuration the sweeps' level loops cost more NumPy calls than forming ``M`` from the
+    tree pass at hand and factoring it (``nv³/3`` flops are nothing at robot sizes): 2–4× faster.
+    """
+    if q.shape[-1] != 1:
+        return None
+    M = _mass_matrix_crba(model, q, tree)[..., 0]
+    try:
+        x = np.linalg.solve(M, rhs)
+    except np.linalg.LinAlgError:
+        return None
+    return x if np.isfinite(x).all() else None
 
 
 def inverse_mass_matrix(model, q):
@@ -445,6 +454,7 @@ def inverse_mass_matrix(model, q):
 
     Column k is ABA's acceleration for a unit force on coordinate k with ``v = 0`` and no gravity;
     the articulated inertias are computed once and shared by all columns (each column a lane).
+    For a single configuration, the inverse of CRBA's ``M`` by LU instead (fewer NumPy calls).
     Pinocchio counterpart: ``computeMinverse``.
     """
     q = model.check_configuration(q)
@@ -453,7 +463,11 @@ def inverse_mass_matrix(model, q):
         return np.zeros(batch + (0, 0))
 
     def kernel(q):
-        _, _, xi, inertia = _tree(model, q)
+        tree = _tree(model, q)
+        _, _, xi, inertia = tree
+        M_inv = _single_configuration_solve(model, q, tree, np.eye(nv))
+        if M_inv is not None:
+            return (0.5 * (M_inv + M_inv.T))[..., None]  # exactly symmetric, as the sweeps' result
         factors = _articulated_inertias(model, xi, inertia)
         n = xi.shape[-1]
         # Lane s nv + k: state s, unit force on coordinate k.
