@@ -393,7 +393,8 @@ def test_batched_calls_equal_stacked_single_calls(name, q_shape, v_shape):
         else:  # a function of q alone has q's batch shape
             stacked = _stacked(fn, q, first["v"], first["a"], first["f"])
             assert batched.shape == q_shape + np.shape(single), what
-        # Same arithmetic on every sample: only the order of floating-point reductions may differ.
+        # Same arithmetic on every sample (forward dynamics and M⁻¹ of one configuration take CRBA and LU
+        # instead of the sweeps): only rounding may differ.
         np.testing.assert_allclose(batched, stacked, rtol=1e-12, atol=1e-12 * max(1.0, np.abs(stacked).max()),
                                    err_msg=what)
 
