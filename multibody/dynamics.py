@@ -93,23 +93,34 @@ def inverse_dynamics(model, q, v, a, f_ext=None):
 
 
 def _rnea(model, q, v, a, f_ext, batch):
-    """:func:`inverse_dynamics` on validated arrays with common batch shape ``batch``."""
+    """:func:`inverse_dynamics` on validated arrays with common batch shape ``batch`` (``v`` or ``a``
+    ``None``: zero)."""
     def kernel(q, v, a, f_ext):
         _, _, xi, F_subtree = _rnea_forces(model, q, v, a, f_ext)
         return _joint_forces(model, xi, F_subtree)
 
-    return _in_blocks(model, kernel, batch, (q, 1), (v, 1), (a, 1), None if f_ext is None else (f_ext, 2))
+    return _in_blocks(model, kernel, batch, (q, 1), None if v is None else (v, 1), None if a is None else (a, 1),
+                      None if f_ext is None else (f_ext, 2))
 
 
 def _rnea_forces(model, q, v, a, f_ext, tree=None):
     """RNEA up to the joint forces on lanes: world poses, ``ξ``, and the force each joint transmits.
-    ``tree`` is :func:`_tree` of ``q`` when already computed."""
+    ``v`` or ``a`` ``None`` stands for zero (their terms are skipped); ``tree`` is :func:`_tree` of
+    ``q`` when already computed."""
     R_WJ, p_WJ, xi, inertia = _tree(model, q) if tree is None else tree
     # Forward: v_i = v_λ + ξ_i q̇_i ;  a_i = a_λ + ξ_i q̈_i + ξ̇_i q̇_i  (summed over each support)
-    V, xi_dot_v = _velocities(model, xi, v)
-    A = _gravity_acceleration(model) + _support_sums(model, xi * a[:, None, :] + xi_dot_v)
+    V, xi_dot_v = (None, None) if v is None else _velocities(model, xi, v)
+    xi_a = None if a is None else xi * a[:, None, :]
+    terms = [x for x in (xi_a, xi_dot_v) if x is not None]
+    A = _gravity_acceleration(model)
+    if terms:
+        A = A + _support_sums(model, terms[0] if len(terms) == 1 else terms[0] + terms[1])
+    else:
+        A = np.broadcast_to(A, (model.njoints, 6, xi.shape[-1]))
     # f_i = I_i a_i + v_i ×* I_i v_i − f_ext_i
-    F = lanes.matvec(inertia, A) + lanes.force_cross(V, lanes.matvec(inertia, V))
+    F = lanes.matvec(inertia, A)
+    if V is not None:
+        F = F + lanes.force_cross(V, lanes.matvec(inertia, V))
     if f_ext is not None:
         F = F - lanes.transform_force(R_WJ, p_WJ, f_ext)
     # Backward: the force a joint transmits is the sum over its subtree;  τ_k = ξ_kᵀ f_subtree(j(k))
@@ -144,8 +155,7 @@ def generalized_gravity(model, q):
     Pinocchio counterpart: ``computeGeneralizedGravity``.
     """
     q = model.check_configuration(q)
-    zero = np.zeros(model.nv)
-    return _rnea(model, q, zero, zero, None, q.shape[:-1])
+    return _rnea(model, q, None, None, None, q.shape[:-1])
 
 
 def bias_forces(model, q, v):
@@ -154,7 +164,7 @@ def bias_forces(model, q, v):
     Pinocchio counterpart: ``nonLinearEffects``.
     """
     q, v, *_, batch = _check(model, q, v)
-    return _rnea(model, q, v, np.zeros(model.nv), None, batch)
+    return _rnea(model, q, v, None, None, batch)
 
 
 # ============================================================================= mass matrix
@@ -201,7 +211,7 @@ def mass_matrix_and_bias(model, q, v):
 
     def kernel(q, v):
         tree = _tree(model, q)
-        _, _, xi, F_subtree = _rnea_forces(model, q, v, np.zeros((model.nv, 1)), None, tree)
+        _, _, xi, F_subtree = _rnea_forces(model, q, v, None, None, tree)
         return _mass_matrix_crba(model, q, tree), _joint_forces(model, xi, F_subtree)
 
     return _in_blocks(model, kernel, batch, (q, 1), (v, 1))
@@ -422,7 +432,7 @@ def _aba(model, q, v, tau, f_ext):
     tree = _tree(model, q)
     _, _, xi, inertia = tree
     # h = C v + g − Σ Jᵀ f_ext: RNEA at a = 0 ;  M a = τ − h
-    _, _, _, F_subtree = _rnea_forces(model, q, v, np.zeros((model.nv, 1)), f_ext, tree)
+    _, _, _, F_subtree = _rnea_forces(model, q, v, None, f_ext, tree)
     h = _joint_forces(model, xi, F_subtree)
     a = _single_configuration_solve(model, q, tree, tau - h)
     if a is not None:
