@@ -110,13 +110,12 @@ def _rnea_forces(model, q, v, a, f_ext, tree=None):
     R_WJ, p_WJ, xi, inertia = _tree(model, q) if tree is None else tree
     # Forward: v_i = v_λ + ξ_i q̇_i ;  a_i = a_λ + ξ_i q̈_i + ξ̇_i q̇_i  (summed over each support)
     V, xi_dot_v = (None, None) if v is None else _velocities(model, xi, v)
-    xi_a = None if a is None else xi * a[:, None, :]
-    terms = [x for x in (xi_a, xi_dot_v) if x is not None]
+    # Each coordinate's share ξ_k q̈_k + ξ̇_k q̇_k of the acceleration (None: zero)
+    shares = xi_dot_v if a is None else xi * a[:, None, :] if v is None else xi * a[:, None, :] + xi_dot_v
     A = _gravity_acceleration(model)
-    if terms:
-        A = A + _support_sums(model, terms[0] if len(terms) == 1 else terms[0] + terms[1])
-    else:
-        A = np.broadcast_to(A, (model.njoints, 6, xi.shape[-1]))
+    if shares is not None:
+        A = A + _support_sums(model, shares)
+    # (with v = a = 0 every body accelerates as the world does: a₀, which lanes.matvec broadcasts)
     # f_i = I_i a_i + v_i ×* I_i v_i − f_ext_i
     F = lanes.matvec(inertia, A)
     if V is not None:
@@ -433,12 +432,12 @@ def _aba(model, q, v, tau, f_ext):
     _, _, xi, inertia = tree
     # h = C v + g − Σ Jᵀ f_ext: RNEA at a = 0 ;  M a = τ − h
     _, _, _, F_subtree = _rnea_forces(model, q, v, None, f_ext, tree)
-    h = _joint_forces(model, xi, F_subtree)
-    a = _single_configuration_solve(model, q, tree, tau - h)
+    rhs = tau - _joint_forces(model, xi, F_subtree)
+    a = _single_configuration_solve(model, q, tree, rhs)
     if a is not None:
         return a
     factors = _articulated_inertias(model, xi, inertia)
-    return _require_nonsingular(model, factors, _articulated_solve(model, xi, factors, tau - h))
+    return _require_nonsingular(model, factors, _articulated_solve(model, xi, factors, rhs))
 
 
 def _single_configuration_solve(model, q, tree, rhs):
@@ -447,7 +446,7 @@ def _single_configuration_solve(model, q, tree, rhs):
     for the articulated sweeps to name the joint or propagate the NaN.
 
     For one configuration the sweeps' level loops cost more NumPy calls than forming ``M`` from the
-    tree pass at hand and factoring it (``nv³/3`` flops are nothing at robot sizes): 2–4× faster.
+    tree pass at hand and factoring it (``nv³/3`` flops are nothing at robot sizes): 2–3× faster.
     """
     if q.shape[-1] != 1:
         return None
