@@ -516,7 +516,7 @@ def potential_energy(model, q):
 
     def kernel(q):
         R_WJ, p_WJ = world_poses(model, q)
-        mass, first_moment, _ = model.inertia_parameters
+        mass, first_moment, *_ = model.inertia_parameters
         # m c_W = R m c_J + m p
         moments = lanes.matvec(R_WJ, first_moment) + mass[:, None, None] * p_WJ
         return -np.einsum("c,jcn->n", model.gravity, moments)

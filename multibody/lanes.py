@@ -206,16 +206,19 @@ def force_cross(m, f):
 
 # ----------------------------------------------------------------------------- spatial inertia
 
-def world_inertias(mass, first_moment, rotational, R_WJ, p_WJ):
+def world_inertias(mass, first_moment, rotational, spatial, R_WJ, p_WJ):
     """Spatial inertias about the world origin, in world axes, of bodies posed at ``(R_WJ, p_WJ)``.
 
-    Each body is given in its own frame J by its mass ``m (nj,)``, first moment ``m c_J (nj, 3, 1)``
-    and rotational inertia about J's origin ``Ī_J (nj, 3, 3, 1)``. In world axes, with
-    ``g = R m c_J`` and the body origin at ``p``, the first moment about the world origin is
-    ``h = g + m p`` and the rotational inertia about it (parallel-axis theorem, RBDA eq. 2.63)
+    Each body is given in its own frame J by its mass ``m (nj,)``, first moment ``m c_J (nj, 3, 1)``,
+    rotational inertia about J's origin ``Ī_J (nj, 3, 3, 1)`` and spatial inertia ``I_J (nj, 6, 6, 1)``
+    (the same body twice: the structured formula needs the parts, the matrix product the whole).
+    In world axes, with ``g = R m c_J`` and the body origin at ``p``, the first moment about the world
+    origin is ``h = g + m p`` and the rotational inertia about it (parallel-axis theorem, RBDA eq. 2.63)
     ``Ī_O = R Ī_J Rᵀ − [p]×[h]× − [g]×[p]× = R Ī_J Rᵀ − h pᵀ − p gᵀ + pᵀ(h + g) 1``
     (as ``[a]×[b]× = b aᵀ − aᵀb 1``); then ``I = [[m 1, −[h]×], [[h]×, Ī_O]]``. Returns ``(nj, 6, 6, N)``.
     """
+    if R_WJ.shape[-1] == 1:
+        return _world_inertias_by_products(spatial, R_WJ, p_WJ)
     m = mass[:, None, None]
     g = matvec(R_WJ, first_moment)
     h = g + m * p_WJ
@@ -228,6 +231,18 @@ def world_inertias(mass, first_moment, rotational, R_WJ, p_WJ):
     out[:, 3:, :3] = H
     out[:, 3:, 3:] = rotational_O
     return out
+
+
+def _world_inertias_by_products(spatial, R_WJ, p_WJ):
+    """:func:`world_inertias` of a single lane as ``ᵂI = ᵂX_J* I_J ᵂX_Jᵀ`` (RBDA eq. 2.66), with the force
+    transform ``ᵂX_J* = [[R, 0], [[p]× R, R]]``: two 6×6 products over the stack of joints take fewer
+    NumPy calls than the structured formula, which does fewer flops and wins on many lanes."""
+    R = R_WJ[..., 0]
+    X = np.zeros(R.shape[:1] + (6, 6))
+    X[:, :3, :3] = R
+    X[:, 3:, 3:] = R
+    X[:, 3:, :3] = skew(p_WJ)[..., 0] @ R
+    return (X @ spatial[..., 0] @ X.transpose(0, 2, 1))[..., None]
 
 
 def transform_force(R_AB, p_AB, f_B):

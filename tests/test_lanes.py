@@ -93,13 +93,15 @@ def test_force_transforms_equal_spatial():
                     spatial.inverse_transform_force(R, p, f), atol=1e-14)
 
 
-def test_world_inertias_equal_the_spatial_transform_of_the_joint_frame_inertias():
+@pytest.mark.parametrize("batch", [(N,), ()], ids=["lanes", "one lane"])
+def test_world_inertias_equal_the_spatial_transform_of_the_joint_frame_inertias(batch):
+    # many lanes: the structured formula; one lane: the 6×6 products
     model = random_tree_model(0)
-    q = model.random_configuration(RNG, (N,))
+    q = model.random_configuration(RNG, batch)
     R_WJ, p_WJ = mb.kinematics.joint_world_poses(model, q)
     expected = spatial.transform_inertia(R_WJ, p_WJ, model.spatial_inertias)
     world = lanes.world_inertias(*model.inertia_parameters, lanes.to_lanes(R_WJ, 3), lanes.to_lanes(p_WJ, 2))
-    assert_allclose(lanes.from_lanes(world, (N,)), expected, rtol=1e-13, atol=1e-13)
+    assert_allclose(lanes.from_lanes(world, batch), expected, rtol=1e-13, atol=1e-13)
 
 
 def test_tree_sum_is_a_weighted_sum_over_the_leading_axis():
