@@ -28,12 +28,15 @@ class ModelSystem:
 
     Any other system (e.g. ``LagrangianSystem.numeric()``) provides the same members: ``nq``, ``nv``,
     ``mass_matrix(q)``, ``bias_forces(q, v)``, ``integrate(q, v, dt)``, ``configuration_rate(q, v)``,
-    ``normalize(q)``, ``neutral()`` and ``energy(q, v)``.
+    ``normalize(q)``, ``neutral()`` and ``energy(q, v)``; the chart maps ``chart``, ``chart_rate``,
+    ``velocity_alignment`` and ``velocity_coupling`` (see :meth:`Model.chart`) only when its
+    configurations are not a vector space with ``q̇ = v``.
     """
 
     def __init__(self, model: Model):
         self.model = model
         self.nq, self.nv = model.nq, model.nv
+        self.vector_space = model.is_vector_space
 
     def mass_matrix(self, q):
         return dynamics.mass_matrix(self.model, q)
@@ -55,8 +58,18 @@ class ModelSystem:
     def normalize(self, q):
         return self.model.normalize(q)
 
-    def neutral(self):
-        return self.model.neutral()
+    # charts for Lie-group integration (see Model.chart)
+    def chart(self, q0, delta):
+        return self.model.chart(q0, delta)
+
+    def chart_rate(self, delta, w):
+        return self.model.chart_rate(delta, w)
+
+    def velocity_alignment(self, q):
+        return self.model.velocity_alignment(q)
+
+    def velocity_coupling(self, v):
+        return self.model.velocity_coupling(v)
 
     def energy(self, q, v):
         """Kinetic plus gravitational potential energy (J)."""

@@ -162,6 +162,29 @@ class Joint:
         """``q̇`` of the configuration moving with velocity ``v`` (``(..., nq)``)."""
         return v
 
+    # Charts for Lie-group integration (multibody.simulation). Near a chart point q₀ the
+    # configuration is chart(q₀, δ), δ (..., nv), a rotation vector applied in the parent frame for
+    # the rotational joints; velocities are integrated as w = T(q) v, rotated into the parent frame,
+    # where (unlike body-frame velocities) they do not turn with a fast-spinning body.
+
+    def chart(self, q0, delta):
+        """Configuration at chart coordinates ``delta (..., nv)`` around ``q0 (..., nq)``."""
+        return q0 + delta
+
+    def chart_rate(self, delta, w):
+        """``δ̇`` of chart coordinates ``delta`` moving with parent-aligned velocity ``w`` (``(..., nv)``)."""
+        return w
+
+    def velocity_alignment(self, q):
+        """Orthogonal ``T(q) (..., nv, nv)`` with ``w = T v`` the velocity in parent-frame axes; ``None``
+        when it is the identity (``v`` is already expressed there)."""
+        return None
+
+    def velocity_coupling(self, v):
+        """``κ(v) (..., nv)`` with ``ẇ = T (v̇ + κ(v))``, the rate of the aligned velocity, as ``Ṫ = T [κ]``
+        for the rotating frame; ``None`` when zero."""
+        return None
+
     def random(self, rng, lower, upper, shape=()):
         """Random configurations within ``[lower, upper]`` (each ``(nq,)``), batch ``shape``."""
         return _random_uniform(rng, lower, upper, _DEFAULT_TRANSLATION_RANGE, shape)
@@ -331,6 +354,23 @@ class Planar(Joint):
         # (ẋ, ẏ) = R(θ) (vx, vy);  d/dt (cos θ, sin θ) = ω (−sin θ, cos θ)
         return np.stack([c * v[..., 0] - s * v[..., 1], s * v[..., 0] + c * v[..., 1], -s * v[..., 2], c * v[..., 2]], -1)
 
+    def chart(self, q0, delta):
+        # (x, y) displaced in the plane's frame; (cos θ, sin θ) turned by δ_θ
+        unit = self.normalize(q0)
+        c0, s0 = unit[..., 2], unit[..., 3]
+        c, s = np.cos(delta[..., 2]), np.sin(delta[..., 2])
+        return np.stack([q0[..., 0] + delta[..., 0], q0[..., 1] + delta[..., 1], c * c0 - s * s0, s * c0 + c * s0], -1)
+
+    def velocity_alignment(self, q):
+        c, s = q[..., 2], q[..., 3]
+        T = np.zeros(q.shape[:-1] + (3, 3))
+        T[..., 0, 0], T[..., 0, 1], T[..., 1, 0], T[..., 1, 1], T[..., 2, 2] = c, -s, s, c, 1.0
+        return T
+
+    def velocity_coupling(self, v):
+        # d/dt R(θ) = R(θ) ω [[0, −1], [1, 0]]
+        return np.stack([-v[..., 2] * v[..., 1], v[..., 2] * v[..., 0], np.zeros(v.shape[:-1])], -1)
+
     def difference(self, q0, q1):
         c0, s0 = q0[..., 2] / np.hypot(q0[..., 2], q0[..., 3]), q0[..., 3] / np.hypot(q0[..., 2], q0[..., 3])
         c1, s1 = q1[..., 2] / np.hypot(q1[..., 2], q1[..., 3]), q1[..., 3] / np.hypot(q1[..., 2], q1[..., 3])
@@ -382,6 +422,19 @@ class Spherical(Joint):
     def difference(self, q0, q1):
         return spatial.quat_log(spatial.quat_multiply(spatial.quat_conjugate(q0), q1))
 
+    def chart(self, q0, delta):
+        # exp(δ) ⊗ q₀: δ a rotation vector in the parent frame
+        quat = spatial.quat_multiply(spatial.quat_exp(delta), q0)
+        return quat / np.linalg.norm(quat, axis=-1, keepdims=True)
+
+    def chart_rate(self, delta, w):
+        # ω_P = J_l(δ) δ̇
+        return spatial.matvec(spatial.so3_left_jacobian_inverse(delta), w)
+
+    def velocity_alignment(self, q):
+        # ω_P = R ω_J (and ω_J × ω_J = 0: no coupling)
+        return spatial.quat_to_rotation(q)
+
     def configuration_rate(self, q, v):
         # q̇ = ½ q ⊗ (ω, 0), ω in the joint frame
         return spatial.quat_rate(q, v)
@@ -430,6 +483,26 @@ class FreeFlyer(Joint):
         # ṗ = R v_lin (v_lin is in the body frame);  q̇ = ½ q ⊗ (ω, 0)
         quat = q[..., 3:]
         return np.concatenate([spatial.quat_rotate(quat, v[..., :3]), spatial.quat_rate(quat, v[..., 3:])], axis=-1)
+
+    def chart(self, q0, delta):
+        # p₀ + δ_p, exp(δ_θ) ⊗ quat₀: the position and a rotation vector in the parent frame
+        quat = spatial.quat_multiply(spatial.quat_exp(delta[..., 3:]), q0[..., 3:])
+        return np.concatenate([q0[..., :3] + delta[..., :3], quat / np.linalg.norm(quat, axis=-1, keepdims=True)], -1)
+
+    def chart_rate(self, delta, w):
+        # ṗ = R v_lin = w_lin ;  ω_P = J_l(δ_θ) δ̇_θ
+        return np.concatenate([w[..., :3], spatial.matvec(spatial.so3_left_jacobian_inverse(delta[..., 3:]), w[..., 3:])], -1)
+
+    def velocity_alignment(self, q):
+        # [R v_lin; R ω]
+        R = spatial.quat_to_rotation(q[..., 3:])
+        T = np.zeros(q.shape[:-1] + (6, 6))
+        T[..., :3, :3], T[..., 3:, 3:] = R, R
+        return T
+
+    def velocity_coupling(self, v):
+        # d/dt (R v_lin) = R (v̇_lin + ω × v_lin)
+        return np.concatenate([spatial.cross(v[..., 3:], v[..., :3]), np.zeros(v.shape[:-1] + (3,))], -1)
 
     def difference(self, q0, q1):
         R0, R1 = spatial.quat_to_rotation(q0[..., 3:]), spatial.quat_to_rotation(q1[..., 3:])

@@ -16,6 +16,7 @@ from functools import cached_property
 import numpy as np
 
 from . import joints as jt
+from . import spatial
 from .inertia import Inertia
 
 STANDARD_GRAVITY = (0.0, 0.0, -9.81)
@@ -446,6 +447,63 @@ class Model:
         q, v = self.check_configuration(q), self.check_velocity(v)
         return self._per_joint("configuration_rate", q, v, out="q")
 
+    # ------------------------------------------------------------------ charts for Lie-group integration
+
+    def chart(self, q0, delta) -> np.ndarray:
+        """Configuration at chart coordinates ``delta (..., nv)`` around ``q0 (..., nq)``: ``(..., nq)``.
+
+        Angles and displacements add; quaternions become ``exp(δ) ⊗ q₀`` (a rotation vector in the
+        parent frame) and planar angles turn by ``δ_θ``, so every configuration stays on its manifold.
+        :func:`multibody.simulate` integrates ``δ`` with :meth:`chart_rate` and starts a new chart
+        at the end of every step.
+        """
+        return self._per_joint("chart", np.asarray(q0, dtype=float), np.asarray(delta, dtype=float), out="q")
+
+    def chart_rate(self, delta, w) -> np.ndarray:
+        """``δ̇ (..., nv)`` of chart coordinates ``delta`` moving with aligned velocity ``w`` (see
+        :meth:`velocity_alignment`): ``w`` itself, but ``J_l(δ)⁻¹ ω`` for rotation vectors."""
+        return self._per_joint("chart_rate", np.asarray(delta, dtype=float), np.asarray(w, dtype=float),
+                               first="v", out="v")
+
+    def velocity_alignment(self, q) -> np.ndarray:
+        """Orthogonal ``T(q) (..., nv, nv)`` that rotates free-flyer, spherical and planar velocity
+        coordinates into their parent frames: ``w = T v`` (block diagonal, the identity elsewhere).
+
+        Body-frame velocities turn with a spinning body; aligned ones change only as the motion does,
+        which lets an integrator take steps longer than a revolution. Their rate is
+        ``ẇ = T (a + κ(v))`` (:meth:`velocity_coupling`).
+        """
+        q = np.asarray(q, dtype=float)
+        T = np.zeros(q.shape[:-1] + (self.nv, self.nv))
+        T[..., np.arange(self.nv), np.arange(self.nv)] = 1.0
+        for i in self._rotating_joints:
+            joint, s = self.joints[i], slice(self.idx_v[i], self.idx_v[i] + self.joints[i].nv)
+            T[..., s, s] = joint.velocity_alignment(q[..., self.idx_q[i] : self.idx_q[i] + joint.nq])
+        return T
+
+    def velocity_coupling(self, v) -> np.ndarray:
+        """``κ(v) (..., nv)`` with ``d/dt (T v) = T (v̇ + κ(v))`` (see :meth:`velocity_alignment`):
+        ``[ω × v_lin; 0]`` for a free flyer, zero for angles and displacements."""
+        v = np.asarray(v, dtype=float)
+        kappa = np.zeros(v.shape)
+        for i in self._rotating_joints:
+            joint, s = self.joints[i], slice(self.idx_v[i], self.idx_v[i] + self.joints[i].nv)
+            coupling = joint.velocity_coupling(v[..., s])
+            if coupling is not None:
+                kappa[..., s] = coupling
+        return kappa
+
+    @cached_property
+    def is_vector_space(self) -> bool:
+        """Whether every configuration coordinate is an angle or displacement (``q̇ = v``; charts add and
+        :meth:`velocity_alignment` is the identity)."""
+        return all(type(joint).chart is jt.Joint.chart for joint in self.joints)
+
+    @cached_property
+    def _rotating_joints(self) -> tuple:
+        """Indices of the joints whose velocity is not expressed in their parent frame (see ``velocity_alignment``)."""
+        return tuple(i for i, joint in enumerate(self.joints) if type(joint).velocity_alignment is not jt.Joint.velocity_alignment)
+
     def normalize(self, q) -> np.ndarray:
         """``q`` with every quaternion (and planar ``(cos θ, sin θ)`` pair) scaled to unit norm."""
         q = np.asarray(q, dtype=float)
@@ -453,13 +511,16 @@ class Model:
         blocks = [joint.normalize(q[..., s : s + joint.nq]) for joint, s in zip(self.joints, self.idx_q)]
         return np.concatenate(blocks, axis=-1) if blocks else q.copy()
 
-    def _per_joint(self, method, a, b, second="v", out="q"):
-        """Apply the joint map ``method(a_block, b_block)`` joint by joint and assemble the result.
+    def _per_joint(self, method, a, b, second="v", out="q", first="q"):
+        """Apply the joint map ``method(a_block, b_block)`` joint by joint and assemble the result
+        (``first``, ``second``, ``out``: whether ``a``, ``b`` and the result are ``q``- or ``v``-shaped).
 
         The joints that keep the base class's map (angles and displacements, where ``nq = nv`` and
         the map is plain arithmetic) are handled together in one call on all their coordinates.
         """
         shared, others = self._vector_space_joints[method]
+        idx_a = self.idx_v if first == "v" else self.idx_q
+        size_a = (lambda j: j.nv) if first == "v" else (lambda j: j.nq)
         idx_b = self.idx_v if second == "v" else self.idx_q
         size_b = (lambda j: j.nv) if second == "v" else (lambda j: j.nq)
         batch = np.broadcast_shapes(a.shape[:-1], b.shape[:-1])
@@ -467,11 +528,11 @@ class Model:
         if shared is not None:
             joint, in_q, in_v = shared
             result[..., in_q if out == "q" else in_v] = getattr(joint, method)(
-                a[..., in_q], b[..., in_v if second == "v" else in_q])
+                a[..., in_v if first == "v" else in_q], b[..., in_v if second == "v" else in_q])
         for i in others:
-            joint, sa, sb = self.joints[i], self.idx_q[i], idx_b[i]
+            joint, sa, sb = self.joints[i], idx_a[i], idx_b[i]
             so = self.idx_q[i] if out == "q" else self.idx_v[i]
-            block = getattr(joint, method)(a[..., sa : sa + joint.nq], b[..., sb : sb + size_b(joint)])
+            block = getattr(joint, method)(a[..., sa : sa + size_a(joint)], b[..., sb : sb + size_b(joint)])
             result[..., so : so + block.shape[-1]] = block
         return result
 
@@ -480,7 +541,7 @@ class Model:
         """For each joint map of :meth:`_per_joint`: ``((a joint, their q indices, their v indices), other
         joints)``, where the first part covers the joints that keep the base class's map."""
         out = {}
-        for method in ("integrate", "difference", "configuration_rate"):
+        for method in ("integrate", "difference", "configuration_rate", "chart", "chart_rate"):
             shared = [i for i, joint in enumerate(self.joints)
                       if getattr(type(joint), method) is getattr(jt.Joint, method) and joint.nq == joint.nv]
             others = tuple(i for i in range(self.njoints) if i not in shared)

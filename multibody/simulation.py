@@ -1,18 +1,22 @@
 """Time integration of (constrained) equations of motion: ``mb.simulate``.
 
-The state is ``(q, v)`` with ``q̇ = G(q) v`` (``model.configuration_rate``) and ``v̇ = a`` from the
-KKT solve of :class:`~multibody.constrained.ConstrainedSystem`. Adaptive methods run through a
-``scipy.integrate`` solver (RK45, DOP853, Radau, ...). While the output interval ``dt`` spans several
-of its steps, each interval is integrated on its own and landed on exactly; once a single step covers
-an interval, one solver runs on to ``t_final`` and the output states at the requested times come from
-its dense output (continuous extension) inside each step, so a high output rate does not restrict
-the step size; with ``project=True`` those of them that violate
-the constraints by more than ``projection_tolerance`` are projected onto them (the integration
-itself goes on from its own states). ``"RK4"`` is the classical fixed-step method
-with step ``dt``. After every integrator step the state is put back on the configuration manifold
-(unit quaternions) and, with ``project=True``, when its constraint residual exceeds
-``projection_tolerance`` it is projected onto ``φ = 0`` and ``A v + b = 0`` and the integrator restarts
-from the projected state (with the step size it had reached). The multipliers, energies and residuals
+The motion is ``q̇ ↔ v`` (``model.configuration_rate``) with ``v̇ = a`` from the KKT solve of
+:class:`~multibody.constrained.ConstrainedSystem`. It is integrated as a Lie-group method of the
+Munthe-Kaas type (E. Hairer, C. Lubich and G. Wanner, *Geometric Numerical Integration*, 2nd ed.,
+Springer 2006, §IV.8.2): in the chart ``q = chart(q_c, δ)`` around the configuration ``q_c`` at the
+start of a step, the integrator's state is ``y = [δ, w]`` with ``δ̇ = J_l(δ)⁻¹ w`` for rotation
+vectors and ``w`` the velocity with free-flyer, spherical and planar coordinates rotated into the
+parent frame (:meth:`multibody.model.Model.chart`). Quaternions stay exactly on the unit sphere,
+and since aligned velocities do not turn with a spinning body, a step may span most of a
+revolution. Adaptive methods run through a ``scipy.integrate`` solver (RK45, DOP853, Radau, ...)
+to ``t_final``, the output states at the requested times coming from its dense output
+(continuous extension) inside each step, so a high output rate does not restrict the step size;
+on a curved configuration space it restarts in a new chart at the end of every step, with the
+step size it proposed next. ``"RK4"`` is the classical fixed-step method with step ``dt``, one
+chart per step. With ``project=True``, a step's end state whose constraint residual exceeds
+``projection_tolerance`` is projected onto ``φ = 0`` and ``A v + b = 0`` and the integrator restarts
+from it; output states from the dense output that violate the constraints by more are projected
+too (the integration itself goes on from its own states). The multipliers, energies and residuals
 of all output states are computed afterwards, in one batched call when the system allows it; the
 residuals are those of the returned states.
 """
@@ -114,8 +118,7 @@ def simulate(system, q0, v0, t_final, *, dt=None, method="RK45", tau=None, rtol=
     if not dt > 0.0:
         raise ValueError(f"dt must be positive, got {dt}")
     torque = _torque_function(tau, nv)
-    normalize = getattr(mechanical, "normalize", lambda q: q)
-    rate = getattr(mechanical, "configuration_rate", lambda q, v: v)
+    charts = _Charts(mechanical)
 
     q, v = np.array(q0, dtype=float), np.array(v0, dtype=float)
     if q.shape != (nq,) or v.shape != (nv,):
@@ -127,21 +130,39 @@ def simulate(system, q0, v0, t_final, *, dt=None, method="RK45", tau=None, rtol=
                       UserWarning, stacklevel=2)
     q, v = q_projected, v_projected
 
-    def derivative(t, y):
-        q_t = normalize(y[:nq])
-        v_t = y[nq:]
+    # The integrator's state is y = [δ, w] in the chart around a configuration q_c: q = chart(q_c, δ),
+    # w the aligned velocity (see Model.chart). A new chart starts from each step's end state.
+    def derivative(t, y, q_chart):
+        delta, w = y[:nv], y[nv:]
+        q_t = charts.chart(q_chart, delta)
+        T = charts.velocity_alignment(q_t)
+        v_t = w if T is None else w @ T  # Tᵀ w
         a, _ = constrained.forward_dynamics(q_t, v_t, torque(t, q_t, v_t), t)
-        return np.concatenate([rate(q_t, v_t), a])
+        # ẇ = T (a + κ(v))
+        w_dot = a if T is None else T @ (a + charts.velocity_coupling(v_t))
+        return np.concatenate([charts.chart_rate(delta, w), w_dot])
 
-    def settle(t, y):
-        """``y`` back onto the configuration manifold and, with ``project``, onto the constraints when
-        its residual exceeds the tolerance. Returns the state and whether it was projected."""
-        if not np.all(np.isfinite(y)):
+    def to_chart(state):
+        """``y = [0, w]`` of a state ``[q, v]`` in the chart around its own ``q``."""
+        T = charts.velocity_alignment(state[:nq])
+        return np.concatenate([np.zeros(nv), state[nq:] if T is None else T @ state[nq:]])
+
+    def from_chart(q_chart, y):
+        """States ``[q, v] (..., nq + nv)`` of chart states ``y (..., 2 nv)``."""
+        q_t = charts.chart(q_chart, y[..., :nv])
+        T = charts.velocity_alignment(q_t)
+        w = y[..., nv:]
+        return np.concatenate([q_t, w if T is None else (w[..., None, :] @ T)[..., 0, :]], axis=-1)
+
+    def settle(t, state):
+        """``state`` projected onto the constraints when, with ``project``, its residual exceeds the
+        tolerance. Returns the state and whether it was projected."""
+        if not np.all(np.isfinite(state)):
             raise SimulationError(f"the state became non-finite at t = {t:.6g} s", None)
-        q_t, v_t = normalize(y[:nq]), y[nq:]
+        q_t, v_t = state[:nq], state[nq:]
         if project and constrained.num_rows and constrained.residual(q_t, v_t, t) > projection_tolerance:
             return np.concatenate(constrained.project(q_t, v_t, t)), True
-        return np.concatenate([q_t, v_t]), False
+        return state, False
 
     tolerance = projection_tolerance if project else None
     n_intervals = int(np.ceil((t_final - t0) / dt - 1e-9))
@@ -155,58 +176,60 @@ def simulate(system, q0, v0, t_final, *, dt=None, method="RK45", tau=None, rtol=
         done = 1
         if method == "RK4":
             for k in range(1, len(times)):
-                states[k] = settle(times[k], _rk4_step(derivative, times[k - 1], states[k - 1], times[k] - times[k - 1]))[0]
+                q_chart = states[k - 1, :nq]
+                y = _rk4_step(lambda t, y: derivative(t, y, q_chart), times[k - 1], to_chart(states[k - 1]),
+                              times[k] - times[k - 1])
+                states[k] = settle(times[k], from_chart(q_chart, y))[0]
                 done = k + 1
         else:
             solver_class = METHODS[method]
 
-            def start(t, y, t_bound, step_size):
-                first_step = None if step_size is None else min(step_size, t_bound - t)
-                return solver_class(derivative, t, y, t_bound, rtol=rtol, atol=atol, max_step=max_step,
-                                    first_step=first_step)
+            def start(t, state, step_size):
+                q_chart = state[:nq]
+                first_step = None if step_size is None else min(step_size, t_final - t)
+                solver = solver_class(lambda t, y: derivative(t, y, q_chart), t, to_chart(state), t_final, rtol=rtol,
+                                      atol=atol, max_step=max_step, first_step=first_step)
+                return solver, q_chart
 
-            def advance(solver):
+            # One solver runs on to t_final; the output states inside each of its steps come from its
+            # dense output (continuous extension), so the output rate does not restrict the step size.
+            # It restarts from the end of a step that was projected, and, on a curved configuration
+            # space, from every step's end in a new chart (keeping the step size it proposes next).
+            solver, q_chart = start(t0, states[0], None)
+            while done < len(times):
                 t_before = solver.t
                 message = solver.step()
                 if solver.status == "failed":
                     raise SimulationError(f"{method} failed at t = {t_before:.6g} s: {message}", None)
-
-            # While the output intervals span several steps, each one is integrated on its own and landed
-            # on exactly (the next starts with the step size this one reached, so no step-size search is
-            # repeated). Once a single step covers an interval, one solver runs on to t_final and the
-            # output states inside its steps come from its dense output.
-            step_size = None
-            while done < len(times):
-                solver, steps = start(times[done - 1], states[done - 1], times[done], step_size), []
-                while solver.status == "running":
-                    advance(solver)
-                    steps.append(solver.step_size)
-                # The last step may have been shortened to land on the output time: take the longer of the last two.
-                step_size = max(steps[-2:])
-                states[done] = settle(times[done], solver.y)[0]
-                done += 1
-                if len(steps) == 1:
-                    break
-            solver = start(times[done - 1], states[done - 1], t_final, step_size) if done < len(times) else None
-            while done < len(times):
-                advance(solver)
-                y_end, projected = settle(solver.t, solver.y)
-                # Output times inside the step from the dense output; one landing on the step's end
-                # takes the (projected) end state itself.
                 inside = done + int(np.searchsorted(times[done:], solver.t, side="left"))
                 if inside > done:
-                    states[done:inside] = solver.dense_output()(times[done:inside]).T
+                    states[done:inside] = from_chart(q_chart, solver.dense_output()(times[done:inside]).T)
                     done = inside
+                end, projected = settle(solver.t, from_chart(q_chart, solver.y))
                 if done < len(times) and times[done] == solver.t:
-                    states[done] = y_end
+                    states[done] = end
                     done += 1
-                if projected and done < len(times):
-                    solver = start(solver.t, y_end, t_final, solver.step_size)
+                if done < len(times) and (projected or charts.curved):
+                    solver, q_chart = start(solver.t, end, getattr(solver, "h_abs", solver.step_size))
     except (SimulationError, ConstraintError, np.linalg.LinAlgError, ValueError, FloatingPointError) as exc:
         t_fail = times[max(done - 1, 0)]
         message = f"simulation stopped at t = {t_fail:.6g} s: {exc}"
         raise SimulationError(message, _trajectory(constrained, times[:done], states[:done], torque, message, tolerance)) from exc
     return _trajectory(constrained, times, states, torque, "completed", tolerance)
+
+
+class _Charts:
+    """The chart maps of a mechanical system (see :meth:`multibody.model.Model.chart`); a system without
+    them is a vector space with ``q̇ = v``: ``q = q_c + δ``, ``w = v`` (``velocity_alignment`` ``None``)."""
+
+    def __init__(self, system):
+        self.curved = hasattr(system, "chart") and not getattr(system, "vector_space", False)
+        if self.curved:
+            self.chart, self.chart_rate = system.chart, system.chart_rate
+            self.velocity_alignment, self.velocity_coupling = system.velocity_alignment, system.velocity_coupling
+        else:
+            self.chart, self.chart_rate = (lambda q0, delta: q0 + delta), (lambda delta, w: w)
+            self.velocity_alignment = lambda q: None
 
 
 def _rk4_step(derivative, t, y, h):
