@@ -49,11 +49,19 @@ def _gravity_acceleration(model):
 
 
 def _tree(model, q):
-    """One pass down the tree on lanes (``q (nq, N)``): world poses of the joint frames
-    ``R_WJ (nj, 3, 3, N)``, ``p_WJ (nj, 3, N)``, world Plücker motion subspaces ``ξ (nv, 6, N)`` and
-    world inertias ``ᵂI_i = ᵂX_i* I_i ⁱX_W`` ``(nj, 6, 6, N)`` (RBDA eq. 2.66)."""
+    """One pass down the tree on lanes (``q (nq, N)``): world orientations of the joint frames
+    ``R_WJ (nj, 3, 3, N)``, their positions ``p_OJ (nj, 3, N)`` relative to the reference point ``O``,
+    Plücker motion subspaces ``ξ (nv, 6, N)`` and inertias ``ᴼI_i = ᴼX_i* I_i ⁱX_O`` ``(nj, 6, 6, N)``
+    (RBDA eq. 2.66), in world axes at ``O``.
+
+    ``O`` is the origin of the first joint, not of the world: coordinates at a point far from the
+    bodies carry moments ``m |p|²`` that swamp the rotational inertias and cost digits (a 2 kg body
+    170 m from the world origin lost 6 of them). Joint forces, ``M``, ``C`` and energies do not
+    depend on the point; only translations between frames do, and they all use ``p_OJ``.
+    """
     R_WJ, p_WJ = world_poses(model, q)
-    return R_WJ, p_WJ, motion_subspaces(model, R_WJ, p_WJ), lanes.world_inertias(*model.inertia_parameters, R_WJ, p_WJ)
+    p_OJ = p_WJ - p_WJ[:1]
+    return R_WJ, p_OJ, motion_subspaces(model, R_WJ, p_OJ), lanes.world_inertias(*model.inertia_parameters, R_WJ, p_OJ)
 
 
 def _subtree_sums(model, x):

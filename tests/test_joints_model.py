@@ -239,6 +239,68 @@ def test_model_maps_batched(tree):
     assert tree.integrate(q0[0, 0], v).shape == (2, 3, tree.nq)
 
 
+# ----------------------------------------------------------------------------- charts (Lie-group integration)
+
+@pytest.mark.parametrize("joint", JOINTS, ids=JOINT_IDS)
+def test_chart_is_centred_and_stays_on_the_manifold(joint):
+    rng = np.random.default_rng(21)
+    q0 = random_joint_q(rng, joint, (5,))
+    centred, q = joint.chart(q0, np.zeros((5, joint.nv))), joint.chart(q0, rng.uniform(-2.0, 2.0, (5, joint.nv)))
+    for k in range(5):
+        assert_same_joint_configuration(joint, centred[k], q0[k])
+        assert_same_joint_configuration(joint, joint.normalize(q[k]), q[k])
+
+
+@pytest.mark.parametrize("joint", JOINTS, ids=JOINT_IDS)
+def test_chart_rate_moves_the_configuration_with_the_aligned_velocity(joint):
+    """Along δ(t) with δ̇ = chart_rate(δ, w), the configuration chart(q₀, δ) moves with body velocity
+    v = Tᵀ w: its q̇ is configuration_rate(q, v) (central differences)."""
+    rng = np.random.default_rng(22)
+    q0, delta = random_joint_q(rng, joint), moderate_velocity(rng, joint)
+    q = joint.chart(q0, delta)
+    w = rng.standard_normal(joint.nv)
+    T = joint.velocity_alignment(q)
+    v = w if T is None else T.T @ w
+    rate, h = joint.chart_rate(delta, w), 1e-6
+    numeric = (joint.chart(q0, delta + h * rate) - joint.chart(q0, delta - h * rate)) / (2 * h)
+    assert_allclose(numeric, joint.configuration_rate(q, v), atol=1e-8)
+
+
+@pytest.mark.parametrize("joint", JOINTS, ids=JOINT_IDS)
+def test_aligned_velocity_rate_is_alignment_times_acceleration_plus_coupling(joint):
+    """``d/dt (T(q) v) = T (a + κ(v))`` along ``q(t) = integrate(q, v t)``, ``v(t) = v + a t``; T orthogonal."""
+    rng = np.random.default_rng(23)
+    q, v, a = random_joint_q(rng, joint), rng.standard_normal(joint.nv), rng.standard_normal(joint.nv)
+    T = joint.velocity_alignment(q)
+    if T is None:
+        assert joint.velocity_coupling(v) is None and type(joint).chart is jt.Joint.chart
+        return
+    assert_allclose(T @ T.T, np.eye(joint.nv), atol=1e-14)
+    aligned = lambda t: joint.velocity_alignment(joint.integrate(q, v * t)) @ (v + a * t)  # noqa: E731
+    kappa = joint.velocity_coupling(v)
+    h = 1e-6
+    assert_allclose((aligned(h) - aligned(-h)) / (2 * h), T @ (a + (0.0 if kappa is None else kappa)), atol=1e-8)
+
+
+def test_model_charts_assemble_the_joint_charts(tree):
+    rng = np.random.default_rng(24)
+    q0, delta = tree.random_configuration(rng, (3,)), 0.5 * rng.standard_normal((3, tree.nv))
+    q, w = tree.chart(q0, delta), rng.standard_normal((3, tree.nv))
+    T, rate, kappa = tree.velocity_alignment(q), tree.chart_rate(delta, w), tree.velocity_coupling(w)
+    assert q.shape == (3, tree.nq) and T.shape == (3, tree.nv, tree.nv) and rate.shape == kappa.shape == (3, tree.nv)
+    assert_allclose(T @ np.swapaxes(T, -1, -2), np.broadcast_to(np.eye(tree.nv), T.shape), atol=1e-14)
+    for joint, iq, iv in zip(tree.joints, tree.idx_q, tree.idx_v):
+        sq, sv = slice(iq, iq + joint.nq), slice(iv, iv + joint.nv)
+        assert_allclose(q[:, sq], joint.chart(q0[:, sq], delta[:, sv]), atol=1e-15)
+        assert_allclose(rate[:, sv], joint.chart_rate(delta[:, sv], w[:, sv]), atol=1e-15)
+        block = joint.velocity_alignment(q[:, sq])
+        assert_allclose(T[:, sv, sv], np.broadcast_to(np.eye(joint.nv), (3, joint.nv, joint.nv)) if block is None else block)
+        coupling = joint.velocity_coupling(w[:, sv])
+        assert_allclose(kappa[:, sv], 0.0 if coupling is None else coupling)
+    assert not tree.is_vector_space
+    assert mb.robots.load("double_pendulum").is_vector_space
+
+
 def test_random_configuration_within_limits_and_shapes():
     rng = np.random.default_rng(8)
     model = random_tree_model(1)
