@@ -474,8 +474,7 @@ class Model:
         ``ẇ = T (a + κ(v))`` (:meth:`velocity_coupling`).
         """
         q = np.asarray(q, dtype=float)
-        T = np.zeros(q.shape[:-1] + (self.nv, self.nv))
-        T[..., np.arange(self.nv), np.arange(self.nv)] = 1.0
+        T = np.array(np.broadcast_to(self._identity_v, q.shape[:-1] + (self.nv, self.nv)))
         for i in self._rotating_joints:
             joint, s = self.joints[i], slice(self.idx_v[i], self.idx_v[i] + self.joints[i].nv)
             T[..., s, s] = joint.velocity_alignment(q[..., self.idx_q[i] : self.idx_q[i] + joint.nq])
@@ -492,6 +491,10 @@ class Model:
             if coupling is not None:
                 kappa[..., s] = coupling
         return kappa
+
+    @cached_property
+    def _identity_v(self) -> np.ndarray:
+        return _frozen(np.eye(self.nv))
 
     @cached_property
     def is_vector_space(self) -> bool:
@@ -523,7 +526,8 @@ class Model:
         size_a = (lambda j: j.nv) if first == "v" else (lambda j: j.nq)
         idx_b = self.idx_v if second == "v" else self.idx_q
         size_b = (lambda j: j.nv) if second == "v" else (lambda j: j.nq)
-        batch = np.broadcast_shapes(a.shape[:-1], b.shape[:-1])
+        # np.broadcast_shapes costs microseconds; equal batch shapes (the usual case) need none.
+        batch = a.shape[:-1] if a.shape[:-1] == b.shape[:-1] else np.broadcast_shapes(a.shape[:-1], b.shape[:-1])
         result = np.empty(batch + ((self.nq if out == "q" else self.nv),))
         if shared is not None:
             joint, in_q, in_v = shared
