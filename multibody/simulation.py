@@ -184,11 +184,22 @@ def simulate(system, q0, v0, t_final, *, dt=None, method="RK45", tau=None, rtol=
         else:
             solver_class = METHODS[method]
 
-            def start(t, state, step_size):
-                q_chart = state[:nq]
+            def start(t, state, step_size, w_dot=None):
+                """A solver from ``state`` at ``t`` in the chart around it. ``w_dot``: the aligned
+                acceleration there when already known (the end of an unprojected step: the same state
+                in another chart), which then stands in for the solver's first evaluation, as
+                ``δ̇ = J_l(0)⁻¹ w = w`` at the chart's centre."""
+                q_chart, y0 = state[:nq], to_chart(state)
+                first = [None if w_dot is None else np.concatenate([y0[nv:], w_dot])]
+
+                def fun(t_, y):
+                    if first[0] is not None and t_ == t and np.array_equal(y, y0):
+                        known, first[0] = first[0], None
+                        return known
+                    return derivative(t_, y, q_chart)
+
                 first_step = None if step_size is None else min(step_size, t_final - t)
-                solver = solver_class(lambda t, y: derivative(t, y, q_chart), t, to_chart(state), t_final, rtol=rtol,
-                                      atol=atol, max_step=max_step, first_step=first_step)
+                solver = solver_class(fun, t, y0, t_final, rtol=rtol, atol=atol, max_step=max_step, first_step=first_step)
                 return solver, q_chart
 
             # One solver runs on to t_final; the output states inside each of its steps come from its
@@ -210,7 +221,9 @@ def simulate(system, q0, v0, t_final, *, dt=None, method="RK45", tau=None, rtol=
                     states[done] = end
                     done += 1
                 if done < len(times) and (projected or charts.curved):
-                    solver, q_chart = start(solver.t, end, getattr(solver, "h_abs", solver.step_size))
+                    # (explicit Runge–Kutta solvers keep the derivative at their end state in .f)
+                    w_dot = None if projected or not hasattr(solver, "f") else solver.f[nv:]
+                    solver, q_chart = start(solver.t, end, getattr(solver, "h_abs", solver.step_size), w_dot)
     except (SimulationError, ConstraintError, np.linalg.LinAlgError, ValueError, FloatingPointError) as exc:
         t_fail = times[max(done - 1, 0)]
         message = f"simulation stopped at t = {t_fail:.6g} s: {exc}"
