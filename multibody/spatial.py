@@ -126,15 +126,28 @@ def rotation_to_quat(R):
     return np.where(quat[..., 3:4] < 0.0, -quat, quat)
 
 
+def _hamilton_tensor():
+    """``H (4, 4, 4)`` with ``(q1 ⊗ q2)_i = Σ_jk H_ijk q1_j q2_k``, from
+    ``(u1, w1)(u2, w2) = (w1 u2 + w2 u1 + u1 × u2, w1 w2 − u1·u2)``."""
+    H = np.zeros((4, 4, 4))
+    for i in range(3):
+        H[i, 3, i] = H[i, i, 3] = 1.0  # w1 u2 + w2 u1
+        j, k = (i + 1) % 3, (i + 2) % 3
+        H[i, j, k], H[i, k, j] = 1.0, -1.0  # u1 × u2
+        H[3, i, i] = -1.0  # − u1·u2
+    H[3, 3, 3] = 1.0  # w1 w2
+    return H
+
+
+_HAMILTON = _hamilton_tensor()
+
+
 def quat_multiply(q1, q2):
-    """Hamilton product ``q1 ⊗ q2`` of ``[x, y, z, w]`` quaternions. ``(..., 4), (..., 4) -> (..., 4)``."""
-    q1, q2 = np.asarray(q1, dtype=float), np.asarray(q2, dtype=float)
-    u1, w1 = q1[..., :3], q1[..., 3:]
-    u2, w2 = q2[..., :3], q2[..., 3:]
-    # (u1, w1)(u2, w2) = (w1 u2 + w2 u1 + u1 × u2, w1 w2 − u1·u2)
-    u = w1 * u2 + w2 * u1 + cross(u1, u2)
-    w = w1 * w2 - np.sum(u1 * u2, axis=-1, keepdims=True)
-    return np.concatenate([u, w], axis=-1)
+    """Hamilton product ``q1 ⊗ q2`` of ``[x, y, z, w]`` quaternions. ``(..., 4), (..., 4) -> (..., 4)``.
+
+    One contraction with the constant tensor of the product (bilinear in its factors).
+    """
+    return np.einsum("ijk,...j,...k->...i", _HAMILTON, q1, q2)
 
 
 def quat_rotate(quat, x):
