@@ -84,18 +84,36 @@ def rpy_to_rotation(rpy):
 
 # ----------------------------------------------------------------------------- quaternions
 
+def _rotation_tensor():
+    """``Q (3, 3, 4, 4)`` with ``R_ij |q|² = Σ_kl Q_ijkl q_k q_l`` for ``q = [u, w]``:
+    ``R |q|² = (w² − |u|²) I + 2 u uᵀ + 2 w [u]×`` (each product split evenly over both orders)."""
+    Q = np.zeros((3, 3, 4, 4))
+    for i in range(3):
+        Q[i, i, 3, 3] = 1.0
+        Q[i, i, [0, 1, 2], [0, 1, 2]] -= 1.0
+        for j in range(3):
+            Q[i, j, i, j] += 1.0
+            Q[i, j, j, i] += 1.0
+    for i, j, k in ((0, 1, 2), (1, 2, 0), (2, 0, 1)):
+        # [u]×_ij = −ε_ijk u_k
+        for a, b, sign in ((i, j, -1.0), (j, i, 1.0)):
+            Q[a, b, 3, k] += sign
+            Q[a, b, k, 3] += sign
+    return Q
+
+
+_ROTATION = _rotation_tensor()
+
+
 def quat_to_rotation(quat):
     """Rotation matrix of the quaternion ``[x, y, z, w]``. ``(..., 4) -> (..., 3, 3)``.
 
-    ``R = I + 2 (w [u]× + [u]×²) / |q|²`` with ``u = (x, y, z)``; dividing by ``|q|²`` makes the
-    result the rotation of ``q / |q|``, so a quaternion that drifted off the unit sphere by rounding
-    still gives an exact rotation.
+    ``R = ((w² − |u|²) I + 2 u uᵀ + 2 w [u]×) / |q|²`` with ``u = (x, y, z)``: one contraction of the
+    quadratic form; dividing by ``|q|²`` makes the result the rotation of ``q / |q|``, so a
+    quaternion that drifted off the unit sphere by rounding still gives an exact rotation.
     """
     quat = np.asarray(quat, dtype=float)
-    u, w = quat[..., :3], quat[..., 3]
-    U = skew(u)
-    scale = (2.0 / np.einsum("...i,...i->...", quat, quat))[..., None, None]
-    return np.eye(3) + scale * (w[..., None, None] * U + U @ U)
+    return np.einsum("ijkl,...k,...l->...ij", _ROTATION, quat, quat) / np.einsum("...i,...i->...", quat, quat)[..., None, None]
 
 
 def rotation_to_quat(R):
