@@ -39,8 +39,7 @@ def _check(model, q, v=None, a=None, tau=None, f_ext=None):
             raise ValueError(f"f_ext must have shape (..., {model.njoints}, 6) (one spatial force per moving "
                              f"joint, in its frame), got {f_ext.shape}")
         shapes.append(f_ext.shape[:-2])
-    # np.broadcast_shapes costs microseconds; equal shapes (the usual case) need no broadcasting.
-    return q, *arrays, f_ext, shapes[0] if shapes.count(shapes[0]) == len(shapes) else np.broadcast_shapes(*shapes)
+    return q, *arrays, f_ext, lanes.batch_shape(*shapes)
 
 
 def _gravity_acceleration(model):

@@ -186,7 +186,7 @@ def jacobian(model, q, body, point=None):
     Pinocchio counterpart: ``getFrameJacobian(..., LOCAL_WORLD_ALIGNED)``.
     """
     q, b, point = model.check_configuration(q), model.body_index(body), _point(point)
-    batch = np.broadcast_shapes(q.shape[:-1], point.shape[:-1])
+    batch = lanes.batch_shape(q.shape[:-1], point.shape[:-1])
     if model.body_joints[b] < 0:
         return np.zeros(batch + (6, model.nv))
     return _in_blocks(model, lambda q, p_BF: lanes.transpose(_frame_on_lanes(model, b, _EYE, p_BF, q)[3]), batch,
@@ -203,7 +203,7 @@ def jacobian_time_variation(model, q, v, body, point=None):
     Pinocchio counterpart: ``getFrameJacobianTimeVariation(..., LOCAL_WORLD_ALIGNED)``.
     """
     q, v, b, point = model.check_configuration(q), model.check_velocity(v), model.body_index(body), _point(point)
-    batch = np.broadcast_shapes(q.shape[:-1], v.shape[:-1], point.shape[:-1])
+    batch = lanes.batch_shape(q.shape[:-1], v.shape[:-1], point.shape[:-1])
     if model.body_joints[b] < 0:
         return np.zeros(batch + (6, model.nv))
 
@@ -253,7 +253,7 @@ def frame_kinematics(model, q, v, body, placement=None):
     """
     q = model.check_configuration(q)
     v = model.check_velocity(v)
-    batch = np.broadcast_shapes(q.shape[:-1], v.shape[:-1])
+    batch = lanes.batch_shape(q.shape[:-1], v.shape[:-1])
     X_BF = np.eye(4) if placement is None else np.asarray(placement, dtype=float)
     if X_BF.shape != (4, 4):
         raise ValueError(f"placement must have shape (4, 4), got {X_BF.shape}")

@@ -45,6 +45,12 @@ def to_lanes(x, components=1, batch=None):
     return x.reshape((math.prod(x.shape[:-components]),) + shape).transpose(tuple(range(1, components + 1)) + (0,))
 
 
+def batch_shape(*shapes):
+    """The common batch shape of arrays with leading batch axes ``shapes`` (``np.broadcast_shapes``,
+    which costs microseconds, only when they differ: equal shapes are the usual case)."""
+    return shapes[0] if shapes.count(shapes[0]) == len(shapes) else np.broadcast_shapes(*shapes)
+
+
 def from_lanes(x, batch):
     """``(*components, N)`` -> ``batch + components``: the inverse of :func:`to_lanes`, contiguous."""
     if x.shape[-1] == 1:

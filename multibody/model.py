@@ -16,7 +16,7 @@ from functools import cached_property
 import numpy as np
 
 from . import joints as jt
-from . import spatial
+from . import lanes, spatial
 from .inertia import Inertia
 
 STANDARD_GRAVITY = (0.0, 0.0, -9.81)
@@ -526,8 +526,7 @@ class Model:
         size_a = (lambda j: j.nv) if first == "v" else (lambda j: j.nq)
         idx_b = self.idx_v if second == "v" else self.idx_q
         size_b = (lambda j: j.nv) if second == "v" else (lambda j: j.nq)
-        # np.broadcast_shapes costs microseconds; equal batch shapes (the usual case) need none.
-        batch = a.shape[:-1] if a.shape[:-1] == b.shape[:-1] else np.broadcast_shapes(a.shape[:-1], b.shape[:-1])
+        batch = lanes.batch_shape(a.shape[:-1], b.shape[:-1])
         result = np.empty(batch + ((self.nq if out == "q" else self.nv),))
         if shared is not None:
             joint, in_q, in_v = shared
