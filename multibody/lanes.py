@@ -26,6 +26,8 @@ import math
 
 import numpy as np
 
+from . import spatial
+
 
 # ----------------------------------------------------------------------------- layout changes
 
@@ -162,6 +164,9 @@ def quat_to_rotation(quat):
     ``R = 1 + 2 (w [u]× + u uᵀ − uᵀu 1) / |q|²`` with ``u = (x, y, z)`` (``[u]×² = u uᵀ − uᵀu 1``);
     dividing by ``|q|²`` gives the rotation of ``q / |q|``, as :func:`multibody.spatial.quat_to_rotation`.
     """
+    if quat.shape[-1] == 1:
+        # one lane: the quadratic form's single contraction, fewer calls
+        return spatial.quat_to_rotation(quat[..., 0])[..., None]
     u, w = quat[..., :3, :], quat[..., 3:, :]
     scale = 2.0 / dot(quat, quat)[..., None, None, :]
     R = scale * (w[..., None, :] * skew(u) + u[..., :, None, :] * u[..., None, :, :])
