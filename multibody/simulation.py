@@ -90,7 +90,9 @@ def simulate(system, q0, v0, t_final, *, dt=None, method="RK45", tau=None, rtol=
     """Integrate the motion of a ``Model`` or ``ConstrainedSystem`` from ``(q0, v0)`` at ``t0`` to ``t_final``.
 
     Args:
-        system: a :class:`~multibody.model.Model`, a :class:`ConstrainedSystem`, or any mechanical system.
+        system: a :class:`~multibody.model.Model`, a :class:`ConstrainedSystem`, or any mechanical system
+            (:class:`~multibody.constrained.ModelSystem` lists the members; one without the chart maps
+            must have ``q̇ = v``).
         q0, v0: initial state ``(nq,)``, ``(nv,)``. An inconsistent state is projected onto the
             constraints with a warning giving the distance moved; if that fails, ``ConstraintError``.
         t_final: end time (s).
@@ -237,6 +239,10 @@ class _Charts:
 
     def __init__(self, system):
         self.curved = hasattr(system, "chart") and not getattr(system, "vector_space", False)
+        if not hasattr(system, "chart") and system.nq != system.nv:
+            raise ValueError(f"{type(system).__name__} has nq = {system.nq} != nv = {system.nv} but no chart maps: "
+                             "simulate integrates a curved configuration space through chart, chart_rate, "
+                             "velocity_alignment and velocity_coupling (see multibody.model.Model.chart)")
         if self.curved:
             self.chart, self.chart_rate = system.chart, system.chart_rate
             self.velocity_alignment, self.velocity_coupling = system.velocity_alignment, system.velocity_coupling

@@ -542,3 +542,24 @@ def test_simulate_rejects_bad_arguments():
         mb.simulate(cs, q0, v0, 1.0, tau=np.zeros(2))
     with pytest.raises(TypeError, match="not a mechanical system"):
         mb.simulate("pendulum", q0, v0, 1.0)
+
+
+class _CircleWithoutCharts:
+    """A rotor whose angle is stored as (cos θ, sin θ) (nq = 2, nv = 1), with no chart maps."""
+
+    nq, nv = 2, 1
+
+    def mass_matrix(self, q):
+        return np.ones(np.shape(q)[:-1] + (1, 1))
+
+    def bias_forces(self, q, v):
+        return np.zeros(np.shape(v))
+
+    def integrate(self, q, v, dt=1.0):
+        c, s = np.cos(v[..., 0] * dt), np.sin(v[..., 0] * dt)
+        return np.stack([c * q[..., 0] - s * q[..., 1], s * q[..., 0] + c * q[..., 1]], axis=-1)
+
+
+def test_simulate_refuses_a_curved_system_without_chart_maps():
+    with pytest.raises(ValueError, match="nq = 2 != nv = 1 but no chart maps"):
+        mb.simulate(_CircleWithoutCharts(), np.array([1.0, 0.0]), np.array([1.0]), 1.0)
