@@ -29,7 +29,7 @@ class ModelSystem:
     Any other system (e.g. ``LagrangianSystem.numeric()``) provides the same members: ``nq``, ``nv``,
     ``mass_matrix(q)``, ``bias_forces(q, v)``, ``integrate(q, v, dt)``, ``configuration_rate(q, v)``,
     ``normalize(q)``, ``neutral()`` and ``energy(q, v)``; the chart maps ``chart``, ``chart_rate``,
-    ``velocity_alignment`` and ``velocity_coupling`` (see :meth:`Model.chart`) only when its
+    ``velocity_alignment``, ``velocity_coupling`` and ``chart_magnitude`` (see :meth:`Model.chart`) only when its
     configurations are not a vector space with ``q̇ = v``.
     """
 
@@ -70,6 +70,9 @@ class ModelSystem:
 
     def velocity_coupling(self, v):
         return self.model.velocity_coupling(v)
+
+    def chart_magnitude(self, q):
+        return self.model.chart_magnitude(q)
 
     def energy(self, q, v):
         """Kinetic plus gravitational potential energy (J)."""

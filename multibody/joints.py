@@ -185,6 +185,12 @@ class Joint:
         for the rotating frame; ``None`` when zero."""
         return None
 
+    def chart_magnitude(self, q):
+        """Size ``(..., nv)`` of the configuration in each chart direction, against which an integrator
+        measures relative errors of ``δ``: ``|q|`` for angles and displacements (as for ``q`` itself),
+        1 (rad) for rotations."""
+        return np.abs(q)
+
     def random(self, rng, lower, upper, shape=()):
         """Random configurations within ``[lower, upper]`` (each ``(nq,)``), batch ``shape``."""
         return _random_uniform(rng, lower, upper, _DEFAULT_TRANSLATION_RANGE, shape)
@@ -371,6 +377,9 @@ class Planar(Joint):
         # d/dt R(θ) = R(θ) ω [[0, −1], [1, 0]]
         return np.stack([-v[..., 2] * v[..., 1], v[..., 2] * v[..., 0], np.zeros(v.shape[:-1])], -1)
 
+    def chart_magnitude(self, q):
+        return np.concatenate([np.abs(q[..., :2]), np.ones(q.shape[:-1] + (1,))], -1)
+
     def difference(self, q0, q1):
         c0, s0 = q0[..., 2] / np.hypot(q0[..., 2], q0[..., 3]), q0[..., 3] / np.hypot(q0[..., 2], q0[..., 3])
         c1, s1 = q1[..., 2] / np.hypot(q1[..., 2], q1[..., 3]), q1[..., 3] / np.hypot(q1[..., 2], q1[..., 3])
@@ -434,6 +443,9 @@ class Spherical(Joint):
     def velocity_alignment(self, q):
         # ω_P = R ω_J (and ω_J × ω_J = 0: no coupling)
         return spatial.quat_to_rotation(q)
+
+    def chart_magnitude(self, q):
+        return np.ones(q.shape[:-1] + (3,))
 
     def configuration_rate(self, q, v):
         # q̇ = ½ q ⊗ (ω, 0), ω in the joint frame
@@ -503,6 +515,9 @@ class FreeFlyer(Joint):
     def velocity_coupling(self, v):
         # d/dt (R v_lin) = R (v̇_lin + ω × v_lin)
         return np.concatenate([spatial.cross(v[..., 3:], v[..., :3]), np.zeros(v.shape[:-1] + (3,))], -1)
+
+    def chart_magnitude(self, q):
+        return np.concatenate([np.abs(q[..., :3]), np.ones(q.shape[:-1] + (3,))], -1)
 
     def difference(self, q0, q1):
         R0, R1 = spatial.quat_to_rotation(q0[..., 3:]), spatial.quat_to_rotation(q1[..., 3:])

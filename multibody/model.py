@@ -492,6 +492,15 @@ class Model:
                 kappa[..., s] = coupling
         return kappa
 
+    def chart_magnitude(self, q) -> np.ndarray:
+        """Size ``(..., nv)`` of the configuration ``q`` in each chart direction (see :meth:`chart`): ``|q|``
+        for angles and displacements, 1 (rad) for rotation vectors. :func:`multibody.simulate` measures
+        the relative error of the chart coordinates ``δ`` against it, as against ``q`` itself, rather
+        than against ``δ``, which starts at zero in every step."""
+        q = np.asarray(q, dtype=float)
+        return np.concatenate([joint.chart_magnitude(q[..., s : s + joint.nq]) for joint, s in zip(self.joints, self.idx_q)]
+                              + [np.zeros(q.shape[:-1] + (0,))], axis=-1)
+
     @cached_property
     def _identity_v(self) -> np.ndarray:
         return _frozen(np.eye(self.nv))

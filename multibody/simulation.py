@@ -12,7 +12,8 @@ revolution. Adaptive methods run through a ``scipy.integrate`` solver (RK45, DOP
 to ``t_final``, the output states at the requested times coming from its dense output
 (continuous extension) inside each step, so a high output rate does not restrict the step size;
 on a curved configuration space it restarts in a new chart at the end of every step, with the
-step size it proposed next. ``"RK4"`` is the classical fixed-step method with step ``dt``, one
+step size it proposed next, measuring the error of ``δ`` against the configuration's size
+(:meth:`multibody.model.Model.chart_magnitude`), as for ``q`` itself. ``"RK4"`` is the classical fixed-step method with step ``dt``, one
 chart per step. With ``project=True``, a step's end state whose constraint residual exceeds
 ``projection_tolerance`` is projected onto ``φ = 0`` and ``A v + b = 0`` and the integrator restarts
 from it; output states from the dense output that violate the constraints by more are projected
@@ -201,7 +202,11 @@ def simulate(system, q0, v0, t_final, *, dt=None, method="RK45", tau=None, rtol=
                     return derivative(t_, y, q_chart)
 
                 first_step = None if step_size is None else min(step_size, t_final - t)
-                solver = solver_class(fun, t, y0, t_final, rtol=rtol, atol=atol, max_step=max_step, first_step=first_step)
+                # Errors of δ relative to the configuration's size, as when integrating q itself; the solver
+                # would measure them against δ, which is zero at every step's start.
+                atol_chart = np.concatenate([atol + rtol * charts.chart_magnitude(q_chart), np.full(nv, atol)])
+                solver = solver_class(fun, t, y0, t_final, rtol=rtol, atol=atol_chart, max_step=max_step,
+                                      first_step=first_step)
                 return solver, q_chart
 
             # One solver runs on to t_final; the output states inside each of its steps come from its
@@ -235,20 +240,22 @@ def simulate(system, q0, v0, t_final, *, dt=None, method="RK45", tau=None, rtol=
 
 class _Charts:
     """The chart maps of a mechanical system (see :meth:`multibody.model.Model.chart`); a system without
-    them is a vector space with ``q̇ = v``: ``q = q_c + δ``, ``w = v`` (``velocity_alignment`` ``None``)."""
+    them is a vector space with ``q̇ = v``: ``q = q_c + δ``, ``w = v`` (``velocity_alignment`` ``None``),
+    magnitudes ``|q|``."""
 
     def __init__(self, system):
         self.curved = hasattr(system, "chart") and not getattr(system, "vector_space", False)
         if not hasattr(system, "chart") and system.nq != system.nv:
             raise ValueError(f"{type(system).__name__} has nq = {system.nq} != nv = {system.nv} but no chart maps: "
                              "simulate integrates a curved configuration space through chart, chart_rate, "
-                             "velocity_alignment and velocity_coupling (see multibody.model.Model.chart)")
+                             "velocity_alignment, velocity_coupling and chart_magnitude (see multibody.model.Model.chart)")
         if self.curved:
             self.chart, self.chart_rate = system.chart, system.chart_rate
             self.velocity_alignment, self.velocity_coupling = system.velocity_alignment, system.velocity_coupling
+            self.chart_magnitude = system.chart_magnitude
         else:
             self.chart, self.chart_rate = (lambda q0, delta: q0 + delta), (lambda delta, w: w)
-            self.velocity_alignment = lambda q: None
+            self.velocity_alignment, self.chart_magnitude = (lambda q: None), np.abs
 
 
 def _rk4_step(derivative, t, y, h):

@@ -301,6 +301,24 @@ def test_model_charts_assemble_the_joint_charts(tree):
     assert mb.robots.load("double_pendulum").is_vector_space
 
 
+@pytest.mark.parametrize("joint", JOINTS, ids=JOINT_IDS)
+def test_chart_magnitude_is_the_size_of_q_in_each_chart_direction(joint):
+    """|q| for angles and displacements (what an integrator of q itself would use), 1 rad for rotations."""
+    q = random_joint_q(np.random.default_rng(25), joint, (4,))
+    expected = {"free-flyer": np.concatenate([np.abs(q[:, :3]), np.ones((4, 3))], -1),
+                "spherical": np.ones((4, 3)),
+                "planar": np.concatenate([np.abs(q[:, :2]), np.ones((4, 1))], -1)}.get(joint.kind, np.abs(q))
+    assert_allclose(joint.chart_magnitude(q), expected)
+
+
+def test_model_chart_magnitude_assembles_the_joints(tree):
+    q = tree.random_configuration(np.random.default_rng(26), (2,))
+    magnitude = tree.chart_magnitude(q)
+    assert magnitude.shape == (2, tree.nv)
+    for joint, iq, iv in zip(tree.joints, tree.idx_q, tree.idx_v):
+        assert_allclose(magnitude[:, iv : iv + joint.nv], joint.chart_magnitude(q[:, iq : iq + joint.nq]))
+
+
 def test_random_configuration_within_limits_and_shapes():
     rng = np.random.default_rng(8)
     model = random_tree_model(1)
