@@ -16,7 +16,7 @@ from functools import cached_property
 import numpy as np
 
 from . import joints as jt
-from . import lanes, spatial
+from . import lanes
 from .inertia import Inertia
 
 STANDARD_GRAVITY = (0.0, 0.0, -9.81)
