@@ -111,10 +111,10 @@ def _rnea(model, q, v, a, f_ext, batch):
 
 
 def _rnea_forces(model, q, v, a, f_ext, tree=None):
-    """RNEA up to the joint forces on lanes: world poses, ``ξ``, and the force each joint transmits.
-    ``v`` or ``a`` ``None`` stands for zero (their terms are skipped); ``tree`` is :func:`_tree` of
-    ``q`` when already computed."""
-    R_WJ, p_WJ, xi, inertia = _tree(model, q) if tree is None else tree
+    """RNEA up to the joint forces on lanes: the joint poses ``R_WJ``, ``p_OJ`` and ``ξ`` of :func:`_tree`,
+    and the force each joint transmits (at the reference point ``O``). ``v`` or ``a`` ``None`` stands for
+    zero (their terms are skipped); ``tree`` is :func:`_tree` of ``q`` when already computed."""
+    R_WJ, p_OJ, xi, inertia = _tree(model, q) if tree is None else tree
     # Forward: v_i = v_λ + ξ_i q̇_i ;  a_i = a_λ + ξ_i q̈_i + ξ̇_i q̇_i  (summed over each support)
     V, xi_dot_v = (None, None) if v is None else _velocities(model, xi, v)
     # Each coordinate's share ξ_k q̈_k + ξ̇_k q̇_k of the acceleration (None: zero)
@@ -128,9 +128,9 @@ def _rnea_forces(model, q, v, a, f_ext, tree=None):
     if V is not None:
         F = F + lanes.force_cross(V, lanes.matvec(inertia, V))
     if f_ext is not None:
-        F = F - lanes.transform_force(R_WJ, p_WJ, f_ext)
+        F = F - lanes.transform_force(R_WJ, p_OJ, f_ext)
     # Backward: the force a joint transmits is the sum over its subtree;  τ_k = ξ_kᵀ f_subtree(j(k))
-    return R_WJ, p_WJ, xi, _subtree_sums(model, F)
+    return R_WJ, p_OJ, xi, _subtree_sums(model, F)
 
 
 def _joint_forces(model, xi, F_subtree):
@@ -149,8 +149,8 @@ def joint_reaction_forces(model, q, v, a, f_ext=None):
     """
     q, v, a, _, f_ext, batch = _check(model, q, v, a, f_ext=f_ext)
     def kernel(q, v, a, f_ext):
-        R_WJ, p_WJ, _, F_subtree = _rnea_forces(model, q, v, a, f_ext)
-        return lanes.inverse_transform_force(R_WJ, p_WJ, F_subtree)
+        R_WJ, p_OJ, _, F_subtree = _rnea_forces(model, q, v, a, f_ext)
+        return lanes.inverse_transform_force(R_WJ, p_OJ, F_subtree)
 
     return _in_blocks(model, kernel, batch, (q, 1), (v, 1), (a, 1), None if f_ext is None else (f_ext, 2))
 

@@ -217,7 +217,7 @@ def force_cross(m, f):
 
 # ----------------------------------------------------------------------------- spatial inertia
 
-def world_inertias(mass, first_moment, rotational, spatial, R_WJ, p_WJ):
+def world_inertias(mass, first_moment, rotational, spatial_inertia, R_WJ, p_WJ):
     """Spatial inertias about the world origin, in world axes, of bodies posed at ``(R_WJ, p_WJ)``.
 
     Each body is given in its own frame J by its mass ``m (nj,)``, first moment ``m c_J (nj, 3, 1)``,
@@ -229,7 +229,7 @@ def world_inertias(mass, first_moment, rotational, spatial, R_WJ, p_WJ):
     (as ``[a]×[b]× = b aᵀ − aᵀb 1``); then ``I = [[m 1, −[h]×], [[h]×, Ī_O]]``. Returns ``(nj, 6, 6, N)``.
     """
     if R_WJ.shape[-1] == 1:
-        return _world_inertias_by_products(spatial, R_WJ, p_WJ)
+        return _world_inertias_by_products(spatial_inertia, R_WJ, p_WJ)
     m = mass[:, None, None]
     g = matvec(R_WJ, first_moment)
     h = g + m * p_WJ
@@ -244,7 +244,7 @@ def world_inertias(mass, first_moment, rotational, spatial, R_WJ, p_WJ):
     return out
 
 
-def _world_inertias_by_products(spatial, R_WJ, p_WJ):
+def _world_inertias_by_products(spatial_inertia, R_WJ, p_WJ):
     """:func:`world_inertias` of a single lane as ``ᵂI = ᵂX_J* I_J ᵂX_Jᵀ`` (RBDA eq. 2.66), with the force
     transform ``ᵂX_J* = [[R, 0], [[p]× R, R]]``: two 6×6 products over the stack of joints take fewer
     NumPy calls than the structured formula, which does fewer flops and wins on many lanes."""
@@ -253,7 +253,7 @@ def _world_inertias_by_products(spatial, R_WJ, p_WJ):
     X[:, :3, :3] = R
     X[:, 3:, 3:] = R
     X[:, 3:, :3] = skew(p_WJ)[..., 0] @ R
-    return (X @ spatial[..., 0] @ X.transpose(0, 2, 1))[..., None]
+    return (X @ spatial_inertia[..., 0] @ X.transpose(0, 2, 1))[..., None]
 
 
 def transform_force(R_AB, p_AB, f_B):

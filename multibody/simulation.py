@@ -31,6 +31,7 @@ import numpy as np
 from scipy.integrate import BDF, DOP853, LSODA, RK23, RK45, Radau
 
 from .constrained import ConstrainedSystem, ConstraintError
+from .spatial import matvec, transpose
 
 METHODS = {"RK45": RK45, "DOP853": DOP853, "Radau": Radau, "RK23": RK23, "BDF": BDF, "LSODA": LSODA}
 ADAPTIVE_METHODS = tuple(METHODS)
@@ -139,7 +140,7 @@ def simulate(system, q0, v0, t_final, *, dt=None, method="RK45", tau=None, rtol=
         delta, w = y[:nv], y[nv:]
         q_t = charts.chart(q_chart, delta)
         T = charts.velocity_alignment(q_t)
-        v_t = w if T is None else w @ T  # Tᵀ w
+        v_t = w if T is None else matvec(transpose(T), w)
         a, _ = constrained.forward_dynamics(q_t, v_t, torque(t, q_t, v_t), t)
         # ẇ = T (a + κ(v))
         w_dot = a if T is None else T @ (a + charts.velocity_coupling(v_t))
@@ -148,14 +149,14 @@ def simulate(system, q0, v0, t_final, *, dt=None, method="RK45", tau=None, rtol=
     def to_chart(state):
         """``y = [0, w]`` of a state ``[q, v]`` in the chart around its own ``q``."""
         T = charts.velocity_alignment(state[:nq])
-        return np.concatenate([np.zeros(nv), state[nq:] if T is None else T @ state[nq:]])
+        return np.concatenate([np.zeros(nv), state[nq:] if T is None else matvec(T, state[nq:])])
 
     def from_chart(q_chart, y):
         """States ``[q, v] (..., nq + nv)`` of chart states ``y (..., 2 nv)``."""
         q_t = charts.chart(q_chart, y[..., :nv])
         T = charts.velocity_alignment(q_t)
         w = y[..., nv:]
-        return np.concatenate([q_t, w if T is None else (w[..., None, :] @ T)[..., 0, :]], axis=-1)
+        return np.concatenate([q_t, w if T is None else matvec(transpose(T), w)], axis=-1)
 
     def settle(t, state):
         """``state`` projected onto the constraints when, with ``project``, its residual exceeds the
@@ -271,17 +272,16 @@ def _rk4_step(derivative, t, y, h):
 def _trajectory(constrained, times, states, torque, status, projection_tolerance=None):
     """The :class:`Trajectory` of output ``states (n, nq + nv)`` at ``times (n,)``.
 
-    Configurations are normalised; with a ``projection_tolerance``, states whose residual exceeds it
-    (dense-output states between integrator steps) are projected onto the constraints. ``λ``, energy
+    The states are on the configuration manifold already (charts keep them there); with a
+    ``projection_tolerance``, states whose residual exceeds it (dense-output states between
+    integrator steps) are projected onto the constraints. ``λ``, energy
     and residual are then evaluated at exactly the returned states, in one batched call each when the
     system takes batches (else one state at a time).
     """
     nq, nv, m = constrained.nq, constrained.nv, constrained.num_rows
     n = len(times)
     batched = constrained.batched and n > 0
-    normalize = getattr(constrained.system, "normalize", lambda q: q)
-    q = normalize(states[:, :nq]) if batched else np.array([normalize(row) for row in states[:, :nq]]).reshape(n, nq)
-    v = states[:, nq:].copy()
+    q, v = states[:, :nq].copy(), states[:, nq:].copy()
 
     def residuals(index):
         if not m:

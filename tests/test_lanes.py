@@ -82,10 +82,10 @@ def test_skew_and_quaternion_rotation_equal_spatial():
     assert_allclose(off_lanes(lanes.skew(lanes.to_lanes(w, 1))), spatial.skew(w), atol=1e-15)
     quat = RNG.standard_normal((N, 4)) * 1.3  # not unit: both divide by |q|²
     assert_allclose(off_lanes(lanes.quat_to_rotation(lanes.to_lanes(quat, 1))), spatial.quat_to_rotation(quat), atol=1e-14)
-    # a stack of joints on one lane (the single-configuration path)
+    # a stack of joints on one lane (the single-configuration path, another formula) against the lanes'
     one = lanes.quat_to_rotation(quat[:3, :, None])
     assert one.shape == (3, 3, 3, 1)
-    assert_allclose(one[..., 0], spatial.quat_to_rotation(quat[:3]), atol=1e-14)
+    assert_allclose(one[..., 0], off_lanes(lanes.quat_to_rotation(lanes.to_lanes(quat, 1)))[:3], atol=1e-14)
 
 
 def test_force_transforms_equal_spatial():
