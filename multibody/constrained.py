@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import dynamics
+from . import dynamics, kinematics
 from .model import Model
 from .spatial import matvec
 
@@ -79,6 +79,31 @@ class ModelSystem:
         return dynamics.kinetic_energy(self.model, q, v) + dynamics.potential_energy(self.model, q)
 
 
+class _ModelAtState(ModelSystem):
+    """A :class:`ModelSystem` that holds the kinematics of some body frames at one state ``(q, v)``,
+    computed in the pass down the tree that gave ``M`` and ``h`` (see ``ConstrainedSystem.solve``).
+
+    Constraints read frames through ``known_frame``, which answers for exactly that state (the same
+    ``q`` and ``v`` arrays) and ``None`` otherwise, e.g. at the neighbouring states of a numerical
+    derivative.
+    """
+
+    def __init__(self, model, q, v, frames, values):
+        super().__init__(model)
+        self._q, self._v = q, v
+        self._frames = {_frame_key(model, body, placement): value for (body, placement), value in zip(frames, values)}
+
+    def known_frame(self, q, v, body, placement):
+        if q is not self._q or v is not self._v:
+            return None
+        return self._frames.get(_frame_key(self.model, body, placement))
+
+
+def _frame_key(model, body, placement):
+    b, X_BF = kinematics._frame_arguments(model, body, placement)
+    return b, X_BF.tobytes()
+
+
 def as_system(system):
     """The mechanical-system interface of a Model, a ConstrainedSystem, or a system that already has it."""
     if isinstance(system, Model):
@@ -140,6 +165,10 @@ class ConstrainedSystem:
         self._position_mask = np.concatenate(masks) if masks else np.zeros(0, dtype=bool)
         self._has_position = [bool(mask.any()) for mask in masks]
         self.row_names = [f"{c.name}[{k}]" for c, m in zip(self.constraints, self._rows) for k in range(m)]
+        # The body frames the constraints read, once each: a step computes them with M and h.
+        frames = {} if not isinstance(self.system, ModelSystem) else {
+            _frame_key(self.system.model, *frame): frame for c in self.constraints for frame in c.body_frames}
+        self._body_frames = list(frames.values())
 
     @property
     def num_rows(self) -> int:
@@ -180,7 +209,12 @@ class ConstrainedSystem:
 
     def acceleration_level(self, q, v, t=0.0):
         """``(A, γ)``: the stacked rows of ``A a = γ``, Baumgarte terms included: ``(m, nv)``, ``(m,)``."""
-        levels = [c.evaluate(self.system, q, v, t) for c in self.constraints]
+        return self._acceleration_level(self.system, q, v, t)
+
+    def _acceleration_level(self, system, q, v, t):
+        """:meth:`acceleration_level` with the constraints evaluated for ``system`` (this system's, or
+        one that already holds their frames at this state)."""
+        levels = [c.evaluate(system, q, v, t) for c in self.constraints]
         A = self._stack([level[0] for level in levels], (0, self.nv))
         gamma = self._stack([level[2] for level in levels], (0,))
         if self.baumgarte is not None and self.num_rows:
@@ -220,9 +254,14 @@ class ConstrainedSystem:
         return isinstance(self.system, ModelSystem) and all(getattr(c, "batched", False) for c in self.constraints)
 
     def _mass_matrix_and_bias(self, q, v):
+        """``(M, h, system)``, where ``system`` holds the constraints' body frames at ``(q, v)`` when they
+        came from the same pass down the tree (else it is this system's)."""
+        if self._body_frames:
+            M, h, values = dynamics.mass_matrix_bias_and_frames(self.system.model, q, v, self._body_frames)
+            return M, h, _ModelAtState(self.system.model, q, v, self._body_frames, values)
         if hasattr(self.system, "mass_matrix_and_bias"):
-            return self.system.mass_matrix_and_bias(q, v)
-        return self.system.mass_matrix(q), self.system.bias_forces(q, v)
+            return *self.system.mass_matrix_and_bias(q, v), self.system
+        return self.system.mass_matrix(q), self.system.bias_forces(q, v), self.system
 
     def _factor(self, q, M=None):
         M = self.system.mass_matrix(q) if M is None else M
@@ -289,14 +328,14 @@ class ConstrainedSystem:
         """
         q, v = self._check_state(q, v)
         tau = self._tau(tau, q.shape[:-1])
-        M, h = self._mass_matrix_and_bias(q, v)
+        M, h, evaluated = self._mass_matrix_and_bias(q, v)
         L = self._factor(q, M)
         if not self.num_rows:
             # a_free = M⁻¹ (τ − h)
             a = self._solve_factored(L, (tau - h)[..., None])[..., 0]
             batch = q.shape[:-1]
             return KKTSolution(a, np.zeros(batch + (0,)), 0, np.zeros(batch + (0, self.nv)), np.zeros(batch + (0,)))
-        A, gamma = self.acceleration_level(q, v, t)
+        A, gamma = self._acceleration_level(evaluated, q, v, t)
         # One pair of triangular solves for [τ − h | Aᵀ]: a_free = M⁻¹ (τ − h) and M⁻¹ Aᵀ.
         solved = self._solve_factored(L, np.concatenate([(tau - h)[..., None], np.swapaxes(A, -1, -2)], axis=-1))
         a_free, M_inv_At = solved[..., 0], solved[..., 1:]

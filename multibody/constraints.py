@@ -64,6 +64,13 @@ class Constraint:
         """Number of rows ``m``."""
         raise NotImplementedError
 
+    @property
+    def body_frames(self) -> tuple:
+        """``(body, placement)`` of the frames whose kinematics :meth:`evaluate` reads (none here): a
+        :class:`~multibody.constrained.ConstrainedSystem` computes them in its pass down the tree for
+        ``M`` and ``h`` rather than in one pass per frame."""
+        return ()
+
     def position_rows(self, system):
         """``(m,)`` boolean: the rows that have a position level ``φ = 0`` (all of a holonomic
         constraint's, none of a Pfaffian's; a rolling contact's normal row is holonomic)."""
@@ -213,10 +220,20 @@ def _require_model(system, constraint):
     return system
 
 
-def _frame(system, q, v, body, placement):
-    """``(R_WF, p_WF, J, J̇v)`` of a frame fixed in ``body`` (``None``: the world); see ``frame_kinematics``."""
-    v = np.zeros(np.shape(q)[:-1] + (system.nv,)) if v is None else v
-    return kinematics.frame_kinematics(system, q, v, body, placement)
+def _frame(system, constraint, q, v, body, placement):
+    """``(R_WF, p_WF, J, J̇v)`` of a frame fixed in ``body`` (``None``: the world); see ``frame_kinematics``.
+
+    A system that already holds the frame's kinematics at this very state (``known_frame``: a
+    constrained step computes its constraints' :attr:`Constraint.body_frames` together with ``M``
+    and ``h``) gives them; ``v`` ``None`` stands for zero.
+    """
+    known = getattr(system, "known_frame", None)
+    value = None if known is None else known(q, v, body, placement)
+    if value is not None:
+        return value
+    model = _require_model(system, constraint)
+    v = np.zeros(np.shape(q)[:-1] + (model.nv,)) if v is None else v
+    return kinematics.frame_kinematics(model, q, v, body, placement)
 
 
 def _wrenches(model, q, loads):
@@ -284,6 +301,10 @@ class PointOnCurve(Constraint):
     def rows(self, system):
         return 3
 
+    @property
+    def body_frames(self):
+        return ((self.body, self.placement),)
+
     def closest_parameter(self, x):
         """Curve parameter ``s*`` of the point of the curve closest to ``x (..., 3)``: ``(...)``."""
         x = np.asarray(x, dtype=float)
@@ -313,25 +334,25 @@ class PointOnCurve(Constraint):
         return s, d1, tangent, projector
 
     def position(self, system, q, t=0.0):
-        _, x, _, _ = _frame(_require_model(system, self), q, None, self.body, self.placement)
+        _, x, _, _ = _frame(system, self, q, None, self.body, self.placement)
         s, _, _, projector = self._geometry(x)
         return matvec(projector, x - self.curve(s))
 
     def body_forces(self, system, q, lam, t=0.0):
         model = _require_model(system, self)
-        _, x, _, _ = _frame(model, q, None, self.body, self.placement)
+        _, x, _, _ = _frame(system, self, q, None, self.body, self.placement)
         # Aᵀλ = Jᵀ P λ: the force P λ at the bead
         return _wrenches(model, q, [(self.body, self._geometry(x)[3] @ lam, x, np.zeros(3))])
 
     def jacobian(self, system, q, t=0.0):
-        _, x, J, _ = _frame(_require_model(system, self), q, None, self.body, self.placement)
+        _, x, J, _ = _frame(system, self, q, None, self.body, self.placement)
         return self._geometry(x)[3] @ J[..., :3, :]
 
     def acceleration_rhs(self, system, q, v, t=0.0):
         return self.evaluate(system, q, v, t)[2]
 
     def evaluate(self, system, q, v, t=0.0):
-        _, x, J, J_dot_v = _frame(_require_model(system, self), q, v, self.body, self.placement)
+        _, x, J, J_dot_v = _frame(system, self, q, v, self.body, self.placement)
         s, d1, tangent, projector = self._geometry(x)
         x_dot = matvec(J[..., :3, :], v)
         # ṫ = P r'' ṡ / |r'| with ṡ = r'·ẋ / |r'|²;  Ṗ ẋ = −ṫ (t·ẋ) − t (ṫ·ẋ)
@@ -373,25 +394,29 @@ class PointOnSurface(Constraint):
     def rows(self, system):
         return 1
 
+    @property
+    def body_frames(self):
+        return ((self.body, self.placement),)
+
     def position(self, system, q, t=0.0):
-        _, x, _, _ = _frame(_require_model(system, self), q, None, self.body, self.placement)
+        _, x, _, _ = _frame(system, self, q, None, self.body, self.placement)
         return np.asarray(self.surface(x), dtype=float)[..., None]
 
     def body_forces(self, system, q, lam, t=0.0):
         model = _require_model(system, self)
-        _, x, _, _ = _frame(model, q, None, self.body, self.placement)
+        _, x, _, _ = _frame(system, self, q, None, self.body, self.placement)
         # Aᵀλ = Jᵀ ∇f λ: the force ∇f λ at the point
         return _wrenches(model, q, [(self.body, self._gradient(x) * lam[0], x, np.zeros(3))])
 
     def jacobian(self, system, q, t=0.0):
-        _, x, J, _ = _frame(_require_model(system, self), q, None, self.body, self.placement)
+        _, x, J, _ = _frame(system, self, q, None, self.body, self.placement)
         return matvec(transpose(J[..., :3, :]), self._gradient(x))[..., None, :]
 
     def acceleration_rhs(self, system, q, v, t=0.0):
         return self.evaluate(system, q, v, t)[2]
 
     def evaluate(self, system, q, v, t=0.0):
-        _, x, J, J_dot_v = _frame(_require_model(system, self), q, v, self.body, self.placement)
+        _, x, J, J_dot_v = _frame(system, self, q, v, self.body, self.placement)
         gradient = self._gradient(x)
         x_dot = matvec(J[..., :3, :], v)
         # γ = −(ẋᵀ ∇²f ẋ + ∇f · J̇v)
@@ -424,9 +449,12 @@ class Distance(Constraint):
     def rows(self, system):
         return 1
 
+    @property
+    def body_frames(self):
+        return ((self.body_a, self.placement_a), (self.body_b, self.placement_b))
+
     def _points(self, system, q, v):
-        model = _require_model(system, self)
-        return _frame(model, q, v, self.body_a, self.placement_a), _frame(model, q, v, self.body_b, self.placement_b)
+        return _frame(system, self, q, v, self.body_a, self.placement_a), _frame(system, self, q, v, self.body_b, self.placement_b)
 
     def position(self, system, q, t=0.0):
         (_, x_a, _, _), (_, x_b, _, _) = self._points(system, q, None)
@@ -507,9 +535,12 @@ class LoopClosure(Constraint):
     def rows(self, system):
         return len(self.position_axes) + len(self.aligned_axes)
 
+    @property
+    def body_frames(self):
+        return ((self.body_a, self.frame_a), (self.body_b, self.frame_b))
+
     def _frames(self, system, q, v):
-        model = _require_model(system, self)
-        return _frame(model, q, v, self.body_a, self.frame_a), _frame(model, q, v, self.body_b, self.frame_b)
+        return _frame(system, self, q, v, self.body_a, self.frame_a), _frame(system, self, q, v, self.body_b, self.frame_b)
 
     def position(self, system, q, t=0.0):
         (R_a, p_a, _, _), (R_b, p_b, _, _) = self._frames(system, q, None)

@@ -18,10 +18,13 @@ recursive algorithms compute on lanes (:mod:`multibody.lanes`), every state a co
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
 from . import lanes, spatial
-from .kinematics import _at_dofs, _in_blocks, _spatial_velocities, _support_sums, _velocities, motion_subspaces, world_poses
+from .kinematics import (_at_dofs, _fixed_frame, _frame_arguments, _frame_motion, _in_blocks, _joint_frames, _spatial_velocities,
+                         _support_sums, _velocities, world_poses)
 from .spatial import motion_cross, transpose
 
 
@@ -47,20 +50,29 @@ def _gravity_acceleration(model):
     return np.concatenate([-model.gravity, np.zeros(3)])[:, None]
 
 
+class Tree(NamedTuple):
+    """One pass down the tree on lanes (:func:`_tree`): the joint frames of
+    :class:`~multibody.kinematics.JointFrames` and the world inertias."""
+
+    R_WJ: np.ndarray  # (nj, 3, 3, N)
+    p_WO: np.ndarray  # (3, N) the reference point O, the first joint's origin
+    p_OJ: np.ndarray  # (nj, 3, N)
+    xi: np.ndarray  # (nv, 6, N) at O
+    inertia: np.ndarray  # (nj, 6, 6, N) at O
+
+
 def _tree(model, q):
     """One pass down the tree on lanes (``q (nq, N)``): world orientations of the joint frames
-    ``R_WJ (nj, 3, 3, N)``, their positions ``p_OJ (nj, 3, N)`` relative to the reference point ``O``,
-    Plücker motion subspaces ``ξ (nv, 6, N)`` and inertias ``ᴼI_i = ᴼX_i* I_i ⁱX_O`` ``(nj, 6, 6, N)``
-    (RBDA eq. 2.66), in world axes at ``O``.
+    ``R_WJ (nj, 3, 3, N)``, their positions ``p_OJ (nj, 3, N)`` relative to the reference point ``O``
+    (the first joint's origin, at ``p_WO``), Plücker motion subspaces ``ξ (nv, 6, N)`` and inertias
+    ``ᴼI_i = ᴼX_i* I_i ⁱX_O`` ``(nj, 6, 6, N)`` (RBDA eq. 2.66), in world axes at ``O``.
 
-    ``O`` is the origin of the first joint, not of the world: coordinates at a point far from the
-    bodies carry moments ``m |p|²`` that swamp the rotational inertias and cost digits (a 2 kg body
-    170 m from the world origin lost 6 of them). Joint forces, ``M``, ``C`` and energies do not
+    ``O`` is not the world origin, whose coordinates cost digits far from it (see
+    :func:`~multibody.kinematics._joint_frames`): joint forces, ``M``, ``C`` and energies do not
     depend on the point; only translations between frames do, and they all use ``p_OJ``.
     """
-    R_WJ, p_WJ = world_poses(model, q)
-    p_OJ = p_WJ - p_WJ[:1]
-    return R_WJ, p_OJ, motion_subspaces(model, R_WJ, p_OJ), lanes.world_inertias(*model.inertia_parameters, R_WJ, p_OJ)
+    frames = _joint_frames(model, q)
+    return Tree(*frames, lanes.world_inertias(*model.inertia_parameters, frames.R_WJ, frames.p_OJ))
 
 
 def _subtree_sums(model, x):
@@ -79,9 +91,13 @@ def _subtree_sums(model, x):
 
 
 def _world_tree(model, q):
-    """:func:`_tree` with leading batch axes, for the Lagrangian assemblies: ``R_WJ (..., nj, 3, 3)``,
-    ``p_WJ (..., nj, 3)``, ``ξ (..., nv, 6)``, inertias ``(..., nj, 6, 6)``."""
-    return _in_blocks(model, lambda q: _tree(model, q), q.shape[:-1], (q, 1))
+    """``ξ (..., nv, 6)`` and inertias ``(..., nj, 6, 6)`` of :func:`_tree` with leading batch axes, for the
+    Lagrangian assemblies."""
+    def kernel(q):
+        tree = _tree(model, q)
+        return tree.xi, tree.inertia
+
+    return _in_blocks(model, kernel, q.shape[:-1], (q, 1))
 
 
 # ============================================================================= RNEA
@@ -110,13 +126,14 @@ def _rnea(model, q, v, a, f_ext, batch):
                       None if f_ext is None else (f_ext, 2))
 
 
-def _rnea_forces(model, q, v, a, f_ext, tree=None):
+def _rnea_forces(model, q, v, a, f_ext, tree=None, motion=None):
     """RNEA up to the joint forces on lanes: the joint poses ``R_WJ``, ``p_OJ`` and ``ξ`` of :func:`_tree`,
     and the force each joint transmits (at the reference point ``O``). ``v`` or ``a`` ``None`` stands for
-    zero (their terms are skipped); ``tree`` is :func:`_tree` of ``q`` when already computed."""
-    R_WJ, p_OJ, xi, inertia = _tree(model, q) if tree is None else tree
+    zero (their terms are skipped); ``tree`` is :func:`_tree` of ``q`` and ``motion`` the velocities
+    :func:`~multibody.kinematics._velocities` of ``v``, when already computed."""
+    R_WJ, _, p_OJ, xi, inertia = _tree(model, q) if tree is None else tree
     # Forward: v_i = v_λ + ξ_i q̇_i ;  a_i = a_λ + ξ_i q̈_i + ξ̇_i q̇_i  (summed over each support)
-    V, xi_dot_v = (None, None) if v is None else _velocities(model, xi, v)
+    V, xi_dot_v = (None, None) if v is None else _velocities(model, xi, v) if motion is None else motion
     # Each coordinate's share ξ_k q̈_k + ξ̇_k q̇_k of the acceleration (None: zero)
     shares = xi_dot_v if a is None else xi * a[:, None, :] if v is None else xi * a[:, None, :] + xi_dot_v
     A = _gravity_acceleration(model)
@@ -197,7 +214,7 @@ def mass_matrix(model, q, method="crba"):
 
 def _mass_matrix_crba(model, q, tree=None):
     """CRBA on lanes: ``q (nq, N) -> M (nv, nv, N)`` (``tree``: :func:`_tree` of ``q``, when at hand)."""
-    _, _, xi, inertia = _tree(model, q) if tree is None else tree
+    xi, inertia = (_tree(model, q) if tree is None else tree)[-2:]
     # Composite inertias: in world coordinates, I^c_i is the plain sum of the subtree's inertias.
     composite = _subtree_sums(model, inertia)
     # F_l = I^c_j(l) ξ_l ;  M_kl = ξ_kᵀ F_l when k's joint supports l's (RBDA eq. 6.14)
@@ -213,19 +230,34 @@ def _mass_matrix_crba(model, q, tree=None):
 def mass_matrix_and_bias(model, q, v):
     """``(M(q) (..., nv, nv), h(q, v) (..., nv))`` from one pass down the tree: CRBA and RNEA at ``a = 0``
     share the poses, ``ξ`` and world inertias (what a constrained or implicit step needs together)."""
+    M, h, _ = mass_matrix_bias_and_frames(model, q, v)
+    return M, h
+
+
+def mass_matrix_bias_and_frames(model, q, v, frames=()):
+    """:func:`mass_matrix_and_bias` and the :func:`~multibody.kinematics.frame_kinematics` of each
+    ``(body, placement)`` in ``frames``, all from one pass down the tree (what a constrained step
+    needs: its constraints read the frames). Returns ``(M, h, [(R_WF, p_WF, J, J̇v), ...])``."""
     q, v, *_, batch = _check(model, q, v)
+    frames = [_frame_arguments(model, body, placement) for body, placement in frames]
+    fixed = [_fixed_frame(model, b, X_BF, batch) for b, X_BF in frames]
+    moving = [frame for frame, known in zip(frames, fixed) if known is None]
 
     def kernel(q, v):
         tree = _tree(model, q)
-        _, _, xi, F_subtree = _rnea_forces(model, q, v, None, None, tree)
-        return _mass_matrix_crba(model, q, tree), _joint_forces(model, xi, F_subtree)
+        motion = _velocities(model, tree.xi, v)
+        F_subtree = _rnea_forces(model, q, v, None, None, tree, motion)[-1]
+        return (_mass_matrix_crba(model, q, tree), _joint_forces(model, tree.xi, F_subtree),
+                *(x for b, X_BF in moving for x in _frame_motion(model, b, X_BF, tree, *motion)))
 
-    return _in_blocks(model, kernel, batch, (q, 1), (v, 1))
+    M, h, *values = _in_blocks(model, kernel, batch, (q, 1), (v, 1))
+    computed = iter(zip(*[iter(values)] * 4))
+    return M, h, [tuple(next(computed)) if known is None else known for known in fixed]
 
 
 def _world_body_jacobians_and_inertias(model, q):
     """World Plücker Jacobian ``(..., nj, 6, nv)`` and world inertia ``(..., nj, 6, 6)`` of each body."""
-    _, _, xi, inertias = _world_tree(model, q)
+    xi, inertias = _world_tree(model, q)
     jacobians = transpose(xi)[..., None, :, :] * model.joint_support[:, None, :]
     return jacobians, inertias
 
@@ -263,7 +295,7 @@ def _coriolis_on_lanes(model, q, v):
     ``computeCoriolisMatrix``) ``C_kl = ξ_kᵀ (I^c_j ξ̇_l + B^c_j ξ_l)`` with ``j`` that joint and
     ``I^c``, ``B^c`` subtree sums of ``Iᵢ`` and ``Bᵢ``; zero when neither joint supports the other.
     """
-    _, _, xi, inertia = _tree(model, q)
+    _, _, _, xi, inertia = _tree(model, q)
     V = _spatial_velocities(model, xi, v)
     # B_i = ½ [(V×*) I − I (V×) + (I V)×̄*] = ½ [(I V)×̄* − K − Kᵀ] with K = I (V×), as (V×*) = −(V×)ᵀ
     K = lanes.matmul(inertia, lanes.motion_cross_matrix(V))
@@ -303,7 +335,7 @@ def mass_matrix_derivative(model, q):
     of a body that k supports, ``∂I_b/∂q_k = (ξ_k×*) I_b − I_b (ξ_k×)``.
     """
     q = model.check_configuration(q)
-    _, _, xi, inertias = _world_tree(model, q)
+    xi, inertias = _world_tree(model, q)
     support = model.joint_support  # (nj, nv)
     # ∂ξ_l/∂q_k is non-zero when k's joint is a strict ancestor of l's joint.
     strict = model.ancestors[model.dof_joint][:, model.dof_joint].T & (model.dof_joint[:, None] != model.dof_joint[None, :])
@@ -436,7 +468,7 @@ def forward_dynamics(model, q, v, tau, f_ext=None):
 def _aba(model, q, v, tau, f_ext):
     """ABA on lanes: ``q (nq, N)``, ``v, tau (nv, N)``, ``f_ext (nj, 6, N)`` or ``None`` -> ``a (nv, N)``."""
     tree = _tree(model, q)
-    _, _, xi, inertia = tree
+    xi, inertia = tree.xi, tree.inertia
     # h = C v + g − Σ Jᵀ f_ext: RNEA at a = 0 ;  M a = τ − h
     _, _, _, F_subtree = _rnea_forces(model, q, v, None, f_ext, tree)
     rhs = tau - _joint_forces(model, xi, F_subtree)
@@ -480,7 +512,7 @@ def inverse_mass_matrix(model, q):
 
     def kernel(q):
         tree = _tree(model, q)
-        _, _, xi, inertia = tree
+        xi, inertia = tree.xi, tree.inertia
         M_inv = _single_configuration_solve(model, q, tree, np.eye(nv))
         if M_inv is not None:
             return (0.5 * (M_inv + M_inv.T))[..., None]  # exactly symmetric, as the sweeps' result
@@ -506,7 +538,7 @@ def kinetic_energy(model, q, v):
     q, v, *_, batch = _check(model, q, v)
 
     def kernel(q, v):
-        _, _, xi, inertia = _tree(model, q)
+        _, _, _, xi, inertia = _tree(model, q)
         V = _spatial_velocities(model, xi, v)
         return 0.5 * np.sum(V * lanes.matvec(inertia, V), axis=(0, 1))
 

@@ -438,7 +438,7 @@ class Spherical(Joint):
 
     def chart_rate(self, delta, w):
         # ω_P = J_l(δ) δ̇
-        return spatial.matvec(spatial.so3_left_jacobian_inverse(delta), w)
+        return spatial.so3_left_jacobian_inverse_times(delta, w)
 
     def velocity_alignment(self, q):
         # ω_P = R ω_J (and ω_J × ω_J = 0: no coupling)
@@ -503,7 +503,7 @@ class FreeFlyer(Joint):
 
     def chart_rate(self, delta, w):
         # ṗ = R v_lin = w_lin ;  ω_P = J_l(δ_θ) δ̇_θ
-        return np.concatenate([w[..., :3], spatial.matvec(spatial.so3_left_jacobian_inverse(delta[..., 3:]), w[..., 3:])], -1)
+        return np.concatenate([w[..., :3], spatial.so3_left_jacobian_inverse_times(delta[..., 3:], w[..., 3:])], -1)
 
     def velocity_alignment(self, q):
         # [R v_lin; R ω]

@@ -9,6 +9,7 @@ of the body point that currently coincides with the world origin). Velocities of
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 
@@ -47,6 +48,29 @@ def world_poses(model, q):
         # [R | p]_W,i = [R | p]_W,λ [[R, p], [0, 1]]_λ,i : one product of a 3×4 and a 4×4 matrix
         world[index] = local[index, :3] if level == 0 else product(world[parents], local[index])
     return X_world[:, :, :3], X_world[:, :, 3]
+
+
+class JointFrames(NamedTuple):
+    """The joint frames of one pass down the tree, on lanes (see :func:`_joint_frames`)."""
+
+    R_WJ: np.ndarray  # (nj, 3, 3, N) world orientations
+    p_WO: np.ndarray  # (3, N) world position of the reference point O, the first joint's origin
+    p_OJ: np.ndarray  # (nj, 3, N) joint origins relative to O
+    xi: np.ndarray  # (nv, 6, N) motion subspaces, world axes at O
+
+
+def _joint_frames(model, q):
+    """World poses of the joint frames and the motion subspaces, on lanes (``q (nq, N)``).
+
+    Positions and Plücker coordinates are taken at ``O``, the origin of the first joint, not of the
+    world: at a point far from the bodies, coordinates carry moments (``p × f``, ``m |p|²``) that
+    swamp the local ones and cost digits (a 2 kg body 170 m from the world origin lost 6 of them).
+    Velocities, accelerations of points, joint forces and energies do not depend on the point.
+    """
+    R_WJ, p_WJ = world_poses(model, q)
+    p_WO = p_WJ[0] if model.njoints else np.zeros(p_WJ.shape[1:])
+    p_OJ = p_WJ - p_WO
+    return JointFrames(R_WJ, p_WO, p_OJ, motion_subspaces(model, R_WJ, p_OJ))
 
 
 def motion_subspaces(model, R_WJ, p_WJ):
@@ -189,8 +213,8 @@ def jacobian(model, q, body, point=None):
     batch = lanes.batch_shape(q.shape[:-1], point.shape[:-1])
     if model.body_joints[b] < 0:
         return np.zeros(batch + (6, model.nv))
-    return _in_blocks(model, lambda q, p_BF: lanes.transpose(_frame_on_lanes(model, b, _EYE, p_BF, q)[3]), batch,
-                      (q, 1), (point, 1))
+    return _in_blocks(model, lambda q, p_BF: lanes.transpose(_frame_on_lanes(model, b, _EYE, p_BF, _joint_frames(model, q))[2]),
+                      batch, (q, 1), (point, 1))
 
 
 def jacobian_time_variation(model, q, v, body, point=None):
@@ -208,7 +232,8 @@ def jacobian_time_variation(model, q, v, body, point=None):
         return np.zeros(batch + (6, model.nv))
 
     def kernel(q, v, p_BF):
-        _, x, xi, J = _frame_on_lanes(model, b, _EYE, p_BF, q)
+        frames = _joint_frames(model, q)
+        xi, x = frames.xi, _frame_on_lanes(model, b, _EYE, p_BF, frames)[1]
         V = _spatial_velocities(model, xi, v)
         j = model.body_joints[b]
         xi_dot = lanes.motion_cross(_at_dofs(model, V), xi)
@@ -223,23 +248,58 @@ def jacobian_time_variation(model, q, v, body, point=None):
 _EYE = np.eye(3)
 
 
-def _frame_on_lanes(model, b, R_BF, p_BF, q):
-    """Pose and Jacobian of a frame F fixed in the moving body ``b``, on lanes.
+def _frame_on_lanes(model, b, R_BF, p_BF, frames):
+    """Pose and Jacobian of a frame F fixed in the moving body ``b``, on lanes, from the joint frames
+    ``frames`` (:class:`JointFrames`, or anything with their ``R_WJ``, ``p_OJ`` and ``xi``).
 
     F has orientation ``R_BF (3, 3)`` and origin ``p_BF (3, N)`` (which may vary per state) in the
-    body frame. Returns ``R_WF (3, 3, N)``, ``p_WF (3, N)``, the columns ``ξ (nv, 6, N)`` and the
-    world-aligned Jacobian of F's origin by columns ``(nv, 6, N)`` (zero for coordinates that do not
-    move the body).
+    body frame. Returns ``R_WF (3, 3, N)``, ``p_OF (3, N)`` relative to the reference point ``O`` and
+    the world-aligned Jacobian of F's origin by columns ``(nv, 6, N)`` (zero for coordinates that do
+    not move the body).
     """
-    R_WJ, p_WJ = world_poses(model, q)
-    xi = motion_subspaces(model, R_WJ, p_WJ)
+    R_WJ, p_OJ, xi = frames.R_WJ, frames.p_OJ, frames.xi
     j, X_JB = model.body_joints[b], model.body_placements[b]
     R_WF = lanes.matmul(R_WJ[j], (X_JB[:3, :3] @ R_BF)[:, :, None])
-    p_WF = lanes.matvec(R_WJ[j], X_JB[:3, 3, None] + lanes.matvec(X_JB[:3, :3, None], p_BF)) + p_WJ[j]
+    p_OF = lanes.matvec(R_WJ[j], X_JB[:3, 3, None] + lanes.matvec(X_JB[:3, :3, None], p_BF)) + p_OJ[j]
     # Column k at the point x: [v_k + ω_k × x; ω_k]
-    linear = xi[:, :3] + lanes.cross(xi[:, 3:], p_WF)  # (points may vary per state where q does not)
+    linear = xi[:, :3] + lanes.cross(xi[:, 3:], p_OF)  # (points may vary per state where q does not)
     J = lanes.concatenate([linear, xi[:, 3:]], axis=-2) * model.tree_sum_weights[0][j][:, None, None]
-    return R_WF, p_WF, xi, J
+    return R_WF, p_OF, J
+
+
+def _frame_motion(model, b, X_BF, frames, V, xi_dot_v):
+    """:func:`frame_kinematics` of the frame ``X_BF (4, 4)`` fixed in the moving body ``b``, on lanes, from
+    the joint frames ``frames`` (see :func:`_frame_on_lanes`) and the velocities ``V``, ``ξ̇_k v_k`` of
+    :func:`_velocities`: ``R_WF (3, 3, N)``, ``p_WF (3, N)``, ``J (6, nv, N)``, ``J̇v (6, N)``."""
+    R_WF, x, J = _frame_on_lanes(model, b, X_BF[:3, :3], X_BF[:3, 3, None], frames)
+    # J̇ v (jacobian_time_variation) summed over the columns first: with the body's velocity V_b and
+    # velocity-product acceleration A_b = Σ_k ξ̇_k v_k (world Plücker), the classical acceleration
+    # of x at a = 0 is a_O + α × x + ω × ẋ, ẋ = v_O + ω × x.
+    j = model.body_joints[b]
+    A_b = lanes.tree_sum(model.tree_sum_weights[0][j][None], xi_dot_v)[0]
+    x_dot = V[j, :3] + lanes.cross(V[j, 3:], x)
+    linear = A_b[:3] + lanes.cross(A_b[3:], x) + lanes.cross(V[j, 3:], x_dot)
+    return R_WF, x + frames.p_WO, lanes.transpose(J), np.concatenate([linear, A_b[3:]], axis=-2)
+
+
+def _frame_arguments(model, body, placement):
+    """``(b, X_BF)``: the index of ``body`` (``None`` for the world) and the frame's 4×4 pose in it,
+    validated (identity for ``None``)."""
+    X_BF = np.eye(4) if placement is None else np.asarray(placement, dtype=float)
+    if X_BF.shape != (4, 4):
+        raise ValueError(f"placement must have shape (4, 4), got {X_BF.shape}")
+    return (None if body is None else model.body_index(body)), X_BF
+
+
+def _fixed_frame(model, b, X_BF, batch):
+    """:func:`frame_kinematics` of a frame that does not move (``b`` ``None`` for the world, or a body
+    fixed to it), or ``None`` when body ``b`` moves."""
+    if b is not None and model.body_joints[b] >= 0:
+        return None
+    # A body fixed to the world: its placement is its world pose.
+    X_WF = X_BF if b is None else model.body_placements[b] @ X_BF
+    return (np.broadcast_to(X_WF[:3, :3], batch + (3, 3)), np.broadcast_to(X_WF[:3, 3], batch + (3,)),
+            np.zeros(batch + (6, model.nv)), np.zeros(batch + (6,)))
 
 
 def frame_kinematics(model, q, v, body, placement=None):
@@ -254,31 +314,14 @@ def frame_kinematics(model, q, v, body, placement=None):
     q = model.check_configuration(q)
     v = model.check_velocity(v)
     batch = lanes.batch_shape(q.shape[:-1], v.shape[:-1])
-    X_BF = np.eye(4) if placement is None else np.asarray(placement, dtype=float)
-    if X_BF.shape != (4, 4):
-        raise ValueError(f"placement must have shape (4, 4), got {X_BF.shape}")
-    if body is None:
-        R = np.broadcast_to(X_BF[:3, :3], batch + (3, 3))
-        p = np.broadcast_to(X_BF[:3, 3], batch + (3,))
-        return R, p, np.zeros(batch + (6, model.nv)), np.zeros(batch + (6,))
-    b = model.body_index(body)
-    if model.body_joints[b] < 0:
-        # A body fixed to the world: its placement is its world pose.
-        X_WF = model.body_placements[b] @ X_BF
-        return (np.broadcast_to(X_WF[:3, :3], batch + (3, 3)), np.broadcast_to(X_WF[:3, 3], batch + (3,)),
-                np.zeros(batch + (6, model.nv)), np.zeros(batch + (6,)))
+    b, X_BF = _frame_arguments(model, body, placement)
+    fixed = _fixed_frame(model, b, X_BF, batch)
+    if fixed is not None:
+        return fixed
 
     def kernel(q, v):
-        R_WF, x, xi, J = _frame_on_lanes(model, b, X_BF[:3, :3], X_BF[:3, 3, None], q)
-        # J̇ v (jacobian_time_variation) summed over the columns first: with the body's velocity V_b and
-        # velocity-product acceleration A_b = Σ_k ξ̇_k v_k (world Plücker), the classical acceleration
-        # of x at a = 0 is a_O + α × x + ω × ẋ, ẋ = v_O + ω × x.
-        V, xi_dot_v = _velocities(model, xi, v)
-        j = model.body_joints[b]
-        A_b = lanes.tree_sum(model.tree_sum_weights[0][j][None], xi_dot_v)[0]
-        x_dot = V[j, :3] + lanes.cross(V[j, 3:], x)
-        linear = A_b[:3] + lanes.cross(A_b[3:], x) + lanes.cross(V[j, 3:], x_dot)
-        return R_WF, x, lanes.transpose(J), np.concatenate([linear, A_b[3:]], axis=-2)
+        frames = _joint_frames(model, q)
+        return _frame_motion(model, b, X_BF, frames, *_velocities(model, frames.xi, v))
 
     return _in_blocks(model, kernel, batch, (q, 1), (v, 1))
 

@@ -61,6 +61,10 @@ class _RollingOnPlane(Constraint):
     def position_rows(self, system):
         return np.array([False, False, True][self._row_axes])
 
+    @property
+    def body_frames(self):
+        return ((self.body, self.placement),)
+
     def _offset(self, R_WB, omega):
         """Contact offset ``d`` from the centre and its rate ``ḋ`` (world axes, ``(..., 3)`` each)."""
         raise NotImplementedError
@@ -71,14 +75,13 @@ class _RollingOnPlane(Constraint):
         return self.surface_velocity is None
 
     def _contact(self, system, q, v, t):
-        model = _require_model(system, self)
-        R_WB, x_O, J, J_dot_v = _frame(model, q, v, self.body, self.placement)
+        R_WB, x_O, J, J_dot_v = _frame(system, self, q, v, self.body, self.placement)
         omega = matvec(J[..., 3:, :], v)
         d, d_dot = self._offset(R_WB, omega)
-        return model, x_O, J, J_dot_v, omega, d, d_dot
+        return x_O, J, J_dot_v, omega, d, d_dot
 
     def position(self, system, q, t=0.0):
-        _, x_O, _, _, _, d, _ = self._contact(system, q, np.zeros(np.shape(q)[:-1] + (system.nv,)), t)
+        x_O, _, _, _, d, _ = self._contact(system, q, np.zeros(np.shape(q)[:-1] + (system.nv,)), t)
         return self._position(x_O, d)
 
     def _position(self, x_O, d):
@@ -96,7 +99,7 @@ class _RollingOnPlane(Constraint):
 
     def _levels(self, system, q, v, t):
         """``(A, b, γ, φ)`` from one kinematics pass (shapes ``(..., k, nv)``, ``(..., k)`` ×3)."""
-        model, x_O, J, J_dot_v, omega, d, d_dot = self._contact(system, q, v, t)
+        x_O, J, J_dot_v, omega, d, d_dot = self._contact(system, q, v, t)
         E_T = self.frame[:, self._row_axes].T
         # v_c = (J_O − [d]× J_ω) v, in the plane frame: Eᵀ J_O − (Eᵀ [d]×) J_ω, where row i of
         # Eᵀ [d]× is (e_i × d)ᵀ.
@@ -110,7 +113,7 @@ class _RollingOnPlane(Constraint):
 
             # d/dt v_surface(c(q(s)), t + s) along the motion, numerically.
             def surface_at(s):
-                _, x_s, _, _, _, d_s, _ = self._contact(system, system.integrate(q, v, s), v, t + s)
+                x_s, _, _, _, d_s, _ = self._contact(system, system.integrate(q, v, s), v, t + s)
                 return self._surface_velocity(x_s + d_s, t + s)
 
             contact_acceleration = contact_acceleration - _first_derivative(surface_at)
@@ -134,7 +137,7 @@ class _RollingOnPlane(Constraint):
 
     def contact_point(self, system, q):
         """World position of the contact point ``(3,)``."""
-        _, x_O, _, _, _, d, _ = self._contact(system, q, np.zeros(system.nv), 0.0)
+        x_O, _, _, _, d, _ = self._contact(system, q, np.zeros(system.nv), 0.0)
         return x_O + d
 
     def body_forces(self, system, q, lam, t=0.0):
@@ -228,6 +231,10 @@ class KnifeEdge(Constraint):
     def rows(self, system):
         return 1
 
+    @property
+    def body_frames(self):
+        return ((self.body, self.placement),)
+
     def _sideways(self, R_WB):
         w = spatial.cross(self.normal, R_WB @ self.direction)
         length = np.linalg.norm(w)
@@ -236,8 +243,7 @@ class KnifeEdge(Constraint):
         return w / length, length
 
     def evaluate(self, system, q, v, t=0.0):
-        model = _require_model(system, self)
-        R_WB, _, J, J_dot_v = _frame(model, q, v, self.body, self.placement)
+        R_WB, _, J, J_dot_v = _frame(system, self, q, v, self.body, self.placement)
         w, length = self._sideways(R_WB)
         omega = matvec(J[3:], v)
         x_dot = matvec(J[:3], v)
@@ -255,5 +261,5 @@ class KnifeEdge(Constraint):
 
     def body_forces(self, system, q, lam, t=0.0):
         model = _require_model(system, self)
-        R_WB, x, _, _ = _frame(model, q, None, self.body, self.placement)
+        R_WB, x, _, _ = _frame(system, self, q, None, self.body, self.placement)
         return _wrenches(model, q, [(self.body, self._sideways(R_WB)[0] * lam[0], x, np.zeros(3))])

@@ -264,27 +264,27 @@ def se3_log(R, p):
     ``v = V(ω)⁻¹ p`` with ``V⁻¹ = I − ½[ω]× + (1/θ²)(1 − θ sin θ / (2(1 − cos θ))) [ω]×²``.
     """
     w = so3_log(R)
-    return np.concatenate([matvec(so3_left_jacobian_inverse(w), p), w], axis=-1)
+    return np.concatenate([so3_left_jacobian_inverse_times(w, p), w], axis=-1)
 
 
-def so3_left_jacobian_inverse(w):
-    """Inverse of the left Jacobian of SO(3), ``J_l(w)⁻¹ = V(w)⁻¹`` (Solà et al. 2018, App. B):
-    ``I − ½[w]× + (1/θ²)(1 − θ sin θ / (2(1 − cos θ))) [w]×²``. ``(..., 3) -> (..., 3, 3)``.
+def so3_left_jacobian_inverse_times(w, x):
+    """``J_l(w)⁻¹ x`` with the inverse of the left Jacobian of SO(3) (Solà et al. 2018, App. B),
+    ``J_l(w)⁻¹ = V(w)⁻¹ = I − ½[w]× + c [w]×²``, ``c = (1/θ²)(1 − θ sin θ / (2(1 − cos θ)))``:
+    ``x − ½ w × x + c w × (w × x)``. ``(..., 3), (..., 3) -> (..., 3)``.
 
     ``J_l`` relates the rate of a rotation vector to the angular velocity it produces:
     ``d/dt exp([w]×) = [J_l(w) ẇ]× exp([w]×)``, so ``ẇ = J_l(w)⁻¹ ω`` for ``ω`` in the fixed frame
     (finite for ``θ < 2π``).
     """
     w = np.asarray(w, dtype=float)
-    theta = np.linalg.norm(w, axis=-1)
+    theta = np.linalg.norm(w, axis=-1, keepdims=True)
     small = theta < _SERIES_ANGLE
     t = np.where(small, 1.0, theta)
     # θ sin θ / (2(1 − cos θ)) = (θ/2) cot(θ/2), which keeps its digits for small θ.
     half = 0.5 * t
-    c = np.where(small, 1.0 / 12.0 + theta**2 / 720.0 + theta**4 / 30240.0,
-                 (1.0 - half * np.cos(half) / np.sin(half)) / t**2)
-    W = skew(w)
-    return np.eye(3) - 0.5 * W + c[..., None, None] * (W @ W)
+    c = np.where(small, 1.0 / 12.0 + theta**2 / 720.0 + theta**4 / 30240.0, (1.0 - half / np.tan(half)) / t**2)
+    w_x = cross(w, x)
+    return x - 0.5 * w_x + c * cross(w, w_x)
 
 
 # ----------------------------------------------------------------------------- poses
