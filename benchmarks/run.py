@@ -159,7 +159,7 @@ def crba_peak_memory(n, rng):
 def rolling_ball(duration, rate, budget, adaptive=("DOP853", 1e-8)):
     """The rolling ball on a plane tilted by 0.1 rad: one constrained (KKT) step (µs), and the wall time
     (s) of simulating ``duration`` s with output at ``rate`` Hz, both by the adaptive ``(method, rtol)``
-    (dense output between its own steps) and by fixed-step RK4 with step ``1/rate``; for each, the
+    (dense output between its own steps; best of three runs) and by fixed-step RK4 with step ``1/rate``; for each, the
     largest constraint residual of the output and the largest drift of the energy (J) from its start.
     """
     ball = mb.load_urdf(mb.robots.path("ball"), floating_base=True)
@@ -170,11 +170,16 @@ def rolling_ball(duration, rate, budget, adaptive=("DOP853", 1e-8)):
     result = {"kkt_step_us": best_time(lambda: system.forward_dynamics(q0, v0), budget) * 1e6,
               "sim_duration_s": duration, "rate_hz": rate}
     method, rtol = adaptive
-    runs = {"adaptive": dict(method=method, rtol=rtol, atol=1e-2 * rtol), "rk4": dict(method="RK4")}
-    for name, options in runs.items():
-        start = time.perf_counter()
-        trajectory = mb.simulate(system, q0, v0, duration, dt=1.0 / rate, **options)
-        result[f"{name}_simulate_s"] = time.perf_counter() - start
+    # (runs, options): the best wall time of a few adaptive runs, as every other timing here is a
+    # best time (a shared machine's noise only adds); one run of the minute-long RK4.
+    runs = {"adaptive": (3, dict(method=method, rtol=rtol, atol=1e-2 * rtol)), "rk4": (1, dict(method="RK4"))}
+    for name, (repeats, options) in runs.items():
+        times = []
+        for _ in range(repeats):
+            start = time.perf_counter()
+            trajectory = mb.simulate(system, q0, v0, duration, dt=1.0 / rate, **options)
+            times.append(time.perf_counter() - start)
+        result[f"{name}_simulate_s"] = min(times)
         result[f"{name}_max_residual"] = float(trajectory.residual.max())
         result[f"{name}_energy_drift_j"] = float(np.abs(trajectory.energy - trajectory.energy[0]).max())
     result["adaptive_method"], result["adaptive_rtol"] = method, rtol
@@ -223,7 +228,7 @@ def main(argv=None):
         f"peak memory of the batched Panda CRBA at N = {args.memory_states}: {memory:.0f} MB",
         f"rolling ball: one constrained step {ball['kkt_step_us']:.0f} µs; simulating {ball['sim_duration_s']:g} s "
         f"with 1 kHz output: {ball['adaptive_method']} (rtol {ball['adaptive_rtol']:g}, dense output) "
-        f"{ball['adaptive_simulate_s']:.2f} s wall (max residual {ball['adaptive_max_residual']:.1e}, "
+        f"{ball['adaptive_simulate_s']:.2f} s wall, best of 3 (max residual {ball['adaptive_max_residual']:.1e}, "
         f"energy drift {ball['adaptive_energy_drift_j']:.1e} J); fixed-step RK4 at 1 kHz "
         f"{ball['rk4_simulate_s']:.2f} s wall (max residual {ball['rk4_max_residual']:.1e}, "
         f"energy drift {ball['rk4_energy_drift_j']:.1e} J)",

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import dynamics, kinematics
+from . import dynamics, kinematics, linalg
 from .model import Model
 from .spatial import matvec
 
@@ -266,14 +266,14 @@ class ConstrainedSystem:
     def _factor(self, q, M=None):
         M = self.system.mass_matrix(q) if M is None else M
         try:
-            return np.linalg.cholesky(M)
+            return linalg.cholesky(M)
         except np.linalg.LinAlgError:
             raise ConstraintError("the mass matrix is not positive definite at this configuration") from None
 
     @staticmethod
     def _solve_factored(L, rhs):
         """``M⁻¹ rhs`` from the Cholesky factor ``L`` (``M = L Lᵀ``); ``rhs`` ``(..., nv, k)``."""
-        return np.linalg.solve(np.swapaxes(L, -1, -2), np.linalg.solve(L, rhs))
+        return linalg.cholesky_solve(L, rhs)
 
     def _multipliers(self, A, M_inv_At, rhs):
         """Minimum-norm solution of ``G λ = rhs`` with ``G = A M⁻¹ Aᵀ``, the rank, and a consistency check.
@@ -283,22 +283,24 @@ class ConstrainedSystem:
         """
         G = A @ M_inv_At
         # G is symmetric positive semi-definite: G = V diag(w) Vᵀ, and λ = V diag(w)⁺ Vᵀ rhs.
-        w, V = np.linalg.eigh(G)
+        w, V = linalg.eigh(G)
         keep = w > self.rank_tolerance * w[..., -1:]
-        inverse = np.where(keep, 1.0 / np.where(keep, w, 1.0), 0.0)
+        inverse = np.divide(1.0, w, out=np.zeros_like(w), where=keep)
         lam = matvec(V, inverse * matvec(np.swapaxes(V, -1, -2), rhs))
-        # Consistency: the part of rhs outside the range of G cannot be met by any λ.
-        mismatch = np.abs(rhs - matvec(G, lam))
-        scale = np.maximum(np.abs(rhs).max(axis=-1), 1.0)
-        bad = mismatch.max(axis=-1) > 1e-8 * scale
-        if bad.any():
-            state = np.unravel_index(int(np.argmax(bad)), bad.shape) if bad.ndim else ()
-            worst = int(np.argmax(mismatch[state]))
-            rank = int(keep[state].sum())
-            raise ConstraintError(
-                f"inconsistent constraints: no accelerations satisfy all {A.shape[-2]} rows (rank {rank}); "
-                f"row {self.row_names[worst]!r} is off by {(rhs - matvec(G, lam))[state][worst]:.3g}")
         rank = keep.sum(axis=-1)
+        deficient = rank < w.shape[-1]
+        if deficient.any():
+            # Consistency: the part of rhs outside the range of G cannot be met by any λ (a G of full
+            # rank meets every rhs).
+            mismatch = np.abs(rhs - matvec(G, lam))
+            scale = np.maximum(np.abs(rhs).max(axis=-1), 1.0)
+            bad = deficient & (mismatch.max(axis=-1) > 1e-8 * scale)
+            if bad.any():
+                state = np.unravel_index(int(np.argmax(bad)), bad.shape) if bad.ndim else ()
+                worst = int(np.argmax(mismatch[state]))
+                raise ConstraintError(
+                    f"inconsistent constraints: no accelerations satisfy all {A.shape[-2]} rows (rank {int(rank[state])}); "
+                    f"row {self.row_names[worst]!r} is off by {(rhs - matvec(G, lam))[state][worst]:.3g}")
         return lam, int(rank) if rank.ndim == 0 else rank
 
     def _tau(self, tau, batch=()):

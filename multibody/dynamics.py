@@ -22,7 +22,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from . import lanes, spatial
+from . import lanes, linalg, spatial
 from .kinematics import (_at_dofs, _fixed_frame, _frame_arguments, _frame_motion, _in_blocks, _joint_frames, _spatial_velocities,
                          _support_sums, _velocities, world_poses)
 from .spatial import motion_cross, transpose
@@ -43,11 +43,6 @@ def _check(model, q, v=None, a=None, tau=None, f_ext=None):
                              f"joint, in its frame), got {f_ext.shape}")
         shapes.append(f_ext.shape[:-2])
     return q, *arrays, f_ext, lanes.batch_shape(*shapes)
-
-
-def _gravity_acceleration(model):
-    """Fictitious base acceleration ``a₀ = [−g; 0]`` that accounts for gravity (RBDA §5.3), on lanes ``(6, 1)``."""
-    return np.concatenate([-model.gravity, np.zeros(3)])[:, None]
 
 
 class Tree(NamedTuple):
@@ -136,7 +131,7 @@ def _rnea_forces(model, q, v, a, f_ext, tree=None, motion=None):
     V, xi_dot_v = (None, None) if v is None else _velocities(model, xi, v) if motion is None else motion
     # Each coordinate's share ξ_k q̈_k + ξ̇_k q̇_k of the acceleration (None: zero)
     shares = xi_dot_v if a is None else xi * a[:, None, :] if v is None else xi * a[:, None, :] + xi_dot_v
-    A = _gravity_acceleration(model)
+    A = model.gravity_acceleration  # a₀ = [−g; 0]: gravity as an acceleration of the world (RBDA §5.3)
     if shares is not None:
         A = A + _support_sums(model, shares)
     # (with v = a = 0 every body accelerates as the world does: a₀, which lanes.matvec broadcasts)
@@ -491,7 +486,7 @@ def _single_configuration_solve(model, q, tree, rhs):
         return None
     M = _mass_matrix_crba(model, q, tree)[..., 0]
     try:
-        x = np.linalg.solve(M, rhs)
+        x = linalg.solve(M, rhs)
     except np.linalg.LinAlgError:
         return None
     return x if np.isfinite(x).all() else None

@@ -390,6 +390,12 @@ class Model:
         return _frozen(np.stack([inertia.spatial for inertia in self.joint_inertias]))
 
     @cached_property
+    def gravity_acceleration(self) -> np.ndarray:
+        """``a₀ = [−g; 0] (6, 1)``: the fictitious acceleration of the world that accounts for gravity
+        (RBDA §5.3), as a lane constant."""
+        return _frozen(np.concatenate([-self.gravity, np.zeros(3)])[:, None])
+
+    @cached_property
     def inertia_parameters(self) -> tuple:
         """Each moving body's mass ``(nj,)``, first moment ``m c (nj, 3, 1)``, rotational inertia
         about its joint-frame origin ``(nj, 3, 3, 1)`` and whole spatial inertia ``(nj, 6, 6, 1)``,
