@@ -66,7 +66,8 @@ class _RollingOnPlane(Constraint):
         return ((self.body, self.placement),)
 
     def _offset(self, R_WB, omega):
-        """Contact offset ``d`` from the centre and its rate ``ḋ`` (world axes, ``(..., 3)`` each)."""
+        """Contact offset ``d`` from the centre and its rate ``ḋ`` (world axes, ``(..., 3)`` each; ``ḋ``
+        ``None`` where ``d`` is fixed in the world)."""
         raise NotImplementedError
 
     @property
@@ -105,9 +106,11 @@ class _RollingOnPlane(Constraint):
         # Eᵀ [d]× is (e_i × d)ᵀ.
         A = E_T @ J[..., :3, :] - spatial.cross(E_T, d[..., None, :]) @ J[..., 3:, :]
         # d/dt v_c at a = 0: J̇v_O + ω̇₀ × d + ω × ḋ
-        contact_acceleration = J_dot_v[..., :3] + spatial.cross(J_dot_v[..., 3:], d) + spatial.cross(omega, d_dot)
+        contact_acceleration = J_dot_v[..., :3] + spatial.cross(J_dot_v[..., 3:], d)
+        if d_dot is not None:
+            contact_acceleration = contact_acceleration + spatial.cross(omega, d_dot)
         if self.surface_velocity is None:
-            b = np.zeros(np.shape(d)[:-1] + (E_T.shape[0],))
+            b = np.zeros(np.shape(x_O)[:-1] + (E_T.shape[0],))
         else:
             b = -E_T @ self._surface_velocity(x_O + d, t)
 
@@ -171,8 +174,7 @@ class RollingSphere(_RollingOnPlane):
 
     def _offset(self, R_WB, omega):
         # d = −r n is fixed in the world: ḋ = 0.
-        d = np.broadcast_to(-self.radius * self.normal, np.shape(omega))
-        return d, np.zeros(np.shape(omega))
+        return -self.radius * self.normal, None
 
 
 class RollingDisc(_RollingOnPlane):
