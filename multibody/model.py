@@ -92,6 +92,11 @@ def _index(indices):
     return indices
 
 
+#: ``(a, b, result)`` of each joint map of ``Model._per_joint``: ``q``- or ``v``-shaped.
+_JOINT_MAP_LAYOUTS = {"integrate": "qvq", "difference": "qqv", "configuration_rate": "qvq", "chart": "qvq",
+                      "chart_rate": "vvv"}
+
+
 def _frozen(array, dtype=float):
     array = np.array(array, dtype=dtype)
     array.setflags(write=False)
@@ -437,12 +442,12 @@ class Model:
         """
         q = self.check_configuration(q)
         v = self.check_velocity(v) * dt
-        return self._per_joint("integrate", q, v, out="q")
+        return self._per_joint("integrate", q, v)
 
     def difference(self, q0, q1) -> np.ndarray:
         """Configuration logarithm: the ``v`` with ``integrate(q0, v) = q1``. ``-> (..., nv)``."""
         q0, q1 = self.check_configuration(q0, "q0"), self.check_configuration(q1, "q1")
-        return self._per_joint("difference", q0, q1, second="q", out="v")
+        return self._per_joint("difference", q0, q1)
 
     def configuration_rate(self, q, v) -> np.ndarray:
         """``q̇`` of a configuration moving with velocity ``v``: ``(..., nq)``.
@@ -451,7 +456,7 @@ class Model:
         positions ``R v_lin``, planar joints ``R(θ) (vx, vy)`` and ``ω (−sin θ, cos θ)``.
         """
         q, v = self.check_configuration(q), self.check_velocity(v)
-        return self._per_joint("configuration_rate", q, v, out="q")
+        return self._per_joint("configuration_rate", q, v)
 
     # ------------------------------------------------------------------ charts for Lie-group integration
 
@@ -463,13 +468,12 @@ class Model:
         :func:`multibody.simulate` integrates ``δ`` with :meth:`chart_rate` and starts a new chart
         at the end of every step.
         """
-        return self._per_joint("chart", np.asarray(q0, dtype=float), np.asarray(delta, dtype=float), out="q")
+        return self._per_joint("chart", np.asarray(q0, dtype=float), np.asarray(delta, dtype=float))
 
     def chart_rate(self, delta, w) -> np.ndarray:
         """``δ̇ (..., nv)`` of chart coordinates ``delta`` moving with aligned velocity ``w`` (see
         :meth:`velocity_alignment`): ``w`` itself, but ``J_l(δ)⁻¹ ω`` for rotation vectors."""
-        return self._per_joint("chart_rate", np.asarray(delta, dtype=float), np.asarray(w, dtype=float),
-                               first="v", out="v")
+        return self._per_joint("chart_rate", np.asarray(delta, dtype=float), np.asarray(w, dtype=float))
 
     def velocity_alignment(self, q) -> np.ndarray:
         """Orthogonal ``T(q) (..., nv, nv)`` that rotates free-flyer, spherical and planar velocity
@@ -480,6 +484,8 @@ class Model:
         ``ẇ = T (a + κ(v))`` (:meth:`velocity_coupling`).
         """
         q = np.asarray(q, dtype=float)
+        if self._rotating_joints == (0,) and self.njoints == 1:
+            return self.joints[0].velocity_alignment(q)  # a lone free body: its block is all of T
         T = np.array(np.broadcast_to(self._identity_v, q.shape[:-1] + (self.nv, self.nv)))
         for i in self._rotating_joints:
             joint, s = self.joints[i], slice(self.idx_v[i], self.idx_v[i] + self.joints[i].nv)
@@ -490,6 +496,9 @@ class Model:
         """``κ(v) (..., nv)`` with ``d/dt (T v) = T (v̇ + κ(v))`` (see :meth:`velocity_alignment`):
         ``[ω × v_lin; 0]`` for a free flyer, zero for angles and displacements."""
         v = np.asarray(v, dtype=float)
+        if self._rotating_joints == (0,) and self.njoints == 1:
+            coupling = self.joints[0].velocity_coupling(v)  # a lone free body: its block is all of κ
+            return np.zeros(v.shape) if coupling is None else coupling
         kappa = np.zeros(v.shape)
         for i in self._rotating_joints:
             joint, s = self.joints[i], slice(self.idx_v[i], self.idx_v[i] + self.joints[i].nv)
@@ -529,46 +538,44 @@ class Model:
         blocks = [joint.normalize(q[..., s : s + joint.nq]) for joint, s in zip(self.joints, self.idx_q)]
         return np.concatenate(blocks, axis=-1) if blocks else q.copy()
 
-    def _per_joint(self, method, a, b, second="v", out="q", first="q"):
-        """Apply the joint map ``method(a_block, b_block)`` joint by joint and assemble the result
-        (``first``, ``second``, ``out``: whether ``a``, ``b`` and the result are ``q``- or ``v``-shaped).
-
-        The joints that keep the base class's map (angles and displacements, where ``nq = nv`` and
-        the map is plain arithmetic) are handled together in one call on all their coordinates.
-        """
-        shared, others = self._vector_space_joints[method]
-        idx_a = self.idx_v if first == "v" else self.idx_q
-        size_a = (lambda j: j.nv) if first == "v" else (lambda j: j.nq)
-        idx_b = self.idx_v if second == "v" else self.idx_q
-        size_b = (lambda j: j.nv) if second == "v" else (lambda j: j.nq)
-        batch = lanes.batch_shape(a.shape[:-1], b.shape[:-1])
-        result = np.empty(batch + ((self.nq if out == "q" else self.nv),))
-        if shared is not None:
-            joint, in_q, in_v = shared
-            result[..., in_q if out == "q" else in_v] = getattr(joint, method)(
-                a[..., in_v if first == "v" else in_q], b[..., in_v if second == "v" else in_q])
-        for i in others:
-            joint, sa, sb = self.joints[i], idx_a[i], idx_b[i]
-            so = self.idx_q[i] if out == "q" else self.idx_v[i]
-            block = getattr(joint, method)(a[..., sa : sa + size_a(joint)], b[..., sb : sb + size_b(joint)])
-            result[..., so : so + block.shape[-1]] = block
+    def _per_joint(self, method, a, b):
+        """Apply the joint map ``method(a_block, b_block)`` joint by joint and assemble the result; whether
+        ``a``, ``b`` and the result are ``q``- or ``v``-shaped is the map's (``_JOINT_MAP_LAYOUTS``)."""
+        blocks, size = self._joint_map_blocks[method]
+        if len(blocks) == 1 and blocks[0][3] is None:
+            # a lone joint's map gives the whole result
+            joint_map, in_a, in_b, _ = blocks[0]
+            return joint_map(a[..., in_a], b[..., in_b])
+        result = np.empty(lanes.batch_shape(a.shape[:-1], b.shape[:-1]) + (size,))
+        for joint_map, in_a, in_b, in_out in blocks:
+            result[..., in_out] = joint_map(a[..., in_a], b[..., in_b])
         return result
 
     @cached_property
-    def _vector_space_joints(self) -> dict:
-        """For each joint map of :meth:`_per_joint`: ``((a joint, their q indices, their v indices), other
-        joints)``, where the first part covers the joints that keep the base class's map."""
+    def _joint_map_blocks(self) -> dict:
+        """For each joint map of :meth:`_per_joint`: its blocks ``(bound map, a indices, b indices,
+        result indices)`` and the result's size. The joints that keep the base class's map (angles and
+        displacements, where ``nq = nv`` and the map is plain arithmetic) form one block, all their
+        coordinates in one call; every other joint is a block of its own. A lone joint with a map of
+        its own (a single free flyer) gives the whole result: result indices ``None``."""
         out = {}
-        for method in ("integrate", "difference", "configuration_rate", "chart", "chart_rate"):
+        for method, layout in _JOINT_MAP_LAYOUTS.items():
+            starts = [self.idx_q if kind == "q" else self.idx_v for kind in layout]
+            sizes = [(lambda j: j.nq) if kind == "q" else (lambda j: j.nv) for kind in layout]
+            size = self.nq if layout[2] == "q" else self.nv
             shared = [i for i, joint in enumerate(self.joints)
                       if getattr(type(joint), method) is getattr(jt.Joint, method) and joint.nq == joint.nv]
-            others = tuple(i for i in range(self.njoints) if i not in shared)
-            if not shared:
-                out[method] = (None, others)
-                continue
-            in_q, in_v = (np.concatenate([np.arange(start[i], start[i] + self.joints[i].nq) for i in shared])
-                          for start in (self.idx_q, self.idx_v))
-            out[method] = ((self.joints[shared[0]], _index(in_q), _index(in_v)), others)
+            groups = ([shared] if shared else []) + [[i] for i in range(self.njoints) if i not in shared]
+            blocks = []
+            for group in groups:
+                indices = [_index(np.concatenate([np.arange(start[i], start[i] + length(self.joints[i])) for i in group]))
+                           for start, length in zip(starts, sizes)]
+                blocks.append((getattr(self.joints[group[0]], method), *indices))
+            if len(groups) == 1 and getattr(type(self.joints[groups[0][0]]), method) is not getattr(jt.Joint, method):
+                # (a joint's own map returns a new array of the common batch shape; the base class's
+                # may return an argument, so its block is still copied into a result)
+                blocks = [blocks[0][:3] + (None,)]
+            out[method] = (tuple(blocks), size)
         return out
 
     # ------------------------------------------------------------------ input checking

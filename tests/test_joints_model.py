@@ -736,3 +736,32 @@ def test_robots_unknown_name():
         mb.robots.path("nope")
     with pytest.raises(ValueError):
         mb.robots.load("nope")
+
+
+@pytest.mark.parametrize("joint", JOINTS, ids=JOINT_IDS)
+def test_lone_joint_model_maps_are_the_joints_own(joint):
+    """A model of one joint (a free body, a ball joint, ...) returns its joint's maps whole: the same
+    values and shapes as the joint's, batches broadcast, and arrays that are not its arguments."""
+    builder = mb.ModelBuilder("lone")
+    builder.add_body("body", joint, inertia=mb.inertia.box(1.0, [0.1, 0.2, 0.3]))
+    model = builder.build()
+    rng = np.random.default_rng(31)
+    q0, delta = model.random_configuration(rng, (4,)), 0.3 * rng.standard_normal((4, model.nv))
+    w = rng.standard_normal(model.nv)  # one velocity for the whole batch
+    q = model.chart(q0, delta)
+    maps = {"integrate": (model.integrate(q0, w), joint.integrate(q0, np.broadcast_to(w, (4, model.nv)))),
+            "difference": (model.difference(q0, q), joint.difference(q0, q)),
+            "configuration_rate": (model.configuration_rate(q, w), joint.configuration_rate(q, np.broadcast_to(w, (4, model.nv)))),
+            "chart": (q, joint.chart(q0, delta)),
+            "chart_rate": (model.chart_rate(delta, np.broadcast_to(w, (4, model.nv))),
+                           joint.chart_rate(delta, np.broadcast_to(w, (4, model.nv))))}
+    for name, (got, want) in maps.items():
+        assert got.shape == want.shape, name
+        assert_allclose(got, want, atol=1e-15, err_msg=name)
+    rate = model.chart_rate(delta[0], w)
+    assert not np.shares_memory(rate, w) and not np.shares_memory(model.configuration_rate(q[0], w), w)
+    T, kappa = model.velocity_alignment(q), model.velocity_coupling(np.broadcast_to(w, (4, model.nv)))
+    block, coupling = joint.velocity_alignment(q), joint.velocity_coupling(np.broadcast_to(w, (4, model.nv)))
+    assert T.shape == (4, model.nv, model.nv) and kappa.shape == (4, model.nv)
+    assert_allclose(T, np.broadcast_to(np.eye(model.nv), T.shape) if block is None else block, atol=0)
+    assert_allclose(kappa, 0.0 if coupling is None else coupling, atol=0)
