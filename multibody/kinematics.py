@@ -211,10 +211,14 @@ def jacobian(model, q, body, point=None):
     """
     q, b, point = model.check_configuration(q), model.body_index(body), _point(point)
     batch = lanes.batch_shape(q.shape[:-1], point.shape[:-1])
-    if model.body_joints[b] < 0:
+    j = model.body_joints[b]
+    if j < 0:
         return np.zeros(batch + (6, model.nv))
-    return _in_blocks(model, lambda q, p_BF: lanes.transpose(_frame_on_lanes(model, b, _EYE, p_BF, _joint_frames(model, q))[2]),
-                      batch, (q, 1), (point, 1))
+
+    def kernel(q, p_BF):
+        return lanes.transpose(_frame_on_lanes(model, j, _EYE, _point_in_joint_frame(model, b, p_BF), _joint_frames(model, q))[2])
+
+    return _in_blocks(model, kernel, batch, (q, 1), (point, 1))
 
 
 def jacobian_time_variation(model, q, v, body, point=None):
@@ -228,14 +232,14 @@ def jacobian_time_variation(model, q, v, body, point=None):
     """
     q, v, b, point = model.check_configuration(q), model.check_velocity(v), model.body_index(body), _point(point)
     batch = lanes.batch_shape(q.shape[:-1], v.shape[:-1], point.shape[:-1])
-    if model.body_joints[b] < 0:
+    j = model.body_joints[b]
+    if j < 0:
         return np.zeros(batch + (6, model.nv))
 
     def kernel(q, v, p_BF):
         frames = _joint_frames(model, q)
-        xi, x = frames.xi, _frame_on_lanes(model, b, _EYE, p_BF, frames)[1]
+        xi, x = frames.xi, _frame_on_lanes(model, j, _EYE, _point_in_joint_frame(model, b, p_BF), frames)[1]
         V = _spatial_velocities(model, xi, v)
-        j = model.body_joints[b]
         xi_dot = lanes.motion_cross(_at_dofs(model, V), xi)
         x_dot = V[j, :3] + lanes.cross(V[j, 3:], x)
         linear = xi_dot[:, :3] + lanes.cross(xi_dot[:, 3:], x) + lanes.cross(xi[:, 3:], x_dot)
@@ -248,34 +252,39 @@ def jacobian_time_variation(model, q, v, body, point=None):
 _EYE = np.eye(3)
 
 
-def _frame_on_lanes(model, b, R_BF, p_BF, frames):
-    """Pose and Jacobian of a frame F fixed in the moving body ``b``, on lanes, from the joint frames
-    ``frames`` (:class:`JointFrames`, or anything with their ``R_WJ``, ``p_OJ`` and ``xi``).
+def _frame_on_lanes(model, j, R_JF, p_JF, frames):
+    """Pose and Jacobian of a frame F fixed in the body of the moving joint ``j``, on lanes, from the
+    joint frames ``frames`` (:class:`JointFrames`, or anything with their ``R_WJ``, ``p_OJ`` and ``xi``).
 
-    F has orientation ``R_BF (3, 3)`` and origin ``p_BF (3, N)`` (which may vary per state) in the
-    body frame. Returns ``R_WF (3, 3, N)``, ``p_OF (3, N)`` relative to the reference point ``O`` and
+    F has orientation ``R_JF (3, 3)`` and origin ``p_JF (3, N)`` (which may vary per state) in the
+    joint frame. Returns ``R_WF (3, 3, N)``, ``p_OF (3, N)`` relative to the reference point ``O`` and
     the world-aligned Jacobian of F's origin by columns ``(nv, 6, N)`` (zero for coordinates that do
     not move the body).
     """
-    R_WJ, p_OJ, xi = frames.R_WJ, frames.p_OJ, frames.xi
-    j, X_JB = model.body_joints[b], model.body_placements[b]
-    R_WF = lanes.matmul(R_WJ[j], (X_JB[:3, :3] @ R_BF)[:, :, None])
-    p_OF = lanes.matvec(R_WJ[j], X_JB[:3, 3, None] + lanes.matvec(X_JB[:3, :3, None], p_BF)) + p_OJ[j]
+    R_WJ, xi = frames.R_WJ[j], frames.xi
+    R_WF = lanes.matmul(R_WJ, R_JF[:, :, None])
+    p_OF = lanes.matvec(R_WJ, p_JF) + frames.p_OJ[j]
     # Column k at the point x: [v_k + ω_k × x; ω_k]
     linear = xi[:, :3] + lanes.cross(xi[:, 3:], p_OF)  # (points may vary per state where q does not)
     J = lanes.concatenate([linear, xi[:, 3:]], axis=-2) * model.tree_sum_weights[0][j][:, None, None]
     return R_WF, p_OF, J
 
 
+def _point_in_joint_frame(model, b, p_BF):
+    """A point ``p_BF (3, N)`` of body ``b`` in the frame of its joint: ``X_JB p_BF``."""
+    X_JB = model.body_placements[b]
+    return X_JB[:3, 3, None] + lanes.matvec(X_JB[:3, :3, None], p_BF)
+
+
 def _frame_motion(model, b, X_BF, frames, V, xi_dot_v):
     """:func:`frame_kinematics` of the frame ``X_BF (4, 4)`` fixed in the moving body ``b``, on lanes, from
     the joint frames ``frames`` (see :func:`_frame_on_lanes`) and the velocities ``V``, ``ξ̇_k v_k`` of
     :func:`_velocities`: ``R_WF (3, 3, N)``, ``p_WF (3, N)``, ``J (6, nv, N)``, ``J̇v (6, N)``."""
-    R_WF, x, J = _frame_on_lanes(model, b, X_BF[:3, :3], X_BF[:3, 3, None], frames)
+    j, X_JF = model.body_joints[b], model.body_placements[b] @ X_BF
+    R_WF, x, J = _frame_on_lanes(model, j, X_JF[:3, :3], X_JF[:3, 3, None], frames)
     # J̇ v (jacobian_time_variation) summed over the columns first: with the body's velocity V_b and
     # velocity-product acceleration A_b = Σ_k ξ̇_k v_k (world Plücker), the classical acceleration
     # of x at a = 0 is a_O + α × x + ω × ẋ, ẋ = v_O + ω × x.
-    j = model.body_joints[b]
     A_b = lanes.tree_sum(model.tree_sum_weights[0][j][None], xi_dot_v)[0]
     x_dot = V[j, :3] + lanes.cross(V[j, 3:], x)
     linear = A_b[:3] + lanes.cross(A_b[3:], x) + lanes.cross(V[j, 3:], x_dot)
