@@ -40,13 +40,22 @@ def world_poses(model, q):
     """
     X_local = local_poses(model, q)
     X_world = np.empty((model.njoints, 3, 4, q.shape[-1]))
-    # One lane: the products on the matrices themselves (views without the lane axis), which halves
-    # the NumPy calls of a level, the only cost of a deep chain's single configuration.
-    local, world, product = ((X_local[..., 0], X_world[..., 0], np.matmul) if q.shape[-1] == 1
-                             else (X_local, X_world, lanes.matmul))
-    for level, (index, parents) in enumerate(model.levels):
-        # [R | p]_W,i = [R | p]_W,λ [[R, p], [0, 1]]_λ,i : one product of a 3×4 and a 4×4 matrix
-        world[index] = local[index, :3] if level == 0 else product(world[parents], local[index])
+    if q.shape[-1] == 1:
+        # One lane: the products on the matrices themselves (views without the lane axis), written in
+        # place where the level's joints are a view: one NumPy call per level of a chain, the only cost
+        # of a deep chain's single configuration.
+        local, world = X_local[..., 0], X_world[..., 0]
+        for level, (index, parents, view) in enumerate(model.pose_levels):
+            # [R | p]_W,i = [R | p]_W,λ [[R, p], [0, 1]]_λ,i : one product of a 3×4 and a 4×4 matrix
+            if level == 0:
+                world[index] = local[index, :3]
+            elif view:
+                np.matmul(world[parents], local[index], out=world[index])
+            else:
+                world[index] = world[parents] @ local[index]
+    else:
+        for level, (index, parents) in enumerate(model.levels):
+            X_world[index] = X_local[index, :3] if level == 0 else lanes.matmul(X_world[parents], X_local[index])
     return X_world[:, :, :3], X_world[:, :, 3]
 
 
