@@ -193,10 +193,10 @@ def quat_exp(w):
     """Unit quaternion of the rotation vector ``w`` (rad): ``[sin(θ/2) w/θ, cos(θ/2)]``, ``θ = |w|``."""
     w = np.asarray(w, dtype=float)
     theta = np.linalg.norm(w, axis=-1, keepdims=True)
-    small = theta < _SMALL_ANGLE
-    safe = np.where(small, 1.0, theta)
-    # sin(θ/2)/θ = 1/2 − θ²/48 + …
-    sinc_half = np.where(small, 0.5 - theta**2 / 48.0, np.sin(0.5 * safe) / safe)
+    # sin(θ/2)/θ loses no digits for small θ; only θ = 0 needs its limit ½.
+    turning = theta > 0.0
+    safe = np.where(turning, theta, 1.0)
+    sinc_half = np.where(turning, np.sin(0.5 * safe) / safe, 0.5)
     return np.concatenate([sinc_half * w, np.cos(0.5 * theta)], axis=-1)
 
 
@@ -278,11 +278,13 @@ def so3_left_jacobian_inverse_times(w, x):
     """
     w = np.asarray(w, dtype=float)
     theta = np.linalg.norm(w, axis=-1, keepdims=True)
-    small = theta < _SERIES_ANGLE
+    small = theta < _SMALL_ANGLE
     t = np.where(small, 1.0, theta)
-    # θ sin θ / (2(1 − cos θ)) = (θ/2) cot(θ/2), which keeps its digits for small θ.
+    # θ sin θ / (2(1 − cos θ)) = (θ/2) cot(θ/2). For small θ, c θ² = 1 − (θ/2) cot(θ/2) keeps its
+    # absolute digits though not its relative ones, and the term c w × (w × x), of size c θ² |x|,
+    # needs no more; below _SMALL_ANGLE c = 1/12 + θ²/720 + … is 1/12 to 2e-10.
     half = 0.5 * t
-    c = np.where(small, 1.0 / 12.0 + theta**2 / 720.0 + theta**4 / 30240.0, (1.0 - half / np.tan(half)) / t**2)
+    c = np.where(small, 1.0 / 12.0, (1.0 - half / np.tan(half)) / (t * t))
     w_x = cross(w, x)
     return x - 0.5 * w_x + c * cross(w, w_x)
 

@@ -464,3 +464,26 @@ def test_quat_rotate_and_rate_equal_the_matrix_and_the_product(rng):
     assert_allclose(sp.quat_rotate(quat, x), sp.matvec(sp.quat_to_rotation(quat), x), atol=1e-14)
     pure = np.concatenate([omega, np.zeros((5, 1))], axis=-1)
     assert_allclose(sp.quat_rate(quat, omega), 0.5 * sp.quat_multiply(quat, pure), atol=1e-14)
+
+
+@pytest.mark.parametrize("angle", [0.0, 1e-12, 1e-8, 9.9e-5, 1.01e-4, 1e-3, 0.1, 1.0, 3.0, 6.0])
+def test_left_jacobian_inverse_and_quaternion_exponential_to_high_precision(angle):
+    """``J_l(w)⁻¹ x`` and ``quat_exp(w)`` against 40-digit arithmetic, on both sides of the small-angle
+    switch: the closed forms keep their absolute digits down to θ = 0."""
+    mpmath = pytest.importorskip("mpmath")
+    mpmath.mp.dps = 40
+    rng = np.random.default_rng(int(angle * 1e3) + 17)
+    for _ in range(10):
+        axis = rng.standard_normal(3)
+        w, x = angle * axis / np.linalg.norm(axis), rng.standard_normal(3)
+        W = mpmath.matrix([[0, -w[2], w[1]], [w[2], 0, -w[0]], [-w[1], w[0], 0]])
+        theta = mpmath.sqrt(sum(mpmath.mpf(c) ** 2 for c in w))
+        c = mpmath.mpf(1) / 12 if theta == 0 else (1 - theta / 2 * mpmath.cot(theta / 2)) / theta**2
+        X = mpmath.matrix(x.tolist())
+        reference = X - W * X / 2 + c * W * W * X
+        # the condition of J_l⁻¹ grows towards θ = 2π (|c| ≈ 12 at θ = 6)
+        assert_allclose(sp.so3_left_jacobian_inverse_times(w, x), [float(r) for r in reference],
+                        rtol=0, atol=2e-15 * (1 + float(abs(c)) * angle**2) * np.linalg.norm(x))
+        half_sinc = mpmath.mpf(0.5) if theta == 0 else mpmath.sin(theta / 2) / theta
+        assert_allclose(sp.quat_exp(w), [float(half_sinc * c_) for c_ in w] + [float(mpmath.cos(theta / 2))],
+                        rtol=0, atol=2e-16)
