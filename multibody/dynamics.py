@@ -209,7 +209,8 @@ def mass_matrix(model, q, method="crba"):
 
 def _mass_matrix_crba(model, q, tree=None):
     """CRBA on lanes: ``q (nq, N) -> M (nv, nv, N)`` (``tree``: :func:`_tree` of ``q``, when at hand)."""
-    xi, inertia = (_tree(model, q) if tree is None else tree)[-2:]
+    tree = _tree(model, q) if tree is None else tree
+    xi, inertia = tree.xi, tree.inertia
     # Composite inertias: in world coordinates, I^c_i is the plain sum of the subtree's inertias.
     composite = _subtree_sums(model, inertia)
     # F_l = I^c_j(l) ξ_l ;  M_kl = ξ_kᵀ F_l when k's joint supports l's (RBDA eq. 6.14)
