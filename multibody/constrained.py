@@ -90,13 +90,20 @@ class _ModelAtState(ModelSystem):
 
     def __init__(self, model, q, v, frames, values):
         super().__init__(model)
-        self._q, self._v = q, v
-        self._frames = {_frame_key(model, body, placement): value for (body, placement), value in zip(frames, values)}
+        self._q, self._v, self._frames, self._values = q, v, frames, values
+        # A constraint reads its frames by the body and placement objects it declared: found by identity
+        # (those objects stay alive in ``frames``), without normalising the placement.
+        self._declared = {(body, id(placement)): value for (body, placement), value in zip(frames, values)}
 
     def known_frame(self, q, v, body, placement):
         if q is not self._q or v is not self._v:
             return None
-        return self._frames.get(_frame_key(self.model, body, placement))
+        value = self._declared.get((body, id(placement)))
+        if value is None:  # the same frame given by other objects (a body index, an equal placement)
+            key = _frame_key(self.model, body, placement)
+            value = next((value for frame, value in zip(self._frames, self._values)
+                          if _frame_key(self.model, *frame) == key), None)
+        return value
 
 
 def _frame_key(model, body, placement):
@@ -304,8 +311,7 @@ class ConstrainedSystem:
         return lam, int(rank) if rank.ndim == 0 else rank
 
     def _tau(self, tau, batch=()):
-        if tau is None:
-            return np.zeros(batch + (self.nv,))
+        """``tau`` as a float array ``(nv,)`` or ``batch + (nv,)``, or ``ValueError``."""
         tau = np.asarray(tau, dtype=float)
         if tau.shape[-1:] != (self.nv,) or tau.ndim > len(batch) + 1:
             raise ValueError(f"tau must have shape ({self.nv},), got {tau.shape}")
@@ -329,17 +335,18 @@ class ConstrainedSystem:
         leading batch axes when :attr:`batched`; the results then carry them too.
         """
         q, v = self._check_state(q, v)
-        tau = self._tau(tau, q.shape[:-1])
+        tau = None if tau is None else self._tau(tau, q.shape[:-1])
         M, h, evaluated = self._mass_matrix_and_bias(q, v)
+        free_force = -h if tau is None else tau - h  # τ − h
         L = self._factor(q, M)
         if not self.num_rows:
             # a_free = M⁻¹ (τ − h)
-            a = self._solve_factored(L, (tau - h)[..., None])[..., 0]
+            a = self._solve_factored(L, free_force[..., None])[..., 0]
             batch = q.shape[:-1]
             return KKTSolution(a, np.zeros(batch + (0,)), 0, np.zeros(batch + (0, self.nv)), np.zeros(batch + (0,)))
         A, gamma = self._acceleration_level(evaluated, q, v, t)
         # One pair of triangular solves for [τ − h | Aᵀ]: a_free = M⁻¹ (τ − h) and M⁻¹ Aᵀ.
-        solved = self._solve_factored(L, np.concatenate([(tau - h)[..., None], np.swapaxes(A, -1, -2)], axis=-1))
+        solved = self._solve_factored(L, np.concatenate([free_force[..., None], np.swapaxes(A, -1, -2)], axis=-1))
         a_free, M_inv_At = solved[..., 0], solved[..., 1:]
         # (A M⁻¹ Aᵀ) λ = γ − A a_free ;  a = a_free + M⁻¹ Aᵀ λ
         lam, rank = self._multipliers(A, M_inv_At, gamma - matvec(A, a_free))

@@ -54,6 +54,7 @@ class _RollingOnPlane(Constraint):
         self.surface_velocity = surface_velocity
         self.include_normal = bool(normal)
         self._row_axes = slice(0, 3) if self.include_normal else slice(0, 2)
+        self._plane_rows = self.frame[:, self._row_axes].T  # Eᵀ: the rows' directions (k, 3)
 
     def rows(self, system):
         return 3 if self.include_normal else 2
@@ -69,6 +70,10 @@ class _RollingOnPlane(Constraint):
         """Contact offset ``d`` from the centre and its rate ``ḋ`` (world axes, ``(..., 3)`` each; ``ḋ``
         ``None`` where ``d`` is fixed in the world)."""
         raise NotImplementedError
+
+    def _lever_rows(self, d):
+        """``Eᵀ [d]× (..., k, 3)``, whose row i is ``(e_i × d)ᵀ``: the rows' lever on the angular velocity."""
+        return spatial.cross(self._plane_rows, d[..., None, :])
 
     @property
     def batched(self):
@@ -101,10 +106,9 @@ class _RollingOnPlane(Constraint):
     def _levels(self, system, q, v, t):
         """``(A, b, γ, φ)`` from one kinematics pass (shapes ``(..., k, nv)``, ``(..., k)`` ×3)."""
         x_O, J, J_dot_v, omega, d, d_dot = self._contact(system, q, v, t)
-        E_T = self.frame[:, self._row_axes].T
-        # v_c = (J_O − [d]× J_ω) v, in the plane frame: Eᵀ J_O − (Eᵀ [d]×) J_ω, where row i of
-        # Eᵀ [d]× is (e_i × d)ᵀ.
-        A = E_T @ J[..., :3, :] - spatial.cross(E_T, d[..., None, :]) @ J[..., 3:, :]
+        E_T = self._plane_rows
+        # v_c = (J_O − [d]× J_ω) v, in the plane frame: Eᵀ J_O − (Eᵀ [d]×) J_ω
+        A = E_T @ J[..., :3, :] - self._lever_rows(d) @ J[..., 3:, :]
         # d/dt v_c at a = 0: J̇v_O + ω̇₀ × d + ω × ḋ
         contact_acceleration = J_dot_v[..., :3] + spatial.cross(J_dot_v[..., 3:], d)
         if d_dot is not None:
@@ -171,10 +175,15 @@ class RollingSphere(_RollingOnPlane):
                  surface_velocity=None, normal=True, name=None):
         super().__init__(body, radius, center=center, plane_point=plane_point, plane_normal=plane_normal,
                          surface_velocity=surface_velocity, normal=normal, name=name or f"rolling sphere {body}")
+        self._offset_in_world = -self.radius * self.normal
+        self._fixed_lever_rows = super()._lever_rows(self._offset_in_world)
 
     def _offset(self, R_WB, omega):
         # d = −r n is fixed in the world: ḋ = 0.
-        return -self.radius * self.normal, None
+        return self._offset_in_world, None
+
+    def _lever_rows(self, d):
+        return self._fixed_lever_rows  # (d is fixed in the world)
 
 
 class RollingDisc(_RollingOnPlane):
