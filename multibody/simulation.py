@@ -301,7 +301,8 @@ def _trajectory(constrained, times, states, torque, status, projection_tolerance
             residual[off] = residuals(off)
     taus = [torque(t, q_k, v_k) for t, q_k, v_k in zip(times, q, v)]
     if batched:
-        tau = np.stack([np.zeros(nv) if tau_k is None else np.asarray(tau_k, dtype=float) for tau_k in taus])
+        tau = None if all(tau_k is None for tau_k in taus) else np.stack(
+            [np.zeros(nv) if tau_k is None else np.asarray(tau_k, dtype=float) for tau_k in taus])
         lam = constrained.solve(q, v, tau, times).lam
         energy = np.broadcast_to(constrained.energy(q, v), (n,))
     else:
