@@ -218,13 +218,14 @@ def force_cross(m, f):
 # ----------------------------------------------------------------------------- spatial inertia
 
 def world_inertias(mass, first_moment, rotational, spatial_inertia, R_WJ, p_WJ):
-    """Spatial inertias about the world origin, in world axes, of bodies posed at ``(R_WJ, p_WJ)``.
+    """Spatial inertias in world axes of bodies posed at ``(R_WJ, p_WJ)``, about the point ``O`` the
+    positions ``p_WJ`` are taken from (the world origin, or the algorithms' reference point).
 
     Each body is given in its own frame J by its mass ``m (nj,)``, first moment ``m c_J (nj, 3, 1)``,
     rotational inertia about J's origin ``Ī_J (nj, 3, 3, 1)`` and spatial inertia ``I_J (nj, 6, 6, 1)``
     (the same body twice: the structured formula needs the parts, the matrix product the whole).
-    In world axes, with ``g = R m c_J`` and the body origin at ``p``, the first moment about the world
-    origin is ``h = g + m p`` and the rotational inertia about it (parallel-axis theorem, RBDA eq. 2.63)
+    In world axes, with ``g = R m c_J`` and the body origin at ``p``, the first moment about ``O``
+    is ``h = g + m p`` and the rotational inertia about it (parallel-axis theorem, RBDA eq. 2.63)
     ``Ī_O = R Ī_J Rᵀ − [p]×[h]× − [g]×[p]× = R Ī_J Rᵀ − h pᵀ − p gᵀ + pᵀ(h + g) 1``
     (as ``[a]×[b]× = b aᵀ − aᵀb 1``); then ``I = [[m 1, −[h]×], [[h]×, Ī_O]]``. Returns ``(nj, 6, 6, N)``.
     """
