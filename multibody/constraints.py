@@ -454,7 +454,7 @@ class Distance(Constraint):
         return ((self.body_a, self.placement_a), (self.body_b, self.placement_b))
 
     def _points(self, system, q, v):
-        return _frame(system, self, q, v, self.body_a, self.placement_a), _frame(system, self, q, v, self.body_b, self.placement_b)
+        return tuple(_frame(system, self, q, v, body, placement) for body, placement in self.body_frames)
 
     def position(self, system, q, t=0.0):
         (_, x_a, _, _), (_, x_b, _, _) = self._points(system, q, None)
@@ -540,7 +540,7 @@ class LoopClosure(Constraint):
         return ((self.body_a, self.frame_a), (self.body_b, self.frame_b))
 
     def _frames(self, system, q, v):
-        return _frame(system, self, q, v, self.body_a, self.frame_a), _frame(system, self, q, v, self.body_b, self.frame_b)
+        return tuple(_frame(system, self, q, v, body, placement) for body, placement in self.body_frames)
 
     def position(self, system, q, t=0.0):
         (R_a, p_a, _, _), (R_b, p_b, _, _) = self._frames(system, q, None)

@@ -248,8 +248,8 @@ def mass_matrix_bias_and_frames(model, q, v, frames=()):
                 *(x for b, X_BF in moving for x in _frame_motion(model, b, X_BF, tree, *motion)))
 
     M, h, *values = _in_blocks(model, kernel, batch, (q, 1), (v, 1))
-    computed = iter(zip(*[iter(values)] * 4))
-    return M, h, [tuple(next(computed)) if known is None else known for known in fixed]
+    computed = iter([tuple(values[k : k + 4]) for k in range(0, len(values), 4)])
+    return M, h, [next(computed) if known is None else known for known in fixed]
 
 
 def _world_body_jacobians_and_inertias(model, q):

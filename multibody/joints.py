@@ -72,6 +72,13 @@ def _require_unit_norm(values, joint_name, what):
         )
 
 
+def _turned(quat, delta):
+    """``exp(δ) ⊗ quat``, unit: the quaternion turned by the rotation vector ``δ`` in the parent frame
+    (the rotation chart of spherical and free-flyer joints)."""
+    turned = spatial.quat_multiply(spatial.quat_exp(delta), quat)
+    return turned / np.linalg.norm(turned, axis=-1, keepdims=True)
+
+
 def _random_uniform(rng, lower, upper, default_half_range, shape):
     """Uniform samples in [lower, upper], replacing infinite bounds by ±default_half_range."""
     lower = np.where(np.isfinite(lower), lower, -default_half_range)
@@ -432,9 +439,7 @@ class Spherical(Joint):
         return spatial.quat_log(spatial.quat_multiply(spatial.quat_conjugate(q0), q1))
 
     def chart(self, q0, delta):
-        # exp(δ) ⊗ q₀: δ a rotation vector in the parent frame
-        quat = spatial.quat_multiply(spatial.quat_exp(delta), q0)
-        return quat / np.linalg.norm(quat, axis=-1, keepdims=True)
+        return _turned(q0, delta)
 
     def chart_rate(self, delta, w):
         # ω_P = J_l(δ) δ̇
@@ -497,9 +502,8 @@ class FreeFlyer(Joint):
         return np.concatenate([spatial.quat_rotate(quat, v[..., :3]), spatial.quat_rate(quat, v[..., 3:])], axis=-1)
 
     def chart(self, q0, delta):
-        # p₀ + δ_p, exp(δ_θ) ⊗ quat₀: the position and a rotation vector in the parent frame
-        quat = spatial.quat_multiply(spatial.quat_exp(delta[..., 3:]), q0[..., 3:])
-        return np.concatenate([q0[..., :3] + delta[..., :3], quat / np.linalg.norm(quat, axis=-1, keepdims=True)], -1)
+        # p₀ + δ_p and the quaternion turned by the rotation vector δ_θ
+        return np.concatenate([q0[..., :3] + delta[..., :3], _turned(q0[..., 3:], delta[..., 3:])], -1)
 
     def chart_rate(self, delta, w):
         # ṗ = R v_lin = w_lin ;  ω_P = J_l(δ_θ) δ̇_θ

@@ -497,8 +497,6 @@ class Model:
         ``ẇ = T (a + κ(v))`` (:meth:`velocity_coupling`).
         """
         q = np.asarray(q, dtype=float)
-        if self._rotating_joints == (0,) and self.njoints == 1:
-            return self.joints[0].velocity_alignment(q)  # a lone free body: its block is all of T
         T = np.array(np.broadcast_to(self._identity_v, q.shape[:-1] + (self.nv, self.nv)))
         for i in self._rotating_joints:
             joint, s = self.joints[i], slice(self.idx_v[i], self.idx_v[i] + self.joints[i].nv)
@@ -509,9 +507,6 @@ class Model:
         """``κ(v) (..., nv)`` with ``d/dt (T v) = T (v̇ + κ(v))`` (see :meth:`velocity_alignment`):
         ``[ω × v_lin; 0]`` for a free flyer, zero for angles and displacements."""
         v = np.asarray(v, dtype=float)
-        if self._rotating_joints == (0,) and self.njoints == 1:
-            coupling = self.joints[0].velocity_coupling(v)  # a lone free body: its block is all of κ
-            return np.zeros(v.shape) if coupling is None else coupling
         kappa = np.zeros(v.shape)
         for i in self._rotating_joints:
             joint, s = self.joints[i], slice(self.idx_v[i], self.idx_v[i] + self.joints[i].nv)

@@ -136,15 +136,19 @@ def simulate(system, q0, v0, t_final, *, dt=None, method="RK45", tau=None, rtol=
 
     # The integrator's state is y = [δ, w] in the chart around a configuration q_c: q = chart(q_c, δ),
     # w the aligned velocity (see Model.chart). A new chart starts from each step's end state.
-    def derivative(t, y, q_chart):
-        delta, w = y[:nv], y[nv:]
-        q_t = charts.chart(q_chart, delta)
+    def unchart(q_chart, y):
+        """``(q, T(q), v)`` of chart states ``y = [δ, w] (..., 2 nv)``: ``q = chart(q_c, δ)``, ``v = Tᵀ w``."""
+        q_t = charts.chart(q_chart, y[..., :nv])
         T = charts.velocity_alignment(q_t)
-        v_t = w if T is None else matvec(transpose(T), w)
+        w = y[..., nv:]
+        return q_t, T, (w if T is None else matvec(transpose(T), w))
+
+    def derivative(t, y, q_chart):
+        q_t, T, v_t = unchart(q_chart, y)
         a, _ = constrained.forward_dynamics(q_t, v_t, torque(t, q_t, v_t), t)
         # ẇ = T (a + κ(v))
         w_dot = a if T is None else T @ (a + charts.velocity_coupling(v_t))
-        return np.concatenate([charts.chart_rate(delta, w), w_dot])
+        return np.concatenate([charts.chart_rate(y[:nv], y[nv:]), w_dot])
 
     def to_chart(state):
         """``y = [0, w]`` of a state ``[q, v]`` in the chart around its own ``q``."""
@@ -153,10 +157,8 @@ def simulate(system, q0, v0, t_final, *, dt=None, method="RK45", tau=None, rtol=
 
     def from_chart(q_chart, y):
         """States ``[q, v] (..., nq + nv)`` of chart states ``y (..., 2 nv)``."""
-        q_t = charts.chart(q_chart, y[..., :nv])
-        T = charts.velocity_alignment(q_t)
-        w = y[..., nv:]
-        return np.concatenate([q_t, w if T is None else matvec(transpose(T), w)], axis=-1)
+        q_t, _, v_t = unchart(q_chart, y)
+        return np.concatenate([q_t, v_t], axis=-1)
 
     def settle(t, state):
         """``state`` projected onto the constraints when, with ``project``, its residual exceeds the

@@ -361,13 +361,7 @@ def motion_transform(R_AB, p_AB):
 
     ``[v_A; ω_A] = [R v_B + p × (R ω_B); R ω_B]``, i.e. ``X = [[R, [p]× R], [0, R]]``.
     """
-    R_AB, p_AB = np.asarray(R_AB, dtype=float), np.asarray(p_AB, dtype=float)
-    shape = np.broadcast_shapes(R_AB.shape[:-2], p_AB.shape[:-1])
-    X = np.zeros(shape + (6, 6))
-    X[..., :3, :3] = R_AB
-    X[..., :3, 3:] = skew(p_AB) @ R_AB
-    X[..., 3:, 3:] = R_AB
-    return X
+    return _pose_transform(R_AB, p_AB, (slice(0, 3), slice(3, 6)))
 
 
 def force_transform(R_AB, p_AB):
@@ -375,7 +369,19 @@ def force_transform(R_AB, p_AB):
 
     ``[f_A; n_A] = [R f_B; R n_B + p × (R f_B)]``, i.e. ``X* = [[R, 0], [[p]× R, R]]``.
     """
-    return transpose(motion_transform(*inverse_pose(R_AB, p_AB)))
+    return _pose_transform(R_AB, p_AB, (slice(3, 6), slice(0, 3)))
+
+
+def _pose_transform(R_AB, p_AB, coupling):
+    """``[[R, 0], [0, R]]`` with ``[p]× R`` in the block ``coupling`` (rows, columns): the motion and
+    force transforms of a pose. ``(..., 3, 3), (..., 3) -> (..., 6, 6)``."""
+    R_AB, p_AB = np.asarray(R_AB, dtype=float), np.asarray(p_AB, dtype=float)
+    shape = np.broadcast_shapes(R_AB.shape[:-2], p_AB.shape[:-1])
+    X = np.zeros(shape + (6, 6))
+    X[..., :3, :3] = R_AB
+    X[..., 3:, 3:] = R_AB
+    X[(...,) + coupling] = skew(p_AB) @ R_AB
+    return X
 
 
 def transform_motion(R_AB, p_AB, m_B):
