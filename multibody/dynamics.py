@@ -42,7 +42,7 @@ def _check(model, q, v=None, a=None, tau=None, f_ext=None):
             raise ValueError(f"f_ext must have shape (..., {model.njoints}, 6) (one spatial force per moving "
                              f"joint, in its frame), got {f_ext.shape}")
         shapes.append(f_ext.shape[:-2])
-    return q, *arrays, f_ext, lanes.batch_shape(*shapes)
+    return q, *arrays, f_ext, spatial.batch_shape(*shapes)
 
 
 class Tree(NamedTuple):

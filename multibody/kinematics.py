@@ -220,7 +220,7 @@ def jacobian(model, q, body, point=None):
     Pinocchio counterpart: ``getFrameJacobian(..., LOCAL_WORLD_ALIGNED)``.
     """
     q, b, point = model.check_configuration(q), model.body_index(body), _point(point)
-    batch = lanes.batch_shape(q.shape[:-1], point.shape[:-1])
+    batch = spatial.batch_shape(q.shape[:-1], point.shape[:-1])
     j = model.body_joints[b]
     if j < 0:
         return np.zeros(batch + (6, model.nv))
@@ -241,7 +241,7 @@ def jacobian_time_variation(model, q, v, body, point=None):
     Pinocchio counterpart: ``getFrameJacobianTimeVariation(..., LOCAL_WORLD_ALIGNED)``.
     """
     q, v, b, point = model.check_configuration(q), model.check_velocity(v), model.body_index(body), _point(point)
-    batch = lanes.batch_shape(q.shape[:-1], v.shape[:-1], point.shape[:-1])
+    batch = spatial.batch_shape(q.shape[:-1], v.shape[:-1], point.shape[:-1])
     j = model.body_joints[b]
     if j < 0:
         return np.zeros(batch + (6, model.nv))
@@ -332,7 +332,7 @@ def frame_kinematics(model, q, v, body, placement=None):
     """
     q = model.check_configuration(q)
     v = model.check_velocity(v)
-    batch = lanes.batch_shape(q.shape[:-1], v.shape[:-1])
+    batch = spatial.batch_shape(q.shape[:-1], v.shape[:-1])
     b, X_BF = _frame_arguments(model, body, placement)
     fixed = _fixed_frame(model, b, X_BF, batch)
     if fixed is not None:

@@ -47,12 +47,6 @@ def to_lanes(x, components=1, batch=None):
     return x.reshape((math.prod(x.shape[:-components]),) + shape).transpose(tuple(range(1, components + 1)) + (0,))
 
 
-def batch_shape(*shapes):
-    """The common batch shape of arrays with leading batch axes ``shapes`` (``np.broadcast_shapes``,
-    which costs microseconds, only when they differ: equal shapes are the usual case)."""
-    return shapes[0] if shapes.count(shapes[0]) == len(shapes) else np.broadcast_shapes(*shapes)
-
-
 def from_lanes(x, batch):
     """``(*components, N)`` -> ``batch + components``: the inverse of :func:`to_lanes`, contiguous."""
     if x.shape[-1] == 1:
@@ -114,9 +108,8 @@ def cross(a, b):
     return products[..., :3, :] - products[..., 3:, :]
 
 
-# Row-major entries of [w]×: w_{index} times sign (index 0 with sign 0 on the diagonal).
-_SKEW_INDEX = np.array([0, 2, 1, 2, 0, 0, 1, 0, 0])
-_SKEW_SIGN = np.array([0.0, -1.0, 1.0, 1.0, 0.0, -1.0, -1.0, 1.0, 0.0])[:, None]
+# [w]× entries as in multibody.spatial.skew, the sign on the lane axis
+_SKEW_INDEX, _SKEW_SIGN = spatial._SKEW_INDEX, spatial._SKEW_SIGN[:, None]
 
 
 _IDENTITY = np.eye(3)[:, :, None]  # the 3×3 identity as a lane constant

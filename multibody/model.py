@@ -16,7 +16,7 @@ from functools import cached_property
 import numpy as np
 
 from . import joints as jt
-from . import lanes
+from . import spatial
 from .inertia import Inertia
 
 STANDARD_GRAVITY = (0.0, 0.0, -9.81)
@@ -497,7 +497,8 @@ class Model:
         ``ẇ = T (a + κ(v))`` (:meth:`velocity_coupling`).
         """
         q = np.asarray(q, dtype=float)
-        T = np.array(np.broadcast_to(self._identity_v, q.shape[:-1] + (self.nv, self.nv)))
+        T = np.zeros(q.shape[:-1] + (self.nv, self.nv))
+        T[..., self._aligned_dofs, self._aligned_dofs] = 1.0
         for i in self._rotating_joints:
             joint, s = self.joints[i], slice(self.idx_v[i], self.idx_v[i] + self.joints[i].nv)
             T[..., s, s] = joint.velocity_alignment(q[..., self.idx_q[i] : self.idx_q[i] + joint.nq])
@@ -525,8 +526,10 @@ class Model:
                               + [np.zeros(q.shape[:-1] + (0,))], axis=-1)
 
     @cached_property
-    def _identity_v(self) -> np.ndarray:
-        return _frozen(np.eye(self.nv))
+    def _aligned_dofs(self) -> np.ndarray:
+        """The velocity coordinates already expressed in their parent frames (``T`` is 1 there)."""
+        rotating = [np.arange(self.idx_v[i], self.idx_v[i] + self.joints[i].nv) for i in self._rotating_joints]
+        return _frozen(np.setdiff1d(np.arange(self.nv), np.concatenate(rotating + [np.zeros(0, int)])), int)
 
     @cached_property
     def is_vector_space(self) -> bool:
@@ -554,7 +557,7 @@ class Model:
             # a lone joint's map gives the whole result
             joint_map, in_a, in_b, _ = blocks[0]
             return joint_map(a[..., in_a], b[..., in_b])
-        result = np.empty(lanes.batch_shape(a.shape[:-1], b.shape[:-1]) + (size,))
+        result = np.empty(spatial.batch_shape(a.shape[:-1], b.shape[:-1]) + (size,))
         for joint_map, in_a, in_b, in_out in blocks:
             result[..., in_out] = joint_map(a[..., in_a], b[..., in_b])
         return result

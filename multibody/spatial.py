@@ -19,24 +19,27 @@ from __future__ import annotations
 
 import numpy as np
 
-# Below this angle (rad) the trigonometric ratios of exp/log use their Taylor series.
+# Below this angle (rad) the ratios of quat_log and J_l⁻¹, which lose digits there, take their series or limit.
 _SMALL_ANGLE = 1e-4
 
 
 # ----------------------------------------------------------------------------- 3-D basics
 
-_SKEW_PLUS = np.array([7, 2, 3])
-_SKEW_MINUS = np.array([5, 6, 1])
+# Row-major entries of [w]×: w_{index} times sign (index 0 with sign 0 on the diagonal).
+_SKEW_INDEX = np.array([0, 2, 1, 2, 0, 0, 1, 0, 0])
+_SKEW_SIGN = np.array([0.0, -1.0, 1.0, 1.0, 0.0, -1.0, -1.0, 1.0, 0.0])
+
+
+def batch_shape(*shapes):
+    """The common batch shape of arrays with leading batch axes ``shapes`` (``np.broadcast_shapes``,
+    which costs microseconds, only when they differ: equal shapes are the usual case)."""
+    return shapes[0] if shapes.count(shapes[0]) == len(shapes) else np.broadcast_shapes(*shapes)
 
 
 def skew(w):
     """Cross-product matrix ``[w]×`` with ``[w]× x = w × x``. ``(..., 3) -> (..., 3, 3)``."""
     w = np.asarray(w, dtype=float)
-    out = np.zeros(w.shape[:-1] + (9,))
-    # Row-major entries (2,1), (0,2), (1,0) hold +w; (1,2), (2,0), (0,1) hold −w.
-    out[..., _SKEW_PLUS] = w
-    out[..., _SKEW_MINUS] = -w
-    return out.reshape(w.shape[:-1] + (3, 3))
+    return (w.take(_SKEW_INDEX, axis=-1) * _SKEW_SIGN).reshape(w.shape[:-1] + (3, 3))
 
 
 _NEXT = np.array([1, 2, 0])
@@ -376,8 +379,7 @@ def _pose_transform(R_AB, p_AB, coupling):
     """``[[R, 0], [0, R]]`` with ``[p]× R`` in the block ``coupling`` (rows, columns): the motion and
     force transforms of a pose. ``(..., 3, 3), (..., 3) -> (..., 6, 6)``."""
     R_AB, p_AB = np.asarray(R_AB, dtype=float), np.asarray(p_AB, dtype=float)
-    shape = np.broadcast_shapes(R_AB.shape[:-2], p_AB.shape[:-1])
-    X = np.zeros(shape + (6, 6))
+    X = np.zeros(batch_shape(R_AB.shape[:-2], p_AB.shape[:-1]) + (6, 6))
     X[..., :3, :3] = R_AB
     X[..., 3:, 3:] = R_AB
     X[(...,) + coupling] = skew(p_AB) @ R_AB

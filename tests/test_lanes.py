@@ -205,11 +205,3 @@ def test_a_repeated_batched_call_does_not_page_fault_on_its_block_temporaries():
     before = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
     mb.inverse_dynamics(model, q, v, a)
     assert resource.getrusage(resource.RUSAGE_SELF).ru_minflt - before < 200
-
-
-def test_batch_shape_broadcasts_only_when_shapes_differ():
-    assert lanes.batch_shape((4, 2), (4, 2)) == (4, 2)
-    assert lanes.batch_shape((), ()) == ()
-    assert lanes.batch_shape((4, 1), (3,), ()) == (4, 3)
-    with pytest.raises(ValueError):
-        lanes.batch_shape((4,), (3,))

@@ -487,3 +487,11 @@ def test_left_jacobian_inverse_and_quaternion_exponential_to_high_precision(angl
         half_sinc = mpmath.mpf(0.5) if theta == 0 else mpmath.sin(theta / 2) / theta
         assert_allclose(sp.quat_exp(w), [float(half_sinc * c_) for c_ in w] + [float(mpmath.cos(theta / 2))],
                         rtol=0, atol=2e-16)
+
+
+def test_batch_shape_broadcasts_only_when_shapes_differ():
+    assert sp.batch_shape((4, 2), (4, 2)) == (4, 2)
+    assert sp.batch_shape((), ()) == ()
+    assert sp.batch_shape((4, 1), (3,), ()) == (4, 3)
+    with pytest.raises(ValueError):
+        sp.batch_shape((4,), (3,))
