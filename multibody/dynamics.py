@@ -22,7 +22,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from . import lanes, linalg, spatial
+from . import lanes, linalg, local, spatial
 from .kinematics import (_at_dofs, _fixed_frame, _frame_arguments, _frame_motion, _in_blocks, _joint_frames, _spatial_velocities,
                          _support_sums, _velocities, world_poses)
 from .spatial import motion_cross, transpose
@@ -117,8 +117,13 @@ def _rnea(model, q, v, a, f_ext, batch):
         _, _, xi, F_subtree = _rnea_forces(model, q, v, a, f_ext)
         return _joint_forces(model, xi, F_subtree)
 
-    return _in_blocks(model, kernel, batch, (q, 1), None if v is None else (v, 1), None if a is None else (a, 1),
-                      None if f_ext is None else (f_ext, 2))
+    def joint_coordinates(q, v, a, f_ext):
+        return local.rnea(model, q, v, a, f_ext)[0]
+
+    many = local.suits(batch)
+    return _in_blocks(model, joint_coordinates if many else kernel, batch, (q, 1), None if v is None else (v, 1),
+                      None if a is None else (a, 1), None if f_ext is None else (f_ext, 2),
+                      block=local.lane_block(model) if many else None)
 
 
 def _rnea_forces(model, q, v, a, f_ext, tree=None, motion=None):
@@ -164,7 +169,12 @@ def joint_reaction_forces(model, q, v, a, f_ext=None):
         R_WJ, p_OJ, _, F_subtree = _rnea_forces(model, q, v, a, f_ext)
         return lanes.inverse_transform_force(R_WJ, p_OJ, F_subtree)
 
-    return _in_blocks(model, kernel, batch, (q, 1), (v, 1), (a, 1), None if f_ext is None else (f_ext, 2))
+    def joint_coordinates(q, v, a, f_ext):
+        return local.from_turned_frames(model.local_tree, local.rnea(model, q, v, a, f_ext)[1])
+
+    many = local.suits(batch)
+    return _in_blocks(model, joint_coordinates if many else kernel, batch, (q, 1), (v, 1), (a, 1),
+                      None if f_ext is None else (f_ext, 2), block=local.lane_block(model) if many else None)
 
 
 def generalized_gravity(model, q):

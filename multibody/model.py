@@ -408,6 +408,12 @@ class Model:
         return _frozen(np.stack([inertia.spatial for inertia in self.joint_inertias]))
 
     @cached_property
+    def local_tree(self):
+        """Constants of the joint-coordinate recursions (:func:`multibody.local.local_tree`)."""
+        from .local import local_tree
+        return local_tree(self)
+
+    @cached_property
     def gravity_acceleration(self) -> np.ndarray:
         """``a₀ = [−g; 0] (6, 1)``: the fictitious acceleration of the world that accounts for gravity
         (RBDA §5.3), as a lane constant."""

@@ -1,0 +1,343 @@
+"""Recursive dynamics in joint coordinates, for many states at once.
+
+The algorithms of :mod:`multibody.dynamics` work in world Plücker coordinates, where sums over
+subtrees and supports replace the recursions and every joint is processed in a handful of NumPy
+calls: the fewest calls for one state, but each state pays for world poses and world inertias
+(a 6×6 congruence per body). With many states on the lanes, arithmetic outweighs calls, and the
+classical recursions in each joint's own coordinates (RBDA Tables 5.1 and 7.1, as Pinocchio runs
+them) do far less of it: the inertias and tree transforms are constants, applied as matrix products
+over all lanes at once, and all that varies from state to state is each joint's own motion.
+
+Inside, each revolute or prismatic joint frame is turned (by a constant rotation ``P`` with
+``P e_z = axis``) so that the joint moves about or along its ``z`` axis: its transform is then a
+rotation of two components of each 3-vector by ``(cos q, sin q)``, or a shift by ``q``, instead of
+a 3×3 product. Other joints use their type's transform. Results (joint forces, accelerations) do
+not depend on these frames; forces given or returned in joint frames are turned on the way.
+
+Lane layout as :mod:`multibody.lanes`: per-joint vectors ``(nj, 6, N)``, the state axis last.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numpy as np
+
+from . import joints as jt
+from . import lanes, spatial
+
+
+#: Fewest states for which the recursions here beat the world-coordinate algorithms: below it,
+#: the per-joint NumPy calls cost more than the arithmetic they save (Panda and Talos: 64–128).
+MIN_STATES = 128
+
+
+def suits(batch):
+    """Whether a batch of shape ``batch`` is large enough for the joint-coordinate recursions."""
+    return math.prod(batch) >= MIN_STATES
+
+
+def lane_block(model):
+    """States per block for the recursions here: their per-joint vectors, ``12 nj`` numbers per state
+    (velocities and accelerations, or forces), near 1 MB (a core's L2 cache), within [128, 4096]."""
+    return int(np.clip(2 ** np.round(np.log2(2**20 / (8 * 12 * max(model.njoints, 1)))), 128, 4096))
+
+
+class LocalGroup(NamedTuple):
+    """Joints of one tree depth that move the same way (see :func:`local_tree`).
+
+    ``motion`` is ``"revolute"`` (about ``z``), ``"prismatic"`` (along ``z``) or a joint type;
+    ``joints``, ``parents`` (``None`` at the root), ``configuration`` and ``dofs`` index joints,
+    ``q`` and ``v`` (``(k,)`` for one coordinate per joint, else ``(k, nq)``, ``(k, nv)``);
+    ``Y (k, 6, 6)`` is each joint's constant motion transform from its parent's (turned) frame to its
+    pre-joint frame and ``Y_T`` its transpose; ``subspace (k, 6, n, 1)`` and ``constants`` (of the
+    type's ``group_transform`` with identity placements) serve the general joint types.
+    """
+
+    motion: object
+    joints: object
+    parents: object
+    configuration: object
+    dofs: object
+    Y: np.ndarray
+    Y_T: np.ndarray
+    subspace: object
+    constants: object
+    parent_rounds: tuple
+
+
+class LocalTree(NamedTuple):
+    """Constants of the joint-coordinate recursions of a model (:func:`local_tree`)."""
+
+    groups: tuple  # LocalGroup per level and motion, root level first
+    inertia: np.ndarray  # (nj, 6, 6) spatial inertias in the turned joint frames
+    turn: np.ndarray  # (nj, 3, 3) P: the turned frame's axes in the joint frame
+
+
+def _turn_to_z(axis):
+    """Rotation ``P`` with ``P e_z = axis`` (unit), so that ``Pᵀ axis = e_z``."""
+    z = np.array([0.0, 0.0, 1.0])
+    cosine, w = z @ axis, np.cross(z, axis)
+    if np.linalg.norm(w) < 1e-12:
+        return np.eye(3) if cosine > 0 else np.diag([1.0, -1.0, -1.0])
+    # Rodrigues with sin θ [u]× = [w]× and (1 − cos θ) [u]×² = [w]×² / (1 + cos θ)
+    W = spatial.skew(w)
+    return np.eye(3) + W + W @ W / (1.0 + cosine)
+
+
+def _motion_kind(joint):
+    if isinstance(joint, jt.Revolute):
+        return "revolute"
+    if isinstance(joint, jt.Prismatic):
+        return "prismatic"
+    return type(joint)
+
+
+def _block_diagonal(R):
+    """``diag(R, R) (6, 6)``: a rotation of both halves of a spatial vector."""
+    out = np.zeros((6, 6))
+    out[:3, :3] = out[3:, 3:] = R
+    return out
+
+
+def local_tree(model):
+    """The constants of :class:`LocalTree` for ``model`` (cached as ``Model.local_tree``)."""
+    from .model import _index, _parent_rounds
+
+    turns = np.array([_turn_to_z(joint.axis) if isinstance(_motion_kind(joint), str) else np.eye(3)
+                      for joint in model.joints]).reshape(-1, 3, 3)
+    inertia = np.array([_block_diagonal(P).T @ I @ _block_diagonal(P)
+                        for P, I in zip(turns, model.spatial_inertias)]).reshape(-1, 6, 6)
+    # Pose of turned frame i in its parent's turned frame: X = P_λᵀ X_T P_i ;  Y = X⁻¹ for motions
+    Y = np.empty((model.njoints, 6, 6))
+    for i, (placement, parent) in enumerate(zip(model.joint_placements, model.parents)):
+        P_parent = np.eye(3) if parent < 0 else turns[parent]
+        R, p = P_parent.T @ placement[:3, :3] @ turns[i], P_parent.T @ placement[:3, 3]
+        Y[i] = spatial.motion_transform(*spatial.inverse_pose(R, p))
+    groups = []
+    for index, _ in model.levels:
+        members = np.arange(model.njoints)[index]
+        kinds = [_motion_kind(model.joints[i]) for i in members]
+        for kind in dict.fromkeys(kinds):
+            joints = members[[k == kind for k in kinds]]
+            parents = model.parents[joints]
+            first = model.joints[joints[0]]
+            configuration = model.idx_q[joints][:, None] + np.arange(first.nq)
+            dofs = model.idx_v[joints][:, None] + np.arange(first.nv)
+            subspace = constants = None
+            if not isinstance(kind, str):
+                subspace = np.stack([model.joints[i].motion_subspace for i in joints])[..., None]
+                constants = kind.group_constants([model.joints[i] for i in joints], np.broadcast_to(np.eye(4), (len(joints), 4, 4)))
+            else:
+                configuration, dofs = _index(configuration[:, 0]), _index(dofs[:, 0])
+            groups.append(LocalGroup(kind, _index(joints), None if parents[0] < 0 else _index(parents), configuration,
+                                     dofs, Y[joints], np.ascontiguousarray(Y[joints].transpose(0, 2, 1)), subspace,
+                                     constants, () if parents[0] < 0 else _parent_rounds(parents)))
+    return LocalTree(tuple(groups), inertia, turns)
+
+
+# ----------------------------------------------------------------------------- joint motions
+#
+# The recursions carry spatial vectors as (..., k, 6, N): k joints of a group, 6 components, N lanes,
+# and leading axes for several vectors per joint and state (velocity and acceleration, or the six
+# columns of an articulated inertia).
+
+class JointMotion(NamedTuple):
+    """A group's joint transforms ``X_J`` at the current states: ``(cos q, sin q) (k, 1, N)`` about
+    ``z``, a shift ``q (k, N)`` along it, or a general pose ``R (k, 3, 3, N)``, ``p (k, 3, N)``."""
+
+    cos: object = None
+    sin: object = None
+    shift: object = None
+    R: object = None
+    p: object = None
+
+
+def joint_motions(tree, q):
+    """:class:`JointMotion` of every group of ``tree`` at ``q (nq, N)``."""
+    motions = []
+    for group in tree.groups:
+        if group.motion == "revolute":
+            angle = q[group.configuration][:, None, :]
+            motions.append(JointMotion(cos=np.cos(angle), sin=np.sin(angle)))
+        elif group.motion == "prismatic":
+            motions.append(JointMotion(shift=q[group.configuration]))
+        else:
+            X = group.motion.group_transform(group.constants, q[group.configuration])
+            motions.append(JointMotion(R=X[:, :, :3], p=X[:, :, 3]))
+    return motions
+
+
+def _lanes_shape(x, *others):
+    return x.shape[:-1] + (max(y.shape[-1] for y in (x,) + others),)
+
+
+def _turned(x, c, s, out=None):
+    """Both 3-vectors of ``x (..., k, 6, N)`` turned about ``z`` by the angle of ``(c, s) (k, 1, N)``:
+    ``(x, y) -> (c x − s y, s x + c y)``, into ``out`` (which must not overlap ``x``) when given."""
+    shape = _lanes_shape(x, c)
+    out = np.empty(shape) if out is None else out
+    halves = x.reshape(x.shape[:-2] + (2, 3, x.shape[-1]))
+    turned = out.reshape(shape[:-2] + (2, 3, shape[-1]))
+    first, second = halves[..., 0, :], halves[..., 1, :]
+    np.multiply(c, first, out=turned[..., 0, :])
+    turned[..., 0, :] -= s * second
+    np.multiply(s, first, out=turned[..., 1, :])
+    turned[..., 1, :] += c * second
+    turned[..., 2, :] = halves[..., 2, :]
+    return out
+
+
+def _copy_into(x, out, *others):
+    """``x`` broadcast to the lanes of ``others`` and copied (into ``out`` when given)."""
+    if out is None:
+        return np.array(np.broadcast_to(x, _lanes_shape(x, *others)))
+    out[...] = x
+    return out
+
+
+def to_child(group, motion, x, out=None):
+    """Motion vectors ``x (..., k, 6, N)`` from the pre-joint frames to the joint frames, ``X_J⁻¹ x``
+    (into ``out`` when given, which must not overlap ``x``)."""
+    if group.motion == "revolute":
+        return _turned(x, motion.cos, -motion.sin, out)
+    if group.motion == "prismatic":
+        # [v − (q e_z) × ω; ω],  e_z × ω = (−ω_y, ω_x, 0)
+        out = _copy_into(x, out, motion.shift)
+        out[..., 0, :] += motion.shift * x[..., 4, :]
+        out[..., 1, :] -= motion.shift * x[..., 3, :]
+        return out
+    R_T, angular = lanes.transpose(motion.R), x[..., 3:, :]
+    # [Rᵀ (v − p × ω); Rᵀ ω]
+    linear = lanes.matvec(R_T, x[..., :3, :] - lanes.cross(motion.p, angular))
+    return _copy_into(np.concatenate([linear, lanes.matvec(R_T, angular)], axis=-2), out)
+
+
+def to_parent(group, motion, f, out=None):
+    """Force vectors ``f (..., k, 6, N)`` from the joint frames to the pre-joint frames, ``X_J* f``."""
+    if group.motion == "revolute":
+        return _turned(f, motion.cos, motion.sin, out)
+    if group.motion == "prismatic":
+        # [f; n + (q e_z) × f]
+        out = _copy_into(f, out, motion.shift)
+        out[..., 3, :] -= motion.shift * f[..., 1, :]
+        out[..., 4, :] += motion.shift * f[..., 0, :]
+        return out
+    return _copy_into(lanes.transform_force(motion.R, motion.p, f), out)
+
+
+def add_joint_rates(group, x, rates):
+    """``x += S q̇`` in place, ``x (..., k, 6, N)`` in the joint frames, for rates ``(..., k, N)`` (one
+    coordinate per joint) or ``(..., k, n, N)``."""
+    if group.motion == "revolute":
+        x[..., 5, :] += rates
+    elif group.motion == "prismatic":
+        x[..., 2, :] += rates
+    else:
+        x += np.einsum("kcm,...kmn->...kcn", group.subspace[..., 0], rates)
+
+
+def joint_rate_product(group, v, rate):
+    """``c = v × S q̇`` of joint velocities ``v (k, 6, N)`` and rates ``rate (k, N)`` or ``(k, n, N)``:
+    the acceleration a joint's own motion adds as its frame moves (RBDA Table 5.1)."""
+    if group.motion == "revolute":
+        # [v; ω] × [0; e_z q̇] = q̇ (v_y, −v_x, 0, ω_y, −ω_x, 0)
+        out = np.empty(v.shape)
+        halves, product = v.reshape(-1, 2, 3, v.shape[-1]), out.reshape(-1, 2, 3, v.shape[-1])
+        np.multiply(rate[:, None], halves[:, :, 1], out=product[:, :, 0])
+        np.multiply(rate[:, None], halves[:, :, 0], out=product[:, :, 1])
+        product[:, :, 1] *= -1.0
+        product[:, :, 2] = 0.0
+        return out
+    if group.motion == "prismatic":
+        # [v; ω] × [e_z q̇; 0] = q̇ (ω_y, −ω_x, 0, 0, 0, 0)
+        out = np.zeros(v.shape)
+        np.multiply(rate, v[:, 4], out=out[:, 0])
+        np.multiply(rate, v[:, 3], out=out[:, 1])
+        out[:, 1] *= -1.0
+        return out
+    return lanes.motion_cross(v, lanes.matvec(group.subspace, rate))
+
+
+def joint_share(group, f):
+    """``Sᵀ f``: each coordinate's component of ``f (..., k, 6, N)`` -> ``(..., k, N)`` or ``(..., k, n, N)``."""
+    if group.motion == "revolute":
+        return f[..., 5, :]
+    if group.motion == "prismatic":
+        return f[..., 2, :]
+    return np.einsum("kcm,...kcn->...kmn", group.subspace[..., 0], f)
+
+
+def _add_to_parents(x, group, values):
+    """``x[..., λ(i), :, :] += values_i`` for the joints of a group (several may share a parent)."""
+    for positions, parents in group.parent_rounds:
+        x[..., parents, :, :] += values[..., positions, :, :]
+
+
+def _into(x, index, compute):
+    """``compute(out)``, which fills ``out`` of the shape of ``x[..., index, :, :]``, written there: in
+    place when ``index`` selects a view."""
+    if isinstance(index, (slice, int)):
+        return compute(x[..., index, :, :])
+    result = compute(np.empty(x.shape[:-3] + (len(index),) + x.shape[-2:]))
+    x[..., index, :, :] = result
+    return result
+
+
+def to_turned_frames(tree, f):
+    """Per-joint spatial vectors ``(nj, 6, N)`` from the joint frames to the turned frames."""
+    return np.matmul(tree.turn.transpose(0, 2, 1)[:, None], f.reshape(f.shape[0], 2, 3, -1)).reshape(f.shape[0], 6, -1)
+
+
+def from_turned_frames(tree, f):
+    """The inverse of :func:`to_turned_frames`."""
+    return np.matmul(tree.turn[:, None], f.reshape(f.shape[0], 2, 3, -1)).reshape(f.shape[0], 6, -1)
+
+
+# ----------------------------------------------------------------------------- RNEA
+
+def rnea(model, q, v, a, f_ext, motions=None):
+    """Recursive Newton–Euler in joint coordinates on lanes (RBDA Table 5.1): the joint forces
+    ``τ (nv, N)`` and the force ``f_i (nj, 6, N)`` each joint transmits to its body, in the turned joint
+    frames. ``v``, ``a`` or ``f_ext`` ``None`` stand for zero; gravity enters as the world's
+    acceleration ``a₀ = [−g; 0]`` (RBDA §5.3)."""
+    tree = model.local_tree
+    n = max(x.shape[-1] for x in (q, v, a, f_ext) if x is not None)
+    motions = joint_motions(tree, q) if motions is None else motions
+    # [v_i; a_i] (2, nj, 6, N), or a_i alone (1, nj, 6, N) when v = 0
+    slots = 1 if v is None else 2
+    VA = np.empty((slots, model.njoints, 6, n))
+    rates = None if v is None else np.stack(np.broadcast_arrays(v, np.zeros((model.nv, 1)) if a is None else a))
+    world = np.zeros((slots, 1, 6, 1))
+    world[-1, 0] = model.gravity_acceleration
+    for group, motion in zip(tree.groups, motions):
+        # v_i = ⁱX_λ v_λ + S_i q̇_i ;  a_i = ⁱX_λ a_λ + S_i q̈_i + v_i × S_i q̇_i
+        pre = group.Y @ (world if group.parents is None else VA[:, group.parents])
+
+        def step(out):
+            x = to_child(group, motion, pre, out)
+            if rates is not None:
+                rate = rates[:, group.dofs]
+                add_joint_rates(group, x, rate)
+                x[1] += joint_rate_product(group, x[0], rate[0])
+            elif a is not None:
+                add_joint_rates(group, x[0], a[group.dofs])
+            return x
+
+        _into(VA, group.joints, step)
+    # f_i = I_i a_i + v_i ×* I_i v_i − f_ext,i
+    IVA = tree.inertia @ VA
+    F = IVA[-1]
+    if v is not None:
+        F += lanes.force_cross(VA[0], IVA[0])
+    if f_ext is not None:
+        F -= to_turned_frames(tree, f_ext)
+    tau = np.empty((model.nv, n))
+    for group, motion in zip(reversed(tree.groups), reversed(motions)):
+        # τ_i = S_iᵀ f_i ;  f_λ += λX_i* f_i
+        f = F[group.joints]
+        tau[group.dofs] = joint_share(group, f)
+        if group.parents is not None:
+            _add_to_parents(F, group, group.Y_T @ to_parent(group, motion, f))
+    return tau, F
