@@ -468,8 +468,16 @@ def forward_dynamics(model, q, v, tau, f_ext=None):
     q, v, _, tau, f_ext, batch = _check(model, q, v, tau=tau, f_ext=f_ext)
     if model.nv == 0:
         return np.zeros(batch + (0,))
-    return _in_blocks(model, lambda *arrays: _aba(model, *arrays), batch,
-                      (q, 1), (v, 1), (tau, 1), None if f_ext is None else (f_ext, 2))
+
+    def joint_coordinates(*arrays):
+        a = local.aba(model, *arrays)
+        # a singular articulated inertia: the world-coordinate sweeps name the joint (or pass on the NaN)
+        return a if np.isfinite(a).all() else _aba(model, *arrays)
+
+    many = local.suits(batch)
+    return _in_blocks(model, joint_coordinates if many else lambda *arrays: _aba(model, *arrays), batch,
+                      (q, 1), (v, 1), (tau, 1), None if f_ext is None else (f_ext, 2),
+                      block=local.lane_block(model) if many else None)
 
 
 def _aba(model, q, v, tau, f_ext):

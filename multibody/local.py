@@ -341,3 +341,151 @@ def rnea(model, q, v, a, f_ext, motions=None):
         if group.parents is not None:
             _add_to_parents(F, group, group.Y_T @ to_parent(group, motion, f))
     return tau, F
+
+
+# ----------------------------------------------------------------------------- ABA
+
+def aba(model, q, v, tau, f_ext):
+    """Articulated Body Algorithm in joint coordinates on lanes (RBDA Table 7.1): ``q̈ (nv, N)`` from
+    ``q (nq, N)``, ``v, tau (nv, N)`` and ``f_ext (nj, 6, N)`` (joint frames; ``None``: zero).
+
+    Articulated inertias are held column by column, ``(6, nj, 6, N)`` with ``[c, i, r] = I^A_i[r, c]``,
+    so that transforming their rows is transforming six force vectors. A singular ``D_i`` leaves
+    non-finite accelerations (the caller names the joint).
+    """
+    tree = model.local_tree
+    n = max(x.shape[-1] for x in (q, v, tau, f_ext) if x is not None)
+    motions = joint_motions(tree, q)
+    # First pass: v_i = ⁱX_λ v_λ + S_i q̇_i ;  c_i = v_i × S_i q̇_i
+    V, C = np.empty((model.njoints, 6, n)), np.empty((model.njoints, 6, n))
+    for group, motion in zip(tree.groups, motions):
+        rate = v[group.dofs]
+
+        def step(out):
+            if group.parents is None:
+                out[...] = 0.0
+            else:
+                to_child(group, motion, group.Y @ V[group.parents], out)
+            add_joint_rates(group, out, rate)
+            return out
+
+        C[group.joints] = joint_rate_product(group, _into(V, group.joints, step), rate)
+    # I^A_i = I_i ;  p^A_i = v_i ×* I_i v_i − f_ext,i
+    articulated = np.array(np.broadcast_to(tree.inertia.transpose(2, 0, 1)[..., None], (6, model.njoints, 6, n)))
+    bias = lanes.force_cross(V, tree.inertia @ V)
+    if f_ext is not None:
+        bias -= to_turned_frames(tree, f_ext)
+    # Second pass, leaves first: U_i = I^A_i S_i ;  D_i = S_iᵀ U_i ;  u_i = τ_i − S_iᵀ p^A_i
+    factors = [None] * len(tree.groups)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        for g, group, motion in zip(reversed(range(len(tree.groups))), reversed(tree.groups), reversed(motions)):
+            I_A = articulated[:, group.joints]
+            U = _columns(group, I_A)  # (k, 6, N), or (n, k, 6, N) by columns
+            D_inv = _inverse(group, joint_share(group, U))
+            u = tau[group.dofs] - joint_share(group, bias[group.joints])
+            U_D_inv = _times_inverse(group, U, D_inv)
+            factors[g] = U, D_inv, u
+            if group.parents is None:
+                continue
+            # I^a_i = I^A_i − U_i D_i⁻¹ U_iᵀ ;  p^a_i = p^A_i + I^a_i c_i + U_i D_i⁻¹ u_i
+            I_a = I_A - _outer(group, U_D_inv, U)
+            p_a = bias[group.joints] + np.einsum("ckrn,kcn->krn", I_a, C[group.joints]) + _apply(group, U_D_inv, u)
+            # I^A_λ += λX_i* I^a_i ⁱX_λ ;  p^A_λ += λX_i* p^a_i, with λX_i* = Yᵀ X_J*
+            _add_to_parents(articulated, group, _congruence(group, motion, I_a))
+            _add_to_parents(bias, group, group.Y_T @ to_parent(group, motion, p_a))
+        # Third pass: a'_i = ⁱX_λ a_λ + c_i ;  q̈_i = D_i⁻¹ (u_i − U_iᵀ a'_i) ;  a_i = a'_i + S_i q̈_i
+        A = np.empty((model.njoints, 6, n))
+        qdd = np.empty((model.nv, n))
+        gravity = model.gravity_acceleration[None]
+        for group, motion, (U, D_inv, u) in zip(tree.groups, motions, factors):
+
+            def step(out):
+                to_child(group, motion, group.Y @ (gravity if group.parents is None else A[group.parents]), out)
+                out += C[group.joints]
+                acceleration = _apply(group, D_inv, u - _transpose_times(group, U, out))
+                qdd[group.dofs] = acceleration
+                add_joint_rates(group, out, acceleration)
+                return out
+
+            _into(A, group.joints, step)
+    return qdd
+
+
+def _congruence(group, motion, M):
+    """``λX_i* M ⁱX_λ = B M Bᵀ`` with ``B = Yᵀ X_J*`` for symmetric ``M`` held by columns ``(6, k, 6, N)``.
+
+    ``B`` on the rows is ``B`` on six force vectors; ``B`` on the columns acts along the leading axis,
+    which for turns about ``z`` and the constant ``Yᵀ`` needs no transposed copy.
+    """
+    rows = group.Y_T @ to_parent(group, motion, M)  # [c, i, r] = (B M)[r, c]
+    if not isinstance(group.motion, str):
+        # (B M)ᵀ = M Bᵀ by columns is (B M) by rows: B on its rows once more gives B M Bᵀ
+        return group.Y_T @ to_parent(group, motion, np.ascontiguousarray(rows.transpose(2, 1, 0, 3)))
+    # [c', i, r] = Σ_c B[c', c] (B M)[r, c]: the turn and Yᵀ along the leading axis
+    moved = rows.reshape(2, 3, *rows.shape[1:])
+    turned = np.empty(moved.shape)
+    if group.motion == "revolute":
+        c, s = motion.cos, motion.sin
+        np.multiply(c, moved[:, 0], out=turned[:, 0])
+        turned[:, 0] -= s * moved[:, 1]
+        np.multiply(s, moved[:, 0], out=turned[:, 1])
+        turned[:, 1] += c * moved[:, 1]
+        turned[:, 2] = moved[:, 2]
+    else:
+        # [f; n + (q e_z) × f]
+        turned[...] = moved
+        shift = motion.shift[:, None]
+        turned[1, 0] -= shift * moved[0, 1]
+        turned[1, 1] += shift * moved[0, 0]
+    turned = turned.reshape(rows.shape)
+    if rows.shape[1] == 1:
+        return (group.Y_T[0] @ turned.reshape(6, -1)).reshape(turned.shape)
+    return np.einsum("kab,bkrn->akrn", group.Y_T, turned)
+
+
+def _columns(group, M):
+    """``M S`` for ``M`` held by columns ``(6, k, 6, N)``: ``(k, 6, N)``, or ``(n, k, 6, N)`` by columns."""
+    if group.motion == "revolute":
+        return M[5]
+    if group.motion == "prismatic":
+        return M[2]
+    return np.einsum("ckrn,kcm->mkrn", M, group.subspace[..., 0])
+
+
+def _inverse(group, D):
+    """``D⁻¹`` of the joint-space articulated inertias: ``(k, N)``, or ``(n, k, n, N)`` held by columns."""
+    if isinstance(group.motion, str):
+        return 1.0 / D
+    from .dynamics import _inverse as inverse_stack
+
+    # (c, k, r, N) -> (k, r, c, N) for the stacked inverse, and back (D and D⁻¹ are symmetric)
+    return inverse_stack(D.transpose(1, 2, 0, 3)).transpose(2, 0, 1, 3)
+
+
+def _times_inverse(group, U, D_inv):
+    """``U D⁻¹``, both held by columns."""
+    if isinstance(group.motion, str):
+        return U * D_inv[:, None]
+    return np.einsum("mkrn,lkmn->lkrn", U, D_inv)
+
+
+def _outer(group, U_D_inv, U):
+    """``(U D⁻¹) Uᵀ`` by columns ``(6, k, 6, N)``."""
+    if isinstance(group.motion, str):
+        return U.transpose(1, 0, 2)[:, :, None] * U_D_inv[None]
+    return np.einsum("mkrn,mkcn->ckrn", U_D_inv, U)
+
+
+def _apply(group, M, x):
+    """``M x`` for ``M`` held by columns (``(k, 6, N)`` or ``(k, N)`` for one coordinate per joint,
+    else ``(n, k, r, N)``) and joint coordinates ``x`` (``(k, N)`` or ``(k, n, N)``)."""
+    if isinstance(group.motion, str):
+        return M * (x[:, None] if M.ndim == 3 else x)
+    return np.einsum("mkrn,kmn->krn", M, x)
+
+
+def _transpose_times(group, U, a):
+    """``Uᵀ a`` for ``U`` held by columns and vectors ``a (k, 6, N)``."""
+    if isinstance(group.motion, str):
+        return np.einsum("krn,krn->kn", U, a)
+    return np.einsum("mkrn,krn->kmn", U, a)
