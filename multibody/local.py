@@ -76,14 +76,12 @@ class LocalTree(NamedTuple):
 
 
 def _turn_to_z(axis):
-    """Rotation ``P`` with ``P e_z = axis`` (unit), so that ``Pᵀ axis = e_z``."""
-    z = np.array([0.0, 0.0, 1.0])
-    cosine, w = z @ axis, np.cross(z, axis)
-    if np.linalg.norm(w) < 1e-12:
-        return np.eye(3) if cosine > 0 else np.diag([1.0, -1.0, -1.0])
-    # Rodrigues with sin θ [u]× = [w]× and (1 − cos θ) [u]×² = [w]×² / (1 + cos θ)
-    W = spatial.skew(w)
-    return np.eye(3) + W + W @ W / (1.0 + cosine)
+    """Rotation ``P`` with ``P e_z = axis`` (unit), so that ``Pᵀ axis = e_z``: the columns ``[x, y, axis]``
+    of a right-handed orthonormal frame, ``x`` from the coordinate axis least aligned with ``axis``."""
+    helper = np.eye(3)[np.argmin(np.abs(axis))]
+    x = helper - (helper @ axis) * axis
+    x /= np.linalg.norm(x)
+    return np.stack([x, np.cross(axis, x), axis], axis=1)
 
 
 def _motion_kind(joint):
