@@ -40,8 +40,10 @@ def suits(batch):
 
 def lane_block(model):
     """States per block for the recursions here: their per-joint vectors, ``12 nj`` numbers per state
-    (velocities and accelerations, or forces), near 1 MB (a core's L2 cache), within [128, 4096]."""
-    return int(np.clip(2 ** np.round(np.log2(2**20 / (8 * 12 * max(model.njoints, 1)))), 128, 4096))
+    (velocities and accelerations, or forces), near 4 MB, within [128, 4096]. They stream through
+    these arrays a level at a time, so blocks larger than a core's cache still pay: per state, Panda
+    (9 joints) ran fastest with 2048–4096 states, Talos (33) with 512–1024."""
+    return int(np.clip(2 ** np.round(np.log2(2**22 / (8 * 12 * max(model.njoints, 1)))), 128, 4096))
 
 
 class LocalGroup(NamedTuple):
@@ -71,6 +73,7 @@ class LocalTree(NamedTuple):
     """Constants of the joint-coordinate recursions of a model (:func:`local_tree`)."""
 
     groups: tuple  # LocalGroup per level and motion, root level first
+    angles: np.ndarray  # (n,) indices into q of the revolute joints' angles, in group order
     inertia: np.ndarray  # (nj, 6, 6) spatial inertias in the turned joint frames
     turn: np.ndarray  # (nj, 3, 3) P: the turned frame's axes in the joint frame
 
@@ -132,7 +135,8 @@ def local_tree(model):
             groups.append(LocalGroup(kind, _index(joints), None if parents[0] < 0 else _index(parents), configuration,
                                      dofs, Y[joints], np.ascontiguousarray(Y[joints].transpose(0, 2, 1)), subspace,
                                      constants, () if parents[0] < 0 else _parent_rounds(parents)))
-    return LocalTree(tuple(groups), inertia, turns)
+    angles = [model.idx_q[np.arange(model.njoints)[g.joints]] for g in groups if g.motion == "revolute"]
+    return LocalTree(tuple(groups), np.concatenate(angles) if angles else np.zeros(0, dtype=int), inertia, turns)
 
 
 # ----------------------------------------------------------------------------- joint motions
@@ -154,11 +158,15 @@ class JointMotion(NamedTuple):
 
 def joint_motions(tree, q):
     """:class:`JointMotion` of every group of ``tree`` at ``q (nq, N)``."""
+    # the cosines and sines of all revolute joints in two calls
+    angles = q[tree.angles][:, None, :]
+    cosines, sines, first = np.cos(angles), np.sin(angles), 0
     motions = []
     for group in tree.groups:
         if group.motion == "revolute":
-            angle = q[group.configuration][:, None, :]
-            motions.append(JointMotion(cos=np.cos(angle), sin=np.sin(angle)))
+            last = first + len(group.Y)
+            motions.append(JointMotion(cos=cosines[first:last], sin=sines[first:last]))
+            first = last
         elif group.motion == "prismatic":
             motions.append(JointMotion(shift=q[group.configuration]))
         else:
