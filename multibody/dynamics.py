@@ -13,7 +13,11 @@ a fictitious acceleration ``a₀ = [−g; 0]`` of the world (RBDA §5.3); extern
 shape ``(..., njoints, 6)``: the spatial force on the rigid body of each joint, expressed in that
 joint's frame at its origin (Pinocchio's ``fext``).
 Every function accepts leading batch axes on its array arguments and broadcasts them; inside, the
-recursive algorithms compute on lanes (:mod:`multibody.lanes`), every state a column.
+recursive algorithms compute on lanes (:mod:`multibody.lanes`), every state a column. From
+:data:`multibody.local.MIN_STATES` states on, RNEA (with bias forces, gravity and joint reaction
+forces) and ABA run as the classical recursions in joint coordinates instead
+(:mod:`multibody.local`): more NumPy calls, far less arithmetic per state. Each pair is tested
+against the other.
 """
 
 from __future__ import annotations
@@ -104,6 +108,7 @@ def inverse_dynamics(model, q, v, a, f_ext=None):
     where every recursion but the poses' becomes a sum over the subtree or the support of a joint,
     so all joints are processed at once. Shapes: ``q (..., nq)``, ``v, a (..., nv)``,
     ``f_ext (..., njoints, 6)`` (see module docstring) -> ``τ (..., nv)`` (N or N m per coordinate).
+    Batches of many states: RBDA Table 5.1 in joint coordinates (:func:`multibody.local.rnea`).
     Pinocchio counterpart: ``rnea``.
     """
     q, v, a, _, f_ext, batch = _check(model, q, v, a, f_ext=f_ext)
@@ -462,7 +467,8 @@ def forward_dynamics(model, q, v, tau, f_ext=None):
     ``a = 0`` (all joints at once, no level loop), and the articulated inertias with the two
     remaining sweeps solve ``M a = τ − h`` (for a single configuration, CRBA's ``M`` and LU instead:
     fewer NumPy calls, equal within rounding). Shapes: ``q (..., nq)``, ``v, tau (..., nv)``,
-    ``f_ext (..., njoints, 6)`` -> ``a (..., nv)``. A joint that moves no inertia makes ``M``
+    ``f_ext (..., njoints, 6)`` -> ``a (..., nv)``. Batches of many states: RBDA Table 7.1 in joint
+    coordinates (:func:`multibody.local.aba`). A joint that moves no inertia makes ``M``
     singular and raises ``numpy.linalg.LinAlgError`` naming it. Pinocchio counterpart: ``aba``.
     """
     q, v, _, tau, f_ext, batch = _check(model, q, v, tau=tau, f_ext=f_ext)
