@@ -15,7 +15,7 @@ joint's frame at its origin (Pinocchio's ``fext``).
 Every function accepts leading batch axes on its array arguments and broadcasts them; inside, the
 recursive algorithms compute on lanes (:mod:`multibody.lanes`), every state a column. From
 :data:`multibody.local.MIN_STATES` states on, RNEA (with bias forces, gravity and joint reaction
-forces) and ABA run as the classical recursions in joint coordinates instead
+forces), CRBA and ABA run as the classical recursions in joint coordinates instead
 (:mod:`multibody.local`): more NumPy calls, far less arithmetic per state. Each pair is tested
 against the other.
 """
@@ -205,13 +205,16 @@ def bias_forces(model, q, v):
 def mass_matrix(model, q, method="crba"):
     """Joint-space inertia matrix ``M(q)``, full and symmetric: ``(..., nq) -> (..., nv, nv)``.
 
-    ``method="crba"``: Composite Rigid Body Algorithm (RBDA Table 6.2) in world coordinates.
+    ``method="crba"``: Composite Rigid Body Algorithm (RBDA Table 6.2) in world coordinates; for
+    batches of many states in joint coordinates (:func:`multibody.local.crba`).
     ``method="lagrangian"``: ``M = Σᵢ Jᵢᵀ Iᵢ Jᵢ`` from the world-frame Jacobian ``Jᵢ`` and inertia
     ``Iᵢ`` of each body, the kinetic energy ``T = ½ vᵀ M v`` made explicit.
     Pinocchio counterpart: ``crba`` (upper triangle, symmetrised).
     """
     if method == "crba":
         q = model.check_configuration(q)
+        if local.suits(q.shape[:-1]):
+            return _in_blocks(model, lambda q: local.crba(model, q), q.shape[:-1], (q, 1), block=local.lane_block(model))
         return _in_blocks(model, lambda q: _mass_matrix_crba(model, q), q.shape[:-1], (q, 1))
     if method == "lagrangian":
         q = model.check_configuration(q)

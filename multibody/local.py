@@ -67,6 +67,7 @@ class LocalGroup(NamedTuple):
     subspace: object
     constants: object
     parent_rounds: tuple
+    rigid_to_parent: np.ndarray  # (k, 10, 10) X_T on rigid-body parameters (see LocalTree)
 
 
 class LocalTree(NamedTuple):
@@ -76,6 +77,8 @@ class LocalTree(NamedTuple):
     angles: np.ndarray  # (n,) indices into q of the revolute joints' angles, in group order
     inertia: np.ndarray  # (nj, 6, 6) spatial inertias in the turned joint frames
     turn: np.ndarray  # (nj, 3, 3) P: the turned frame's axes in the joint frame
+    rigid: np.ndarray  # (nj, 10) the inertias as rigid-body parameters (see rigid_parameters)
+    rigid_to_parent: np.ndarray  # (nj, 10, 10) the constant tree transform X_T of those parameters
 
 
 def _turn_to_z(axis):
@@ -112,10 +115,14 @@ def local_tree(model):
                         for P, I in zip(turns, model.spatial_inertias)]).reshape(-1, 6, 6)
     # Pose of turned frame i in its parent's turned frame: X = P_λᵀ X_T P_i ;  Y = X⁻¹ for motions
     Y = np.empty((model.njoints, 6, 6))
+    rigid_to_parent = np.empty((model.njoints, 10, 10))
     for i, (placement, parent) in enumerate(zip(model.joint_placements, model.parents)):
         P_parent = np.eye(3) if parent < 0 else turns[parent]
         R, p = P_parent.T @ placement[:3, :3] @ turns[i], P_parent.T @ placement[:3, 3]
         Y[i] = spatial.motion_transform(*spatial.inverse_pose(R, p))
+        # ᴾX_i* I ⁱX_P is linear in I: its matrix on the parameters, column by column
+        rigid_to_parent[i] = np.stack([rigid_parameters(spatial.transform_inertia(R, p, rigid_inertia(e)))
+                                       for e in np.eye(10)], axis=1)
     groups = []
     for index, _ in model.levels:
         members = np.arange(model.njoints)[index]
@@ -134,9 +141,33 @@ def local_tree(model):
                 configuration, dofs = _index(configuration[:, 0]), _index(dofs[:, 0])
             groups.append(LocalGroup(kind, _index(joints), None if parents[0] < 0 else _index(parents), configuration,
                                      dofs, Y[joints], np.ascontiguousarray(Y[joints].transpose(0, 2, 1)), subspace,
-                                     constants, () if parents[0] < 0 else _parent_rounds(parents)))
+                                     constants, () if parents[0] < 0 else _parent_rounds(parents), rigid_to_parent[joints]))
     angles = [model.idx_q[np.arange(model.njoints)[g.joints]] for g in groups if g.motion == "revolute"]
-    return LocalTree(tuple(groups), np.concatenate(angles) if angles else np.zeros(0, dtype=int), inertia, turns)
+    return LocalTree(tuple(groups), np.concatenate(angles) if angles else np.zeros(0, dtype=int), inertia, turns,
+                     rigid_parameters(inertia).reshape(-1, 10), rigid_to_parent)
+
+
+def rigid_parameters(I):
+    """The ten parameters ``[m, h_x, h_y, h_z, a, b, d, Ī_xz, Ī_yz, Ī_zz]`` of rigid-body inertias
+    ``I = [[m 1, −[h]×], [[h]×, Ī]] (..., 6, 6)`` (``h = m c``, ``Ī`` about the frame origin), with
+    ``a = (Ī_xx + Ī_yy)/2``, ``b = (Ī_xx − Ī_yy)/2``, ``d = Ī_xy``: under a turn by ``q`` about ``z``,
+    ``(h_x, h_y)`` and ``(Ī_xz, Ī_yz)`` turn by ``q``, ``(b, d)`` by ``2q``, and the rest stays. ``-> (..., 10)``."""
+    rotational = I[..., 3:, 3:]
+    xx, yy = rotational[..., 0, 0], rotational[..., 1, 1]
+    return np.stack([I[..., 0, 0], I[..., 5, 1], I[..., 3, 2], I[..., 4, 0], 0.5 * (xx + yy), 0.5 * (xx - yy),
+                     rotational[..., 0, 1], rotational[..., 0, 2], rotational[..., 1, 2], rotational[..., 2, 2]], axis=-1)
+
+
+def rigid_inertia(x):
+    """The spatial inertia ``(..., 6, 6)`` of parameters ``x (..., 10)`` (:func:`rigid_parameters`)."""
+    m, h = x[..., 0], x[..., 1:4]
+    a, b, d, xz, yz, zz = np.moveaxis(x[..., 4:], -1, 0)
+    I = np.zeros(x.shape[:-1] + (6, 6))
+    I[..., [0, 1, 2], [0, 1, 2]] = m[..., None]
+    H = spatial.skew(h)
+    I[..., :3, 3:], I[..., 3:, :3] = -H, H
+    I[..., 3:, 3:] = np.stack([np.stack([a + b, d, xz], -1), np.stack([d, a - b, yz], -1), np.stack([xz, yz, zz], -1)], -2)
+    return I
 
 
 # ----------------------------------------------------------------------------- joint motions
@@ -495,3 +526,98 @@ def _transpose_times(group, U, a):
     if isinstance(group.motion, str):
         return np.einsum("krn,krn->kn", U, a)
     return np.einsum("mkrn,krn->kmn", U, a)
+
+
+# ----------------------------------------------------------------------------- CRBA
+
+def crba(model, q):
+    """Composite Rigid Body Algorithm in joint coordinates on lanes (RBDA Table 6.2): ``M (nv, nv, N)``.
+
+    A composite inertia is a rigid-body inertia, so it travels up the tree as its ten parameters
+    (:func:`rigid_parameters`): the joint's turn moves five of them, and the tree transform is one
+    constant 10×10 product. The force columns ``F = I^c_i S_i`` travel up as force vectors, all those
+    of a subtree in one block, and meet each ancestor's ``S_jᵀ``.
+    """
+    tree = model.local_tree
+    n = q.shape[-1]
+    motions = joint_motions(tree, q)
+    composite = np.array(np.broadcast_to(tree.rigid[..., None], (model.njoints, 10, n)))
+    M = np.zeros((model.nv, model.nv, n))  # zero where neither joint supports the other
+    carried = [[] for _ in range(model.njoints)]  # per joint: (dofs, force block (m, 6, N)) from its subtree
+    for group, motion in zip(reversed(tree.groups), reversed(motions)):
+        x = composite[group.joints]  # complete: every deeper level has been added
+        own = _composite_columns(group, x)  # (k, 6, N), or (n, k, 6, N)
+        joints = np.arange(model.njoints)[group.joints]
+        dofs = np.atleast_2d(np.arange(model.nv)[group.dofs].T).T  # (k, n)
+        for position, (joint, own_dofs) in enumerate(zip(joints, dofs)):
+            one = _one_joint(group, position)
+            moving = _one_motion(motion, position)
+            columns = own[position][None] if own.ndim == 3 else own[:, position]
+            block = np.concatenate([columns] + [b for _, b in carried[joint]])
+            block_dofs = np.concatenate([own_dofs] + [d for d, _ in carried[joint]])
+            # M_ij = S_iᵀ F_j for the coordinates j of i's subtree (RBDA eq. 6.14), and its mirror
+            rows = joint_share(one, block[:, None])[:, 0]  # (m, N) or (m, n, N)
+            rows = rows[:, None] if rows.ndim == 2 else rows
+            M[own_dofs[:, None], block_dofs[None, :]] = rows.transpose(1, 0, 2)
+            M[block_dofs[:, None], own_dofs[None, :]] = rows
+            if group.parents is not None:
+                parent = model.parents[joint]
+                carried[parent].append((block_dofs, (one.Y_T @ to_parent(one, moving, block[:, None]))[:, 0]))
+        if group.parents is not None:
+            # I^c_λ += λX_i* I^c_i ⁱX_λ
+            _add_to_parents(composite, group, group.rigid_to_parent @ _turned_composite(group, motion, x))
+    return M
+
+
+def _one_joint(group, position):
+    """The group reduced to its joint at ``position`` (for the per-joint column blocks)."""
+    take = lambda x: None if x is None else x[position : position + 1]  # noqa: E731
+    return group._replace(Y=take(group.Y), Y_T=take(group.Y_T), subspace=take(group.subspace))
+
+
+def _one_motion(motion, position):
+    return JointMotion(*(None if x is None else x[position : position + 1] for x in motion))
+
+
+def _composite_columns(group, x):
+    """``I^c S`` from rigid-body parameters ``x (k, 10, N)``: ``(k, 6, N)``, or ``(n, k, 6, N)`` by columns."""
+    m, hx, hy, hz, a, b, d, xz, yz, zz = (x[:, i] for i in range(10))
+    if group.motion == "revolute":
+        # column 5 of [[m 1, −[h]×], [[h]×, Ī]]: [−h × e_z; Ī e_z]
+        return np.stack([-hy, hx, np.zeros_like(hx), xz, yz, zz], axis=1)
+    if group.motion == "prismatic":
+        # column 2: [m e_z; h × e_z]
+        return np.stack([np.zeros_like(hx), np.zeros_like(hx), m, hy, -hx, np.zeros_like(hx)], axis=1)
+    I = rigid_inertia(x.transpose(0, 2, 1))  # (k, N, 6, 6)
+    return np.einsum("kncd,kdm->mkcn", I, group.subspace[..., 0])
+
+
+_TURNED_ONCE = np.array([1, 7]), np.array([2, 8])  # (h_x, Ī_xz) and (h_y, Ī_yz) turn by q
+_TURNED_TWICE = 5, 6  # (b, d) turn by 2q
+
+
+def _turned_composite(group, motion, x):
+    """Rigid-body parameters ``x (k, 10, N)`` moved by the joint: ``X_J* I X_J⁻¹`` in parameters."""
+    out = x.copy()
+    if group.motion == "revolute":
+        c, s = motion.cos, motion.sin  # (k, 1, N)
+        first, second = x[:, _TURNED_ONCE[0]], x[:, _TURNED_ONCE[1]]
+        out[:, _TURNED_ONCE[0]] = c * first - s * second
+        out[:, _TURNED_ONCE[1]] = s * first + c * second
+        c2, s2 = (c * c - s * s)[:, 0], (2.0 * c * s)[:, 0]
+        b, d = x[:, _TURNED_TWICE[0]], x[:, _TURNED_TWICE[1]]
+        out[:, _TURNED_TWICE[0]] = c2 * b - s2 * d
+        out[:, _TURNED_TWICE[1]] = s2 * b + c2 * d
+        return out
+    if group.motion == "prismatic":
+        # shifted by q e_z: h_z += m q ;  a += q (2 h_z + m q) ;  Ī_xz −= q h_x ;  Ī_yz −= q h_y
+        shift, m = motion.shift, x[:, 0]
+        out[:, 4] += shift * (2.0 * x[:, 3] + m * shift)
+        out[:, 7] -= shift * x[:, 1]
+        out[:, 8] -= shift * x[:, 2]
+        out[:, 3] += m * shift
+        return out
+    # a general pose: g = R h ;  h' = g + m p ;  Ī' = R Ī Rᵀ − h' pᵀ − p gᵀ + pᵀ(h' + g) 1
+    I = rigid_inertia(x.transpose(0, 2, 1)).transpose(0, 2, 3, 1)  # (k, 6, 6, N)
+    moved = lanes.world_inertias(x[:, 0, 0], x[:, 1:4], I[:, 3:, 3:], I, motion.R, motion.p)
+    return rigid_parameters(moved.transpose(0, 3, 1, 2)).transpose(0, 2, 1)

@@ -75,6 +75,34 @@ def test_rnea_equals_the_world_coordinate_recursion(model_name):
 
 
 @pytest.mark.parametrize("model_name", MODELS)
+def test_crba_equals_the_world_coordinate_crba(model_name):
+    model = local_test_model(model_name)
+    q = random_lanes(model, np.random.default_rng(16), 9)[0]
+    M = local.crba(model, q)
+    expected = dynamics._mass_matrix_crba(model, q)
+    assert_allclose(M, expected, rtol=1e-12, atol=1e-12 * np.abs(expected).max())
+    assert_allclose(M, M.transpose(1, 0, 2), rtol=0, atol=0)
+
+
+def test_rigid_parameters_round_trip_and_turn_as_the_inertia_does():
+    rng = np.random.default_rng(17)
+    inertia = mb.inertia.box(2.0, (0.3, 0.2, 0.1)).transformed(mb.spatial.pose_from_xyz_rpy(rng.uniform(-1, 1, 3),
+                                                                                             rng.uniform(-3, 3, 3)))
+    I = inertia.spatial
+    x = local.rigid_parameters(I)
+    assert_allclose(local.rigid_inertia(x), I, atol=1e-15)
+    # a turn about z and a shift along it, against the 6×6 congruence
+    q = 0.7
+    group = local.LocalGroup("revolute", *([None] * 10))
+    turned = local._turned_composite(group, local.JointMotion(cos=np.cos([[[q]]]), sin=np.sin([[[q]]])), x[None, :, None])
+    R = mb.spatial.pose_from_xyz_rpy((0, 0, 0), (0, 0, q))[:3, :3]
+    assert_allclose(local.rigid_inertia(turned[0, :, 0]), mb.spatial.transform_inertia(R, np.zeros(3), I), atol=1e-14)
+    group = group._replace(motion="prismatic")
+    shifted = local._turned_composite(group, local.JointMotion(shift=np.array([[q]])), x[None, :, None])
+    assert_allclose(local.rigid_inertia(shifted[0, :, 0]), mb.spatial.transform_inertia(np.eye(3), [0, 0, q], I), atol=1e-14)
+
+
+@pytest.mark.parametrize("model_name", MODELS)
 def test_aba_equals_the_world_coordinate_sweeps(model_name):
     model = local_test_model(model_name)
     rng = np.random.default_rng(12)
@@ -104,6 +132,7 @@ def test_public_functions_switch_to_joint_coordinates_for_many_states_and_agree_
         "generalized_gravity": lambda q, v, a, f: mb.generalized_gravity(model, q),
         "joint_reaction_forces": lambda q, v, a, f: mb.joint_reaction_forces(model, q, v, a, f_ext=f),
         "forward_dynamics": lambda q, v, a, f: mb.forward_dynamics(model, q, v, a, f_ext=f),
+        "mass_matrix": lambda q, v, a, f: mb.mass_matrix(model, q),
     }
     for what, call in calls.items():
         batched = call(q, v, a, f)
