@@ -99,6 +99,14 @@ def _world_tree(model, q):
     return _in_blocks(model, kernel, q.shape[:-1], (q, 1))
 
 
+def _in_blocks_by_size(model, kernel, joint_coordinates, batch, *arrays):
+    """:func:`~multibody.kinematics._in_blocks` with ``kernel`` (world coordinates), or for a batch
+    large enough (:func:`multibody.local.suits`) with ``joint_coordinates`` in its own blocks."""
+    if local.suits(batch):
+        return _in_blocks(model, joint_coordinates, batch, *arrays, block=local.lane_block(model))
+    return _in_blocks(model, kernel, batch, *arrays)
+
+
 # ============================================================================= RNEA
 
 def inverse_dynamics(model, q, v, a, f_ext=None):
@@ -125,10 +133,8 @@ def _rnea(model, q, v, a, f_ext, batch):
     def joint_coordinates(q, v, a, f_ext):
         return local.rnea(model, q, v, a, f_ext)[0]
 
-    many = local.suits(batch)
-    return _in_blocks(model, joint_coordinates if many else kernel, batch, (q, 1), None if v is None else (v, 1),
-                      None if a is None else (a, 1), None if f_ext is None else (f_ext, 2),
-                      block=local.lane_block(model) if many else None)
+    return _in_blocks_by_size(model, kernel, joint_coordinates, batch, (q, 1), None if v is None else (v, 1),
+                              None if a is None else (a, 1), None if f_ext is None else (f_ext, 2))
 
 
 def _rnea_forces(model, q, v, a, f_ext, tree=None, motion=None):
@@ -177,9 +183,8 @@ def joint_reaction_forces(model, q, v, a, f_ext=None):
     def joint_coordinates(q, v, a, f_ext):
         return local.from_turned_frames(model.local_tree, local.rnea(model, q, v, a, f_ext)[1])
 
-    many = local.suits(batch)
-    return _in_blocks(model, joint_coordinates if many else kernel, batch, (q, 1), (v, 1), (a, 1),
-                      None if f_ext is None else (f_ext, 2), block=local.lane_block(model) if many else None)
+    return _in_blocks_by_size(model, kernel, joint_coordinates, batch, (q, 1), (v, 1), (a, 1),
+                              None if f_ext is None else (f_ext, 2))
 
 
 def generalized_gravity(model, q):
@@ -213,9 +218,8 @@ def mass_matrix(model, q, method="crba"):
     """
     if method == "crba":
         q = model.check_configuration(q)
-        if local.suits(q.shape[:-1]):
-            return _in_blocks(model, lambda q: local.crba(model, q), q.shape[:-1], (q, 1), block=local.lane_block(model))
-        return _in_blocks(model, lambda q: _mass_matrix_crba(model, q), q.shape[:-1], (q, 1))
+        return _in_blocks_by_size(model, lambda q: _mass_matrix_crba(model, q), lambda q: local.crba(model, q),
+                                  q.shape[:-1], (q, 1))
     if method == "lagrangian":
         q = model.check_configuration(q)
         jacobians, inertias = _world_body_jacobians_and_inertias(model, q)
@@ -386,7 +390,7 @@ def _articulated_inertias(model, xi, inertia):
             # U_i = I^A_i S_i ;  D_i = S_iᵀ U_i
             U = lanes.matmul(I_A, lanes.transpose(S))
             D = lanes.matmul(S, U)
-            D_inv = _inverse(D)
+            D_inv = lanes.inverse(D)
             U_D_inv = lanes.matmul(U, D_inv)
             if group.parents is not None:
                 # I^a_i = I^A_i − U_i D_i⁻¹ U_iᵀ ;  I^A_λ += I^a_i
@@ -399,19 +403,6 @@ def _add_to_parents(x, group, values):
     """``x[λ(i)] += values_i`` for the joints of a level group (several may share a parent)."""
     for positions, parents in group.parent_rounds:
         x[parents] += values[positions]
-
-
-def _inverse(D):
-    """``D⁻¹`` of the joint-space articulated inertias ``D (k, n, n, N)``; a singular ``D`` gives
-    non-finite entries (see :func:`_require_nonsingular`)."""
-    if D.shape[1] == 1:
-        return 1.0 / D
-    D = np.moveaxis(D, -1, 1)
-    singular = np.linalg.det(D) == 0.0
-    # np.linalg.inv would raise on a singular D: invert the identity there and mark it infinite.
-    inverse = np.linalg.inv(np.where(singular[..., None, None], np.eye(D.shape[-1]), D))
-    inverse[singular] = np.inf
-    return np.moveaxis(inverse, 1, -1)
 
 
 def _require_nonsingular(model, factors, result):
@@ -483,10 +474,8 @@ def forward_dynamics(model, q, v, tau, f_ext=None):
         # a singular articulated inertia: the world-coordinate sweeps name the joint (or pass on the NaN)
         return a if np.isfinite(a).all() else _aba(model, *arrays)
 
-    many = local.suits(batch)
-    return _in_blocks(model, joint_coordinates if many else lambda *arrays: _aba(model, *arrays), batch,
-                      (q, 1), (v, 1), (tau, 1), None if f_ext is None else (f_ext, 2),
-                      block=local.lane_block(model) if many else None)
+    return _in_blocks_by_size(model, lambda *arrays: _aba(model, *arrays), joint_coordinates, batch,
+                              (q, 1), (v, 1), (tau, 1), None if f_ext is None else (f_ext, 2))
 
 
 def _aba(model, q, v, tau, f_ext):

@@ -3,8 +3,9 @@
 Naming: ``R_WJ, p_WJ`` is the pose of joint frame J in the world W; a *world Plücker* motion
 vector is expressed in world axes and taken at the world origin (its linear part is the velocity
 of the body point that currently coincides with the world origin). Inside, the algorithms take
-their Plücker coordinates at the first joint's origin ``O`` instead (``p_OJ``; see :func:`_joint_frames`). Velocities of a point are
-*world-aligned*: world axes, taken at the point (Pinocchio's ``LOCAL_WORLD_ALIGNED``).
+their Plücker coordinates at the first joint's origin ``O`` instead (``p_OJ``; see
+:func:`_joint_frames`). Velocities of a point are *world-aligned*: world axes, taken at the point
+(Pinocchio's ``LOCAL_WORLD_ALIGNED``).
 """
 
 from __future__ import annotations

@@ -166,6 +166,19 @@ def quat_to_rotation(quat):
     return R + _IDENTITY * (1.0 - scale * dot(u, u)[..., None, None, :])
 
 
+def inverse(D):
+    """``D⁻¹`` of small symmetric matrices on lanes, ``D (k, n, n, N)`` (the joint-space articulated
+    inertias of ABA); a singular ``D`` gives infinite entries, for the caller to report."""
+    if D.shape[1] == 1:
+        return 1.0 / D
+    D = np.moveaxis(D, -1, 1)
+    singular = np.linalg.det(D) == 0.0
+    # np.linalg.inv would raise on a singular D: invert the identity there and mark it infinite.
+    inverse = np.linalg.inv(np.where(singular[..., None, None], np.eye(D.shape[-1]), D))
+    inverse[singular] = np.inf
+    return np.moveaxis(inverse, 1, -1)
+
+
 # ----------------------------------------------------------------------------- spatial vectors
 
 # A spatial cross product as products of gathered components: rows [t₁; t₂; t₃; t₄] of six each, the

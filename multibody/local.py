@@ -4,8 +4,8 @@ The algorithms of :mod:`multibody.dynamics` work in world Plücker coordinates, 
 subtrees and supports replace the recursions and every joint is processed in a handful of NumPy
 calls: the fewest calls for one state, but each state pays for world poses and world inertias
 (a 6×6 congruence per body). With many states on the lanes, arithmetic outweighs calls, and the
-classical recursions in each joint's own coordinates (RBDA Tables 5.1 and 7.1, as Pinocchio runs
-them) do far less of it: the inertias and tree transforms are constants, applied as matrix products
+classical recursions in each joint's own coordinates (RBDA Tables 5.1, 6.2 and 7.1, as Pinocchio
+runs them) do far less of it: the inertias and tree transforms are constants, applied as matrix products
 over all lanes at once, and all that varies from state to state is each joint's own motion.
 
 Inside, each revolute or prismatic joint frame is turned (by a constant rotation ``P`` with
@@ -26,6 +26,7 @@ import numpy as np
 
 from . import joints as jt
 from . import lanes, spatial
+from .model import _index, _parent_rounds
 
 
 #: Fewest states for which the recursions here beat the world-coordinate algorithms: below it,
@@ -67,7 +68,7 @@ class LocalGroup(NamedTuple):
     subspace: object
     constants: object
     parent_rounds: tuple
-    rigid_to_parent: np.ndarray  # (k, 10, 10) X_T on rigid-body parameters (see LocalTree)
+    rigid_to_parent: np.ndarray  # (k, 10, 10) the tree transform on rigid-body parameters (rigid_parameters)
 
 
 class LocalTree(NamedTuple):
@@ -78,7 +79,6 @@ class LocalTree(NamedTuple):
     inertia: np.ndarray  # (nj, 6, 6) spatial inertias in the turned joint frames
     turn: np.ndarray  # (nj, 3, 3) P: the turned frame's axes in the joint frame
     rigid: np.ndarray  # (nj, 10) the inertias as rigid-body parameters (see rigid_parameters)
-    rigid_to_parent: np.ndarray  # (nj, 10, 10) the constant tree transform X_T of those parameters
 
 
 def _turn_to_z(axis):
@@ -107,8 +107,6 @@ def _block_diagonal(R):
 
 def local_tree(model):
     """The constants of :class:`LocalTree` for ``model`` (cached as ``Model.local_tree``)."""
-    from .model import _index, _parent_rounds
-
     turns = np.array([_turn_to_z(joint.axis) if isinstance(_motion_kind(joint), str) else np.eye(3)
                       for joint in model.joints]).reshape(-1, 3, 3)
     inertia = np.array([_block_diagonal(P).T @ I @ _block_diagonal(P)
@@ -144,7 +142,7 @@ def local_tree(model):
                                      constants, () if parents[0] < 0 else _parent_rounds(parents), rigid_to_parent[joints]))
     angles = [model.idx_q[np.arange(model.njoints)[g.joints]] for g in groups if g.motion == "revolute"]
     return LocalTree(tuple(groups), np.concatenate(angles) if angles else np.zeros(0, dtype=int), inertia, turns,
-                     rigid_parameters(inertia).reshape(-1, 10), rigid_to_parent)
+                     rigid_parameters(inertia).reshape(-1, 10))
 
 
 def rigid_parameters(I):
@@ -210,18 +208,23 @@ def _lanes_shape(x, *others):
     return x.shape[:-1] + (max(y.shape[-1] for y in (x,) + others),)
 
 
+def _turn_pair(c, s, x, y, out_x, out_y):
+    """``(x, y) -> (c x − s y, s x + c y)`` into ``out_x, out_y`` (which must not overlap ``x, y``):
+    a turn about ``z`` of the pair of components."""
+    np.multiply(c, x, out=out_x)
+    out_x -= s * y
+    np.multiply(s, x, out=out_y)
+    out_y += c * y
+
+
 def _turned(x, c, s, out=None):
-    """Both 3-vectors of ``x (..., k, 6, N)`` turned about ``z`` by the angle of ``(c, s) (k, 1, N)``:
-    ``(x, y) -> (c x − s y, s x + c y)``, into ``out`` (which must not overlap ``x``) when given."""
+    """Both 3-vectors of ``x (..., k, 6, N)`` turned about ``z`` by the angle of ``(c, s) (k, 1, N)``,
+    into ``out`` (which must not overlap ``x``) when given."""
     shape = _lanes_shape(x, c)
     out = np.empty(shape) if out is None else out
     halves = x.reshape(x.shape[:-2] + (2, 3, x.shape[-1]))
     turned = out.reshape(shape[:-2] + (2, 3, shape[-1]))
-    first, second = halves[..., 0, :], halves[..., 1, :]
-    np.multiply(c, first, out=turned[..., 0, :])
-    turned[..., 0, :] -= s * second
-    np.multiply(s, first, out=turned[..., 1, :])
-    turned[..., 1, :] += c * second
+    _turn_pair(c, s, halves[..., 0, :], halves[..., 1, :], turned[..., 0, :], turned[..., 1, :])
     turned[..., 2, :] = halves[..., 2, :]
     return out
 
@@ -334,14 +337,14 @@ def from_turned_frames(tree, f):
 
 # ----------------------------------------------------------------------------- RNEA
 
-def rnea(model, q, v, a, f_ext, motions=None):
+def rnea(model, q, v, a, f_ext):
     """Recursive Newton–Euler in joint coordinates on lanes (RBDA Table 5.1): the joint forces
     ``τ (nv, N)`` and the force ``f_i (nj, 6, N)`` each joint transmits to its body, in the turned joint
     frames. ``v``, ``a`` or ``f_ext`` ``None`` stand for zero; gravity enters as the world's
     acceleration ``a₀ = [−g; 0]`` (RBDA §5.3)."""
     tree = model.local_tree
     n = max(x.shape[-1] for x in (q, v, a, f_ext) if x is not None)
-    motions = joint_motions(tree, q) if motions is None else motions
+    motions = joint_motions(tree, q)
     # [v_i; a_i] (2, nj, 6, N), or a_i alone (1, nj, 6, N) when v = 0
     slots = 1 if v is None else 2
     VA = np.empty((slots, model.njoints, 6, n))
@@ -462,11 +465,7 @@ def _congruence(group, motion, M):
     moved = rows.reshape(2, 3, *rows.shape[1:])
     turned = np.empty(moved.shape)
     if group.motion == "revolute":
-        c, s = motion.cos, motion.sin
-        np.multiply(c, moved[:, 0], out=turned[:, 0])
-        turned[:, 0] -= s * moved[:, 1]
-        np.multiply(s, moved[:, 0], out=turned[:, 1])
-        turned[:, 1] += c * moved[:, 1]
+        _turn_pair(motion.cos, motion.sin, moved[:, 0], moved[:, 1], turned[:, 0], turned[:, 1])
         turned[:, 2] = moved[:, 2]
     else:
         # [f; n + (q e_z) × f]
@@ -493,10 +492,8 @@ def _inverse(group, D):
     """``D⁻¹`` of the joint-space articulated inertias: ``(k, N)``, or ``(n, k, n, N)`` held by columns."""
     if isinstance(group.motion, str):
         return 1.0 / D
-    from .dynamics import _inverse as inverse_stack
-
     # (c, k, r, N) -> (k, r, c, N) for the stacked inverse, and back (D and D⁻¹ are symmetric)
-    return inverse_stack(D.transpose(1, 2, 0, 3)).transpose(2, 0, 1, 3)
+    return lanes.inverse(D.transpose(1, 2, 0, 3)).transpose(2, 0, 1, 3)
 
 
 def _times_inverse(group, U, D_inv):
@@ -598,19 +595,19 @@ _TURNED_TWICE = 5, 6  # (b, d) turn by 2q
 
 def _turned_composite(group, motion, x):
     """Rigid-body parameters ``x (k, 10, N)`` moved by the joint: ``X_J* I X_J⁻¹`` in parameters."""
-    out = x.copy()
     if group.motion == "revolute":
+        out = x.copy()
         c, s = motion.cos, motion.sin  # (k, 1, N)
-        first, second = x[:, _TURNED_ONCE[0]], x[:, _TURNED_ONCE[1]]
-        out[:, _TURNED_ONCE[0]] = c * first - s * second
-        out[:, _TURNED_ONCE[1]] = s * first + c * second
-        c2, s2 = (c * c - s * s)[:, 0], (2.0 * c * s)[:, 0]
-        b, d = x[:, _TURNED_TWICE[0]], x[:, _TURNED_TWICE[1]]
-        out[:, _TURNED_TWICE[0]] = c2 * b - s2 * d
-        out[:, _TURNED_TWICE[1]] = s2 * b + c2 * d
+        turned = np.empty((2, len(x), 2, x.shape[-1]))  # the turned (h_x, Ī_xz) and (h_y, Ī_yz)
+        _turn_pair(c, s, x[:, _TURNED_ONCE[0]], x[:, _TURNED_ONCE[1]], turned[0], turned[1])
+        out[:, _TURNED_ONCE[0]], out[:, _TURNED_ONCE[1]] = turned[0], turned[1]
+        # (b, d) by the double angle: cos 2q = c² − s², sin 2q = 2 c s
+        _turn_pair((c * c - s * s)[:, 0], (2.0 * c * s)[:, 0], x[:, _TURNED_TWICE[0]], x[:, _TURNED_TWICE[1]],
+                   out[:, _TURNED_TWICE[0]], out[:, _TURNED_TWICE[1]])
         return out
     if group.motion == "prismatic":
         # shifted by q e_z: h_z += m q ;  a += q (2 h_z + m q) ;  Ī_xz −= q h_x ;  Ī_yz −= q h_y
+        out = x.copy()
         shift, m = motion.shift, x[:, 0]
         out[:, 4] += shift * (2.0 * x[:, 3] + m * shift)
         out[:, 7] -= shift * x[:, 1]

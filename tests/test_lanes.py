@@ -15,7 +15,7 @@ import pytest
 from numpy.testing import assert_allclose
 
 import multibody as mb
-from multibody import lanes, spatial
+from multibody import lanes, local, spatial
 from dyn_helpers import dynamics_calls, erd_urdf
 from conftest import random_tree_model
 
@@ -156,6 +156,7 @@ def test_batches_larger_than_a_block_equal_single_calls(model_name):
 def test_one_configuration_with_a_block_sized_batch_of_velocities():
     model = random_tree_model(2)
     n = model.lane_block + 3
+    assert local.suits((n,))  # the joint-coordinate recursions, with one lane for q (multibody.local)
     rng = np.random.default_rng(4)
     q = model.random_configuration(rng)
     v, tau = rng.standard_normal((2, n, model.nv))
@@ -163,6 +164,7 @@ def test_one_configuration_with_a_block_sized_batch_of_velocities():
     assert a.shape == (n, model.nv)
     assert_allclose(a[-1], mb.forward_dynamics(model, q, v[-1], tau[-1]), rtol=1e-12, atol=1e-12)
     assert_allclose(mb.inverse_dynamics(model, q, v, a), tau, rtol=1e-9, atol=1e-9)
+    assert_allclose(mb.bias_forces(model, q, v)[7], mb.bias_forces(model, q, v[7]), rtol=1e-12, atol=1e-12)
     C = mb.coriolis_matrix(model, q, v)
     assert C.shape == (n, model.nv, model.nv)
     assert_allclose(C[-1], mb.coriolis_matrix(model, q, v[-1]), rtol=1e-12, atol=1e-12)

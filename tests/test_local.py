@@ -113,7 +113,7 @@ def test_aba_equals_the_world_coordinate_sweeps(model_name):
         assert_allclose(qdd, expected, rtol=1e-11, atol=1e-11 * max(1.0, np.abs(expected).max()))
         # and it inverts RNEA
         back, _ = local.rnea(model, q, v, qdd, forces)
-        assert_allclose(back, tau, rtol=1e-10, atol=1e-10)
+        assert_allclose(back, tau, rtol=1e-12, atol=1e-12)  # |τ| ~ 1: worst seen 1.7e-13 (Talos)
 
 
 @pytest.mark.parametrize("model_name", ["random_tree_1", "talos_floating"])
@@ -139,19 +139,6 @@ def test_public_functions_switch_to_joint_coordinates_for_many_states_and_agree_
         for k in (0, block - 1, block, n - 1):
             single = call(q[k], v[k], a[k], f[k])  # one state: the world-coordinate algorithms
             assert_allclose(batched[k], single, rtol=1e-11, atol=1e-11 * max(1.0, np.abs(single).max()), err_msg=what)
-
-
-def test_one_configuration_with_many_velocities():
-    model = random_tree_model(2)
-    rng = np.random.default_rng(14)
-    n = 2 * local.MIN_STATES
-    q = model.random_configuration(rng)
-    v, tau = rng.standard_normal((2, n, model.nv))
-    a = mb.forward_dynamics(model, q, v, tau)
-    assert a.shape == (n, model.nv)
-    assert_allclose(a[-1], mb.forward_dynamics(model, q, v[-1], tau[-1]), rtol=1e-11, atol=1e-11)
-    assert_allclose(mb.inverse_dynamics(model, q, v, a), tau, rtol=1e-9, atol=1e-9)
-    assert_allclose(mb.bias_forces(model, q, v)[7], mb.bias_forces(model, q, v[7]), rtol=1e-12, atol=1e-12)
 
 
 def test_many_states_with_a_massless_joint_name_it():
