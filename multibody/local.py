@@ -69,6 +69,13 @@ class LocalGroup(NamedTuple):
     constants: object
     parent_rounds: tuple
     rigid_to_parent: np.ndarray  # (k, 10, 10) the tree transform on rigid-body parameters (rigid_parameters)
+    # CRBA's force columns, in an order where every subtree's are contiguous (_subtree_columns):
+    composite_columns: np.ndarray  # (k, n, 6, 10) I S of each joint's n subspace columns, linear in I's parameters
+    own_columns: object  # the joints' own columns
+    subtree_columns: object  # (m,) the columns of the joints' subtrees, joint after joint
+    column_joint: object  # (m,) the group position of each of those columns' joint (None for one joint)
+    mass_rows: np.ndarray  # (m, n) for each of those columns, the coordinates of its joint ...
+    mass_columns: np.ndarray  # (m, 1) ... and its own coordinate: where S_iᵀ F_j goes in M
 
 
 class LocalTree(NamedTuple):
@@ -88,6 +95,10 @@ def _turn_to_z(axis):
     x = helper - (helper @ axis) * axis
     x /= np.linalg.norm(x)
     return np.stack([x, np.cross(axis, x), axis], axis=1)
+
+
+#: Motion subspace ``(6, 1)`` of a turned revolute or prismatic joint: about or along ``z``
+_TURNED_SUBSPACE = {"revolute": np.eye(6)[:, 5:], "prismatic": np.eye(6)[:, 2:3]}
 
 
 def _motion_kind(joint):
@@ -121,6 +132,7 @@ def local_tree(model):
         # ᴾX_i* I ⁱX_P is linear in I: its matrix on the parameters, column by column
         rigid_to_parent[i] = np.stack([rigid_parameters(spatial.transform_inertia(R, p, rigid_inertia(e)))
                                        for e in np.eye(10)], axis=1)
+    column_dofs, first_column, subtree_size = _subtree_columns(model)
     groups = []
     for index, _ in model.levels:
         members = np.arange(model.njoints)[index]
@@ -137,32 +149,70 @@ def local_tree(model):
                 constants = kind.group_constants([model.joints[i] for i in joints], np.broadcast_to(np.eye(4), (len(joints), 4, 4)))
             else:
                 configuration, dofs = _index(configuration[:, 0]), _index(dofs[:, 0])
+            # CRBA: the columns of each joint's subtree, its own first
+            columns = [np.arange(first_column[i], first_column[i] + subtree_size[i]) for i in joints]
+            column_joint = np.repeat(np.arange(len(joints)), [len(c) for c in columns])
+            columns = np.concatenate(columns)
+            own_dofs = model.idx_v[joints][:, None] + np.arange(first.nv)
+            S = subspace[..., 0] if subspace is not None else np.broadcast_to(_TURNED_SUBSPACE[kind], (len(joints), 6, 1))
+            composite_columns = np.einsum("pcd,kdn->kncp", rigid_inertia(np.eye(10)), S)
             groups.append(LocalGroup(kind, _index(joints), None if parents[0] < 0 else _index(parents), configuration,
                                      dofs, Y[joints], np.ascontiguousarray(Y[joints].transpose(0, 2, 1)), subspace,
-                                     constants, () if parents[0] < 0 else _parent_rounds(parents), rigid_to_parent[joints]))
+                                     constants, () if parents[0] < 0 else _parent_rounds(parents), rigid_to_parent[joints],
+                                     composite_columns, _index((first_column[joints][:, None] + np.arange(first.nv)).ravel()),
+                                     _index(columns), None if len(joints) == 1 else column_joint,
+                                     own_dofs[column_joint], column_dofs[columns][:, None]))
     angles = [model.idx_q[np.arange(model.njoints)[g.joints]] for g in groups if g.motion == "revolute"]
     return LocalTree(tuple(groups), np.concatenate(angles) if angles else np.zeros(0, dtype=int), inertia, turns,
                      rigid_parameters(inertia).reshape(-1, 10))
 
 
+#: Positions of the ten rigid-body parameters (:func:`rigid_parameters`): each pair a turn about ``z``
+#: moves is contiguous, so that the turn reads and writes views.
+_TURNED_BY_ANGLE = slice(0, 2), slice(2, 4)  # (h_x, Ī_xz) and (h_y, Ī_yz): x and y parts of the turn by q
+_TURNED_BY_DOUBLE_ANGLE = 4, 5  # (b, d): turned by 2q
+_UNMOVED = slice(6, 10)  # m, h_z, a, Ī_zz
+_H_X, _XZ, _H_Y, _YZ, _B, _D, _MASS, _H_Z, _A, _ZZ = range(10)
+
+
+def _subtree_columns(model):
+    """An order of the velocity coordinates in which each joint's own come first and its whole subtree's
+    are contiguous (the joints depth first): the coordinate at each position ``(nv,)``, and each joint's
+    first position and number of subtree coordinates ``(nj,)``."""
+    children = [[] for _ in range(model.njoints)]
+    for joint, parent in enumerate(model.parents):
+        if parent >= 0:
+            children[parent].append(joint)
+    order, pending = [], [j for j in reversed(range(model.njoints)) if model.parents[j] < 0]
+    while pending:
+        joint = pending.pop()
+        order.append(joint)
+        pending.extend(reversed(children[joint]))
+    nv = np.array([joint.nv for joint in model.joints], dtype=int)
+    column_dofs = np.concatenate([model.idx_v[j] + np.arange(nv[j]) for j in order] + [np.zeros(0, dtype=int)])
+    first_column = np.empty(model.njoints, dtype=int)
+    first_column[order] = np.cumsum(nv[order]) - nv[order]
+    subtree_size = model.tree_sum_weights[1] @ nv if model.njoints else nv
+    return column_dofs, first_column, np.round(subtree_size).astype(int)
+
+
 def rigid_parameters(I):
-    """The ten parameters ``[m, h_x, h_y, h_z, a, b, d, Ī_xz, Ī_yz, Ī_zz]`` of rigid-body inertias
+    """The ten parameters ``[h_x, Ī_xz, h_y, Ī_yz, b, d, m, h_z, a, Ī_zz]`` of rigid-body inertias
     ``I = [[m 1, −[h]×], [[h]×, Ī]] (..., 6, 6)`` (``h = m c``, ``Ī`` about the frame origin), with
     ``a = (Ī_xx + Ī_yy)/2``, ``b = (Ī_xx − Ī_yy)/2``, ``d = Ī_xy``: under a turn by ``q`` about ``z``,
     ``(h_x, h_y)`` and ``(Ī_xz, Ī_yz)`` turn by ``q``, ``(b, d)`` by ``2q``, and the rest stays. ``-> (..., 10)``."""
     rotational = I[..., 3:, 3:]
     xx, yy = rotational[..., 0, 0], rotational[..., 1, 1]
-    return np.stack([I[..., 0, 0], I[..., 5, 1], I[..., 3, 2], I[..., 4, 0], 0.5 * (xx + yy), 0.5 * (xx - yy),
-                     rotational[..., 0, 1], rotational[..., 0, 2], rotational[..., 1, 2], rotational[..., 2, 2]], axis=-1)
+    return np.stack([I[..., 5, 1], rotational[..., 0, 2], I[..., 3, 2], rotational[..., 1, 2], 0.5 * (xx - yy),
+                     rotational[..., 0, 1], I[..., 0, 0], I[..., 4, 0], 0.5 * (xx + yy), rotational[..., 2, 2]], axis=-1)
 
 
 def rigid_inertia(x):
     """The spatial inertia ``(..., 6, 6)`` of parameters ``x (..., 10)`` (:func:`rigid_parameters`)."""
-    m, h = x[..., 0], x[..., 1:4]
-    a, b, d, xz, yz, zz = np.moveaxis(x[..., 4:], -1, 0)
+    hx, xz, hy, yz, b, d, m, hz, a, zz = np.moveaxis(x, -1, 0)
     I = np.zeros(x.shape[:-1] + (6, 6))
     I[..., [0, 1, 2], [0, 1, 2]] = m[..., None]
-    H = spatial.skew(h)
+    H = spatial.skew(np.stack([hx, hy, hz], axis=-1))
     I[..., :3, 3:], I[..., 3:, :3] = -H, H
     I[..., 3:, 3:] = np.stack([np.stack([a + b, d, xz], -1), np.stack([d, a - b, yz], -1), np.stack([xz, yz, zz], -1)], -2)
     return I
@@ -533,88 +583,73 @@ def crba(model, q):
     A composite inertia is a rigid-body inertia, so it travels up the tree as its ten parameters
     (:func:`rigid_parameters`): the joint's turn moves five of them, and the tree transform is one
     constant 10×10 product. The force columns ``F = I^c_i S_i`` travel up as force vectors, all those
-    of a subtree in one block, and meet each ancestor's ``S_jᵀ``.
+    of a subtree in one contiguous block, and meet each ancestor's ``S_jᵀ``.
     """
     tree = model.local_tree
     n = q.shape[-1]
     motions = joint_motions(tree, q)
     composite = np.array(np.broadcast_to(tree.rigid[..., None], (model.njoints, 10, n)))
     M = np.zeros((model.nv, model.nv, n))  # zero where neither joint supports the other
-    carried = [[] for _ in range(model.njoints)]  # per joint: (dofs, force block (m, 6, N)) from its subtree
+    F = np.empty((model.nv, 6, n))  # force columns, in the order of LocalGroup.subtree_columns
     for group, motion in zip(reversed(tree.groups), reversed(motions)):
         x = composite[group.joints]  # complete: every deeper level has been added
-        own = _composite_columns(group, x)  # (k, 6, N), or (n, k, 6, N)
-        joints = np.arange(model.njoints)[group.joints]
-        dofs = np.atleast_2d(np.arange(model.nv)[group.dofs].T).T  # (k, n)
-        for position, (joint, own_dofs) in enumerate(zip(joints, dofs)):
-            one = _one_joint(group, position)
-            moving = _one_motion(motion, position)
-            columns = own[position][None] if own.ndim == 3 else own[:, position]
-            block = np.concatenate([columns] + [b for _, b in carried[joint]])
-            block_dofs = np.concatenate([own_dofs] + [d for d, _ in carried[joint]])
-            # M_ij = S_iᵀ F_j for the coordinates j of i's subtree (RBDA eq. 6.14), and its mirror
-            rows = joint_share(one, block[:, None])[:, 0]  # (m, N) or (m, n, N)
-            rows = rows[:, None] if rows.ndim == 2 else rows
-            M[own_dofs[:, None], block_dofs[None, :]] = rows.transpose(1, 0, 2)
-            M[block_dofs[:, None], own_dofs[None, :]] = rows
-            if group.parents is not None:
-                parent = model.parents[joint]
-                carried[parent].append((block_dofs, (one.Y_T @ to_parent(one, moving, block[:, None]))[:, 0]))
+        column_group, column_motion = _per_column(group, motion)
+
+        def own_columns(out):
+            # F_i = I^c_i S_i, beside the columns of i's subtree (already in frame i)
+            np.matmul(group.composite_columns, x[:, None], out=out.reshape(group.composite_columns.shape[:3] + (n,)))
+            return out
+
+        def to_parents(out):
+            # F_j <- λX_i* F_j = Yᵀ X_J* F_j
+            return np.matmul(column_group.Y_T, to_parent(column_group, column_motion, block), out=out)
+
+        _into(F, group.own_columns, own_columns)
+        block = F[group.subtree_columns]
+        # M_ij = S_iᵀ F_j for the coordinates j of i's subtree (RBDA eq. 6.14), and its mirror
+        shares = joint_share(column_group, block)  # (m, N) or (m, n, N)
+        shares = shares[:, None] if shares.ndim == 2 else shares
+        M[group.mass_rows, group.mass_columns] = shares
+        M[group.mass_columns, group.mass_rows] = shares
         if group.parents is not None:
+            _into(F, group.subtree_columns, to_parents)
             # I^c_λ += λX_i* I^c_i ⁱX_λ
             _add_to_parents(composite, group, group.rigid_to_parent @ _turned_composite(group, motion, x))
     return M
 
 
-def _one_joint(group, position):
-    """The group reduced to its joint at ``position`` (for the per-joint column blocks)."""
-    take = lambda x: None if x is None else x[position : position + 1]  # noqa: E731
-    return group._replace(Y=take(group.Y), Y_T=take(group.Y_T), subspace=take(group.subspace))
-
-
-def _one_motion(motion, position):
-    return JointMotion(*(None if x is None else x[position : position + 1] for x in motion))
-
-
-def _composite_columns(group, x):
-    """``I^c S`` from rigid-body parameters ``x (k, 10, N)``: ``(k, 6, N)``, or ``(n, k, 6, N)`` by columns."""
-    m, hx, hy, hz, a, b, d, xz, yz, zz = (x[:, i] for i in range(10))
-    if group.motion == "revolute":
-        # column 5 of [[m 1, −[h]×], [[h]×, Ī]]: [−h × e_z; Ī e_z]
-        return np.stack([-hy, hx, np.zeros_like(hx), xz, yz, zz], axis=1)
-    if group.motion == "prismatic":
-        # column 2: [m e_z; h × e_z]
-        return np.stack([np.zeros_like(hx), np.zeros_like(hx), m, hy, -hx, np.zeros_like(hx)], axis=1)
-    I = rigid_inertia(x.transpose(0, 2, 1))  # (k, N, 6, 6)
-    return np.einsum("kncd,kdm->mkcn", I, group.subspace[..., 0])
-
-
-_TURNED_ONCE = np.array([1, 7]), np.array([2, 8])  # (h_x, Ī_xz) and (h_y, Ī_yz) turn by q
-_TURNED_TWICE = 5, 6  # (b, d) turn by 2q
+def _per_column(group, motion):
+    """The group and its joint motions for the block of its subtrees' force columns ``(m, 6, N)``:
+    a single joint broadcasts over them, several are repeated column by column."""
+    index = group.column_joint
+    if index is None:
+        return group, motion
+    take = lambda x: None if x is None else x[index]  # noqa: E731
+    return (group._replace(Y_T=group.Y_T[index], subspace=take(group.subspace)),
+            JointMotion(*(take(x) for x in motion)))
 
 
 def _turned_composite(group, motion, x):
     """Rigid-body parameters ``x (k, 10, N)`` moved by the joint: ``X_J* I X_J⁻¹`` in parameters."""
     if group.motion == "revolute":
-        out = x.copy()
+        out = np.empty(_lanes_shape(x, motion.cos))
         c, s = motion.cos, motion.sin  # (k, 1, N)
-        turned = np.empty((2, len(x), 2, x.shape[-1]))  # the turned (h_x, Ī_xz) and (h_y, Ī_yz)
-        _turn_pair(c, s, x[:, _TURNED_ONCE[0]], x[:, _TURNED_ONCE[1]], turned[0], turned[1])
-        out[:, _TURNED_ONCE[0]], out[:, _TURNED_ONCE[1]] = turned[0], turned[1]
-        # (b, d) by the double angle: cos 2q = c² − s², sin 2q = 2 c s
-        _turn_pair((c * c - s * s)[:, 0], (2.0 * c * s)[:, 0], x[:, _TURNED_TWICE[0]], x[:, _TURNED_TWICE[1]],
-                   out[:, _TURNED_TWICE[0]], out[:, _TURNED_TWICE[1]])
+        (x_parts, y_parts), (b, d) = _TURNED_BY_ANGLE, _TURNED_BY_DOUBLE_ANGLE
+        _turn_pair(c, s, x[:, x_parts], x[:, y_parts], out[:, x_parts], out[:, y_parts])
+        # cos 2q = c² − s², sin 2q = 2 c s
+        _turn_pair((c * c - s * s)[:, 0], (2.0 * c * s)[:, 0], x[:, b], x[:, d], out[:, b], out[:, d])
+        out[:, _UNMOVED] = x[:, _UNMOVED]
         return out
     if group.motion == "prismatic":
         # shifted by q e_z: h_z += m q ;  a += q (2 h_z + m q) ;  Ī_xz −= q h_x ;  Ī_yz −= q h_y
         out = x.copy()
-        shift, m = motion.shift, x[:, 0]
-        out[:, 4] += shift * (2.0 * x[:, 3] + m * shift)
-        out[:, 7] -= shift * x[:, 1]
-        out[:, 8] -= shift * x[:, 2]
-        out[:, 3] += m * shift
+        shift, m = motion.shift, x[:, _MASS]
+        out[:, _A] += shift * (2.0 * x[:, _H_Z] + m * shift)
+        out[:, _XZ] -= shift * x[:, _H_X]
+        out[:, _YZ] -= shift * x[:, _H_Y]
+        out[:, _H_Z] += m * shift
         return out
     # a general pose: g = R h ;  h' = g + m p ;  Ī' = R Ī Rᵀ − h' pᵀ − p gᵀ + pᵀ(h' + g) 1
     I = rigid_inertia(x.transpose(0, 2, 1)).transpose(0, 2, 3, 1)  # (k, 6, 6, N)
-    moved = lanes.world_inertias(x[:, 0, 0], x[:, 1:4], I[:, 3:, 3:], I, motion.R, motion.p)
+    moved = lanes.world_inertias(x[:, _MASS, 0], x[:, [_H_X, _H_Y, _H_Z]], I[:, 3:, 3:], I, motion.R, motion.p)
     return rigid_parameters(moved.transpose(0, 3, 1, 2)).transpose(0, 2, 1)

@@ -93,7 +93,7 @@ def test_rigid_parameters_round_trip_and_turn_as_the_inertia_does():
     assert_allclose(local.rigid_inertia(x), I, atol=1e-15)
     # a turn about z and a shift along it, against the 6×6 congruence
     q = 0.7
-    group = local.LocalGroup("revolute", *([None] * 10))
+    group = local.LocalGroup("revolute", *([None] * (len(local.LocalGroup._fields) - 1)))
     turned = local._turned_composite(group, local.JointMotion(cos=np.cos([[[q]]]), sin=np.sin([[[q]]])), x[None, :, None])
     R = mb.spatial.pose_from_xyz_rpy((0, 0, 0), (0, 0, q))[:3, :3]
     assert_allclose(local.rigid_inertia(turned[0, :, 0]), mb.spatial.transform_inertia(R, np.zeros(3), I), atol=1e-14)
