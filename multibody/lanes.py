@@ -203,10 +203,27 @@ _MOTION_CROSS = _spatial_cross_indices(linear=[(3, 0), (0, 3)], angular=[(3, 3)]
 _FORCE_CROSS = _spatial_cross_indices(linear=[(3, 0)], angular=[(3, 3), (0, 0)])
 
 
+#: Fewest numbers per component row from which the spatial cross products go row by row: more NumPy
+#: calls, but no gathered copies of the operands (a third of the time for Panda's joints on 4096 lanes).
+ROW_BY_ROW = 4096
+
+
 def _spatial_cross(indices, m, x):
     left, right = indices
-    t = m.take(left, axis=-2) * x.take(right, axis=-2)
-    return (t[..., 0:6, :] - t[..., 6:12, :]) + (t[..., 12:18, :] - t[..., 18:24, :])
+    shape = np.broadcast_shapes(m.shape, x.shape)
+    if math.prod(shape[:-2]) * shape[-1] < ROW_BY_ROW:
+        t = m.take(left, axis=-2) * x.take(right, axis=-2)
+        return (t[..., 0:6, :] - t[..., 6:12, :]) + (t[..., 12:18, :] - t[..., 18:24, :])
+    out = np.empty(shape)
+    for row in range(6):
+        # t₁ − t₂ (+ t₃ − t₄ unless they repeat t₁, t₂)
+        o = out[..., row, :]
+        np.multiply(m[..., left[row], :], x[..., right[row], :], out=o)
+        o -= m[..., left[6 + row], :] * x[..., right[6 + row], :]
+        if (left[12 + row], right[12 + row]) != (left[row], right[row]):
+            o += m[..., left[12 + row], :] * x[..., right[12 + row], :]
+            o -= m[..., left[18 + row], :] * x[..., right[18 + row], :]
+    return out
 
 
 def motion_cross(m1, m2):

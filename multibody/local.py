@@ -76,6 +76,7 @@ class LocalGroup(NamedTuple):
     column_joint: object  # (m,) the group position of each of those columns' joint (None for one joint)
     mass_rows: np.ndarray  # (m, n) for each of those columns, the coordinates of its joint ...
     mass_columns: np.ndarray  # (m, 1) ... and its own coordinate: where S_iᵀ F_j goes in M
+    articulated_to_parent: object  # (k, 36, 21 or 36) ABA's Yᵀ (·) Y (_articulated_to_parent)
 
 
 class LocalTree(NamedTuple):
@@ -161,7 +162,8 @@ def local_tree(model):
                                      constants, () if parents[0] < 0 else _parent_rounds(parents), rigid_to_parent[joints],
                                      composite_columns, _index((first_column[joints][:, None] + np.arange(first.nv)).ravel()),
                                      _index(columns), None if len(joints) == 1 else column_joint,
-                                     own_dofs[column_joint], column_dofs[columns][:, None]))
+                                     own_dofs[column_joint], column_dofs[columns][:, None],
+                                     _articulated_to_parent(kind, Y[joints])))
     angles = [model.idx_q[np.arange(model.njoints)[g.joints]] for g in groups if g.motion == "revolute"]
     return LocalTree(tuple(groups), np.concatenate(angles) if angles else np.zeros(0, dtype=int), inertia, turns,
                      rigid_parameters(inertia).reshape(-1, 10))
@@ -433,15 +435,56 @@ def rnea(model, q, v, a, f_ext):
     return tau, F
 
 
+# ----------------------------------------------------------------------------- turn coordinates
+
+def _turn_coordinates(M):
+    """Coordinates of a symmetric ``M = [[A, B], [Bᵀ, C]] (6, 6)`` in which ``X_J* M X_J*ᵀ`` for a turn by ``q``
+    about ``z`` is four pairs turned by ``q``, three by ``2q``, and seven invariants ``(21,)``.
+
+    Rows ``(x, y)`` of ``[[R, 0], [0, R]] M [[R, 0], [0, R]]ᵀ`` turn as vectors, columns likewise: column z of
+    each block and row z of ``B`` turn by ``q``; a 2×2 block ``α 1 + β J + γ K + δ L`` (``J`` the quarter turn,
+    ``K = diag(1, −1)``, ``L`` the swap) keeps ``α, β`` and turns ``(γ, δ)`` by ``2q``.
+    """
+    A, B, C = M[:3, :3], M[:3, 3:], M[3:, 3:]
+    return np.array([A[0, 2], C[0, 2], B[0, 2], B[2, 0],  # x parts of the pairs turned by q
+                     A[1, 2], C[1, 2], B[1, 2], B[2, 1],  # y parts
+                     (A[0, 0] - A[1, 1]) / 2, (C[0, 0] - C[1, 1]) / 2, (B[0, 0] - B[1, 1]) / 2,  # γ: x parts for 2q
+                     A[0, 1], C[0, 1], (B[0, 1] + B[1, 0]) / 2,  # δ: y parts
+                     (A[0, 0] + A[1, 1]) / 2, A[2, 2], (C[0, 0] + C[1, 1]) / 2, C[2, 2],
+                     (B[0, 0] + B[1, 1]) / 2, (B[1, 0] - B[0, 1]) / 2, B[2, 2]])
+
+
+#: ``(21, 36)``: the entries of a symmetric 6×6 matrix, row by row -> its turn coordinates
+_TO_TURN_COORDINATES = np.stack([_turn_coordinates(E.reshape(6, 6)) for E in np.eye(36)], axis=1)
+
+
+def _articulated_to_parent(kind, Y):
+    """``Yᵀ M Y`` for joints with transforms ``Y (k, 6, 6)``, as a matrix from the coordinates of a symmetric
+    ``M`` to the entries of ``Yᵀ M Y``, row by row: ``(k, 36, 21)`` from turn coordinates for a revolute joint,
+    ``(k, 36, 36)`` from the entries for a prismatic one (``None`` for other joints)."""
+    if kind == "revolute":
+        symmetric = np.array([E + E.T - np.diag(np.diag(E)) for E in np.eye(36).reshape(36, 6, 6)])
+        rows, columns = np.triu_indices(6)
+        symmetric = symmetric[rows * 6 + columns]  # (21, 6, 6): one per entry of the upper triangle
+        unit = np.einsum("pb,prc->brc", np.linalg.inv(_TO_TURN_COORDINATES @ symmetric.reshape(21, 36).T), symmetric)
+    elif kind == "prismatic":
+        unit = np.eye(36).reshape(36, 6, 6)
+    else:
+        return None
+    return np.stack([(y.T @ unit @ y).reshape(len(unit), 36).T for y in Y]).reshape(-1, 36, len(unit))
+
+
 # ----------------------------------------------------------------------------- ABA
 
 def aba(model, q, v, tau, f_ext):
     """Articulated Body Algorithm in joint coordinates on lanes (RBDA Table 7.1): ``q̈ (nv, N)`` from
     ``q (nq, N)``, ``v, tau (nv, N)`` and ``f_ext (nj, 6, N)`` (joint frames; ``None``: zero).
 
-    Articulated inertias are held column by column, ``(6, nj, 6, N)`` with ``[c, i, r] = I^A_i[r, c]``,
-    so that transforming their rows is transforming six force vectors. A singular ``D_i`` leaves
-    non-finite accelerations (the caller names the joint).
+    Articulated inertias are held as ``(nj, 6, 6, N)``; as they are symmetric, ``[:, c]`` is also column
+    ``c``, and their transpose ``(6, nj, 6, N)`` holds them column by column, so that transforming their rows
+    is transforming six force vectors (:func:`_congruence`). About a revolute joint they move to the parent
+    in turn coordinates instead (:func:`_turned_congruence`). A singular ``D_i`` leaves non-finite
+    accelerations (the caller names the joint).
     """
     tree = model.local_tree
     n = max(x.shape[-1] for x in (q, v, tau, f_ext) if x is not None)
@@ -461,7 +504,7 @@ def aba(model, q, v, tau, f_ext):
 
         C[group.joints] = joint_rate_product(group, _into(V, group.joints, step), rate)
     # I^A_i = I_i ;  p^A_i = v_i ×* I_i v_i − f_ext,i
-    articulated = np.array(np.broadcast_to(tree.inertia.transpose(2, 0, 1)[..., None], (6, model.njoints, 6, n)))
+    articulated = np.array(np.broadcast_to(tree.inertia[..., None], (model.njoints, 6, 6, n)))
     bias = lanes.force_cross(V, tree.inertia @ V)
     if f_ext is not None:
         bias -= to_turned_frames(tree, f_ext)
@@ -469,7 +512,7 @@ def aba(model, q, v, tau, f_ext):
     factors = [None] * len(tree.groups)
     with np.errstate(divide="ignore", invalid="ignore"):
         for g, group, motion in zip(reversed(range(len(tree.groups))), reversed(tree.groups), reversed(motions)):
-            I_A = articulated[:, group.joints]
+            I_A = articulated[group.joints].transpose(1, 0, 2, 3)  # by columns
             U = _columns(group, I_A)  # (k, 6, N), or (n, k, 6, N) by columns
             D_inv = _inverse(group, joint_share(group, U))
             u = tau[group.dofs] - joint_share(group, bias[group.joints])
@@ -481,7 +524,7 @@ def aba(model, q, v, tau, f_ext):
             I_a = I_A - _outer(group, U_D_inv, U)
             p_a = bias[group.joints] + np.einsum("ckrn,kcn->krn", I_a, C[group.joints]) + _apply(group, U_D_inv, u)
             # I^A_λ += λX_i* I^a_i ⁱX_λ ;  p^A_λ += λX_i* p^a_i, with λX_i* = Yᵀ X_J*
-            _add_to_parents(articulated, group, _congruence(group, motion, I_a))
+            _add_to_parents(articulated.reshape(model.njoints, 36, n), group, _moved_to_parents(group, motion, I_a))
             _add_to_parents(bias, group, group.Y_T @ to_parent(group, motion, p_a))
         # Third pass: a'_i = ⁱX_λ a_λ + c_i ;  q̈_i = D_i⁻¹ (u_i − U_iᵀ a'_i) ;  a_i = a'_i + S_i q̈_i
         A = np.empty((model.njoints, 6, n))
@@ -499,6 +542,37 @@ def aba(model, q, v, tau, f_ext):
 
             _into(A, group.joints, step)
     return qdd
+
+
+def _moved_to_parents(group, motion, M):
+    """``λX_i* M ⁱX_λ = Yᵀ X_J* M X_J*ᵀ Y`` for symmetric ``M`` held by columns ``(6, k, 6, N)``: its entries row
+    by row ``(k, 36, N)``.
+
+    ``X_J*`` on both sides turns four pairs of turn coordinates (:func:`_turn_coordinates`) by ``q`` and three
+    by ``2q`` about a revolute joint, and shifts two rows and two columns along a prismatic one; then
+    ``Yᵀ (·) Y`` is one constant product. Other joints take :func:`_congruence`.
+    """
+    k, n = M.shape[1], M.shape[-1]
+    if group.motion == "revolute":
+        coordinates = _TO_TURN_COORDINATES @ M.transpose(1, 0, 2, 3).reshape(k, 36, n)
+        moved = np.empty(coordinates.shape)
+        c, s = motion.cos, motion.sin  # (k, 1, N)
+        _turn_pair(c, s, coordinates[:, 0:4], coordinates[:, 4:8], moved[:, 0:4], moved[:, 4:8])
+        # cos 2q = c² − s², sin 2q = 2 c s
+        _turn_pair(c * c - s * s, 2.0 * c * s, coordinates[:, 8:11], coordinates[:, 11:14], moved[:, 8:11], moved[:, 11:14])
+        moved[:, 14:] = coordinates[:, 14:]
+    elif group.motion == "prismatic":
+        # X_J* = [[1, 0], [q [e_z]×, 1]]: rows n_x −= q f_y, n_y += q f_x, then the same on the columns
+        moved = M.transpose(1, 0, 2, 3).copy()  # (k, 6, 6, N), rows and columns alike
+        shift = motion.shift[:, None]
+        moved[:, 3] -= shift * moved[:, 1]
+        moved[:, 4] += shift * moved[:, 0]
+        moved[:, :, 3] -= shift * moved[:, :, 1]
+        moved[:, :, 4] += shift * moved[:, :, 0]
+        moved = moved.reshape(k, 36, n)
+    else:
+        return _congruence(group, motion, M).transpose(1, 0, 2, 3).reshape(k, 36, n)
+    return group.articulated_to_parent @ moved
 
 
 def _congruence(group, motion, M):

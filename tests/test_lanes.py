@@ -70,11 +70,19 @@ def test_to_lanes_keeps_one_lane_for_a_single_state_and_broadcasts_others():
     ("bar_force_cross_matrix", lambda f, m: lanes.matvec(lanes.bar_force_cross_matrix(f), m),
      lambda f, m: spatial.force_cross(m, f), [(6,), (6,)]),
 ])
-@pytest.mark.parametrize("lanes_per_array", [N, 1])  # one lane: the np.matmul path
+@pytest.mark.parametrize("lanes_per_array", [N, 1, lanes.ROW_BY_ROW])  # one lane: np.matmul; many: crosses by rows
 def test_lane_primitive_equals_spatial(name, ours, theirs, shapes, lanes_per_array):
     args = [RNG.standard_normal((lanes_per_array, 2) + shape) for shape in shapes]
     lane_args = [np.moveaxis(x, 0, -1) for x in args]  # (2, *shape, N)
     assert_allclose(np.moveaxis(ours(*lane_args), -1, 0), theirs(*args), rtol=1e-14, atol=1e-14, err_msg=name)
+
+
+@pytest.mark.parametrize("cross", ["motion_cross", "force_cross"])
+def test_spatial_cross_products_by_rows_broadcast_a_single_lane(cross):
+    one, many = RNG.standard_normal((3, 6, 1)), RNG.standard_normal((3, 6, lanes.ROW_BY_ROW))
+    for a, b in ((one, many), (many, one)):
+        expected = getattr(spatial, cross)(np.moveaxis(a, -1, 0), np.moveaxis(b, -1, 0))
+        assert_allclose(np.moveaxis(getattr(lanes, cross)(a, b), -1, 0), expected, rtol=1e-14, atol=1e-14)
 
 
 def test_skew_and_quaternion_rotation_equal_spatial():

@@ -116,6 +116,21 @@ def test_aba_equals_the_world_coordinate_sweeps(model_name):
         assert_allclose(back, tau, rtol=1e-12, atol=1e-12)  # |τ| ~ 1: worst seen 1.7e-13 (Talos)
 
 
+@pytest.mark.parametrize("model_name", MODELS[:3])
+def test_articulated_inertias_move_to_the_parent_as_the_6x6_congruence_does(model_name):
+    model = local_test_model(model_name)
+    rng = np.random.default_rng(14)
+    q = model.random_configuration(rng, (5,)).T.copy()
+    for group, motion in zip(model.local_tree.groups, local.joint_motions(model.local_tree, q)):
+        k = len(group.Y)
+        G = rng.standard_normal((k, 5, 6, 6))
+        M = G @ np.swapaxes(G, -1, -2)  # symmetric, (k, 5, 6, 6)
+        by_columns = np.ascontiguousarray(np.moveaxis(M, 1, -1).transpose(2, 0, 1, 3))
+        expected = local._congruence(group, motion, by_columns).transpose(1, 2, 0, 3)  # (k, 6, 6, N) rows
+        moved = local._moved_to_parents(group, motion, by_columns).reshape(k, 6, 6, 5)
+        assert_allclose(moved, expected, rtol=1e-13, atol=1e-13 * np.abs(expected).max(), err_msg=str(group.motion))
+
+
 @pytest.mark.parametrize("model_name", ["random_tree_1", "talos_floating"])
 def test_public_functions_switch_to_joint_coordinates_for_many_states_and_agree_across_blocks(model_name):
     model = local_test_model(model_name)
