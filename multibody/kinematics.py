@@ -135,15 +135,17 @@ def _in_blocks(model, kernel, batch, *arrays, block=None):
     ``arrays`` are ``(x, k)`` pairs (``x (..., *c)`` with ``k`` component axes) or ``None``; each is
     put on lanes and ``kernel(*lane arrays)`` returns a lane array ``(*c, n)`` or a tuple of them,
     given back as ``batch + c``. Blocks of ``model.lane_block`` states (or ``block``) keep the
-    temporaries small enough to stay in cache and out of the operating system's page allocator,
-    which costs more than the arithmetic for large batches.
+    temporaries small enough to stay in cache, and :func:`_raise_allocator_thresholds` keeps them
+    out of the operating system's page allocator, which costs more than the arithmetic for large
+    batches.
     """
     lane_arrays = [None if x is None else lanes.to_lanes(x[0], x[1], batch) for x in arrays]
     n, size = math.prod(batch), block or model.lane_block
+    if 8 * 6 * max(model.njoints, 1) * n >= _DEFAULT_MMAP_THRESHOLD:  # per-joint spatial vectors, 8-byte floats
+        _raise_allocator_thresholds()
     if n <= size:
         result = kernel(*lane_arrays)
         return tuple(_from_lanes(x, batch) for x in result) if isinstance(result, tuple) else _from_lanes(result, batch)
-    _raise_allocator_thresholds()
     out = None
     for start in range(0, n, size):
         part = kernel(*(x if x is None or x.shape[-1] == 1 else x[..., start : start + size] for x in lane_arrays))
@@ -156,15 +158,20 @@ def _in_blocks(model, kernel, batch, *arrays, block=None):
     return tuple(out) if isinstance(part, tuple) else out[0]
 
 
+#: glibc's initial ``M_MMAP_THRESHOLD`` (bytes): larger blocks are served by ``mmap`` until it rises
+_DEFAULT_MMAP_THRESHOLD = 128 * 1024
+
+
 def _raise_allocator_thresholds():
-    """Let the temporaries of consecutive lane blocks reuse memory instead of page-faulting anew.
+    """Let the temporaries of large lane arrays reuse memory instead of page-faulting anew.
 
     glibc's malloc serves blocks above its mmap threshold by ``mmap`` and returns heap memory above
     its trim threshold to the operating system on every ``free``; both thresholds rise when a block
     served by ``mmap`` is freed, to its size and twice that (mallopt(3), ``M_MMAP_THRESHOLD``).
-    Until something in the process has freed a large array, a block's few MB of temporaries are
-    thus given back and faulted in again for the next block, which costs more than their
-    arithmetic (Panda RNEA at 4096 states: about 2 page faults and 2–3× the time per state).
+    Until something in the process has freed a large array, every temporary above 128 KiB is thus
+    mapped, faulted in and given back, within a block and from block to block, which costs more
+    than its arithmetic (Panda at 4096 states in a fresh process: RNEA 2.3 µs per state instead
+    of 1.3, ABA 6.8 instead of 4.9).
     Allocating and freeing one untouched 16 MB array (below glibc's 32 MB ceiling for the
     adjustment) puts the thresholds where it would settle anyway; elsewhere it costs nothing.
     """

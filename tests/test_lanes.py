@@ -8,6 +8,8 @@ and inputs that broadcast (one configuration for many velocities).
 
 from __future__ import annotations
 
+import os
+import subprocess
 import sys
 
 import numpy as np
@@ -215,3 +217,27 @@ def test_a_repeated_batched_call_does_not_page_fault_on_its_block_temporaries():
     before = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
     mb.inverse_dynamics(model, q, v, a)
     assert resource.getrusage(resource.RUSAGE_SELF).ru_minflt - before < 200
+
+
+def test_one_large_block_in_a_fresh_process_does_not_page_fault_on_its_temporaries():
+    # In a fresh process glibc still maps every temporary above 128 KiB anew (see
+    # kinematics._raise_allocator_thresholds); a single block of the joint-coordinate RNEA then
+    # faulted in about 4000 pages per call.
+    pytest.importorskip("resource")
+    script = """
+import resource, numpy as np, multibody as mb
+from conftest import random_tree_model
+model = random_tree_model(0)
+rng = np.random.default_rng(8)
+n = mb.local.lane_block(model)
+q = model.random_configuration(rng, (n,))
+v, a = rng.standard_normal((2, n, model.nv))
+mb.inverse_dynamics(model, q, v, a)
+before = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
+mb.inverse_dynamics(model, q, v, a)
+print(resource.getrusage(resource.RUSAGE_SELF).ru_minflt - before)
+"""
+    tests = os.path.dirname(os.path.abspath(__file__))
+    result = subprocess.run([sys.executable, "-c", script], cwd=tests, capture_output=True, text=True, check=True,
+                            env={**os.environ, "PYTHONPATH": tests})
+    assert int(result.stdout.split()[-1]) < 200
