@@ -179,6 +179,54 @@ def inverse(D):
     return np.moveaxis(inverse, 1, -1)
 
 
+# ----------------------------------------------------------------------------- cosines and sines
+
+# x = k π/2 + r with |r| ≤ π/4 (Cody and Waite's reduction, π/2 split so that k × the high part is
+# exact for |k| < 2²⁰ and the low part carries the next 53 bits), then the Taylor series of cos r and
+# sin r, whose first omitted terms r¹⁸/18! and r¹⁷/17! stay below 5e-17 on |r| ≤ π/4.
+_HALF_PI_HIGH = 1.5707963267341256  # π/2 to 33 bits
+_HALF_PI_LOW = 6.077100506506192e-11  # π/2 − _HALF_PI_HIGH
+_SIN_SERIES = tuple((-1) ** j / math.factorial(2 * j + 1) for j in range(7, 0, -1))  # r³ … r¹⁵, Horner order
+_COS_SERIES = tuple((-1) ** j / math.factorial(2 * j) for j in range(8, 0, -1))  # r² … r¹⁶
+# cos and sin of k π/2 by k mod 4
+_QUARTER_COS, _QUARTER_SIN = np.array([1.0, 0.0, -1.0, 0.0]), np.array([0.0, 1.0, 0.0, -1.0])
+
+
+def _series(z, coefficients):
+    """``Σ_j c_j z^(n−j)`` for the n coefficients ``c_0 … c_(n−1)`` (no constant term) by Horner's rule, in place on one temporary."""
+    p = z * coefficients[0]
+    for c in coefficients[1:]:
+        p += c
+        p *= z
+    return p
+
+
+def cos_sin(x):
+    """``(cos x, sin x)`` of a float array, within an ulp or two of ``np.cos`` and ``np.sin``: twice as
+    fast for thousands of numbers (NumPy's double-precision cosine and sine run one element at a time
+    on this class of machine), but some thirty NumPy calls, so for a few numbers ``np.cos`` and
+    ``np.sin`` are faster. Beyond ``|x| ≈ 1.6e6`` rad, and for non-finite entries, it returns theirs."""
+    k = np.rint(x * (2.0 / np.pi))
+    if not np.abs(k).max(initial=0.0) < 2.0**20:
+        return np.cos(x), np.sin(x)
+    r = x - k * _HALF_PI_HIGH
+    r -= k * _HALF_PI_LOW
+    z = r * r
+    sin_r = _series(z, _SIN_SERIES)
+    sin_r *= r
+    sin_r += r
+    cos_r = _series(z, _COS_SERIES)
+    cos_r += 1.0
+    # cos(k π/2 + r) = C cos r − S sin r ;  sin(k π/2 + r) = S cos r + C sin r, C and S in {0, ±1}: exact
+    quarter = k.astype(np.int64) & 3
+    C, S = _QUARTER_COS.take(quarter), _QUARTER_SIN.take(quarter)
+    cos_x = C * cos_r
+    cos_x -= S * sin_r
+    sin_x = S * cos_r
+    sin_x += C * sin_r
+    return cos_x, sin_x
+
+
 # ----------------------------------------------------------------------------- spatial vectors
 
 # A spatial cross product as products of gathered components: rows [t₁; t₂; t₃; t₄] of six each, the

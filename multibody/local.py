@@ -241,7 +241,7 @@ def joint_motions(tree, q):
     """:class:`JointMotion` of every group of ``tree`` at ``q (nq, N)``."""
     # the cosines and sines of all revolute joints in two calls
     angles = q[tree.angles][:, None, :]
-    cosines, sines, first = np.cos(angles), np.sin(angles), 0
+    (cosines, sines), first = lanes.cos_sin(angles), 0
     motions = []
     for group in tree.groups:
         if group.motion == "revolute":

@@ -87,6 +87,20 @@ def test_spatial_cross_products_by_rows_broadcast_a_single_lane(cross):
         assert_allclose(np.moveaxis(getattr(lanes, cross)(a, b), -1, 0), expected, rtol=1e-14, atol=1e-14)
 
 
+def test_cos_sin_equals_numpy_to_an_ulp_across_quadrants_and_magnitudes():
+    quarter_turns = np.arange(-8, 9) * (np.pi / 2)
+    x = np.concatenate([quarter_turns, np.nextafter(quarter_turns, np.inf), quarter_turns + np.pi / 4,
+                        RNG.uniform(-4.0, 4.0, 4096), RNG.uniform(-1e5, 1e5, 65), [0.0, -0.0, 1e-300, 5e-324]])
+    c, s = lanes.cos_sin(x.reshape(2, -1, 1))
+    assert_allclose(c.ravel(), np.cos(x), rtol=0, atol=2.3e-16)
+    assert_allclose(s.ravel(), np.sin(x), rtol=0, atol=2.3e-16)
+    # beyond the reduction's range, and non-finite entries: NumPy's own
+    for outside in ([1e7, 0.5], [np.nan, 0.5], [np.inf, 0.5]):
+        with np.errstate(invalid="ignore"):
+            assert_allclose(lanes.cos_sin(np.array(outside)), (np.cos(outside), np.sin(outside)))
+    assert [y.shape for y in lanes.cos_sin(np.zeros((3, 0)))] == [(3, 0), (3, 0)]
+
+
 def test_skew_and_quaternion_rotation_equal_spatial():
     w = RNG.standard_normal((N, 3))
     assert_allclose(off_lanes(lanes.skew(lanes.to_lanes(w, 1))), spatial.skew(w), atol=1e-15)
@@ -233,9 +247,12 @@ n = mb.local.lane_block(model)
 q = model.random_configuration(rng, (n,))
 v, a = rng.standard_normal((2, n, model.nv))
 mb.inverse_dynamics(model, q, v, a)
-before = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
-mb.inverse_dynamics(model, q, v, a)
-print(resource.getrusage(resource.RUSAGE_SELF).ru_minflt - before)
+faults = []
+for _ in range(3):  # the fewest of three calls: one may meet the interpreter's own allocations
+    before = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
+    mb.inverse_dynamics(model, q, v, a)
+    faults.append(resource.getrusage(resource.RUSAGE_SELF).ru_minflt - before)
+print(min(faults))
 """
     tests = os.path.dirname(os.path.abspath(__file__))
     result = subprocess.run([sys.executable, "-c", script], cwd=tests, capture_output=True, text=True, check=True,
