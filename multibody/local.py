@@ -513,7 +513,7 @@ def aba(model, q, v, tau, f_ext):
     with np.errstate(divide="ignore", invalid="ignore"):
         for g, group, motion in zip(reversed(range(len(tree.groups))), reversed(tree.groups), reversed(motions)):
             I_A = articulated[group.joints].transpose(1, 0, 2, 3)  # by columns
-            U = _columns(group, I_A)  # (k, 6, N), or (n, k, 6, N) by columns
+            U = _columns(group, I_A).copy()  # (k, 6, N), or (n, k, 6, N) by columns; I_A becomes I_a below
             D_inv = _inverse(group, joint_share(group, U))
             u = tau[group.dofs] - joint_share(group, bias[group.joints])
             U_D_inv = _times_inverse(group, U, D_inv)
@@ -521,7 +521,7 @@ def aba(model, q, v, tau, f_ext):
             if group.parents is None:
                 continue
             # I^a_i = I^A_i − U_i D_i⁻¹ U_iᵀ ;  p^a_i = p^A_i + I^a_i c_i + U_i D_i⁻¹ u_i
-            I_a = I_A - _outer(group, U_D_inv, U)
+            I_a = _subtract_outer(group, I_A, U_D_inv, U)
             p_a = bias[group.joints] + np.einsum("ckrn,kcn->krn", I_a, C[group.joints]) + _apply(group, U_D_inv, u)
             # I^A_λ += λX_i* I^a_i ⁱX_λ ;  p^A_λ += λX_i* p^a_i, with λX_i* = Yᵀ X_J*
             _add_to_parents(articulated.reshape(model.njoints, 36, n), group, _moved_to_parents(group, motion, I_a))
@@ -625,6 +625,17 @@ def _times_inverse(group, U, D_inv):
     if isinstance(group.motion, str):
         return U * D_inv[:, None]
     return np.einsum("mkrn,lkmn->lkrn", U, D_inv)
+
+
+def _subtract_outer(group, M, U_D_inv, U):
+    """``M − (U D⁻¹) Uᵀ``, in place on ``M`` held by columns ``(6, k, 6, N)``: column by column for one
+    coordinate per joint, whose temporaries then stay small."""
+    if not isinstance(group.motion, str):
+        M -= _outer(group, U_D_inv, U)
+        return M
+    for column, u in zip(M, U.transpose(1, 0, 2)):
+        column -= u[:, None] * U_D_inv
+    return M
 
 
 def _outer(group, U_D_inv, U):
