@@ -483,7 +483,7 @@ def aba(model, q, v, tau, f_ext):
     Articulated inertias are held as ``(nj, 6, 6, N)``; as they are symmetric, ``[:, c]`` is also column
     ``c``, and their transpose ``(6, nj, 6, N)`` holds them column by column, so that transforming their rows
     is transforming six force vectors (:func:`_congruence`). About a revolute joint they move to the parent
-    in turn coordinates instead (:func:`_turned_congruence`). A singular ``D_i`` leaves non-finite
+    in turn coordinates instead (:func:`_moved_to_parents`). A singular ``D_i`` leaves non-finite
     accelerations (the caller names the joint).
     """
     tree = model.local_tree
