@@ -30,6 +30,7 @@ from . import lanes, linalg, local, spatial
 from .kinematics import (_at_dofs, _fixed_frame, _frame_arguments, _frame_motion, _in_blocks, _joint_frames, _spatial_velocities,
                          _support_sums, _velocities, world_poses)
 from .spatial import motion_cross, transpose
+from .model import _add_to_parents
 
 
 # ============================================================================= shared pieces
@@ -397,12 +398,6 @@ def _articulated_inertias(model, xi, inertia):
                 _add_to_parents(articulated, group, I_A - lanes.matmul(U_D_inv, lanes.transpose(U)))
             factors[group] = U, U_D_inv, D_inv
     return factors
-
-
-def _add_to_parents(x, group, values):
-    """``x[λ(i)] += values_i`` for the joints of a level group (several may share a parent)."""
-    for positions, parents in group.parent_rounds:
-        x[parents] += values[positions]
 
 
 def _require_nonsingular(model, factors, result):

@@ -26,7 +26,7 @@ import numpy as np
 
 from . import joints as jt
 from . import lanes, spatial
-from .model import _index, _parent_rounds
+from .model import _add_to_parents, _index, _parent_rounds
 
 
 #: Fewest states for which the recursions here beat the world-coordinate algorithms: below it,
@@ -239,7 +239,7 @@ class JointMotion(NamedTuple):
 
 def joint_motions(tree, q):
     """:class:`JointMotion` of every group of ``tree`` at ``q (nq, N)``."""
-    # the cosines and sines of all revolute joints in two calls
+    # the cosines and sines of all revolute joints at once
     angles = q[tree.angles][:, None, :]
     (cosines, sines), first = lanes.cos_sin(angles), 0
     motions = []
@@ -267,6 +267,11 @@ def _turn_pair(c, s, x, y, out_x, out_y):
     out_x -= s * y
     np.multiply(s, x, out=out_y)
     out_y += c * y
+
+
+def _double_angle(c, s):
+    """``(cos 2q, sin 2q) = (c² − s², 2 c s)`` from ``(c, s) = (cos q, sin q)``."""
+    return c * c - s * s, 2.0 * c * s
 
 
 def _turned(x, c, s, out=None):
@@ -359,12 +364,6 @@ def joint_share(group, f):
     if group.motion == "prismatic":
         return f[..., 2, :]
     return np.einsum("kcm,...kcn->...kmn", group.subspace[..., 0], f)
-
-
-def _add_to_parents(x, group, values):
-    """``x[..., λ(i), :, :] += values_i`` for the joints of a group (several may share a parent)."""
-    for positions, parents in group.parent_rounds:
-        x[..., parents, :, :] += values[..., positions, :, :]
 
 
 def _into(x, index, compute):
@@ -480,11 +479,10 @@ def aba(model, q, v, tau, f_ext):
     """Articulated Body Algorithm in joint coordinates on lanes (RBDA Table 7.1): ``q̈ (nv, N)`` from
     ``q (nq, N)``, ``v, tau (nv, N)`` and ``f_ext (nj, 6, N)`` (joint frames; ``None``: zero).
 
-    Articulated inertias are held as ``(nj, 6, 6, N)``; as they are symmetric, ``[:, c]`` is also column
-    ``c``, and their transpose ``(6, nj, 6, N)`` holds them column by column, so that transforming their rows
-    is transforming six force vectors (:func:`_congruence`). About a revolute joint they move to the parent
-    in turn coordinates instead (:func:`_moved_to_parents`). A singular ``D_i`` leaves non-finite
-    accelerations (the caller names the joint).
+    Articulated inertias are held as ``(nj, 6, 6, N)``; as they are symmetric, their transpose
+    ``(6, nj, 6, N)`` holds them column by column, so that transforming their rows is transforming six
+    force vectors. They move to the parent by :func:`_moved_to_parents`. A singular ``D_i`` leaves
+    non-finite accelerations (the caller names the joint).
     """
     tree = model.local_tree
     n = max(x.shape[-1] for x in (q, v, tau, f_ext) if x is not None)
@@ -524,7 +522,7 @@ def aba(model, q, v, tau, f_ext):
             I_a = _subtract_outer(group, I_A, U_D_inv, U)
             p_a = bias[group.joints] + np.einsum("ckrn,kcn->krn", I_a, C[group.joints]) + _apply(group, U_D_inv, u)
             # I^A_λ += λX_i* I^a_i ⁱX_λ ;  p^A_λ += λX_i* p^a_i, with λX_i* = Yᵀ X_J*
-            _add_to_parents(articulated.reshape(model.njoints, 36, n), group, _moved_to_parents(group, motion, I_a))
+            _add_to_parents(articulated, group, _moved_to_parents(group, motion, I_a))
             _add_to_parents(bias, group, group.Y_T @ to_parent(group, motion, p_a))
         # Third pass: a'_i = ⁱX_λ a_λ + c_i ;  q̈_i = D_i⁻¹ (u_i − U_iᵀ a'_i) ;  a_i = a'_i + S_i q̈_i
         A = np.empty((model.njoints, 6, n))
@@ -545,12 +543,12 @@ def aba(model, q, v, tau, f_ext):
 
 
 def _moved_to_parents(group, motion, M):
-    """``λX_i* M ⁱX_λ = Yᵀ X_J* M X_J*ᵀ Y`` for symmetric ``M`` held by columns ``(6, k, 6, N)``: its entries row
-    by row ``(k, 36, N)``.
+    """``λX_i* M ⁱX_λ = Yᵀ X_J* M X_J*ᵀ Y`` for symmetric ``M`` held by columns ``(6, k, 6, N)``: ``(k, 6, 6, N)``.
 
-    ``X_J*`` on both sides turns four pairs of turn coordinates (:func:`_turn_coordinates`) by ``q`` and three
-    by ``2q`` about a revolute joint, and shifts two rows and two columns along a prismatic one; then
-    ``Yᵀ (·) Y`` is one constant product. Other joints take :func:`_congruence`.
+    About a revolute joint, ``X_J*`` on both sides turns four pairs of turn coordinates
+    (:func:`_turn_coordinates`) by ``q`` and three by ``2q``; along a prismatic one it acts on the rows
+    and then on the columns as on force vectors. Either way ``Yᵀ (·) Y`` is then one constant product.
+    Other joints take :func:`_congruence`.
     """
     k, n = M.shape[1], M.shape[-1]
     if group.motion == "revolute":
@@ -558,49 +556,23 @@ def _moved_to_parents(group, motion, M):
         moved = np.empty(coordinates.shape)
         c, s = motion.cos, motion.sin  # (k, 1, N)
         _turn_pair(c, s, coordinates[:, 0:4], coordinates[:, 4:8], moved[:, 0:4], moved[:, 4:8])
-        # cos 2q = c² − s², sin 2q = 2 c s
-        _turn_pair(c * c - s * s, 2.0 * c * s, coordinates[:, 8:11], coordinates[:, 11:14], moved[:, 8:11], moved[:, 11:14])
+        _turn_pair(*_double_angle(c, s), coordinates[:, 8:11], coordinates[:, 11:14], moved[:, 8:11], moved[:, 11:14])
         moved[:, 14:] = coordinates[:, 14:]
     elif group.motion == "prismatic":
-        # X_J* = [[1, 0], [q [e_z]×, 1]]: rows n_x −= q f_y, n_y += q f_x, then the same on the columns
-        moved = M.transpose(1, 0, 2, 3).copy()  # (k, 6, 6, N), rows and columns alike
-        shift = motion.shift[:, None]
-        moved[:, 3] -= shift * moved[:, 1]
-        moved[:, 4] += shift * moved[:, 0]
-        moved[:, :, 3] -= shift * moved[:, :, 1]
-        moved[:, :, 4] += shift * moved[:, :, 0]
-        moved = moved.reshape(k, 36, n)
+        rows = to_parent(group, motion, M)  # [c, i, r] = (X_J* M)[r, c]
+        # X_J* on the rows of (X_J* M)ᵀ: [r, i, c] = (X_J* M X_J*ᵀ)[r, c]
+        moved = to_parent(group, motion, rows.transpose(2, 1, 0, 3)).transpose(1, 0, 2, 3).reshape(k, 36, n)
     else:
-        return _congruence(group, motion, M).transpose(1, 0, 2, 3).reshape(k, 36, n)
-    return group.articulated_to_parent @ moved
+        return _congruence(group, motion, M).transpose(1, 0, 2, 3)  # symmetric: by columns is by rows
+    return (group.articulated_to_parent @ moved).reshape(k, 6, 6, n)
 
 
 def _congruence(group, motion, M):
-    """``λX_i* M ⁱX_λ = B M Bᵀ`` with ``B = Yᵀ X_J*`` for symmetric ``M`` held by columns ``(6, k, 6, N)``.
-
-    ``B`` on the rows is ``B`` on six force vectors; ``B`` on the columns acts along the leading axis,
-    which for turns about ``z`` and the constant ``Yᵀ`` needs no transposed copy.
-    """
+    """``λX_i* M ⁱX_λ = B M Bᵀ`` with ``B = Yᵀ X_J*`` for symmetric ``M`` held by columns ``(6, k, 6, N)``:
+    ``B`` on the rows is ``B`` on six force vectors, and ``(B M)ᵀ = M Bᵀ`` by columns is ``B M`` by rows,
+    so ``B`` on its rows once more gives ``B M Bᵀ``, by columns."""
     rows = group.Y_T @ to_parent(group, motion, M)  # [c, i, r] = (B M)[r, c]
-    if not isinstance(group.motion, str):
-        # (B M)ᵀ = M Bᵀ by columns is (B M) by rows: B on its rows once more gives B M Bᵀ
-        return group.Y_T @ to_parent(group, motion, np.ascontiguousarray(rows.transpose(2, 1, 0, 3)))
-    # [c', i, r] = Σ_c B[c', c] (B M)[r, c]: the turn and Yᵀ along the leading axis
-    moved = rows.reshape(2, 3, *rows.shape[1:])
-    turned = np.empty(moved.shape)
-    if group.motion == "revolute":
-        _turn_pair(motion.cos, motion.sin, moved[:, 0], moved[:, 1], turned[:, 0], turned[:, 1])
-        turned[:, 2] = moved[:, 2]
-    else:
-        # [f; n + (q e_z) × f]
-        turned[...] = moved
-        shift = motion.shift[:, None]
-        turned[1, 0] -= shift * moved[0, 1]
-        turned[1, 1] += shift * moved[0, 0]
-    turned = turned.reshape(rows.shape)
-    if rows.shape[1] == 1:
-        return (group.Y_T[0] @ turned.reshape(6, -1)).reshape(turned.shape)
-    return np.einsum("kab,bkrn->akrn", group.Y_T, turned)
+    return group.Y_T @ to_parent(group, motion, np.ascontiguousarray(rows.transpose(2, 1, 0, 3)))
 
 
 def _columns(group, M):
@@ -721,8 +693,8 @@ def _turned_composite(group, motion, x):
         c, s = motion.cos, motion.sin  # (k, 1, N)
         (x_parts, y_parts), (b, d) = _TURNED_BY_ANGLE, _TURNED_BY_DOUBLE_ANGLE
         _turn_pair(c, s, x[:, x_parts], x[:, y_parts], out[:, x_parts], out[:, y_parts])
-        # cos 2q = c² − s², sin 2q = 2 c s
-        _turn_pair((c * c - s * s)[:, 0], (2.0 * c * s)[:, 0], x[:, b], x[:, d], out[:, b], out[:, d])
+        c2, s2 = _double_angle(c[:, 0], s[:, 0])
+        _turn_pair(c2, s2, x[:, b], x[:, d], out[:, b], out[:, d])
         out[:, _UNMOVED] = x[:, _UNMOVED]
         return out
     if group.motion == "prismatic":

@@ -84,6 +84,13 @@ def _parent_rounds(parents):
     return tuple(rounds)
 
 
+def _add_to_parents(x, group, values):
+    """``x[λ(i)] += values_i`` for the joints of a level group (several may share a parent): per-joint
+    arrays ``x (nj, ...)`` and ``values (k, ...)``, joints on the leading axis."""
+    for positions, parents in group.parent_rounds:
+        x[parents] += values[positions]
+
+
 def _index(indices):
     """A contiguous increasing index array as a slice (a view when used), else the array itself."""
     indices = np.asarray(indices, dtype=int)

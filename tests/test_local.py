@@ -126,8 +126,20 @@ def test_articulated_inertias_move_to_the_parent_as_the_6x6_congruence_does(mode
         G = rng.standard_normal((k, 5, 6, 6))
         M = G @ np.swapaxes(G, -1, -2)  # symmetric, (k, 5, 6, 6)
         by_columns = np.ascontiguousarray(np.moveaxis(M, 1, -1).transpose(2, 0, 1, 3))
-        expected = local._congruence(group, motion, by_columns).transpose(1, 2, 0, 3)  # (k, 6, 6, N) rows
-        moved = local._moved_to_parents(group, motion, by_columns).reshape(k, 6, 6, 5)
+        # the joint transforms X_J of each joint and state as poses (R, p): (k, 5, 3, 3), (k, 5, 3)
+        if group.motion == "revolute":
+            c, s = motion.cos[:, 0], motion.sin[:, 0]
+            R = np.zeros((k, 5, 3, 3))
+            R[..., 0, 0], R[..., 0, 1], R[..., 1, 0], R[..., 1, 1], R[..., 2, 2] = c, -s, s, c, 1.0
+            p = np.zeros((k, 5, 3))
+        elif group.motion == "prismatic":
+            R, p = np.broadcast_to(np.eye(3), (k, 5, 3, 3)), np.zeros((k, 5, 3))
+            p[..., 2] = motion.shift
+        else:
+            R, p = np.moveaxis(motion.R, -1, 1), np.moveaxis(motion.p, -1, 1)
+        B = group.Y_T[:, None] @ mb.spatial.force_transform(R, p)  # λX_i* (k, 5, 6, 6)
+        expected = B @ M @ np.swapaxes(B, -1, -2)
+        moved = np.moveaxis(local._moved_to_parents(group, motion, by_columns), -1, 1)
         assert_allclose(moved, expected, rtol=1e-13, atol=1e-13 * np.abs(expected).max(), err_msg=str(group.motion))
 
 
