@@ -78,10 +78,15 @@ def _joint_frames(model, q):
     swamp the local ones and cost digits (a 2 kg body 170 m from the world origin lost 6 of them).
     Velocities, accelerations of points, joint forces and energies do not depend on the point.
     """
+    R_WJ, p_WO, p_OJ = _joint_poses(model, q)
+    return JointFrames(R_WJ, p_WO, p_OJ, motion_subspaces(model, R_WJ, p_OJ))
+
+
+def _joint_poses(model, q):
+    """The poses of :func:`_joint_frames` without the motion subspaces: ``R_WJ``, ``p_WO``, ``p_OJ``."""
     R_WJ, p_WJ = world_poses(model, q)
     p_WO = p_WJ[0] if model.njoints else np.zeros(p_WJ.shape[1:])
-    p_OJ = p_WJ - p_WO
-    return JointFrames(R_WJ, p_WO, p_OJ, motion_subspaces(model, R_WJ, p_OJ))
+    return R_WJ, p_WO, p_WJ - p_WO
 
 
 def motion_subspaces(model, R_WJ, p_WJ):

@@ -86,7 +86,7 @@ def matvec(A, x):
 
 def transpose(A):
     """Swap the two matrix axes of ``(..., i, j, N)``."""
-    return np.swapaxes(A, -2, -3)
+    return A.swapaxes(-2, -3)
 
 
 def dot(a, b):
@@ -258,7 +258,7 @@ ROW_BY_ROW = 4096
 
 def _spatial_cross(indices, m, x):
     left, right = indices
-    shape = np.broadcast_shapes(m.shape, x.shape)
+    shape = spatial.batch_shape(m.shape, x.shape)
     if math.prod(shape[:-2]) * shape[-1] < ROW_BY_ROW:
         t = m.take(left, axis=-2) * x.take(right, axis=-2)
         return (t[..., 0:6, :] - t[..., 6:12, :]) + (t[..., 12:18, :] - t[..., 18:24, :])

@@ -301,6 +301,11 @@ class Model:
         return _frozen(np.stack([self.motion_subspaces[:, :3], self.motion_subspaces[:, 3:]], axis=-1)[..., None])
 
     @cached_property
+    def angular_first_subspaces(self) -> np.ndarray:
+        """``(nv, 6, 1)``: :attr:`motion_subspaces` as column vectors with the angular half first, ``[s_ω; s_v]``."""
+        return _frozen(np.concatenate([self.motion_subspaces[:, 3:], self.motion_subspaces[:, :3]], axis=1)[..., None])
+
+    @cached_property
     def upward_levels(self) -> tuple:
         """``(joint indices, their parents)`` per level, leaves first, root level excluded: the order
         of a backward pass that adds each joint into its parent, ``x[parents] += x[index]``.

@@ -59,7 +59,7 @@ def matvec(A, x):
 
 def transpose(A):
     """Swap the last two axes of a batch of matrices."""
-    return np.swapaxes(A, -1, -2)
+    return np.asarray(A).swapaxes(-1, -2)
 
 
 def axis_angle_rotation(axis, angle):
