@@ -256,7 +256,16 @@ _FORCE_CROSS = _spatial_cross_indices(linear=[(3, 0)], angular=[(3, 3), (0, 0)])
 ROW_BY_ROW = 4096
 
 
-def _spatial_cross(indices, m, x):
+# The same products on a single lane, as matrices: [m×] = Σ_k m_k [e_k×] and [m×*] = −[m×]ᵀ, so that a
+# cross product is two matrix products over the stack, far fewer NumPy calls than the gathers.
+_MOTION_CROSS_MAP = _block_skew(_MOTION_CROSS_MATRIX, np.eye(6)[:, :, None])[..., 0]  # (6, 6, 6): [e_k×]
+_FORCE_CROSS_MAP = -_MOTION_CROSS_MAP.swapaxes(-1, -2)
+
+
+def _spatial_cross(indices, cross_map, m, x):
+    if m.shape[-1] == 1 == x.shape[-1]:
+        # [m×] x = (Σ_k m_k [e_k×]) x
+        return (m[..., 0] @ cross_map.reshape(6, 36)).reshape(m.shape[:-2] + (6, 6)) @ x
     left, right = indices
     shape = spatial.batch_shape(m.shape, x.shape)
     if math.prod(shape[:-2]) * shape[-1] < ROW_BY_ROW:
@@ -277,13 +286,13 @@ def _spatial_cross(indices, m, x):
 def motion_cross(m1, m2):
     """Spatial motion cross product ``m1 × m2`` on lanes (RBDA eq. 2.31). ``(..., 6, N)`` each."""
     # [v1; ω1] × [v2; ω2] = [ω1 × v2 + v1 × ω2; ω1 × ω2]
-    return _spatial_cross(_MOTION_CROSS, m1, m2)
+    return _spatial_cross(_MOTION_CROSS, _MOTION_CROSS_MAP, m1, m2)
 
 
 def force_cross(m, f):
     """Spatial force cross product ``m ×* f`` on lanes (RBDA eq. 2.32). ``(..., 6, N)`` each."""
     # [v; ω] ×* [f; n] = [ω × f; ω × n + v × f]
-    return _spatial_cross(_FORCE_CROSS, m, f)
+    return _spatial_cross(_FORCE_CROSS, _FORCE_CROSS_MAP, m, f)
 
 
 # ----------------------------------------------------------------------------- spatial inertia
