@@ -269,6 +269,15 @@ def _turn_pair(c, s, x, y, out_x, out_y):
     out_y += c * y
 
 
+def _turn_pair_in_place(c, s, x, y):
+    """``(x, y) <- (c x − s y, s x + c y)``: :func:`_turn_pair` in place."""
+    s_x = s * x
+    x *= c
+    x -= s * y
+    y *= c
+    y += s_x
+
+
 def _double_angle(c, s):
     """``(cos 2q, sin 2q) = (c² − s², 2 c s)`` from ``(c, s) = (cos q, sin q)``."""
     return c * c - s * s, 2.0 * c * s
@@ -552,16 +561,19 @@ def _moved_to_parents(group, motion, M):
     """
     k, n = M.shape[1], M.shape[-1]
     if group.motion == "revolute":
-        coordinates = _TO_TURN_COORDINATES @ M.transpose(1, 0, 2, 3).reshape(k, 36, n)
-        moved = np.empty(coordinates.shape)
+        moved = _TO_TURN_COORDINATES @ M.transpose(1, 0, 2, 3).reshape(k, 36, n)
         c, s = motion.cos, motion.sin  # (k, 1, N)
-        _turn_pair(c, s, coordinates[:, 0:4], coordinates[:, 4:8], moved[:, 0:4], moved[:, 4:8])
-        _turn_pair(*_double_angle(c, s), coordinates[:, 8:11], coordinates[:, 11:14], moved[:, 8:11], moved[:, 11:14])
-        moved[:, 14:] = coordinates[:, 14:]
+        _turn_pair_in_place(c, s, moved[:, 0:4], moved[:, 4:8])
+        _turn_pair_in_place(*_double_angle(c, s), moved[:, 8:11], moved[:, 11:14])
     elif group.motion == "prismatic":
-        rows = to_parent(group, motion, M)  # [c, i, r] = (X_J* M)[r, c]
-        # X_J* on the rows of (X_J* M)ᵀ: [r, i, c] = (X_J* M X_J*ᵀ)[r, c]
-        moved = to_parent(group, motion, rows.transpose(2, 1, 0, 3)).transpose(1, 0, 2, 3).reshape(k, 36, n)
+        # X_J* = 1 but for n += (q e_z) × f: rows 3 and 4 of X_J* M, then columns 3 and 4 of (X_J* M) X_J*ᵀ
+        moved = M.transpose(1, 0, 2, 3).copy()  # (k, 6, 6, N); symmetric, so by columns is by rows
+        shift = motion.shift[:, None]  # (k, 1, N)
+        moved[:, 3] -= shift * moved[:, 1]
+        moved[:, 4] += shift * moved[:, 0]
+        moved[:, :, 3] -= shift * moved[:, :, 1]
+        moved[:, :, 4] += shift * moved[:, :, 0]
+        moved = moved.reshape(k, 36, n)
     else:
         return _congruence(group, motion, M).transpose(1, 0, 2, 3)  # symmetric: by columns is by rows
     return (group.articulated_to_parent @ moved).reshape(k, 6, 6, n)
