@@ -47,11 +47,13 @@ def world_poses(model, q):
         # place where the level's joints are a view: one NumPy call per level of a chain, the only cost
         # of a deep chain's single configuration.
         local, world = X_local[..., 0], X_world[..., 0]
-        for level, (index, parents, view) in enumerate(model.pose_levels):
+        levels = model.pose_levels
+        if levels:
+            roots = levels[0][0]
+            world[roots] = local[roots, :3]
+        for index, parents, view in levels[1:]:
             # [R | p]_W,i = [R | p]_W,λ [[R, p], [0, 1]]_λ,i : one product of a 3×4 and a 4×4 matrix
-            if level == 0:
-                world[index] = local[index, :3]
-            elif view:
+            if view:
                 np.matmul(world[parents], local[index], out=world[index])
             else:
                 world[index] = world[parents] @ local[index]

@@ -9,6 +9,7 @@ neutral configuration. Each link ("body") sits at ``body_placements[b]`` in the 
 
 from __future__ import annotations
 
+import math
 import warnings
 from dataclasses import dataclass, field
 from functools import cached_property
@@ -618,7 +619,7 @@ class Model:
     def _as_float_array(x, name):
         if type(x) is np.ndarray and x.dtype == np.float64:
             # The common case, checked cheaply: a non-finite entry makes the sum non-finite.
-            if not np.isfinite(np.add.reduce(x, axis=None)) and not np.all(np.isfinite(x)):
+            if not math.isfinite(np.add.reduce(x, axis=None)) and not np.all(np.isfinite(x)):
                 warnings.warn(f"{name} contains NaN or infinite values; results will contain NaN", RuntimeWarning,
                               stacklevel=3)
             return x
