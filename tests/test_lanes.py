@@ -152,6 +152,20 @@ def test_support_and_subtree_sums_equal_explicit_sums_on_both_paths(lanes_per_ar
     assert_allclose(mb.dynamics._subtree_sums(model, x_joints), expected_subtree, rtol=1e-13, atol=1e-13)
 
 
+@pytest.mark.parametrize("model_name", ["random_tree", "talos_floating"])
+def test_the_tree_pass_of_one_lane_equals_that_of_many(model_name):
+    """One lane takes ξ and the world inertias from one stack of force transforms; many lanes take
+    their structured formulas."""
+    model = lane_test_model(model_name, seed=2)
+    q = model.random_configuration(np.random.default_rng(5), (N,))
+    many = mb.dynamics._tree(model, lanes.to_lanes(q))
+    for k in range(N):
+        one = mb.dynamics._tree(model, q[k][:, None])
+        for name, x, y in zip(one._fields, one, many):
+            assert x.shape[-1] == 1, name
+            assert_allclose(x[..., 0], y[..., k], rtol=1e-13, atol=1e-13, err_msg=name)
+
+
 def test_concatenate_broadcasts_a_single_lane():
     one, many = RNG.standard_normal((2, 1)), RNG.standard_normal((3, 4))
     joined = lanes.concatenate([one, many], axis=0)
