@@ -80,7 +80,7 @@ def _tree(model, q):
     R_WJ, p_WO, p_OJ = _joint_poses(model, q)
     X_star = spatial.force_transform(R_WJ[..., 0], p_OJ[..., 0])
     xi = (_at_dofs(model, X_star) @ model.angular_first_subspaces).take(_SWAP_HALVES, axis=-2)
-    inertia = X_star @ model.inertia_parameters[3][..., 0] @ transpose(X_star)
+    inertia = X_star @ model.spatial_inertias @ transpose(X_star)
     return Tree(R_WJ, p_WO, p_OJ, xi, inertia[..., None])
 
 
@@ -575,7 +575,7 @@ def potential_energy(model, q):
 
     def kernel(q):
         R_WJ, p_WJ = world_poses(model, q)
-        mass, first_moment, *_ = model.inertia_parameters
+        mass, first_moment, _ = model.inertia_parameters
         # m c_W = R m c_J + m p
         moments = lanes.matvec(R_WJ, first_moment) + mass[:, None, None] * p_WJ
         return -np.einsum("c,jcn->n", model.gravity, moments)

@@ -258,14 +258,16 @@ ROW_BY_ROW = 4096
 
 # The same products on a single lane, as matrices: [m×] = Σ_k m_k [e_k×] and [m×*] = −[m×]ᵀ, so that a
 # cross product is two matrix products over the stack, far fewer NumPy calls than the gathers.
-_MOTION_CROSS_MAP = _block_skew(_MOTION_CROSS_MATRIX, np.eye(6)[:, :, None])[..., 0]  # (6, 6, 6): [e_k×]
-_FORCE_CROSS_MAP = -_MOTION_CROSS_MAP.swapaxes(-1, -2)
+# Row k of a map holds the 36 entries of [e_k×] (or [e_k×*]).
+_UNIT_MOTION_CROSS = _block_skew(_MOTION_CROSS_MATRIX, np.eye(6)[:, :, None])[..., 0]  # (6, 6, 6): [e_k×]
+_MOTION_CROSS_MAP = _UNIT_MOTION_CROSS.reshape(6, 36)
+_FORCE_CROSS_MAP = (-_UNIT_MOTION_CROSS.swapaxes(-1, -2)).reshape(6, 36)
 
 
 def _spatial_cross(indices, cross_map, m, x):
     if m.shape[-1] == 1 == x.shape[-1]:
         # [m×] x = (Σ_k m_k [e_k×]) x
-        return (m[..., 0] @ cross_map.reshape(6, 36)).reshape(m.shape[:-2] + (6, 6)) @ x
+        return (m[..., 0] @ cross_map).reshape(m.shape[:-2] + (6, 6)) @ x
     left, right = indices
     shape = spatial.batch_shape(m.shape, x.shape)
     if math.prod(shape[:-2]) * shape[-1] < ROW_BY_ROW:
@@ -297,20 +299,19 @@ def force_cross(m, f):
 
 # ----------------------------------------------------------------------------- spatial inertia
 
-def world_inertias(mass, first_moment, rotational, spatial_inertia, R_WJ, p_WJ):
+def world_inertias(mass, first_moment, rotational, R_WJ, p_WJ):
     """Spatial inertias in world axes of bodies posed at ``(R_WJ, p_WJ)``, about the point ``O`` the
     positions ``p_WJ`` are taken from (the world origin, or the algorithms' reference point).
 
-    Each body is given in its own frame J by its mass ``m (nj,)``, first moment ``m c_J (nj, 3, 1)``,
-    rotational inertia about J's origin ``Ī_J (nj, 3, 3, 1)`` and spatial inertia ``I_J (nj, 6, 6, 1)``
-    (the same body twice: the structured formula needs the parts, the matrix product the whole).
+    Each body is given in its own frame J by its mass ``m (nj,)``, first moment ``m c_J (nj, 3, 1)``
+    and rotational inertia about J's origin ``Ī_J (nj, 3, 3, 1)``.
     In world axes, with ``g = R m c_J`` and the body origin at ``p``, the first moment about ``O``
     is ``h = g + m p`` and the rotational inertia about it (parallel-axis theorem, RBDA eq. 2.63)
     ``Ī_O = R Ī_J Rᵀ − [p]×[h]× − [g]×[p]× = R Ī_J Rᵀ − h pᵀ − p gᵀ + pᵀ(h + g) 1``
     (as ``[a]×[b]× = b aᵀ − aᵀb 1``); then ``I = [[m 1, −[h]×], [[h]×, Ī_O]]``. Returns ``(nj, 6, 6, N)``.
+    Fewer flops than ``X* I_J X*ᵀ``, which takes fewer NumPy calls on a single lane (see
+    :func:`multibody.dynamics._tree`).
     """
-    if R_WJ.shape[-1] == 1:
-        return _world_inertias_by_products(spatial_inertia, R_WJ, p_WJ)
     m = mass[:, None, None]
     g = matvec(R_WJ, first_moment)
     h = g + m * p_WJ
@@ -323,13 +324,6 @@ def world_inertias(mass, first_moment, rotational, spatial_inertia, R_WJ, p_WJ):
     out[:, 3:, :3] = H
     out[:, 3:, 3:] = rotational_O
     return out
-
-
-def _world_inertias_by_products(spatial_inertia, R_WJ, p_WJ):
-    """:func:`world_inertias` of a single lane as ``ᵂI = ᵂX_J* I_J ᵂX_Jᵀ`` (RBDA eq. 2.66,
-    :func:`multibody.spatial.transform_inertia`): two 6×6 products over the stack of joints take fewer
-    NumPy calls than the structured formula, which does fewer flops and wins on many lanes."""
-    return spatial.transform_inertia(R_WJ[..., 0], p_WJ[..., 0], spatial_inertia[..., 0])[..., None]
 
 
 def transform_force(R_AB, p_AB, f_B):

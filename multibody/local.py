@@ -720,5 +720,5 @@ def _turned_composite(group, motion, x):
         return out
     # a general pose: g = R h ;  h' = g + m p ;  Ī' = R Ī Rᵀ − h' pᵀ − p gᵀ + pᵀ(h' + g) 1
     I = rigid_inertia(x.transpose(0, 2, 1)).transpose(0, 2, 3, 1)  # (k, 6, 6, N)
-    moved = lanes.world_inertias(x[:, _MASS, 0], x[:, [_H_X, _H_Y, _H_Z]], I[:, 3:, 3:], I, motion.R, motion.p)
+    moved = lanes.world_inertias(x[:, _MASS, 0], x[:, [_H_X, _H_Y, _H_Z]], I[:, 3:, 3:], motion.R, motion.p)
     return rigid_parameters(moved.transpose(0, 3, 1, 2)).transpose(0, 2, 1)

@@ -434,13 +434,12 @@ class Model:
 
     @cached_property
     def inertia_parameters(self) -> tuple:
-        """Each moving body's mass ``(nj,)``, first moment ``m c (nj, 3, 1)``, rotational inertia
-        about its joint-frame origin ``(nj, 3, 3, 1)`` and whole spatial inertia ``(nj, 6, 6, 1)``,
-        in its joint frame, as lane constants."""
+        """Each moving body's mass ``(nj,)``, first moment ``m c (nj, 3, 1)`` and rotational inertia
+        about its joint-frame origin ``(nj, 3, 3, 1)``, in its joint frame, as lane constants."""
         I = self.spatial_inertias
         # I = [[m 1, −[m c]×], [[m c]×, Ī_O]]
         first_moment = np.stack([I[:, 5, 1], I[:, 3, 2], I[:, 4, 0]], axis=-1)
-        return _frozen(I[:, 0, 0]), _frozen(first_moment[..., None]), _frozen(I[:, 3:, 3:, None]), _frozen(I[..., None])
+        return _frozen(I[:, 0, 0]), _frozen(first_moment[..., None]), _frozen(I[:, 3:, 3:, None])
 
     @property
     def total_mass(self) -> float:

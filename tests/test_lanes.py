@@ -123,8 +123,6 @@ def test_force_transforms_equal_spatial():
 
 @pytest.mark.parametrize("batch", [(N,), ()], ids=["lanes", "one lane"])
 def test_world_inertias_equal_the_spatial_transform_of_the_joint_frame_inertias(batch):
-    # many lanes: the structured formula; one lane goes through spatial.transform_inertia itself (there
-    # this checks the lane layout of the joints' stack)
     model = random_tree_model(0)
     q = model.random_configuration(RNG, batch)
     R_WJ, p_WJ = mb.kinematics.joint_world_poses(model, q)
