@@ -27,8 +27,8 @@ from typing import NamedTuple
 import numpy as np
 
 from . import lanes, linalg, local, spatial
-from .kinematics import (_at_dofs, _fixed_frame, _frame_arguments, _frame_motion, _in_blocks, _joint_frames, _joint_poses,
-                         _spatial_velocities, _support_sums, _velocities, world_poses)
+from .kinematics import (_at_dofs, _fixed_frame, _frame_arguments, _frame_motion, _in_blocks, _joint_frames,
+                         _single_joint_frames, _spatial_velocities, _support_sums, _velocities, world_poses)
 from .spatial import motion_cross, transpose
 from .model import _add_to_parents
 
@@ -74,17 +74,10 @@ def _tree(model, q):
     if q.shape[-1] > 1:
         frames = _joint_frames(model, q)
         return Tree(*frames, lanes.world_inertias(*model.inertia_parameters, frames.R_WJ, frames.p_OJ))
-    # A single lane: ξ and the inertias from one stack of force transforms ᴼX_J* = [[R, 0], [[p]× R, R]]
-    # (fewer NumPy calls than their separate formulas): ᴼI = ᴼX_J* I_J ᴼX_J*ᵀ, and ξ = ᴼX_J S = P ᴼX_J* P S,
-    # P swapping the linear and angular halves of a spatial vector.
-    R_WJ, p_WO, p_OJ = _joint_poses(model, q)
-    X_star = spatial.force_transform(R_WJ[..., 0], p_OJ[..., 0])
-    xi = (_at_dofs(model, X_star) @ model.angular_first_subspaces).take(_SWAP_HALVES, axis=-2)
-    inertia = X_star @ model.spatial_inertias @ transpose(X_star)
-    return Tree(R_WJ, p_WO, p_OJ, xi, inertia[..., None])
-
-
-_SWAP_HALVES = np.array([3, 4, 5, 0, 1, 2])  # P: [v; ω] <-> [ω; v]
+    # A single lane: the inertias by the force transforms ᴼX_J* that give ξ (fewer NumPy calls than their
+    # own formula), ᴼI = ᴼX_J* I_J ᴼX_J*ᵀ
+    frames, X_star = _single_joint_frames(model, q)
+    return Tree(*frames, (X_star @ model.spatial_inertias @ transpose(X_star))[..., None])
 
 
 def _subtree_sums(model, x):

@@ -42,6 +42,9 @@ UNIT_NORM_TOLERANCE = 1e-6
 # Position range used by random_configuration for an unbounded translation (m).
 _DEFAULT_TRANSLATION_RANGE = 1.0
 
+#: [0, π/2]: sin(θ + these) = [sin θ, cos θ]
+_SINE_COSINE_PHASES = np.array([0.0, np.pi / 2])
+
 
 def _unit(axis, what):
     axis = np.array(axis, dtype=float).reshape(-1)
@@ -143,6 +146,29 @@ class Joint:
         depend on q). The algorithms call this once per joint type.
         """
         raise NotImplementedError
+
+    @classmethod
+    def group_plucker_constants(cls, joints, placements):
+        """Constants that :meth:`group_plucker_poses` needs; the base version's are :meth:`group_constants`."""
+        return cls.group_constants(joints, placements)
+
+    @classmethod
+    def group_plucker_poses(cls, constants, q):
+        """The poses of :meth:`group_transform` at one configuration as Plücker poses
+        ``ᵡP_i = [[R, 0, p], [[p]× R, R, 0], [0, 0, 1]]`` (:func:`multibody.spatial.plucker_pose`):
+        ``q (n, nq)`` -> ``(n, 7, 7)``.
+
+        The base version converts :meth:`group_transform`'s; types whose pose is linear in a few
+        functions of ``q`` write it as one product with constant matrices instead.
+        """
+        X = cls.group_transform(constants, q[..., None])[..., 0]
+        return spatial.plucker_pose(X[:, :, :3], X[:, :, 3])
+
+    @staticmethod
+    def _plucker_tree_transforms(placements):
+        """``P_T (n, 7, 7)``, the Plücker poses of ``placements (n, 4, 4)``."""
+        placements = np.asarray(placements, dtype=float)
+        return spatial.plucker_pose(placements[:, :3, :3], placements[:, :3, 3])
 
     @staticmethod
     def _placed(X_T, R_J, p_J):
@@ -250,6 +276,23 @@ class Revolute(Joint):
         angle = q[:, :, None, :]
         return X_T + np.sin(angle) * R_T_K + (1.0 - np.cos(angle)) * R_T_K2
 
+    @classmethod
+    def group_plucker_constants(cls, joints, placements):
+        # P = P_T P_J with P_J = 1 + sin θ K + (1 − cos θ) K², K = diag([a]×, [a]×, 0), so that
+        # P = (P_T + P_T K²) + [sin θ, cos θ] [P_T K; −P_T K²] (entries flattened)
+        P_T = Joint._plucker_tree_transforms(placements)
+        K = np.zeros_like(P_T)
+        K[:, :3, :3] = K[:, 3:6, 3:6] = spatial.skew(np.stack([joint.axis for joint in joints]))
+        P_T_K = P_T @ K
+        P_T_K2 = P_T_K @ K
+        return (P_T + P_T_K2).reshape(-1, 1, 49), np.stack([P_T_K, -P_T_K2], axis=1).reshape(-1, 2, 49)
+
+    @staticmethod
+    def group_plucker_poses(constants, q):
+        constant, sine_cosine = constants
+        # [sin θ, cos θ] by one call, as cos θ = sin(θ + π/2)
+        return (np.sin(q[:, :, None] + _SINE_COSINE_PHASES) @ sine_cosine + constant).reshape(-1, 7, 7)
+
     def random(self, rng, lower, upper, shape=()):
         return _random_uniform(rng, lower, upper, np.pi, shape)
 
@@ -290,6 +333,21 @@ class Prismatic(Joint):
         # R = R_T, p = p_T + q R_T a
         X_T, R_T_axis = constants
         return X_T + q[:, :, None, :] * R_T_axis
+
+    @classmethod
+    def group_plucker_constants(cls, joints, placements):
+        # P = P_T P_J with P_J = 1 + q N, N = [[0, 0, a], [[a]×, 0, 0], [0, 0, 0]] (p_J = q a, [p_J]× = q [a]×)
+        P_T = Joint._plucker_tree_transforms(placements)
+        axes = np.stack([joint.axis for joint in joints])
+        N = np.zeros_like(P_T)
+        N[:, :3, 6] = axes
+        N[:, 3:6, :3] = spatial.skew(axes)
+        return P_T, P_T @ N
+
+    @staticmethod
+    def group_plucker_poses(constants, q):
+        P_T, P_T_N = constants
+        return P_T + q[:, :, None] * P_T_N
 
     def describe(self):
         return f"{self.kind} axis {np.round(self.axis, 6).tolist()}"

@@ -38,29 +38,51 @@ _HOMOGENEOUS_ROW = np.array([0.0, 0.0, 0.0, 1.0])[:, None]
 def world_poses(model, q):
     """World pose of every joint frame on lanes: ``q (nq, N)`` -> ``R_WJ (nj, 3, 3, N)``, ``p_WJ (nj, 3, N)``.
 
-    ``X_W,i = X_W,λ(i) X_λ(i),i`` level by level down the tree: all joints of one depth at once.
+    ``X_W,i = X_W,λ(i) X_λ(i),i`` level by level down the tree: all joints of one depth at once (one lane:
+    by the Plücker poses of :func:`_plucker_poses`).
     """
+    if q.shape[-1] == 1:
+        R_WJ, p_WO, p_OJ = _joint_poses(model, q)
+        return R_WJ, p_WO + p_OJ
     X_local = local_poses(model, q)
     X_world = np.empty((model.njoints, 3, 4, q.shape[-1]))
-    if q.shape[-1] == 1:
-        # One lane: the products on the matrices themselves (views without the lane axis), written in
-        # place where the level's joints are a view: one NumPy call per level of a chain, the only cost
-        # of a deep chain's single configuration.
-        local, world = X_local[..., 0], X_world[..., 0]
-        levels = model.pose_levels
-        if levels:
-            roots = levels[0][0]
-            world[roots] = local[roots, :3]
-        for index, parents, view in levels[1:]:
-            # [R | p]_W,i = [R | p]_W,λ [[R, p], [0, 1]]_λ,i : one product of a 3×4 and a 4×4 matrix
-            if view:
-                np.matmul(world[parents], local[index], out=world[index])
-            else:
-                world[index] = world[parents] @ local[index]
-    else:
-        for level, (index, parents) in enumerate(model.levels):
-            X_world[index] = X_local[index, :3] if level == 0 else lanes.matmul(X_world[parents], X_local[index])
+    for level, (index, parents) in enumerate(model.levels):
+        X_world[index] = X_local[index, :3] if level == 0 else lanes.matmul(X_world[parents], X_local[index])
     return X_world[:, :, :3], X_world[:, :, 3]
+
+
+def _plucker_poses(model, q):
+    """Plücker poses ``ᴼP_J = [[R, 0, p], [[p]× R, R, 0], [0, 0, 1]]`` (:func:`~multibody.spatial.plucker_pose`)
+    of the joint frames at one configuration ``q (nq,)``: ``(nj, 7, 7)``, relative to the reference point
+    ``O`` of :func:`_joint_frames`, and its world position ``p_WO (3,)``.
+
+    ``ᴼP_i = ᴼP_λ(i) ᵡP_i`` level by level down the tree, written in place where the level's joints are a
+    view: one NumPy call per level of a chain. The products give the force transforms ``ᴼX_J*`` and the
+    positions ``p_OJ`` at once, far fewer NumPy calls than forming the transforms from the poses (the
+    single configuration's cost is all in the calls).
+    """
+    P_local = np.empty((model.njoints, 7, 7))
+    for kind, index, q_index, constants in model.plucker_pose_groups:
+        P_local[index] = kind.group_plucker_poses(constants, q[q_index])
+    P = np.empty_like(P_local)
+    levels = model.pose_levels
+    if not levels:
+        return P, np.zeros(3)
+    # The roots relative to O, the first joint's origin
+    roots = levels[0][0]
+    p_WO = P_local[0, :3, 6].copy()
+    if isinstance(roots, int):  # joint 0 alone, at O: its translation is zero (x − x, so that a non-finite pose still shows)
+        P[0] = P_local[0]
+        P[0, :3, 6] -= p_WO
+        P[0, 3:6, :3] -= P_local[0, 3:6, :3]
+    else:
+        P[roots] = spatial.plucker_pose(P_local[roots, :3, :3], P_local[roots, :3, 6] - p_WO)
+    for index, parents, view in levels[1:]:
+        if view:
+            np.matmul(P[parents], P_local[index], out=P[index])
+        else:
+            P[index] = P[parents] @ P_local[index]
+    return P, p_WO
 
 
 class JointFrames(NamedTuple):
@@ -80,12 +102,34 @@ def _joint_frames(model, q):
     swamp the local ones and cost digits (a 2 kg body 170 m from the world origin lost 6 of them).
     Velocities, accelerations of points, joint forces and energies do not depend on the point.
     """
+    if q.shape[-1] == 1:
+        return _single_joint_frames(model, q)[0]
     R_WJ, p_WO, p_OJ = _joint_poses(model, q)
     return JointFrames(R_WJ, p_WO, p_OJ, motion_subspaces(model, R_WJ, p_OJ))
 
 
+def _single_joint_frames(model, q):
+    """:func:`_joint_frames` of one lane (``q (nq, 1)``), and the force transforms ``ᴼX_J* (nj, 6, 6)`` they
+    come from (:func:`_plucker_poses`): ``ξ = ᴼX_J S = Π ᴼX_J* Π S``, Π swapping the linear and angular halves
+    of a spatial vector."""
+    P, p_WO = _plucker_poses(model, q[:, 0])
+    X_star = P[:, :6, :6]
+    xi = (_at_dofs(model, X_star) @ model.angular_first_subspaces).take(_SWAP_HALVES, axis=-2)
+    return JointFrames(*_lane_poses(P, p_WO), xi), X_star
+
+
+_SWAP_HALVES = np.array([3, 4, 5, 0, 1, 2])  # Π: [v; ω] <-> [ω; v]
+
+
+def _lane_poses(P, p_WO):
+    """``R_WJ (nj, 3, 3, 1)``, ``p_WO (3, 1)``, ``p_OJ (nj, 3, 1)`` from :func:`_plucker_poses`: views."""
+    return P[:, :3, :3, None], p_WO[:, None], P[:, :3, 6, None]
+
+
 def _joint_poses(model, q):
     """The poses of :func:`_joint_frames` without the motion subspaces: ``R_WJ``, ``p_WO``, ``p_OJ``."""
+    if q.shape[-1] == 1:
+        return _lane_poses(*_plucker_poses(model, q[:, 0]))
     R_WJ, p_WJ = world_poses(model, q)
     p_WO = p_WJ[0] if model.njoints else np.zeros(p_WJ.shape[1:])
     return R_WJ, p_WO, p_WJ - p_WO

@@ -292,6 +292,15 @@ class Model:
         )
 
     @cached_property
+    def plucker_pose_groups(self) -> tuple:
+        """:attr:`joint_groups` with each type's constants for its Plücker poses instead
+        (:meth:`~multibody.joints.Joint.group_plucker_poses`)."""
+        return tuple((kind, index, q_index,
+                      kind.group_plucker_constants([self.joints[i] for i in np.arange(self.njoints)[index]],
+                                                   self.joint_placements[index]))
+                     for kind, index, q_index, _ in self.joint_groups)
+
+    @cached_property
     def one_dof_per_joint(self) -> bool:
         """Whether every joint has exactly one velocity coordinate (then ``dof_joint`` is the identity)."""
         return all(joint.nv == 1 for joint in self.joints)

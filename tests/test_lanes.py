@@ -19,7 +19,7 @@ from numpy.testing import assert_allclose
 import multibody as mb
 from multibody import lanes, local, spatial
 from dyn_helpers import dynamics_calls, erd_urdf
-from conftest import random_tree_model
+from conftest import random_axis, random_inertia, random_placement, random_tree_model
 
 RNG = np.random.default_rng(7)
 N = 5  # states per lane array
@@ -30,10 +30,26 @@ def off_lanes(x):
 
 
 def lane_test_model(name, seed):
-    """A random tree of all joint types, or Talos on a free-flyer (deep, branched, several blocks)."""
+    """A random tree of all joint types, two trees side by side (several roots), or Talos on a free-flyer
+    (deep, branched, several blocks)."""
     if name == "random_tree":
         return random_tree_model(seed)
+    if name == "two_roots":
+        return two_roots_model(seed)
     return mb.load_urdf(erd_urdf("talos_data/robots/talos_reduced.urdf"), floating_base=True)
+
+
+def two_roots_model(seed):
+    """An arm (revolute, then prismatic) and a floating ball with a spherical pendulum, both rooted in the
+    world at random placements."""
+    rng = np.random.default_rng(seed)
+    b = mb.ModelBuilder(f"two_roots_{seed}")
+    for name, joint, parent in [("arm", mb.joints.Revolute(random_axis(rng)), None),
+                                ("ball", mb.joints.FreeFlyer(), None),
+                                ("slider", mb.joints.Prismatic(random_axis(rng)), "arm"),
+                                ("pendulum", mb.joints.Spherical(), "ball")]:
+        b.add_body(name, joint, parent=parent, placement=random_placement(rng, reach=2.0), inertia=random_inertia(rng))
+    return b.build()
 
 
 def test_to_lanes_and_back_round_trip_with_batch_axes():
@@ -150,16 +166,18 @@ def test_support_and_subtree_sums_equal_explicit_sums_on_both_paths(lanes_per_ar
     assert_allclose(mb.dynamics._subtree_sums(model, x_joints), expected_subtree, rtol=1e-13, atol=1e-13)
 
 
-@pytest.mark.parametrize("model_name", ["random_tree", "talos_floating"])
+@pytest.mark.parametrize("model_name", ["random_tree", "two_roots", "talos_floating"])
 def test_the_tree_pass_of_one_lane_equals_that_of_many(model_name):
-    """One lane takes ξ and the world inertias from one stack of force transforms; many lanes take
-    their structured formulas."""
+    """One lane takes the poses, ξ and the world inertias from one chain of Plücker poses; many lanes
+    take homogeneous poses and the structured formulas."""
     model = lane_test_model(model_name, seed=2)
     q = model.random_configuration(np.random.default_rng(5), (N,))
     many = mb.dynamics._tree(model, lanes.to_lanes(q))
+    many_world = mb.kinematics.world_poses(model, lanes.to_lanes(q))
     for k in range(N):
         one = mb.dynamics._tree(model, q[k][:, None])
-        for name, x, y in zip(one._fields, one, many):
+        one_world = mb.kinematics.world_poses(model, q[k][:, None])
+        for name, x, y in zip(one._fields + ("R_WJ", "p_WJ"), one + one_world, many + many_world):
             assert x.shape[-1] == 1, name
             assert_allclose(x[..., 0], y[..., k], rtol=1e-13, atol=1e-13, err_msg=name)
 
@@ -252,7 +270,7 @@ def test_one_large_block_in_a_fresh_process_does_not_page_fault_on_its_temporari
     pytest.importorskip("resource")
     script = """
 import resource, numpy as np, multibody as mb
-from conftest import random_tree_model
+from conftest import random_axis, random_inertia, random_placement, random_tree_model
 model = random_tree_model(0)
 rng = np.random.default_rng(8)
 n = mb.local.lane_block(model)
