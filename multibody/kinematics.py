@@ -70,11 +70,10 @@ def _plucker_poses(model, q):
         return P, np.zeros(3)
     # The roots relative to O, the first joint's origin
     roots = levels[0][0]
-    p_WO = P_local[0, :3, 6].copy()
-    if isinstance(roots, int):  # joint 0 alone, at O: its translation is zero (x − x, so that a non-finite pose still shows)
-        P[0] = P_local[0]
-        P[0, :3, 6] -= p_WO
-        P[0, 3:6, :3] -= P_local[0, 3:6, :3]
+    p_WO = P_local[0, :3, 6]
+    if isinstance(roots, int):
+        # Joint 0 alone, at O: its translation zeroed (by a product, so that a non-finite pose still shows)
+        np.multiply(P_local[0], _AT_ORIGIN, out=P[0])
     else:
         P[roots] = spatial.plucker_pose(P_local[roots, :3, :3], P_local[roots, :3, 6] - p_WO)
     for index, parents, view in levels[1:]:
@@ -83,6 +82,11 @@ def _plucker_poses(model, q):
         else:
             P[index] = P[parents] @ P_local[index]
     return P, p_WO
+
+
+#: A Plücker pose times this (entry by entry) has no translation: p and [p]× R zero, the rest as it was
+_AT_ORIGIN = np.ones((7, 7))
+_AT_ORIGIN[:3, 6] = _AT_ORIGIN[3:6, :3] = 0.0
 
 
 class JointFrames(NamedTuple):

@@ -358,13 +358,16 @@ class Model:
     @cached_property
     def pose_levels(self) -> tuple:
         """:attr:`levels` for the pose recursion ``X_W,i = X_W,λ(i) X_λ(i),i``: ``(index, parents, view)``,
-        with a lone joint's index and parent as ints, and ``view`` whether ``index`` selects a view (an
-        int or a slice) that a product can be written into."""
+        with a lone joint's index and a parent shared by the whole level as ints (a product broadcasts
+        it), and ``view`` whether ``index`` selects a view (an int or a slice) that a product can be
+        written into."""
         out = []
         for index, parents in self.levels:
             joints, parent_joints = np.arange(self.njoints)[index], self.parents[index]
             if len(joints) == 1:
-                index, parents = int(joints[0]), int(parent_joints[0])
+                index = int(joints[0])
+            if len(set(parent_joints.tolist())) == 1:
+                parents = int(parent_joints[0])
             out.append((index, parents, not isinstance(index, np.ndarray)))
         return tuple(out)
 
