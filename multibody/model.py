@@ -22,7 +22,7 @@ from .inertia import Inertia
 
 STANDARD_GRAVITY = (0.0, 0.0, -9.81)
 
-#: Largest 1-D input whose finiteness check sums a Python list rather than reducing in NumPy
+#: Largest input whose finiteness check sums a Python list rather than reducing in NumPy
 _PYTHON_SUM_SIZE = 64
 
 
@@ -635,7 +635,7 @@ class Model:
             # The common case, checked cheaply: a non-finite entry makes the sum non-finite. Python sums a
             # single state's few numbers for a fraction of a NumPy reduction's cost (which, measured in
             # sequence with the algorithms, came to several µs per array).
-            total = sum(x.tolist()) if x.ndim == 1 and x.size <= _PYTHON_SUM_SIZE else np.add.reduce(x, axis=None)
+            total = sum(x.reshape(-1).tolist()) if x.size <= _PYTHON_SUM_SIZE else np.add.reduce(x, axis=None)
             if not math.isfinite(total) and not np.all(np.isfinite(x)):
                 warnings.warn(f"{name} contains NaN or infinite values; results will contain NaN", RuntimeWarning,
                               stacklevel=3)
