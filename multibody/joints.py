@@ -38,6 +38,7 @@ from . import lanes, spatial
 
 #: Largest accepted ``| |q| − 1 |`` for a quaternion or a planar ``(cos θ, sin θ)`` pair.
 UNIT_NORM_TOLERANCE = 1e-6
+_UNIT_SQUARED_NORMS = ((1.0 - UNIT_NORM_TOLERANCE) ** 2, (1.0 + UNIT_NORM_TOLERANCE) ** 2)
 
 # Position range used by random_configuration for an unbounded translation (m).
 _DEFAULT_TRANSLATION_RANGE = 1.0
@@ -66,12 +67,15 @@ def _constant(array):
 
 def _require_unit_norm(values, joint_name, what):
     # |‖x‖ − 1| > tol  ⟺  ‖x‖² outside [(1 − tol)², (1 + tol)²]; squared norms avoid a square root per state.
-    squared = np.einsum("...i,...i->...", values, values)
-    bad = (squared < (1.0 - UNIT_NORM_TOLERANCE) ** 2) | (squared > (1.0 + UNIT_NORM_TOLERANCE) ** 2)
-    if bad.any():
+    # One state: a dot product and Python's comparisons (NumPy's reductions cost microseconds each).
+    single = values.ndim == 1
+    squared = float(values @ values) if single else np.einsum("...i,...i->...", values, values)
+    bad = (squared < _UNIT_SQUARED_NORMS[0]) | (squared > _UNIT_SQUARED_NORMS[1])  # (NaN passes)
+    if bad if single else bad.any():
         raise ValueError(
             f"joint {joint_name!r}: {what} must have unit norm (tolerance {UNIT_NORM_TOLERANCE:g}), "
-            f"got norm {np.sqrt(squared[bad].flat[0]):.9g}; normalise it or use model.normalize(q)"
+            f"got norm {np.sqrt(np.atleast_1d(squared)[np.atleast_1d(bad)][0]):.9g}; normalise it or use "
+            "model.normalize(q)"
         )
 
 
@@ -169,6 +173,19 @@ class Joint:
         """``P_T (n, 7, 7)``, the Plücker poses of ``placements (n, 4, 4)``."""
         placements = np.asarray(placements, dtype=float)
         return spatial.plucker_pose(placements[:, :3, :3], placements[:, :3, 3])
+
+    @staticmethod
+    def _plucker_placements(joints, placements):
+        """``P_T`` of :meth:`_plucker_tree_transforms`, or ``None`` when the placements are all the identity,
+        for :meth:`_plucker_placed`."""
+        return None if Joint.group_constants(joints, placements) is None else Joint._plucker_tree_transforms(placements)
+
+    @staticmethod
+    def _plucker_placed(P_T, R_J, p_J):
+        """``P_T P_J``: the Plücker pose of a type's joint transform ``(R_J (n, 3, 3), p_J (n, 3))`` placed by
+        ``P_T`` (:meth:`_plucker_placements`; ``None`` for identity placements)."""
+        P_J = spatial.plucker_pose(R_J, p_J)
+        return P_J if P_T is None else P_T @ P_J
 
     @staticmethod
     def _placed(X_T, R_J, p_J):
@@ -488,6 +505,14 @@ class Spherical(Joint):
     def group_transform(cls, constants, q):
         return cls._placed(constants, lanes.quat_to_rotation(q), np.zeros(q.shape[:1] + (3, 1)))
 
+    @classmethod
+    def group_plucker_constants(cls, joints, placements):
+        return Joint._plucker_placements(joints, placements)
+
+    @staticmethod
+    def group_plucker_poses(P_T, q):
+        return Joint._plucker_placed(P_T, spatial.quat_to_rotation(q), np.zeros(q.shape[:1] + (3,)))
+
     def integrate(self, q, v):
         # q ⊗ exp(ω): the body-frame angular velocity acts on the right.
         quat = spatial.quat_multiply(q, spatial.quat_exp(v))
@@ -546,6 +571,14 @@ class FreeFlyer(Joint):
     @classmethod
     def group_transform(cls, constants, q):
         return cls._placed(constants, lanes.quat_to_rotation(q[:, 3:]), q[:, :3])
+
+    @classmethod
+    def group_plucker_constants(cls, joints, placements):
+        return Joint._plucker_placements(joints, placements)
+
+    @staticmethod
+    def group_plucker_poses(P_T, q):
+        return Joint._plucker_placed(P_T, spatial.quat_to_rotation(q[:, 3:]), q[:, :3])
 
     def integrate(self, q, v):
         R0 = spatial.quat_to_rotation(q[..., 3:])

@@ -188,9 +188,13 @@ def test_non_unit_quaternion_beyond_tolerance_raises(name, block):
     q[1, sl] *= 1.0 + 3 * jt.UNIT_NORM_TOLERANCE  # one bad sample in a batch
     with pytest.raises(ValueError, match=re.escape(repr(joint_name))):
         call(name, q=q)
+    with pytest.raises(ValueError, match=re.escape(repr(joint_name))):  # one state alone (its own check)
+        call(name, q=q[1])
     q[1, sl] *= 0.5  # far inside the sphere too
     with pytest.raises(ValueError, match="unit norm"):
         call(name, q=q)
+    with pytest.raises(ValueError, match="unit norm"):
+        call(name, q=q[1])
 
 
 @pytest.mark.parametrize("name", Q_FUNCTIONS)
