@@ -159,7 +159,7 @@ class Joint:
     @classmethod
     def group_plucker_poses(cls, constants, q):
         """The poses of :meth:`group_transform` at one configuration as Plücker poses
-        ``ᵡP_i = [[R, 0, p], [[p]× R, R, 0], [0, 0, 1]]`` (:func:`multibody.spatial.plucker_pose`):
+        ``P_λ(i),i = [[R, 0, p], [[p]× R, R, 0], [0, 0, 1]]`` (:func:`multibody.spatial.plucker_pose`):
         ``q (n, nq)`` -> ``(n, 7, 7)``.
 
         The base version converts :meth:`group_transform`'s; types whose pose is linear in a few

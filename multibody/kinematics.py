@@ -56,7 +56,7 @@ def _plucker_poses(model, q):
     of the joint frames at one configuration ``q (nq,)``: ``(nj, 7, 7)``, relative to the reference point
     ``O`` of :func:`_joint_frames`, and its world position ``p_WO (3,)``.
 
-    ``ᴼP_i = ᴼP_λ(i) ᵡP_i`` level by level down the tree, written in place where the level's joints are a
+    ``ᴼP_i = ᴼP_λ(i) P_λ(i),i`` level by level down the tree, written in place where the level's joints are a
     view: one NumPy call per level of a chain. The products give the force transforms ``ᴼX_J*`` and the
     positions ``p_OJ`` at once, far fewer NumPy calls than forming the transforms from the poses (the
     single configuration's cost is all in the calls).
