@@ -194,10 +194,9 @@ def _in_blocks(model, kernel, batch, *arrays, block=None):
     out of the operating system's page allocator, which costs more than the arithmetic for large
     batches.
     """
-    if not batch:  # one state: each array is a single lane as it is
-        result = kernel(*[None if x is None else x[0][..., None] for x in arrays])
-        return tuple(lanes.from_lanes(x, ()) for x in result) if isinstance(result, tuple) else lanes.from_lanes(result, ())
-    lane_arrays = [None if x is None else lanes.to_lanes(x[0], x[1], batch) for x in arrays]
+    # (one state: each array is a single lane as it is)
+    lane_arrays = [None if x is None else lanes.to_lanes(x[0], x[1], batch) if batch else x[0][..., None]
+                   for x in arrays]
     n, size = math.prod(batch), block or model.lane_block
     if 8 * 6 * max(model.njoints, 1) * n >= _DEFAULT_MMAP_THRESHOLD:  # per-joint spatial vectors, 8-byte floats
         _raise_allocator_thresholds()
