@@ -207,6 +207,40 @@ def test_batches_larger_than_a_block_equal_single_calls(model_name):
             assert_allclose(batched[k], single, rtol=1e-12, atol=1e-12 * max(1.0, np.abs(single).max()), err_msg=what)
 
 
+def test_padded_lanes_repeat_the_last_state_to_an_odd_number_of_cache_lines():
+    from multibody.kinematics import _PADDED_FROM, _padded_lanes
+    n = 2 * _PADDED_FROM  # rows 8 KiB apart unpadded
+    x, one = RNG.standard_normal((3, 4, n)), RNG.standard_normal((3, 1))
+    padded, single, absent = _padded_lanes([x, one, None], n)
+    assert padded.shape == (3, 4, n + 8) and (n + 8) % 16 == 8
+    assert_allclose(padded[..., :n], x, rtol=0, atol=0)
+    assert_allclose(padded[..., n:], np.repeat(x[..., -1:], 8, axis=-1), rtol=0, atol=0)
+    assert single is one and absent is None  # a broadcast lane and a missing array stay as they are
+    # already an odd number of cache lines, or too few lanes to matter: unchanged
+    odd = RNG.standard_normal((2, n + 8))
+    assert _padded_lanes([odd], n + 8)[0] is odd
+    few = RNG.standard_normal((2, _PADDED_FROM - 16))
+    assert _padded_lanes([few], _PADDED_FROM - 16)[0] is few
+
+
+def test_a_padded_block_gives_back_only_the_callers_states():
+    from multibody.kinematics import _in_blocks
+    model = random_tree_model(2)
+    n = 1024
+    rng = np.random.default_rng(9)
+    q = model.random_configuration(rng, (n,))
+    seen = []
+
+    def kernel(q_lanes):
+        seen.append(q_lanes.shape[-1])
+        return local.crba(model, q_lanes)
+
+    M = _in_blocks(model, kernel, (n,), (q, 1), block=n)
+    assert seen == [n + 8] and M.shape == (n, model.nv, model.nv)
+    for k in (0, n - 1):
+        assert_allclose(M[k], mb.mass_matrix(model, q[k]), rtol=1e-12, atol=1e-12)
+
+
 def test_one_configuration_with_a_block_sized_batch_of_velocities():
     model = random_tree_model(2)
     n = model.lane_block + 3
