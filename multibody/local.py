@@ -71,6 +71,7 @@ class LocalGroup(NamedTuple):
     rigid_to_parent: np.ndarray  # (k, 10, 10) the tree transform on rigid-body parameters (rigid_parameters)
     # CRBA's force columns, in an order where every subtree's are contiguous (_subtree_columns):
     composite_columns: np.ndarray  # (k, n, 6, 10) I S of each joint's n subspace columns, linear in I's parameters
+    composite_gather: object  # the same as (index, weight) when each entry is one signed parameter (_as_gather), else None
     own_columns: object  # the joints' own columns
     subtree_columns: object  # (m,) the columns of the joints' subtrees, joint after joint
     column_joint: object  # (m,) the group position of each of those columns' joint (None for one joint)
@@ -84,6 +85,7 @@ class LocalTree(NamedTuple):
 
     groups: tuple  # LocalGroup per level and motion, root level first
     angles: np.ndarray  # (n,) indices into q of the revolute joints' angles, in group order
+    unrelated: tuple  # (rows, columns) of M where neither coordinate's joint supports the other's: zero
     inertia: np.ndarray  # (nj, 6, 6) spatial inertias in the turned joint frames
     turn: np.ndarray  # (nj, 3, 3) P: the turned frame's axes in the joint frame
     rigid: np.ndarray  # (nj, 10) the inertias as rigid-body parameters (see rigid_parameters)
@@ -160,13 +162,29 @@ def local_tree(model):
             groups.append(LocalGroup(kind, _index(joints), None if parents[0] < 0 else _index(parents), configuration,
                                      dofs, Y[joints], np.ascontiguousarray(Y[joints].transpose(0, 2, 1)), subspace,
                                      constants, () if parents[0] < 0 else _parent_rounds(parents), rigid_to_parent[joints],
-                                     composite_columns, _index((first_column[joints][:, None] + np.arange(first.nv)).ravel()),
+                                     composite_columns, _as_gather(composite_columns),
+                                     _index((first_column[joints][:, None] + np.arange(first.nv)).ravel()),
                                      _index(columns), None if len(joints) == 1 else column_joint,
                                      own_dofs[column_joint], column_dofs[columns][:, None],
                                      _articulated_to_parent(kind, Y[joints])))
     angles = [model.idx_q[np.arange(model.njoints)[g.joints]] for g in groups if g.motion == "revolute"]
-    return LocalTree(tuple(groups), np.concatenate(angles) if angles else np.zeros(0, dtype=int), inertia, turns,
-                     rigid_parameters(inertia).reshape(-1, 10))
+    unrelated = np.nonzero(~(model.dof_ancestor | model.dof_ancestor.T))
+    return LocalTree(tuple(groups), np.concatenate(angles) if angles else np.zeros(0, dtype=int), unrelated, inertia,
+                     turns, rigid_parameters(inertia).reshape(-1, 10))
+
+
+def _as_gather(C):
+    """A constant linear map of rigid-body parameters ``C (k, n, 6, 10)`` as a signed gather, when each of
+    its rows picks at most one parameter: ``(index (k n 6,), weight (k n 6, 1))`` with ``C x`` equal to
+    ``x.reshape(k 10, N)[index] * weight`` for ``x (k, 10, N)``; else ``None``. A revolute or prismatic
+    joint's column ``I S`` is such a map (``[−h_y, h_x, 0, Ī_xz, Ī_yz, Ī_zz]`` about ``z``): a gather reads
+    six numbers per state where the product multiplies sixty."""
+    rows = C.reshape(C.shape[0], -1, C.shape[-1])
+    if np.any(np.count_nonzero(rows, axis=-1) > 1):
+        return None
+    parameter = np.abs(rows).argmax(axis=-1)
+    weight = np.take_along_axis(rows, parameter[..., None], axis=-1)
+    return (np.arange(C.shape[0])[:, None] * C.shape[-1] + parameter).ravel(), weight.reshape(-1, 1)
 
 
 #: Positions of the ten rigid-body parameters (:func:`rigid_parameters`): each pair a turn about ``z``
@@ -658,7 +676,8 @@ def crba(model, q):
     n = q.shape[-1]
     motions = joint_motions(tree, q)
     composite = np.array(np.broadcast_to(tree.rigid[..., None], (model.njoints, 10, n)))
-    M = np.zeros((model.nv, model.nv, n))  # zero where neither joint supports the other
+    M = np.empty((model.nv, model.nv, n))
+    M[tree.unrelated] = 0.0  # where neither joint supports the other; the levels fill the rest
     F = np.empty((model.nv, 6, n))  # force columns, in the order of LocalGroup.subtree_columns
     for group, motion in zip(reversed(tree.groups), reversed(motions)):
         x = composite[group.joints]  # complete: every deeper level has been added
@@ -666,7 +685,11 @@ def crba(model, q):
 
         def own_columns(out):
             # F_i = I^c_i S_i, beside the columns of i's subtree (already in frame i)
-            np.matmul(group.composite_columns, x[:, None], out=out.reshape(group.composite_columns.shape[:3] + (n,)))
+            if group.composite_gather is None:
+                np.matmul(group.composite_columns, x[:, None], out=out.reshape(group.composite_columns.shape[:3] + (n,)))
+            else:
+                index, weight = group.composite_gather
+                np.multiply(x.reshape(-1, n)[index], weight, out=out.reshape(-1, n))
             return out
 
         def to_parents(out):

@@ -84,6 +84,36 @@ def test_crba_equals_the_world_coordinate_crba(model_name):
     assert_allclose(M, M.transpose(1, 0, 2), rtol=0, atol=0)
 
 
+@pytest.mark.parametrize("model_name", MODELS)
+def test_own_force_columns_by_gather_equal_the_product_and_unrelated_entries_are_zero(model_name):
+    model = local_test_model(model_name)
+    tree = model.local_tree
+    rng = np.random.default_rng(18)
+    kinds = set()
+    for group in tree.groups:
+        k = group.composite_columns.shape[0]
+        x = rng.standard_normal((k, 10, 5))
+        expected = np.matmul(group.composite_columns, x[:, None])
+        if group.composite_gather is None:
+            kinds.add("product")
+            # a general joint: some entry of I S combines parameters (Ī_xx = a + b)
+            assert np.any(np.count_nonzero(group.composite_columns.reshape(k, -1, 10), axis=-1) > 1)
+            continue
+        kinds.add("gather")
+        index, weight = group.composite_gather
+        assert_allclose((x.reshape(-1, 5)[index] * weight).reshape(expected.shape), expected, rtol=0, atol=0)
+        if isinstance(group.motion, str):
+            assert weight.shape == (6 * k, 1)  # revolute and prismatic: one column per joint
+    assert "gather" in kinds
+    # M entries that no level writes
+    rows, columns = tree.unrelated
+    related = model.dof_ancestor | model.dof_ancestor.T
+    assert not related[rows, columns].any() and len(rows) == np.count_nonzero(~related)
+    if len(rows):
+        M = local.crba(model, random_lanes(model, rng, 3)[0])
+        assert np.all(M[rows, columns] == 0.0)
+
+
 def test_rigid_parameters_round_trip_and_turn_as_the_inertia_does():
     rng = np.random.default_rng(17)
     inertia = mb.inertia.box(2.0, (0.3, 0.2, 0.1)).transformed(mb.spatial.pose_from_xyz_rpy(rng.uniform(-1, 1, 3),
