@@ -633,18 +633,11 @@ def _subtract_outer(group, M, U_D_inv, U):
     """``M − (U D⁻¹) Uᵀ``, in place on ``M`` held by columns ``(6, k, 6, N)``: column by column for one
     coordinate per joint, whose temporaries then stay small."""
     if not isinstance(group.motion, str):
-        M -= _outer(group, U_D_inv, U)
+        M -= np.einsum("mkrn,mkcn->ckrn", U_D_inv, U)
         return M
     for column, u in zip(M, U.transpose(1, 0, 2)):
         column -= u[:, None] * U_D_inv
     return M
-
-
-def _outer(group, U_D_inv, U):
-    """``(U D⁻¹) Uᵀ`` by columns ``(6, k, 6, N)``."""
-    if isinstance(group.motion, str):
-        return U.transpose(1, 0, 2)[:, :, None] * U_D_inv[None]
-    return np.einsum("mkrn,mkcn->ckrn", U_D_inv, U)
 
 
 def _apply(group, M, x):
