@@ -20,7 +20,8 @@ rigid body it moves, ``(m, h, Ī)`` about the joint frame's origin in its axes (
 
 ``bodies (nb, 13) float64``: per URDF link, the joint that moves it (``-1`` when fixed to the world)
 and its pose ``(R_JB, p_JB)`` in that joint's frame (in the world frame when fixed to it), as
-``[joint, R (9), p (3)]``: the layout of every frame a kernel is asked about.
+``[joint, R (9), p (3)]``: the layout of every frame a kernel is asked about. ``joint_frames (nj, 13)``
+holds the rows of the joint frames themselves.
 """
 
 from __future__ import annotations
@@ -50,6 +51,7 @@ class CompiledTree(NamedTuple):
     joints: np.ndarray
     reals: np.ndarray
     bodies: np.ndarray
+    joint_frames: np.ndarray
     nq: int
     nv: int
 
@@ -67,7 +69,7 @@ def kind_code(joint) -> int:
 
 
 def frame_rows(model, frames):
-    """``(k, 13)`` frame rows (module docstring) of ``(body index or None, X_BF (4, 4))`` pairs: each
+    """``(k, 13)`` frame rows (read-only) (module docstring) of ``(body index or None, X_BF (4, 4))`` pairs: each
     frame's joint and its pose in that joint's frame (in the world when fixed to it)."""
     rows = np.zeros((len(frames), FRAME_SIZE))
     for row, (b, X_BF) in zip(rows, frames):
@@ -78,7 +80,7 @@ def frame_rows(model, frames):
         row[FRAME_JOINT] = joint
         row[FRAME_ROTATION:FRAME_POSITION] = X_JF[:3, :3].reshape(9)
         row[FRAME_POSITION:FRAME_SIZE] = X_JF[:3, 3]
-    return rows
+    return _frozen(rows)
 
 
 def _frozen(array):
@@ -107,4 +109,7 @@ def compile_tree(model) -> CompiledTree:
     reals[nj, GRAVITY:GRAVITY + 3] = model.gravity
     bodies = frame_rows(model, [(b, np.eye(4)) if model.body_joints[b] >= 0 else (None, model.body_placements[b])
                                 for b in range(model.nbodies)])
-    return CompiledTree(_frozen(joints), _frozen(reals), _frozen(bodies), model.nq, model.nv)
+    joint_frames = np.zeros((nj, FRAME_SIZE))
+    joint_frames[:, FRAME_JOINT] = np.arange(nj)
+    joint_frames[:, FRAME_ROTATION:FRAME_POSITION] = np.eye(3).reshape(9)
+    return CompiledTree(_frozen(joints), _frozen(reals), _frozen(bodies), _frozen(joint_frames), model.nq, model.nv)
