@@ -1,0 +1,73 @@
+"""Kinetic and gravitational potential energy of the moving bodies.
+
+R. Featherstone, *Rigid Body Dynamics Algorithms* (RBDA), Springer 2008: the kinetic energy of a
+rigid body ``½ vᵀ I v`` (eq. 2.67) summed over the bodies, with the body velocities of Table 5.1's
+forward pass in joint coordinates; the potential energy ``U = −Σ mᵢ gᵀ cᵢ`` from the world poses of
+:func:`multibody.kernels.kinematics.joint_placements`. Bodies fixed to the world are not counted
+(their energy is constant), as in Pinocchio's ``computePotentialEnergy``.
+"""
+
+from __future__ import annotations
+
+from numba import njit
+
+from ..tree import AXIS, GRAVITY, INERTIA, IQ, IV, KIND, NV, PARENT, POSITION, ROTATION
+from . import joints as kinds
+from .kinematics import joint_placements
+from .spatial import add3, add6, compose, dot3, dot6, inertia_times, load3, load6, load9, load10, motion_to_child, \
+    rotate, scale3, store
+
+ZERO6 = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+
+
+def workspace_size(nj, nv):
+    """Floats of workspace one state needs for either kernel: per joint its velocity (6) for the kinetic
+    energy, its world pose (12) for the potential energy."""
+    return 12 * nj
+
+
+@njit(cache=True)
+def kinetic_energy(joints, reals, frames, q, v, x2, x3, out, ws):
+    """``T = Σᵢ ½ vᵢᵀ Iᵢ vᵢ`` (J) into ``out (1, 1)``, with ``vᵢ`` each body's velocity and ``Iᵢ`` its
+    inertia, both in its joint frame (RBDA eq. 2.67, velocities by Table 5.1's forward pass).
+
+    ``q (nq,)``, ``v (nv,)``; ``frames``, ``x2``, ``x3`` unused. Pinocchio: ``computeKineticEnergy``.
+    """
+    nj = joints.shape[0]
+    vel = ws[: 6 * nj].reshape((nj, 6))
+    T = 0.0
+    for i in range(nj):
+        parent, kind = joints[i, PARENT], joints[i, KIND]
+        row = reals[i]
+        axis = load3(row, AXIS)
+        # X_λ(i),i = X_T X_J(q_i)
+        R_J, p_J = kinds.transform(kind, axis, q, joints[i, IQ])
+        R, p = compose(load9(row, ROTATION), load3(row, POSITION), R_J, p_J)
+        v_parent = ZERO6 if parent < 0 else load6(vel[parent], 0)
+        # v_i = ⁱX_λ v_λ + S q̇_i
+        v_i = add6(motion_to_child(R, p, v_parent), kinds.motion(kind, axis, joints[i, NV], v, joints[i, IV]))
+        store(vel[i], 0, v_i)
+        # T += ½ v_iᵀ I_i v_i
+        T += 0.5 * dot6(v_i, inertia_times(load10(row, INERTIA), v_i))
+    out[0, 0] = T
+
+
+@njit(cache=True)
+def potential_energy(joints, reals, frames, q, x1, x2, x3, out, ws):
+    """``U = −Σᵢ mᵢ gᵀ cᵢ`` (J) into ``out (1, 1)`` over the moving bodies, ``cᵢ`` their world centres of
+    mass and ``g`` the gravity (m/s², world axes).
+
+    ``mᵢ cᵢ = mᵢ p_Wi + R_Wi hᵢ`` with ``hᵢ = mᵢ c`` the first moment in the joint frame.
+    ``q (nq,)``; ``frames``, ``x1..x3`` unused. Pinocchio: ``computePotentialEnergy``.
+    """
+    nj = joints.shape[0]
+    pose = joint_placements(joints, reals, q, ws)
+    g = load3(reals[nj], GRAVITY)
+    U = 0.0
+    for i in range(nj):
+        row = reals[i]
+        # m_i c_i = m_i p_Wi + R_Wi h_i
+        moment = add3(scale3(row[INERTIA], load3(pose[i], 9)), rotate(load9(pose[i], 0), load3(row, INERTIA + 1)))
+        # U −= gᵀ m_i c_i
+        U -= dot3(g, moment)
+    out[0, 0] = U

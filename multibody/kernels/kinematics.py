@@ -1,0 +1,284 @@
+"""Kinematics: world placements of joints and frames, frame Jacobians, their time variation and the
+velocity-product acceleration of frames.
+
+R. Featherstone, *Rigid Body Dynamics Algorithms* (RBDA), Springer 2008: forward kinematics
+(§4.1, Table 5.1's forward pass), the Jacobian of a body point (§8.4 and eq. 8.20) and its time
+derivative from ``ξ̇ = V × ξ`` for a motion vector fixed in a moving body (eq. 2.37). The forward
+passes run in joint coordinates as :mod:`multibody.kernels.rnea` does; the Jacobian columns are then
+mapped to world axes at the frame's point, as Pinocchio's ``computeJointJacobians`` and
+``getFrameJacobian(..., LOCAL_WORLD_ALIGNED)`` do.
+
+A frame row (:mod:`multibody.tree`) is ``[joint, R_JF (9), p_JF (3)]``: a frame F fixed in the body
+moved by ``joint`` with its pose ``X_JF`` in that joint's frame, or, for ``joint = -1``, a frame fixed
+in the world with its world pose. Its world pose is ``X_WF = X_WJ X_JF``.
+
+Jacobians have rows ``[linear; angular]`` in world axes, the linear rows the velocity of the frame's
+point (``LOCAL_WORLD_ALIGNED``), and one column per velocity coordinate (zero for coordinates that do
+not move the frame).
+"""
+
+from __future__ import annotations
+
+from numba import njit
+
+from ..tree import AXIS, FRAME_JOINT, FRAME_POSITION, FRAME_ROTATION, IQ, IV, KIND, NV, PARENT, POSITION, ROTATION
+from . import joints as kinds
+from .spatial import (add3, add6, compose, cross, load3, load6, load9, motion_cross, motion_to_child, rotate, store,
+                      sub3)
+
+ZERO6 = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+
+#: Columns of one row of :func:`frame_motions`: ``R_WF`` (9, row-major), ``p_WF`` (3), ``J`` (6 × nv,
+#: row-major), then ``J̇ v`` (6) at ``MOTION_JACOBIAN + 6 nv``
+MOTION_ROTATION, MOTION_POSITION, MOTION_JACOBIAN = 0, 9, 12
+
+
+def motion_columns(nv):
+    """Columns of one frame's row in :func:`frame_motions`: ``18 + 6 nv``."""
+    return 18 + 6 * nv
+
+
+def workspace_size(nj, nv):
+    """Floats of workspace one state needs for any kernel of this module: per joint its world pose
+    (12), its velocity and its velocity-product acceleration (6 each)."""
+    return 24 * nj
+
+
+@njit(cache=True)
+def joint_placements(joints, reals, q, ws):
+    """World pose ``X_Wi = (R_Wi, p_Wi)`` of every joint frame into ``ws[:12 nj]``, returned as
+    ``pose (nj, 12)`` (``R_Wi`` row-major, then ``p_Wi`` in m): RBDA §4.1, ``X_Wi = X_Wλ(i) X_T X_J(q_i)``.
+    """
+    nj = joints.shape[0]
+    pose = ws[: 12 * nj].reshape((nj, 12))
+    for i in range(nj):
+        parent, kind = joints[i, PARENT], joints[i, KIND]
+        row = reals[i]
+        # X_λ(i),i = X_T X_J(q_i)
+        R_J, p_J = kinds.transform(kind, load3(row, AXIS), q, joints[i, IQ])
+        R, p = compose(load9(row, ROTATION), load3(row, POSITION), R_J, p_J)
+        if parent >= 0:
+            # X_Wi = X_Wλ X_λ(i),i
+            R, p = compose(load9(pose[parent], 0), load3(pose[parent], 9), R, p)
+        store(pose[i], 0, R)
+        store(pose[i], 9, p)
+    return pose
+
+
+@njit(cache=True)
+def joint_motions(joints, reals, q, v, ws):
+    """World poses, velocities and velocity-product accelerations of every joint frame (RBDA Table 5.1,
+    forward pass with ``q̈ = 0`` and no gravity), in ``ws[:24 nj]``. Returns
+    ``pose (nj, 12)`` as :func:`joint_placements`, ``vel (nj, 6)`` the body velocities ``v_i`` and
+    ``acc (nj, 6)`` the spatial accelerations ``a_i`` the bodies have when every ``q̈`` is zero, both in
+    joint coordinates at the joint origin (m/s, rad/s; m/s², rad/s²).
+    """
+    nj = joints.shape[0]
+    pose = ws[: 12 * nj].reshape((nj, 12))
+    vel = ws[12 * nj : 18 * nj].reshape((nj, 6))
+    acc = ws[18 * nj : 24 * nj].reshape((nj, 6))
+    for i in range(nj):
+        parent, kind = joints[i, PARENT], joints[i, KIND]
+        row = reals[i]
+        axis = load3(row, AXIS)
+        # X_λ(i),i = X_T X_J(q_i)
+        R_J, p_J = kinds.transform(kind, axis, q, joints[i, IQ])
+        R, p = compose(load9(row, ROTATION), load3(row, POSITION), R_J, p_J)
+        # v_J = S q̇_i   (S constant in the joint frame: c_J = 0)
+        v_J = kinds.motion(kind, axis, joints[i, NV], v, joints[i, IV])
+        if parent < 0:
+            R_W, p_W, v_parent, a_parent = R, p, ZERO6, ZERO6
+        else:
+            # X_Wi = X_Wλ X_λ(i),i
+            R_W, p_W = compose(load9(pose[parent], 0), load3(pose[parent], 9), R, p)
+            v_parent, a_parent = load6(vel[parent], 0), load6(acc[parent], 0)
+        # v_i = ⁱX_λ v_λ + v_J
+        v_i = add6(motion_to_child(R, p, v_parent), v_J)
+        # a_i = ⁱX_λ a_λ + v_i × v_J   (q̈ = 0)
+        a_i = add6(motion_to_child(R, p, a_parent), motion_cross(v_i, v_J))
+        store(pose[i], 0, R_W)
+        store(pose[i], 9, p_W)
+        store(vel[i], 0, v_i)
+        store(acc[i], 0, a_i)
+    return pose, vel, acc
+
+
+@njit(cache=True)
+def frame_joint(frames, k):
+    """The joint that moves frame row ``k`` (``-1``: fixed in the world)."""
+    return int(frames[k, FRAME_JOINT])
+
+
+@njit(cache=True)
+def frame_pose(pose, frames, k):
+    """World pose ``(R_WF, p_WF)`` of frame row ``k`` from the joint poses ``pose (nj, 12)``:
+    ``X_WF = X_WJ X_JF`` (``X_JF`` itself for a frame fixed in the world)."""
+    j = frame_joint(frames, k)
+    R_JF, p_JF = load9(frames[k], FRAME_ROTATION), load3(frames[k], FRAME_POSITION)
+    if j < 0:
+        return R_JF, p_JF
+    return compose(load9(pose[j], 0), load3(pose[j], 9), R_JF, p_JF)
+
+
+@njit(cache=True)
+def jacobian_columns(joints, reals, pose, j, x, J):
+    """World-aligned Jacobian at the world point ``x`` of the body of joint ``j`` into ``J (6, nv)``
+    (every entry written; ``j = -1`` gives zero).
+
+    The column of coordinate k of a supporting joint i is its subspace column ``s = [s_v; s_ω]``
+    (joint-i coordinates) seen in world axes at ``x``: ``ω_k = R_Wi s_ω``,
+    ``v_k = R_Wi s_v + ω_k × (x − p_Wi)`` (RBDA eq. 8.20 with ``ⁱX_W``'s rotation and lever).
+    """
+    for r in range(6):
+        for c in range(J.shape[1]):
+            J[r, c] = 0.0
+    i = j
+    while i >= 0:
+        kind, iv = joints[i, KIND], joints[i, IV]
+        axis = load3(reals[i], AXIS)
+        R_Wi = load9(pose[i], 0)
+        lever = sub3(x, load3(pose[i], 9))
+        for k in range(joints[i, NV]):
+            s = kinds.subspace_column(kind, axis, k)
+            # ω_k = R_Wi s_ω ;  v_k = R_Wi s_v + ω_k × (x − p_Wi)
+            w = rotate(R_Wi, (s[3], s[4], s[5]))
+            u = add3(rotate(R_Wi, (s[0], s[1], s[2])), cross(w, lever))
+            for r in range(3):
+                J[r, iv + k] = u[r]
+                J[3 + r, iv + k] = w[r]
+        i = joints[i, PARENT]
+
+
+@njit(cache=True)
+def frame_point(frames, pose, point):
+    """World position ``x`` of frames[0]'s origin displaced by ``point (3,)`` (frame axes, m; length 0:
+    the origin): ``x = p_WF + R_WF point``."""
+    R_WF, p_WF = frame_pose(pose, frames, 0)
+    if point.shape[0] == 0:
+        return p_WF
+    return add3(p_WF, rotate(R_WF, load3(point, 0)))
+
+
+@njit(cache=True)
+def frame_placements(joints, reals, frames, q, x1, x2, x3, out, ws):
+    """World placements of every frame row into ``out (m, 16)``: row k the homogeneous ``X_WF`` of
+    ``frames[k]``, row-major 4×4 (bottom row ``0 0 0 1``; rotation, then position in m). RBDA §4.1.
+
+    ``q (nq,)``; ``frames (m, 13)``; ``x1..x3`` unused. With ``frames = tree.bodies`` this is the forward
+    kinematics of every body (Pinocchio: ``forwardKinematics`` + ``updateFramePlacements``, ``data.oMf``).
+    """
+    pose = joint_placements(joints, reals, q, ws)
+    for k in range(frames.shape[0]):
+        R, p = frame_pose(pose, frames, k)
+        X = out[k]
+        # X_WF = [[R_WF, p_WF], [0, 1]]
+        for r in range(3):
+            X[4 * r] = R[3 * r]
+            X[4 * r + 1] = R[3 * r + 1]
+            X[4 * r + 2] = R[3 * r + 2]
+            X[4 * r + 3] = p[r]
+        X[12], X[13], X[14], X[15] = 0.0, 0.0, 0.0, 1.0
+
+
+@njit(cache=True)
+def frame_jacobian(joints, reals, frames, q, point, x2, x3, out, ws):
+    """Jacobian ``J (6, nv)`` of a point of frames[0] into ``out``: ``[ẋ; ω] = J q̇`` with rows
+    ``[linear; angular]`` in world axes at the point (``LOCAL_WORLD_ALIGNED``); RBDA §8.4, eq. 8.20.
+
+    ``q (nq,)``; ``point (3,)`` the point in frame F's axes relative to its origin (m), or length 0 for
+    the origin; ``x2, x3`` unused. Columns of coordinates that do not move the frame are zero, all of
+    them for a frame fixed in the world. Pinocchio: ``computeJointJacobians`` +
+    ``getFrameJacobian(..., LOCAL_WORLD_ALIGNED)``.
+    """
+    pose = joint_placements(joints, reals, q, ws)
+    jacobian_columns(joints, reals, pose, frame_joint(frames, 0), frame_point(frames, pose, point), out)
+
+
+@njit(cache=True)
+def frame_jacobian_time_variation(joints, reals, frames, q, v, point, x3, out, ws):
+    """Time derivative ``J̇ (6, nv)`` of :func:`frame_jacobian` along the motion ``v`` into ``out``, so
+    that ``J q̈ + J̇ q̇`` is the point's classical acceleration ``[ẍ; ω̇]`` (world axes).
+
+    A subspace column ``ξ_k`` of joint i is fixed in body i, so ``ξ̇_k = V_i × ξ_k`` (RBDA eq. 2.37),
+    computed in joint-i coordinates as ``v_i × s``; in world axes at the point ``x``, which itself
+    moves with ``ẋ``: ``J̇_k = [(V_i × ξ_k)_v + ω_k × ẋ; (V_i × ξ_k)_ω]``.
+
+    ``q (nq,)``, ``v (nv,)``, ``point (3,)`` in frame F's axes (m) or length 0; ``x3`` unused. Zero for a
+    frame fixed in the world. Pinocchio: ``computeJointJacobiansTimeVariation`` +
+    ``getFrameJacobianTimeVariation(..., LOCAL_WORLD_ALIGNED)``.
+    """
+    pose, vel, _ = joint_motions(joints, reals, q, v, ws)
+    for r in range(6):
+        for c in range(out.shape[1]):
+            out[r, c] = 0.0
+    j = frame_joint(frames, 0)
+    if j < 0:
+        return
+    x = frame_point(frames, pose, point)
+    # ẋ = R_Wj v_j + (R_Wj ω_j) × (x − p_Wj)
+    R_Wj = load9(pose[j], 0)
+    x_dot = add3(rotate(R_Wj, load3(vel[j], 0)), cross(rotate(R_Wj, load3(vel[j], 3)), sub3(x, load3(pose[j], 9))))
+    i = j
+    while i >= 0:
+        kind, iv = joints[i, KIND], joints[i, IV]
+        axis = load3(reals[i], AXIS)
+        R_Wi = load9(pose[i], 0)
+        lever = sub3(x, load3(pose[i], 9))
+        v_i = load6(vel[i], 0)
+        for k in range(joints[i, NV]):
+            s = kinds.subspace_column(kind, axis, k)
+            # ξ̇_k = v_i × s   (joint-i coordinates)
+            c = motion_cross(v_i, s)
+            # in world axes at x: [R c_v + (R c_ω) × (x − p_Wi) + ω_k × ẋ; R c_ω],  ω_k = R s_ω
+            c_w = rotate(R_Wi, (c[3], c[4], c[5]))
+            w = rotate(R_Wi, (s[3], s[4], s[5]))
+            u = add3(add3(rotate(R_Wi, (c[0], c[1], c[2])), cross(c_w, lever)), cross(w, x_dot))
+            for r in range(3):
+                out[r, iv + k] = u[r]
+                out[3 + r, iv + k] = c_w[r]
+        i = joints[i, PARENT]
+
+
+@njit(cache=True)
+def frame_motions(joints, reals, frames, q, v, x2, x3, out, ws):
+    """What a constraint on a frame needs, for every frame row, from one forward pass: row k of
+    ``out (m, 18 + 6 nv)`` holds for ``frames[k]``
+
+    ==============================  ====================================================================
+    columns                         content
+    ==============================  ====================================================================
+    ``0:9``                         ``R_WF`` row-major
+    ``9:12``                        ``p_WF`` (m)
+    ``12 : 12 + 6 nv``              ``J (6, nv)`` row-major: rows ``[linear; angular]``, world axes at F's
+                                    origin (as :func:`frame_jacobian`)
+    ``12 + 6 nv : 18 + 6 nv``       ``J̇ v``: the classical linear acceleration of F's origin and the
+                                    angular acceleration when ``q̈ = 0`` (world axes; m/s², rad/s²)
+    ==============================  ====================================================================
+
+    ``J̇ v`` is the body's velocity-product acceleration ``a_j`` (RBDA Table 5.1 with ``q̈ = 0``, no
+    gravity) taken at F's origin ``p`` (joint-j coordinates) and made classical:
+    ``ẍ = a_v + α × p + ω × (v + ω × p)`` (RBDA §2.11), then turned to world axes. A frame fixed in
+    the world has ``J = 0`` and ``J̇ v = 0``. ``q (nq,)``, ``v (nv,)``; ``x2, x3`` unused.
+    NumPy counterpart: ``multibody.kinematics.frame_kinematics``.
+    """
+    pose, vel, acc = joint_motions(joints, reals, q, v, ws)
+    nv = (out.shape[1] - 18) // 6
+    for k in range(frames.shape[0]):
+        row = out[k]
+        R_WF, p_WF = frame_pose(pose, frames, k)
+        store(row, MOTION_ROTATION, R_WF)
+        store(row, MOTION_POSITION, p_WF)
+        j = frame_joint(frames, k)
+        jacobian_columns(joints, reals, pose, j, p_WF, row[MOTION_JACOBIAN : MOTION_JACOBIAN + 6 * nv].reshape((6, nv)))
+        bias = MOTION_JACOBIAN + 6 * nv
+        if j < 0:
+            store(row, bias, ZERO6)
+            continue
+        p = load3(frames[k], FRAME_POSITION)
+        v_j, w_j = load3(vel[j], 0), load3(vel[j], 3)
+        a_j, alpha_j = load3(acc[j], 0), load3(acc[j], 3)
+        # ẍ = a_v + α × p + ω × (v + ω × p)   (joint-j coordinates)
+        x_ddot = add3(add3(a_j, cross(alpha_j, p)), cross(w_j, add3(v_j, cross(w_j, p))))
+        R_Wj = load9(pose[j], 0)
+        store(row, bias, rotate(R_Wj, x_ddot))
+        store(row, bias + 3, rotate(R_Wj, alpha_j))
