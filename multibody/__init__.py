@@ -5,6 +5,7 @@ Public names are listed in ``docs/api.md``; conventions (vector ordering, frames
 """
 
 from . import inertia, joints, robots, spatial
+from .driver import get_num_threads, set_num_threads
 from .constrained import ConstrainedSystem, ConstraintError, KKTSolution
 from .constraints import (
     Distance,
@@ -89,6 +90,8 @@ __all__ = [
     "ModelBuilder",
     "URDFError",
     "forward_kinematics",
+    "get_num_threads",
+    "set_num_threads",
     "generalized_forces",
     "inertia",
     "jacobian",

@@ -2,14 +2,14 @@
 
 A kernel (:mod:`multibody.kernels`) computes one state: ``kernel(joints, reals, frames, x0, x1, x2, x3,
 out, workspace)`` with the compiled tree's arrays, a table of frame rows (:mod:`multibody.tree`), up
-to four per-state input vectors (length 0 when unused), a per-state output ``out (rows, cols)`` and
-a workspace. :func:`evaluate` broadcasts the leading batch axes of the inputs, allocates the output
-and the workspaces, and runs the kernel on one state directly or on many states in parallel, each
-thread over its own contiguous share of the states with its own workspace. The states are
-independent, so any number of threads gives the same numbers.
+to four per-state input vectors (length 0 when unused), a per-state output ``out (rows, cols)``
+written in place and a workspace. :func:`evaluate` broadcasts the leading batch axes of the inputs,
+allocates the output and the workspaces, and runs the kernel on one state directly or on many
+states in parallel: each thread takes its own contiguous share of the states and its own
+workspace. The states are independent, so any number of threads gives the same numbers.
 
-The thread count is Numba's (``NUMBA_NUM_THREADS`` bounds it); :func:`set_num_threads` and the
-environment variable ``MULTIBODY_NUM_THREADS`` set it.
+Batches run on Numba's threads: :func:`set_num_threads` or the environment variable
+``MULTIBODY_NUM_THREADS`` sets how many (at most ``NUMBA_NUM_THREADS``, the cores by default).
 """
 
 from __future__ import annotations
@@ -21,18 +21,20 @@ import numba
 import numpy as np
 from numba import njit, prange
 
-from .kernels import rnea
+from .kernels import aba, coriolis, crba, energy, kinematics, rnea
 
-#: Kernel codes of the parallel driver (one compiled loop serves them all)
-INVERSE_DYNAMICS, JOINT_REACTION_FORCES = 0, 1
-
-_KERNELS = {INVERSE_DYNAMICS: rnea.inverse_dynamics, JOINT_REACTION_FORCES: rnea.joint_reaction_forces}
-
-_EMPTY = np.zeros(0)
+# Each kernel's code in the parallel loop (one compiled loop serves them all) and its workspace size.
+_CODES = {kernel: code for code, kernel in enumerate((
+    rnea.inverse_dynamics, rnea.joint_reaction_forces, crba.mass_matrix, aba.forward_dynamics,
+    aba.inverse_mass_matrix, coriolis.coriolis_matrix, energy.kinetic_energy, energy.potential_energy,
+    kinematics.frame_placements, kinematics.frame_jacobian, kinematics.frame_jacobian_time_variation,
+    kinematics.frame_motions))}
+_WORKSPACE = {kernel: module.workspace_size for module in (rnea, crba, aba, coriolis, energy, kinematics)
+              for kernel in _CODES if getattr(kernel, "py_func", kernel).__module__ == module.__name__}
 
 
 def set_num_threads(n: int) -> None:
-    """Use ``n`` threads for batches (at most ``numba.config.NUMBA_NUM_THREADS``)."""
+    """Run batches on ``n`` threads (``1 ≤ n ≤ numba.config.NUMBA_NUM_THREADS``)."""
     numba.set_num_threads(int(n))
 
 
@@ -47,10 +49,31 @@ if os.environ.get("MULTIBODY_NUM_THREADS"):
 
 @njit(cache=True)
 def _kernel(code, joints, reals, frames, x0, x1, x2, x3, out, ws):
-    if code == INVERSE_DYNAMICS:
+    # the codes of _CODES, in order
+    if code == 0:
         rnea.inverse_dynamics(joints, reals, frames, x0, x1, x2, x3, out, ws)
-    elif code == JOINT_REACTION_FORCES:
+    elif code == 1:
         rnea.joint_reaction_forces(joints, reals, frames, x0, x1, x2, x3, out, ws)
+    elif code == 2:
+        crba.mass_matrix(joints, reals, frames, x0, x1, x2, x3, out, ws)
+    elif code == 3:
+        aba.forward_dynamics(joints, reals, frames, x0, x1, x2, x3, out, ws)
+    elif code == 4:
+        aba.inverse_mass_matrix(joints, reals, frames, x0, x1, x2, x3, out, ws)
+    elif code == 5:
+        coriolis.coriolis_matrix(joints, reals, frames, x0, x1, x2, x3, out, ws)
+    elif code == 6:
+        energy.kinetic_energy(joints, reals, frames, x0, x1, x2, x3, out, ws)
+    elif code == 7:
+        energy.potential_energy(joints, reals, frames, x0, x1, x2, x3, out, ws)
+    elif code == 8:
+        kinematics.frame_placements(joints, reals, frames, x0, x1, x2, x3, out, ws)
+    elif code == 9:
+        kinematics.frame_jacobian(joints, reals, frames, x0, x1, x2, x3, out, ws)
+    elif code == 10:
+        kinematics.frame_jacobian_time_variation(joints, reals, frames, x0, x1, x2, x3, out, ws)
+    elif code == 11:
+        kinematics.frame_motions(joints, reals, frames, x0, x1, x2, x3, out, ws)
 
 
 @njit(cache=True, parallel=True)
@@ -59,44 +82,55 @@ def _batch(code, joints, reals, frames, X0, X1, X2, X3, OUT, workspace_size, sha
     for share in prange(shares):
         ws = np.empty(workspace_size)
         for s in range(share * n // shares, (share + 1) * n // shares):
-            # an input of one row is shared by every state
+            # an input of one row serves every state
             _kernel(code, joints, reals, frames, X0[s if X0.shape[0] > 1 else 0], X1[s if X1.shape[0] > 1 else 0],
                     X2[s if X2.shape[0] > 1 else 0], X3[s if X3.shape[0] > 1 else 0], OUT[s], ws)
 
 
-def _as_kernel_input(x):
-    """A writable C-contiguous float64 array (one compiled signature for every caller)."""
-    if x is None:
-        return _EMPTY
-    if not (x.flags.c_contiguous and x.flags.writeable):
-        x = np.array(x, order="C")
-    return x
+_NONE = np.zeros(0)
+_NO_ROWS = np.zeros((1, 0))
 
 
-def evaluate(code, tree, frames, inputs, out_shape, batch, workspace_size):
-    """Run kernel ``code`` on every state of ``batch``.
+def _contiguous(x):
+    """``x`` as a writable C-contiguous float64 array: one compiled signature serves every caller."""
+    if x.flags.c_contiguous and x.flags.writeable and x.dtype == np.float64:
+        return x
+    return np.array(x, dtype=np.float64, order="C")
 
-    ``inputs``: up to four arrays ``(..., k)`` whose leading axes broadcast to ``batch`` (``None``: unused);
-    ``frames``: frame rows ``(m, 13)``; ``out_shape``: ``(rows, cols)`` of one state's output.
-    Returns ``batch + out_shape``.
+
+def _finite(x):
+    """Whether every entry of ``x`` is finite: a non-finite entry makes the sum non-finite (Python sums a
+    few numbers faster than NumPy reduces them)."""
+    return math.isfinite(sum(x.reshape(-1).tolist()) if x.size <= 64 else np.add.reduce(x, axis=None))
+
+
+def evaluate(kernel, tree, inputs, out_shape, batch=(), frames=None):
+    """Run ``kernel`` on every state of ``batch``: ``-> batch + out_shape``.
+
+    ``inputs``: up to four float arrays ``(..., k)`` whose leading axes broadcast to ``batch``
+    (``None``: unused); ``out_shape``: ``(rows, cols)`` of one state's output; ``frames``: frame rows
+    ``(m, 13)`` (default ``tree.bodies``). A state with a non-finite input gets an output of NaN, also
+    where the kernel's arithmetic would not reach it (the mass matrix does not depend on the position of
+    a free-flying base, say).
     """
-    inputs = tuple(inputs) + (None,) * (4 - len(inputs))
-    if batch == ():
+    frames = tree.bodies if frames is None else frames
+    workspace = _WORKSPACE[kernel](tree.joints.shape[0], tree.nv)
+    x = [_NONE if a is None else a for a in inputs] + [_NONE] * (4 - len(inputs))
+    if not batch:
         out = np.empty(out_shape)
-        _KERNELS[code](tree.joints, tree.reals, frames, *map(_as_kernel_input, inputs), out,
-                       np.empty(workspace_size))
+        kernel(tree.joints, tree.reals, frames, _contiguous(x[0]), _contiguous(x[1]), _contiguous(x[2]),
+               _contiguous(x[3]), out, np.empty(workspace))
+        if not (_finite(x[0]) and _finite(x[1]) and _finite(x[2]) and _finite(x[3])):
+            out[...] = np.nan
         return out
     n = math.prod(batch)
     out = np.empty((n,) + tuple(out_shape))
-    if n == 0:
-        return out.reshape(batch + tuple(out_shape))
-    rows = []
-    for x in inputs:
-        if x is None:
-            rows.append(np.zeros((1, 0)))
-        elif math.prod(x.shape[:-1]) == 1:
-            rows.append(_as_kernel_input(x.reshape(1, x.shape[-1])))
-        else:
-            rows.append(_as_kernel_input(np.broadcast_to(x, batch + x.shape[-1:]).reshape(n, x.shape[-1])))
-    _batch(code, tree.joints, tree.reals, frames, *rows, out, workspace_size, min(get_num_threads(), n))
+    if n:
+        rows = [_NO_ROWS if a.size == 0 and a.ndim == 1 else
+                _contiguous(a.reshape(1, -1) if math.prod(a.shape[:-1]) == 1 else
+                            np.broadcast_to(a, batch + a.shape[-1:]).reshape(n, a.shape[-1])) for a in x]
+        _batch(_CODES[kernel], tree.joints, tree.reals, frames, *rows, out, workspace, min(get_num_threads(), n))
+        for r in rows:
+            if not _finite(r):
+                out[~np.isfinite(r).all(axis=-1)] = np.nan
     return out.reshape(batch + tuple(out_shape))

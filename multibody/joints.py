@@ -30,11 +30,10 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import ClassVar
 
-import math
 
 import numpy as np
 
-from . import lanes, spatial
+from . import spatial
 
 #: Largest accepted ``| |q| − 1 |`` for a quaternion or a planar ``(cos θ, sin θ)`` pair.
 UNIT_NORM_TOLERANCE = 1e-6
@@ -42,10 +41,6 @@ _UNIT_SQUARED_NORMS = ((1.0 - UNIT_NORM_TOLERANCE) ** 2, (1.0 + UNIT_NORM_TOLERA
 
 # Position range used by random_configuration for an unbounded translation (m).
 _DEFAULT_TRANSLATION_RANGE = 1.0
-
-#: [0, π/2]: sin(θ + these) = [sin θ, cos θ]
-_SINE_COSINE_PHASES = np.array([0.0, np.pi / 2])
-
 
 def _unit(axis, what):
     axis = np.array(axis, dtype=float).reshape(-1)
@@ -118,87 +113,18 @@ class Joint:
         return np.zeros(self.nq)
 
     def transform(self, q):
-        """Pose ``(R (..., 3, 3), p (..., 3))`` of the joint frame in the pre-joint frame."""
+        """Pose ``(R (..., 3, 3), p (..., 3))`` of the joint frame in the pre-joint frame, by the compiled
+        joint transform (:func:`multibody.kernels.joints.transform`), state by state."""
+        from .kernels import joints as kinds
+        from .tree import kind_code
+
         q = np.asarray(q, dtype=float)
-        constants = self.group_constants([self], np.eye(4)[None])
-        X = self.group_transform(constants, lanes.to_lanes(q)[None])[0]
-        X = lanes.from_lanes(np.broadcast_to(X, (3, 4, math.prod(q.shape[:-1]))), q.shape[:-1])
-        return X[..., :3], X[..., 3]
-
-    @classmethod
-    def group_constants(cls, joints, placements):
-        """Constants that :meth:`group_transform` needs for ``joints`` of this type with tree
-        transforms ``placements (n, 4, 4)`` (pose of each pre-joint frame in its parent joint frame).
-
-        The base version holds the placements as lane constants ``X_T = [R_T | p_T] (n, 3, 4, 1)``,
-        or ``None`` when they are all the identity (a free-flyer base, say), for :meth:`_placed`.
-        """
-        X_T = Joint._tree_transforms(placements)
-        return None if np.array_equal(X_T[..., 0], np.broadcast_to(np.eye(4)[:3], X_T.shape[:-1])) else X_T
-
-    @staticmethod
-    def _tree_transforms(placements):
-        """``X_T = [R_T | p_T] (n, 3, 4, 1)`` from ``placements (n, 4, 4)``."""
-        return np.asarray(placements, dtype=float)[:, :3, :, None]
-
-    @staticmethod
-    def group_transform(constants, q):
-        """Poses of a group of joints of one type in their parent joint frames, all at once.
-
-        ``X_λ,i = X_T,i X_J,i(q_i)`` (RBDA §4.1) on lanes: ``q (n, nq, N)`` -> ``X = [R | p] (n, 3, 4, N)``,
-        the pose's rotation and translation side by side (lane axis of length 1 when it does not
-        depend on q). The algorithms call this once per joint type.
-        """
-        raise NotImplementedError
-
-    @classmethod
-    def group_plucker_constants(cls, joints, placements):
-        """Constants that :meth:`group_plucker_poses` needs; the base version's are :meth:`group_constants`."""
-        return cls.group_constants(joints, placements)
-
-    @classmethod
-    def group_plucker_poses(cls, constants, q):
-        """The poses of :meth:`group_transform` at one configuration as Plücker poses
-        ``P_λ(i),i = [[R, 0, p], [[p]× R, R, 0], [0, 0, 1]]`` (:func:`multibody.spatial.plucker_pose`):
-        ``q (n, nq)`` -> ``(n, 7, 7)``.
-
-        The base version converts :meth:`group_transform`'s; types whose pose is linear in a few
-        functions of ``q`` write it as one product with constant matrices instead.
-        """
-        X = cls.group_transform(constants, q[..., None])[..., 0]
-        return spatial.plucker_pose(X[:, :, :3], X[:, :, 3])
-
-    @staticmethod
-    def _plucker_tree_transforms(placements):
-        """``P_T (n, 7, 7)``, the Plücker poses of ``placements (n, 4, 4)``."""
-        placements = np.asarray(placements, dtype=float)
-        return spatial.plucker_pose(placements[:, :3, :3], placements[:, :3, 3])
-
-    @staticmethod
-    def _plucker_placements(joints, placements):
-        """``P_T`` of :meth:`_plucker_tree_transforms`, or ``None`` when the placements are all the identity,
-        for :meth:`_plucker_placed`."""
-        return None if Joint.group_constants(joints, placements) is None else Joint._plucker_tree_transforms(placements)
-
-    @staticmethod
-    def _plucker_placed(P_T, R_J, p_J):
-        """``P_T P_J``: the Plücker pose of a type's joint transform ``(R_J (n, 3, 3), p_J (n, 3))`` placed by
-        ``P_T`` (:meth:`_plucker_placements`; ``None`` for identity placements)."""
-        P_J = spatial.plucker_pose(R_J, p_J)
-        return P_J if P_T is None else P_T @ P_J
-
-    @staticmethod
-    def _placed(X_T, R_J, p_J):
-        """``X_T X_J = [R_T R_J | R_T p_J + p_T]`` on lanes, from a type's joint transform ``(R_J, p_J)``
-        (``X_T`` from :meth:`group_constants`; ``None`` for identity placements)."""
-        if X_T is None:
-            R, p = R_J, p_J
-        else:
-            R_T = X_T[:, :, :3]
-            R, p = lanes.matmul(R_T, R_J), lanes.matvec(R_T, p_J) + X_T[:, :, 3]
-        X = np.empty(R.shape[:2] + (4, max(R.shape[-1], p.shape[-1])))
-        X[:, :, :3], X[:, :, 3] = R, p
-        return X
+        rows = np.ascontiguousarray(q.reshape(-1, self.nq))
+        code, axis = kind_code(self), tuple(float(x) for x in getattr(self, "axis", (0.0, 0.0, 1.0)))
+        poses = [kinds.transform(code, axis, row, 0) for row in rows]
+        R = np.array([pose[0] for pose in poses]).reshape(q.shape[:-1] + (3, 3))
+        p = np.array([pose[1] for pose in poses]).reshape(q.shape[:-1] + (3,))
+        return R, p
 
     def integrate(self, q, v):
         """Configuration reached from ``q`` by moving with constant velocity ``v`` for unit time."""
@@ -276,40 +202,6 @@ class Revolute(Joint):
         object.__setattr__(self, "axis", axis)
         object.__setattr__(self, "motion_subspace", _constant(np.concatenate([np.zeros(3), axis])[:, None]))
 
-    @classmethod
-    def group_constants(cls, joints, placements):
-        X_T = Joint._tree_transforms(placements)
-        K = spatial.skew(np.stack([joint.axis for joint in joints]))[..., None]
-        R_T_K = np.zeros_like(X_T)
-        R_T_K[:, :, :3] = lanes.matmul(X_T[:, :, :3], K)
-        R_T_K2 = np.zeros_like(X_T)
-        R_T_K2[:, :, :3] = lanes.matmul(R_T_K[:, :, :3], K)
-        return X_T, R_T_K, R_T_K2
-
-    @staticmethod
-    def group_transform(constants, q):
-        # Rodrigues, R_J = 1 + sin θ [a]× + (1 − cos θ) [a]×², placed: R = R_T R_J, p = p_T
-        X_T, R_T_K, R_T_K2 = constants
-        angle = q[:, :, None, :]
-        return X_T + np.sin(angle) * R_T_K + (1.0 - np.cos(angle)) * R_T_K2
-
-    @classmethod
-    def group_plucker_constants(cls, joints, placements):
-        # P = P_T P_J with P_J = 1 + sin θ K + (1 − cos θ) K², K = diag([a]×, [a]×, 0), so that
-        # P = (P_T + P_T K²) + [sin θ, cos θ] [P_T K; −P_T K²] (entries flattened)
-        P_T = Joint._plucker_tree_transforms(placements)
-        K = np.zeros_like(P_T)
-        K[:, :3, :3] = K[:, 3:6, 3:6] = spatial.skew(np.stack([joint.axis for joint in joints]))
-        P_T_K = P_T @ K
-        P_T_K2 = P_T_K @ K
-        return (P_T + P_T_K2).reshape(-1, 1, 49), np.stack([P_T_K, -P_T_K2], axis=1).reshape(-1, 2, 49)
-
-    @staticmethod
-    def group_plucker_poses(constants, q):
-        constant, sine_cosine = constants
-        # [sin θ, cos θ] by one call, as cos θ = sin(θ + π/2)
-        return (np.sin(q[:, :, None] + _SINE_COSINE_PHASES) @ sine_cosine + constant).reshape(-1, 7, 7)
-
     def random(self, rng, lower, upper, shape=()):
         return _random_uniform(rng, lower, upper, np.pi, shape)
 
@@ -338,34 +230,6 @@ class Prismatic(Joint):
         object.__setattr__(self, "axis", axis)
         object.__setattr__(self, "motion_subspace", _constant(np.concatenate([axis, np.zeros(3)])[:, None]))
 
-    @classmethod
-    def group_constants(cls, joints, placements):
-        X_T = Joint._tree_transforms(placements)
-        R_T_axis = np.zeros_like(X_T)
-        R_T_axis[:, :, 3] = lanes.matvec(X_T[:, :, :3], np.stack([joint.axis for joint in joints])[..., None])
-        return X_T, R_T_axis
-
-    @staticmethod
-    def group_transform(constants, q):
-        # R = R_T, p = p_T + q R_T a
-        X_T, R_T_axis = constants
-        return X_T + q[:, :, None, :] * R_T_axis
-
-    @classmethod
-    def group_plucker_constants(cls, joints, placements):
-        # P = P_T P_J with P_J = 1 + q N, N = [[0, 0, a], [[a]×, 0, 0], [0, 0, 0]] (p_J = q a, [p_J]× = q [a]×)
-        P_T = Joint._plucker_tree_transforms(placements)
-        axes = np.stack([joint.axis for joint in joints])
-        N = np.zeros_like(P_T)
-        N[:, :3, 6] = axes
-        N[:, 3:6, :3] = spatial.skew(axes)
-        return P_T, P_T @ N
-
-    @staticmethod
-    def group_plucker_poses(constants, q):
-        P_T, P_T_N = constants
-        return P_T + q[:, :, None] * P_T_N
-
     def describe(self):
         return f"{self.kind} axis {np.round(self.axis, 6).tolist()}"
 
@@ -379,10 +243,6 @@ class Translation(Joint):
     nv: ClassVar[int] = 3
     motion_subspace: ClassVar[np.ndarray] = _constant(np.vstack([np.eye(3), np.zeros((3, 3))]))
 
-    @classmethod
-    def group_transform(cls, X_T, q):
-        # R = R_T, p = p_T + R_T q
-        return cls._placed(X_T, np.broadcast_to(np.eye(3)[..., None], q.shape[:1] + (3, 3, 1)), q)
 
 
 @dataclass(frozen=True, eq=False)
@@ -402,16 +262,6 @@ class Planar(Joint):
 
     def neutral(self):
         return np.array([0.0, 0.0, 1.0, 0.0])
-
-    @classmethod
-    def group_transform(cls, constants, q):
-        norm = np.hypot(q[:, 2], q[:, 3])
-        c, s = q[:, 2] / norm, q[:, 3] / norm
-        R_J = np.zeros(q.shape[:1] + (3, 3) + q.shape[-1:])
-        R_J[:, 0, 0], R_J[:, 0, 1], R_J[:, 1, 0], R_J[:, 1, 1], R_J[:, 2, 2] = c, -s, s, c, 1.0
-        p_J = np.zeros(q.shape[:1] + (3,) + q.shape[-1:])
-        p_J[:, :2] = q[:, :2]
-        return cls._placed(constants, R_J, p_J)
 
     @staticmethod
     def _se2_v(theta):
@@ -501,18 +351,6 @@ class Spherical(Joint):
     def neutral(self):
         return np.array([0.0, 0.0, 0.0, 1.0])
 
-    @classmethod
-    def group_transform(cls, constants, q):
-        return cls._placed(constants, lanes.quat_to_rotation(q), np.zeros(q.shape[:1] + (3, 1)))
-
-    @classmethod
-    def group_plucker_constants(cls, joints, placements):
-        return Joint._plucker_placements(joints, placements)
-
-    @staticmethod
-    def group_plucker_poses(P_T, q):
-        return Joint._plucker_placed(P_T, spatial.quat_to_rotation(q), np.zeros(q.shape[:1] + (3,)))
-
     def integrate(self, q, v):
         # q ⊗ exp(ω): the body-frame angular velocity acts on the right.
         quat = spatial.quat_multiply(q, spatial.quat_exp(v))
@@ -567,18 +405,6 @@ class FreeFlyer(Joint):
 
     def neutral(self):
         return np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0])
-
-    @classmethod
-    def group_transform(cls, constants, q):
-        return cls._placed(constants, lanes.quat_to_rotation(q[:, 3:]), q[:, :3])
-
-    @classmethod
-    def group_plucker_constants(cls, joints, placements):
-        return Joint._plucker_placements(joints, placements)
-
-    @staticmethod
-    def group_plucker_poses(P_T, q):
-        return Joint._plucker_placed(P_T, spatial.quat_to_rotation(q[:, 3:]), q[:, :3])
 
     def integrate(self, q, v):
         R0 = spatial.quat_to_rotation(q[..., 3:])
@@ -643,6 +469,6 @@ class Fixed(Joint):
     nv: ClassVar[int] = 0
     motion_subspace: ClassVar[np.ndarray] = _constant(np.zeros((6, 0)))
 
-    @staticmethod
-    def group_transform(constants, q):
-        return constants
+    def transform(self, q):
+        q = np.asarray(q, dtype=float)
+        return np.broadcast_to(np.eye(3), q.shape[:-1] + (3, 3)).copy(), np.zeros(q.shape[:-1] + (3,))

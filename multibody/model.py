@@ -60,41 +60,6 @@ class Mimic:
     offset: float = 0.0
 
 
-@dataclass(frozen=True, eq=False)
-class LevelGroup:
-    """Joints of one tree depth with ``nv`` velocity coordinates each (see ``Model.level_groups``).
-
-    ``joints`` and ``parents`` index joints (``parents`` is ``None`` at the root level), ``dofs``
-    indexes ``v`` to give a ``(k, nv)`` block. ``parent_rounds`` splits the members into rounds
-    ``(positions in the group, their parents)`` in which every parent appears once, so that a sum
-    into the parents, ``x[parents] += values[positions]``, is exact.
-    """
-
-    joints: object
-    parents: object
-    dofs: object
-    nv: int
-    parent_rounds: tuple
-
-
-def _parent_rounds(parents):
-    """Split positions ``0..k-1`` with parents ``parents (k,)`` into rounds in which each parent appears
-    once: a tuple of ``(positions, parents)`` index pairs (slices where contiguous)."""
-    positions, rounds = np.arange(len(parents)), []
-    while len(positions):
-        first = positions[np.unique(parents[positions], return_index=True)[1]]
-        rounds.append((_index(first), _index(parents[first])))
-        positions = np.setdiff1d(positions, first)
-    return tuple(rounds)
-
-
-def _add_to_parents(x, group, values):
-    """``x[λ(i)] += values_i`` for the joints of a level group (several may share a parent): per-joint
-    arrays ``x (nj, ...)`` and ``values (k, ...)``, joints on the leading axis."""
-    for positions, parents in group.parent_rounds:
-        x[parents] += values[positions]
-
-
 def _index(indices):
     """A contiguous increasing index array as a slice (a view when used), else the array itself."""
     indices = np.asarray(indices, dtype=int)
@@ -235,165 +200,12 @@ class Model:
         return _frozen(self.ancestors[:, self.dof_joint], bool)
 
     @cached_property
-    def dof_ancestor(self) -> np.ndarray:
-        """``(nv, nv)`` boolean: coordinate k's joint is l's joint or one of its ancestors."""
-        return _frozen(self.ancestors[np.ix_(self.dof_joint, self.dof_joint)].T, bool)
-
-    @cached_property
-    def own_dofs(self) -> np.ndarray:
-        """``(nj, nv)`` boolean: velocity coordinate k belongs to joint i."""
-        return _frozen(self.dof_joint[None, :] == np.arange(self.njoints)[:, None], bool)
-
-    @cached_property
-    def mass_matrix_entries(self) -> np.ndarray:
-        """``(nv, nv)`` index into the ``nv² + 1`` rows ``[P_00, P_01, …, 0]`` of the CRBA products
-        ``P_kl = ξ_kᵀ I^c_j(l) ξ_l``: ``M_kl = P_kl`` when k's joint supports l's, its mirror ``P_lk`` when
-        l's supports k's (within one joint, the upper triangle's), and the zero row otherwise.
-        """
-        k, l = np.meshgrid(np.arange(self.nv), np.arange(self.nv), indexing="ij")
-        upper = self.dof_ancestor & ~(self.dof_same_joint & (k > l))
-        entries = np.where(upper, k * self.nv + l, np.where(upper.T, l * self.nv + k, self.nv * self.nv))
-        return _frozen(entries, int)
-
-    @cached_property
-    def tree_sum_weights(self) -> tuple:
-        """``joint_support``, ``descendants`` and ``own_dofs`` as float matrices ``(nj, nv)``, ``(nj, nj)``,
-        ``(nj, nv)``: tree sums as matrix products (:func:`multibody.lanes.tree_sum`)."""
-        return tuple(_frozen(mask, float) for mask in (self.joint_support, self.descendants, self.own_dofs))
-
-    @cached_property
-    def dof_same_joint(self) -> np.ndarray:
-        """``(nv, nv)`` boolean: coordinates k and l belong to the same joint."""
-        return _frozen(self.dof_joint[:, None] == self.dof_joint[None, :], bool)
-
-    @cached_property
     def body_support(self) -> np.ndarray:
         """``(nb, nv)`` boolean: velocity coordinate k moves body b."""
         out = np.zeros((self.nbodies, self.nv), dtype=bool)
         moving = self.body_joints >= 0
         out[moving] = self.joint_support[self.body_joints[moving]]
         return _frozen(out, bool)
-
-    @cached_property
-    def descendants(self) -> np.ndarray:
-        """``(nj, nj)`` boolean: ``descendants[i, j]`` is true when joint j is i or lies in i's subtree."""
-        return _frozen(self.ancestors.T, bool)
-
-    @cached_property
-    def joint_groups(self) -> tuple:
-        """Joints grouped by type, so that each type's transform runs once for all its joints.
-
-        Tuple of ``(joint type, joint indices (n,), indices into q (n, nq), type constants)``.
-        """
-        members = {}
-        for i, joint in enumerate(self.joints):
-            members.setdefault(type(joint), []).append(i)
-        return tuple(
-            (kind, _index(np.array(idx)), np.array([np.arange(self.idx_q[i], self.idx_q[i] + kind.nq) for i in idx]),
-             kind.group_constants([self.joints[i] for i in idx], self.joint_placements[idx]))
-            for kind, idx in members.items()
-        )
-
-    @cached_property
-    def plucker_pose_groups(self) -> tuple:
-        """:attr:`joint_groups` with each type's constants for its Plücker poses instead
-        (:meth:`~multibody.joints.Joint.group_plucker_poses`)."""
-        return tuple((kind, index, q_index,
-                      kind.group_plucker_constants([self.joints[i] for i in np.arange(self.njoints)[index]],
-                                                   self.joint_placements[index]))
-                     for kind, index, q_index, _ in self.joint_groups)
-
-    @cached_property
-    def one_dof_per_joint(self) -> bool:
-        """Whether every joint has exactly one velocity coordinate (then ``dof_joint`` is the identity)."""
-        return all(joint.nv == 1 for joint in self.joints)
-
-    @cached_property
-    def subspace_columns(self) -> np.ndarray:
-        """``(nv, 3, 2, 1)``: the motion subspace columns ``[s_v, s_ω]`` side by side, as lane constants."""
-        return _frozen(np.stack([self.motion_subspaces[:, :3], self.motion_subspaces[:, 3:]], axis=-1)[..., None])
-
-    @cached_property
-    def angular_first_subspaces(self) -> np.ndarray:
-        """``(nv, 6, 1)``: :attr:`motion_subspaces` as column vectors with the angular half first, ``[s_ω; s_v]``."""
-        return _frozen(np.concatenate([self.motion_subspaces[:, 3:], self.motion_subspaces[:, :3]], axis=1)[..., None])
-
-    @cached_property
-    def upward_levels(self) -> tuple:
-        """``(joint indices, their parents)`` per level, leaves first, root level excluded: the order
-        of a backward pass that adds each joint into its parent, ``x[parents] += x[index]``.
-
-        Children of one parent in the same level go to separate rounds, so that within a round
-        every parent appears once and the in-place sum is exact.
-        """
-        rounds = []
-        for index, parents in reversed(self.levels[1:]):
-            joints = np.arange(self.njoints)[index]
-            rounds += [(_index(joints[positions]), parents_) for positions, parents_ in _parent_rounds(self.parents[joints])]
-        return tuple(rounds)
-
-    @cached_property
-    def lane_block(self) -> int:
-        """Number of states the batched algorithms process at once (see ``multibody.lanes``).
-
-        Small enough that a per-joint array of 6×6 matrices (``36 nj`` numbers per state) stays near
-        512 kB (a core's L2 cache on common x86 machines), and at least 128 states, so that a deep
-        tree's many level operations (a few µs of NumPy call each) stay small against the
-        arithmetic (Talos: 128 states ran 1.3–1.4× faster per state than 64).
-        """
-        return int(max(128, 2 ** np.round(np.log2(2**19 / (8 * 36 * max(self.njoints, 1))))))
-
-    @cached_property
-    def levels(self) -> tuple:
-        """Joints by depth in the tree: ``(joint indices, their parents)`` per level, root level first.
-
-        Indices are slices when contiguous, so that a chain costs no fancy indexing.
-        """
-        depth = np.zeros(self.njoints, dtype=int)
-        for i, parent in enumerate(self.parents):
-            depth[i] = 0 if parent < 0 else depth[parent] + 1
-        return tuple((_index(np.flatnonzero(depth == d)), _index(self.parents[depth == d]))
-                     for d in range(depth.max(initial=-1) + 1))
-
-    @cached_property
-    def pose_levels(self) -> tuple:
-        """:attr:`levels` for the pose recursion ``X_W,i = X_W,λ(i) X_λ(i),i``: ``(index, parents, view)``,
-        with a lone joint's index and a parent shared by the whole level as ints (a product broadcasts
-        it), and ``view`` whether ``index`` selects a view (an int or a slice) that a product can be
-        written into."""
-        out = []
-        for index, parents in self.levels:
-            joints, parent_joints = np.arange(self.njoints)[index], self.parents[index]
-            if len(joints) == 1:
-                index = int(joints[0])
-            if len(set(parent_joints.tolist())) == 1:
-                parents = int(parent_joints[0])
-            out.append((index, parents, not isinstance(index, np.ndarray)))
-        return tuple(out)
-
-    @cached_property
-    def level_groups(self) -> tuple:
-        """The joints of each tree level, split by number of velocity coordinates, root level first.
-
-        Each :class:`LevelGroup` lets the recursive algorithms treat its ``k`` joints of ``n``
-        coordinates each with single array operations; indices are views where the tree allows.
-        """
-        groups = []
-        for index, _ in self.levels:
-            joints = np.arange(self.njoints)[index]
-            for n in sorted({self.joints[i].nv for i in joints}):
-                members = np.array([i for i in joints if self.joints[i].nv == n])
-                if n == 0:
-                    continue
-                parents = self.parents[members]
-                dofs = self.idx_v[members][:, None] + np.arange(n)
-                if len(members) == 1:
-                    dofs = (None, slice(int(dofs[0, 0]), int(dofs[0, -1]) + 1))
-                elif n == 1 and isinstance(_index(dofs[:, 0]), slice):
-                    dofs = (_index(dofs[:, 0]), None)
-                groups.append(LevelGroup(_index(members), None if parents[0] < 0 else _index(parents), dofs, n,
-                                         () if parents[0] < 0 else _parent_rounds(parents)))
-        return tuple(groups)
 
     def body_index(self, body) -> int:
         """Index of a body given by name or index; ``ValueError`` names the valid choices."""
@@ -417,6 +229,12 @@ class Model:
         except ValueError:
             raise ValueError(f"unknown joint {joint!r}; moving joints are {list(self.joint_names)}") from None
 
+    @cached_property
+    def tree(self):
+        """The model flattened into the arrays the compiled kernels read (:mod:`multibody.tree`)."""
+        from .tree import compile_tree
+        return compile_tree(self)
+
     # ------------------------------------------------------------------ mass properties
 
     @cached_property
@@ -434,27 +252,6 @@ class Model:
         if self.njoints == 0:
             return _frozen(np.zeros((0, 6, 6)))
         return _frozen(np.stack([inertia.spatial for inertia in self.joint_inertias]))
-
-    @cached_property
-    def local_tree(self):
-        """Constants of the joint-coordinate recursions (:func:`multibody.local.local_tree`)."""
-        from .local import local_tree
-        return local_tree(self)
-
-    @cached_property
-    def gravity_acceleration(self) -> np.ndarray:
-        """``a₀ = [−g; 0] (6, 1)``: the fictitious acceleration of the world that accounts for gravity
-        (RBDA §5.3), as a lane constant."""
-        return _frozen(np.concatenate([-self.gravity, np.zeros(3)])[:, None])
-
-    @cached_property
-    def inertia_parameters(self) -> tuple:
-        """Each moving body's mass ``(nj,)``, first moment ``m c (nj, 3, 1)`` and rotational inertia
-        about its joint-frame origin ``(nj, 3, 3, 1)``, in its joint frame, as lane constants."""
-        I = self.spatial_inertias
-        # I = [[m 1, −[m c]×], [[m c]×, Ī_O]]
-        first_moment = np.stack([I[:, 5, 1], I[:, 3, 2], I[:, 4, 0]], axis=-1)
-        return _frozen(I[:, 0, 0]), _frozen(first_moment[..., None]), _frozen(I[:, 3:, 3:, None])
 
     @property
     def total_mass(self) -> float:
@@ -633,8 +430,7 @@ class Model:
     def _as_float_array(x, name):
         if type(x) is np.ndarray and x.dtype == np.float64:
             # The common case, checked cheaply: a non-finite entry makes the sum non-finite. Python sums a
-            # single state's few numbers for a fraction of a NumPy reduction's cost (which, measured in
-            # sequence with the algorithms, came to several µs per array).
+            # single state's few numbers for a fraction of a NumPy reduction's cost.
             total = sum(x.reshape(-1).tolist()) if x.size <= _PYTHON_SUM_SIZE else np.add.reduce(x, axis=None)
             if not math.isfinite(total) and not np.all(np.isfinite(x)):
                 warnings.warn(f"{name} contains NaN or infinite values; results will contain NaN", RuntimeWarning,

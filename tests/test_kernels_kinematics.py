@@ -263,8 +263,12 @@ def test_joint_placements_match_numpy():
     ws = np.full(kin.workspace_size(tree.njoints, tree.nv), np.nan)
     pose = kin.joint_placements(tree.joints, tree.reals, q, ws).copy()
     R_WJ, p_WJ = mb.kinematics.joint_world_poses(case.model, q)
-    assert rel_error(pose[:, :9].reshape(-1, 3, 3), R_WJ) <= TOL
-    assert rel_error(pose[:, 9:], p_WJ) <= TOL
+    # positions from the reference point O, the first joint's origin, whose world position is the last row's
+    p_WO = pose[-1, 9:]
+    np.testing.assert_array_equal(pose[0, 9:], 0.0)
+    assert rel_error(pose[:-1, :9].reshape(-1, 3, 3), R_WJ) <= TOL
+    assert rel_error(pose[:-1, 9:] + p_WO, p_WJ) <= TOL
+    assert rel_error(p_WO, p_WJ[0]) <= TOL
     pose_v = kin.joint_motions(tree.joints, tree.reals, q, case.v[0], ws)[0]
     np.testing.assert_array_equal(pose_v, pose)
 

@@ -47,14 +47,14 @@ def test_mass_matrix_bias_and_frames_equal_separate_calls(tree, batch):
             np.testing.assert_allclose(got, want, rtol=1e-11, atol=1e-11)
 
 
-def test_mass_matrix_bias_and_frames_in_lane_blocks(tree):
-    """A batch larger than a lane block is computed block by block; frames come back in state order."""
+def test_mass_matrix_bias_and_frames_in_thread_shares(tree):
+    """A batch is split into one share of states per thread; frames come back in state order."""
     rng = np.random.default_rng(2)
-    n = tree.lane_block + 3
+    n = 517
     q, v = tree.random_configuration(rng, (n,)), rng.standard_normal((n, tree.nv))
     frames = [(tree.body_names[-1], random_placement(rng))]
     _, _, [(R, p, J, J_dot_v)] = dynamics.mass_matrix_bias_and_frames(tree, q, v, frames)
-    for k in (0, tree.lane_block - 1, tree.lane_block, n - 1):
+    for k in (0, n // 2 - 1, n // 2, n // 2 + 1, n - 1):
         for got, want in zip((R[k], p[k], J[k], J_dot_v[k]), kinematics.frame_kinematics(tree, q[k], v[k], *frames[0])):
             np.testing.assert_allclose(got, want, rtol=1e-11, atol=1e-11)
 
@@ -142,10 +142,13 @@ def test_constrained_step_with_shared_frames_equals_separate_passes(tree, index)
     assert misses == []
 
 
-def test_gravity_acceleration_is_minus_gravity():
+def test_compiled_tree_holds_gravity_in_its_world_row_and_is_read_only():
+    from multibody.tree import GRAVITY
+
     model = mb.load_urdf(mb.robots.path("ball"), floating_base=True)
-    np.testing.assert_array_equal(model.gravity_acceleration[:, 0], np.concatenate([-model.gravity, np.zeros(3)]))
-    assert model.gravity_acceleration.shape == (6, 1) and not model.gravity_acceleration.flags.writeable
+    tree = model.tree
+    np.testing.assert_array_equal(tree.reals[model.njoints, GRAVITY : GRAVITY + 3], model.gravity)
+    assert not any(array.flags.writeable for array in (tree.joints, tree.reals, tree.bodies, tree.joint_frames))
 
 
 # ----------------------------------------------------------------------------- multibody.linalg

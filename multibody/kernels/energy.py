@@ -13,7 +13,7 @@ from numba import njit
 
 from ..tree import AXIS, GRAVITY, INERTIA, IQ, IV, KIND, NV, PARENT, POSITION, ROTATION
 from . import joints as kinds
-from .kinematics import joint_placements
+from .kinematics import joint_placements, world_position
 from .spatial import add3, add6, compose, dot3, dot6, inertia_times, load3, load6, load9, load10, motion_to_child, \
     rotate, scale3, store
 
@@ -22,8 +22,8 @@ ZERO6 = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 
 def workspace_size(nj, nv):
     """Floats of workspace one state needs for either kernel: per joint its velocity (6) for the kinetic
-    energy, its world pose (12) for the potential energy."""
-    return 12 * nj
+    energy, its world pose (12) and the reference point (12) for the potential energy."""
+    return 12 * nj + 12
 
 
 @njit(cache=True)
@@ -67,7 +67,8 @@ def potential_energy(joints, reals, frames, q, x1, x2, x3, out, ws):
     for i in range(nj):
         row = reals[i]
         # m_i c_i = m_i p_Wi + R_Wi h_i
-        moment = add3(scale3(row[INERTIA], load3(pose[i], 9)), rotate(load9(pose[i], 0), load3(row, INERTIA + 1)))
+        moment = add3(scale3(row[INERTIA], world_position(pose, load3(pose[i], 9))),
+                      rotate(load9(pose[i], 0), load3(row, INERTIA + 1)))
         # U −= gᵀ m_i c_i
         U -= dot3(g, moment)
     out[0, 0] = U

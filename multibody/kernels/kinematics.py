@@ -40,17 +40,22 @@ def motion_columns(nv):
 
 def workspace_size(nj, nv):
     """Floats of workspace one state needs for any kernel of this module: per joint its world pose
-    (12), its velocity and its velocity-product acceleration (6 each)."""
-    return 24 * nj
+    (12), its velocity and its velocity-product acceleration (6 each), and the reference point (12)."""
+    return 24 * nj + 12
 
 
 @njit(cache=True)
 def joint_placements(joints, reals, q, ws):
-    """World pose ``X_Wi = (R_Wi, p_Wi)`` of every joint frame into ``ws[:12 nj]``, returned as
-    ``pose (nj, 12)`` (``R_Wi`` row-major, then ``p_Wi`` in m): RBDA §4.1, ``X_Wi = X_Wλ(i) X_T X_J(q_i)``.
+    """World pose ``X_Wi = (R_Wi, p_Oi)`` of every joint frame into ``ws[:12 (nj + 1)]``, returned as
+    ``pose (nj + 1, 12)`` (``R_Wi`` row-major, then ``p_Oi`` in m): RBDA §4.1, ``X_Wi = X_Wλ(i) X_T X_J(q_i)``.
+
+    Positions are taken from the reference point O, the first joint's origin, whose world position
+    ``p_WO`` is row ``nj``'s (at column 9): coordinates far from the world origin would cost the lever
+    arms ``x − p_i`` of the Jacobians their digits.
     """
     nj = joints.shape[0]
-    pose = ws[: 12 * nj].reshape((nj, 12))
+    pose = ws[: 12 * (nj + 1)].reshape((nj + 1, 12))
+    origin = reference_point(joints, reals, q, pose)
     for i in range(nj):
         parent, kind = joints[i, PARENT], joints[i, KIND]
         row = reals[i]
@@ -60,6 +65,8 @@ def joint_placements(joints, reals, q, ws):
         if parent >= 0:
             # X_Wi = X_Wλ X_λ(i),i
             R, p = compose(load9(pose[parent], 0), load3(pose[parent], 9), R, p)
+        else:
+            p = sub3(p, origin)
         store(pose[i], 0, R)
         store(pose[i], 9, p)
     return pose
@@ -69,14 +76,15 @@ def joint_placements(joints, reals, q, ws):
 def joint_motions(joints, reals, q, v, ws):
     """World poses, velocities and velocity-product accelerations of every joint frame (RBDA Table 5.1,
     forward pass with ``q̈ = 0`` and no gravity), in ``ws[:24 nj]``. Returns
-    ``pose (nj, 12)`` as :func:`joint_placements`, ``vel (nj, 6)`` the body velocities ``v_i`` and
+    ``pose (nj + 1, 12)`` as :func:`joint_placements`, ``vel (nj, 6)`` the body velocities ``v_i`` and
     ``acc (nj, 6)`` the spatial accelerations ``a_i`` the bodies have when every ``q̈`` is zero, both in
     joint coordinates at the joint origin (m/s, rad/s; m/s², rad/s²).
     """
     nj = joints.shape[0]
-    pose = ws[: 12 * nj].reshape((nj, 12))
-    vel = ws[12 * nj : 18 * nj].reshape((nj, 6))
-    acc = ws[18 * nj : 24 * nj].reshape((nj, 6))
+    pose = ws[: 12 * (nj + 1)].reshape((nj + 1, 12))
+    vel = ws[12 * (nj + 1) : 12 * (nj + 1) + 6 * nj].reshape((nj, 6))
+    acc = ws[12 * (nj + 1) + 6 * nj : 12 * (nj + 1) + 12 * nj].reshape((nj, 6))
+    origin = reference_point(joints, reals, q, pose)
     for i in range(nj):
         parent, kind = joints[i, PARENT], joints[i, KIND]
         row = reals[i]
@@ -87,7 +95,7 @@ def joint_motions(joints, reals, q, v, ws):
         # v_J = S q̇_i   (S constant in the joint frame: c_J = 0)
         v_J = kinds.motion(kind, axis, joints[i, NV], v, joints[i, IV])
         if parent < 0:
-            R_W, p_W, v_parent, a_parent = R, p, ZERO6, ZERO6
+            R_W, p_W, v_parent, a_parent = R, sub3(p, origin), ZERO6, ZERO6
         else:
             # X_Wi = X_Wλ X_λ(i),i
             R_W, p_W = compose(load9(pose[parent], 0), load3(pose[parent], 9), R, p)
@@ -111,13 +119,35 @@ def frame_joint(frames, k):
 
 @njit(cache=True)
 def frame_pose(pose, frames, k):
-    """World pose ``(R_WF, p_WF)`` of frame row ``k`` from the joint poses ``pose (nj, 12)``:
-    ``X_WF = X_WJ X_JF`` (``X_JF`` itself for a frame fixed in the world)."""
+    """Pose ``(R_WF, p_OF)`` of frame row ``k``, position from the reference point O, from the joint poses
+    ``pose (nj + 1, 12)`` of :func:`joint_placements`: ``X_WF = X_WJ X_JF`` (``X_JF`` itself for a frame
+    fixed in the world)."""
     j = frame_joint(frames, k)
     R_JF, p_JF = load9(frames[k], FRAME_ROTATION), load3(frames[k], FRAME_POSITION)
     if j < 0:
-        return R_JF, p_JF
+        return R_JF, sub3(p_JF, load3(pose[pose.shape[0] - 1], 9))
     return compose(load9(pose[j], 0), load3(pose[j], 9), R_JF, p_JF)
+
+
+@njit(cache=True)
+def reference_point(joints, reals, q, pose):
+    """World position ``p_WO`` of the reference point O, the first joint's origin (the world origin for a
+    model without joints), stored in ``pose``'s last row at column 9 and returned."""
+    origin = (0.0, 0.0, 0.0)
+    if joints.shape[0] > 0:
+        row = reals[0]
+        R_J, p_J = kinds.transform(joints[0, KIND], load3(row, AXIS), q, joints[0, IQ])
+        origin = compose(load9(row, ROTATION), load3(row, POSITION), R_J, p_J)[1]
+    last = pose[pose.shape[0] - 1]
+    store(last, 0, (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0))
+    store(last, 9, origin)
+    return origin
+
+
+@njit(cache=True)
+def world_position(pose, p_O):
+    """``p_W = p_WO + p_O``: a position from the reference point back in world coordinates."""
+    return add3(load3(pose[pose.shape[0] - 1], 9), p_O)
 
 
 @njit(cache=True)
@@ -169,7 +199,8 @@ def frame_placements(joints, reals, frames, q, x1, x2, x3, out, ws):
     """
     pose = joint_placements(joints, reals, q, ws)
     for k in range(frames.shape[0]):
-        R, p = frame_pose(pose, frames, k)
+        R, p_O = frame_pose(pose, frames, k)
+        p = world_position(pose, p_O)
         X = out[k]
         # X_WF = [[R_WF, p_WF], [0, 1]]
         for r in range(3):
@@ -265,11 +296,11 @@ def frame_motions(joints, reals, frames, q, v, x2, x3, out, ws):
     nv = (out.shape[1] - 18) // 6
     for k in range(frames.shape[0]):
         row = out[k]
-        R_WF, p_WF = frame_pose(pose, frames, k)
+        R_WF, p_OF = frame_pose(pose, frames, k)
         store(row, MOTION_ROTATION, R_WF)
-        store(row, MOTION_POSITION, p_WF)
+        store(row, MOTION_POSITION, world_position(pose, p_OF))
         j = frame_joint(frames, k)
-        jacobian_columns(joints, reals, pose, j, p_WF, row[MOTION_JACOBIAN : MOTION_JACOBIAN + 6 * nv].reshape((6, nv)))
+        jacobian_columns(joints, reals, pose, j, p_OF, row[MOTION_JACOBIAN : MOTION_JACOBIAN + 6 * nv].reshape((6, nv)))
         bias = MOTION_JACOBIAN + 6 * nv
         if j < 0:
             store(row, bias, ZERO6)

@@ -1,0 +1,116 @@
+"""Composite Rigid Body Algorithm: the joint-space inertia matrix ``M(q)``.
+
+R. Featherstone, *Rigid Body Dynamics Algorithms* (RBDA), Springer 2008, Table 6.2, in joint
+coordinates: each composite inertia and force column is expressed in its own joint frame and moved
+to the parent's with the joint's pose, as Pinocchio's ``crba`` does.
+"""
+
+from __future__ import annotations
+
+from numba import njit
+
+from ..tree import AXIS, INERTIA, IQ, IV, KIND, NV, PARENT, POSITION, ROTATION
+from . import joints as kinds
+from .spatial import add10, compose, dot6, force_to_parent, inertia_times, inertia_to_parent
+
+
+# Loaders of a row's entries by (row, column) index, so that the loops over joints take no row views
+# ``X[i]``: each view is a reference-counted array on the CPU, its counting dearer than the arithmetic.
+
+@njit(cache=True)
+def row3(X, i, s):
+    """``X[i, s : s + 3]`` as a tuple."""
+    return (X[i, s], X[i, s + 1], X[i, s + 2])
+
+
+@njit(cache=True)
+def row6(X, i, s):
+    """``X[i, s : s + 6]`` as a tuple."""
+    return (X[i, s], X[i, s + 1], X[i, s + 2], X[i, s + 3], X[i, s + 4], X[i, s + 5])
+
+
+@njit(cache=True)
+def row9(X, i, s):
+    """``X[i, s : s + 9]`` as a tuple."""
+    return (X[i, s], X[i, s + 1], X[i, s + 2], X[i, s + 3], X[i, s + 4], X[i, s + 5], X[i, s + 6], X[i, s + 7],
+            X[i, s + 8])
+
+
+@njit(cache=True)
+def row10(X, i, s):
+    """``X[i, s : s + 10]`` as a tuple."""
+    return (X[i, s], X[i, s + 1], X[i, s + 2], X[i, s + 3], X[i, s + 4], X[i, s + 5], X[i, s + 6], X[i, s + 7],
+            X[i, s + 8], X[i, s + 9])
+
+
+@njit(cache=True)
+def store_row(X, i, s, values):
+    """``X[i, s : s + len(values)] = values``."""
+    for k in range(len(values)):
+        X[i, s + k] = values[k]
+
+
+@njit(cache=True)
+def joint_pose(joints, reals, q, i):
+    """``X_λ(i),i = X_T X_J(q_i)``: joint i's frame in its parent's, ``(R, p)``."""
+    R_J, p_J = kinds.transform(joints[i, KIND], row3(reals, i, AXIS), q, joints[i, IQ])
+    return compose(row9(reals, i, ROTATION), row3(reals, i, POSITION), R_J, p_J)
+
+
+def workspace_size(nj, nv):
+    """Floats of workspace one state needs: per joint its pose in its parent (12) and its composite
+    inertia (10)."""
+    return 22 * nj
+
+
+@njit(cache=True)
+def mass_matrix(joints, reals, frames, q, x1, x2, x3, out, ws):
+    """``M(q)`` (RBDA Table 6.2) into ``out (nv, nv)``: full and symmetric (kg, kg m, kg m²).
+
+    ``q (nq,)``; ``frames``, ``x1``, ``x2``, ``x3`` are unused. Every entry of ``out`` is written:
+    ``M_ij = 0`` where neither joint supports the other.
+    """
+    nj = joints.shape[0]
+    pose = ws[: 12 * nj].reshape((nj, 12))
+    composite = ws[12 * nj : 22 * nj].reshape((nj, 10))
+    for i in range(nj):
+        # X_λ(i),i = X_T X_J(q_i)
+        R, p = joint_pose(joints, reals, q, i)
+        store_row(pose, i, 0, R)
+        store_row(pose, i, 9, p)
+        # I^c_i = I_i
+        store_row(composite, i, 0, row10(reals, i, INERTIA))
+    n = out.shape[0]
+    # coordinates on different branches do not couple: M_ij = 0 unless one joint supports the other
+    for r in range(n):
+        for c in range(n):
+            out[r, c] = 0.0
+    for i in range(nj - 1, -1, -1):
+        parent, kind, iv, nv = joints[i, PARENT], joints[i, KIND], joints[i, IV], joints[i, NV]
+        axis = row3(reals, i, AXIS)
+        I_c = row10(composite, i, 0)
+        if parent >= 0:
+            # I^c_λ(i) = I^c_λ(i) + λ(i)X*_i I^c_i ⁱX_λ(i)
+            moved = inertia_to_parent(row9(pose, i, 0), row3(pose, i, 9), I_c)
+            store_row(composite, parent, 0, add10(row10(composite, parent, 0), moved))
+        for k in range(nv):
+            col = iv + k
+            # F = I^c_i S_i,k
+            F = inertia_times(I_c, kinds.subspace_column(kind, axis, k))
+            # H_ii = S_iᵀ F, computed once per pair so that the block is exactly symmetric
+            for m in range(k + 1):
+                h = dot6(kinds.subspace_column(kind, axis, m), F)
+                out[iv + m, col] = h
+                out[col, iv + m] = h
+            j = i
+            while joints[j, PARENT] >= 0:
+                # F = λ(j)X*_j F
+                F = force_to_parent(row9(pose, j, 0), row3(pose, j, 9), F)
+                j = joints[j, PARENT]
+                kind_j, iv_j = joints[j, KIND], joints[j, IV]
+                axis_j = row3(reals, j, AXIS)
+                for m in range(joints[j, NV]):
+                    # H_ji = S_jᵀ F ;  H_ij = H_jiᵀ
+                    h = dot6(kinds.subspace_column(kind_j, axis_j, m), F)
+                    out[iv_j + m, col] = h
+                    out[col, iv_j + m] = h
