@@ -111,6 +111,10 @@ def cmd_demo(args):
         return 2
     summary, paths = DEMOS[args.name](args.out)
     print(f"demo {args.name}: {DEMOS[args.name].__doc__.strip().splitlines()[0]}")
+    from .driver import compiled_before
+
+    if not compiled_before():
+        print("compiling multibody's kernels for this machine (first run only; about a minute)", flush=True)
     for key, value in summary.items():
         print(f"  {key}: {value:.3e}")
     for path in paths:

@@ -21,16 +21,27 @@ import numba
 import numpy as np
 from numba import njit, prange
 
-from .kernels import aba, coriolis, crba, energy, kinematics, rnea
+from .kernels import aba, configuration, coriolis, crba, energy, kinematics, rnea
 
 # Each kernel's code in the parallel loop (one compiled loop serves them all) and its workspace size.
 _CODES = {kernel: code for code, kernel in enumerate((
     rnea.inverse_dynamics, rnea.joint_reaction_forces, crba.mass_matrix, aba.forward_dynamics,
     aba.inverse_mass_matrix, coriolis.coriolis_matrix, energy.kinetic_energy, energy.potential_energy,
     kinematics.frame_placements, kinematics.frame_jacobian, kinematics.frame_jacobian_time_variation,
-    kinematics.frame_motions))}
-_WORKSPACE = {kernel: module.workspace_size for module in (rnea, crba, aba, coriolis, energy, kinematics)
+    kinematics.frame_motions, configuration.integrate, configuration.difference, configuration.configuration_rate,
+    configuration.chart, configuration.chart_rate, configuration.velocity_alignment, configuration.velocity_coupling,
+    configuration.chart_magnitude, configuration.normalize))}
+_WORKSPACE = {kernel: module.workspace_size for module in (rnea, crba, aba, coriolis, energy, kinematics, configuration)
               for kernel in _CODES if getattr(kernel, "py_func", kernel).__module__ == module.__name__}
+
+
+def compiled_before() -> bool:
+    """Whether this machine has the kernels' compiled code on disk already (Numba's cache of the batch
+    loop, compiled last), so that a first run can say it is compiling."""
+    cache = getattr(_batch, "_cache", None)
+    locator = getattr(cache, "_cache_path", None)
+    return locator is not None and os.path.isdir(locator) and any(
+        name.startswith("driver._batch") and name.endswith(".nbi") for name in os.listdir(locator))
 
 
 def set_num_threads(n: int) -> None:
@@ -74,6 +85,24 @@ def _kernel(code, joints, reals, frames, x0, x1, x2, x3, out, ws):
         kinematics.frame_jacobian_time_variation(joints, reals, frames, x0, x1, x2, x3, out, ws)
     elif code == 11:
         kinematics.frame_motions(joints, reals, frames, x0, x1, x2, x3, out, ws)
+    elif code == 12:
+        configuration.integrate(joints, reals, frames, x0, x1, x2, x3, out, ws)
+    elif code == 13:
+        configuration.difference(joints, reals, frames, x0, x1, x2, x3, out, ws)
+    elif code == 14:
+        configuration.configuration_rate(joints, reals, frames, x0, x1, x2, x3, out, ws)
+    elif code == 15:
+        configuration.chart(joints, reals, frames, x0, x1, x2, x3, out, ws)
+    elif code == 16:
+        configuration.chart_rate(joints, reals, frames, x0, x1, x2, x3, out, ws)
+    elif code == 17:
+        configuration.velocity_alignment(joints, reals, frames, x0, x1, x2, x3, out, ws)
+    elif code == 18:
+        configuration.velocity_coupling(joints, reals, frames, x0, x1, x2, x3, out, ws)
+    elif code == 19:
+        configuration.chart_magnitude(joints, reals, frames, x0, x1, x2, x3, out, ws)
+    elif code == 20:
+        configuration.normalize(joints, reals, frames, x0, x1, x2, x3, out, ws)
 
 
 @njit(cache=True, parallel=True)
