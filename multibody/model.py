@@ -16,9 +16,10 @@ from functools import cached_property
 
 import numpy as np
 
+from . import driver, spatial
 from . import joints as jt
-from . import spatial
 from .inertia import Inertia
+from .kernels import configuration
 
 STANDARD_GRAVITY = (0.0, 0.0, -9.81)
 
@@ -58,19 +59,6 @@ class Mimic:
     mimicked: str
     multiplier: float = 1.0
     offset: float = 0.0
-
-
-def _index(indices):
-    """A contiguous increasing index array as a slice (a view when used), else the array itself."""
-    indices = np.asarray(indices, dtype=int)
-    if indices.size and np.all(np.diff(indices) == 1):
-        return slice(int(indices[0]), int(indices[-1]) + 1)
-    return indices
-
-
-#: ``(a, b, result)`` of each joint map of ``Model._per_joint``: ``q``- or ``v``-shaped.
-_JOINT_MAP_LAYOUTS = {"integrate": "qvq", "difference": "qqv", "configuration_rate": "qvq", "chart": "qvq",
-                      "chart_rate": "vvv"}
 
 
 def _frozen(array, dtype=float):
@@ -285,12 +273,12 @@ class Model:
         """
         q = self.check_configuration(q)
         v = self.check_velocity(v) * dt
-        return self._per_joint("integrate", q, v)
+        return self._configuration_map(configuration.integrate, q, v, (self.nq,))
 
     def difference(self, q0, q1) -> np.ndarray:
         """Configuration logarithm: the ``v`` with ``integrate(q0, v) = q1``. ``-> (..., nv)``."""
         q0, q1 = self.check_configuration(q0, "q0"), self.check_configuration(q1, "q1")
-        return self._per_joint("difference", q0, q1)
+        return self._configuration_map(configuration.difference, q0, q1, (self.nv,))
 
     def configuration_rate(self, q, v) -> np.ndarray:
         """``q̇`` of a configuration moving with velocity ``v``: ``(..., nq)``.
@@ -299,7 +287,7 @@ class Model:
         positions ``R v_lin``, planar joints ``R(θ) (vx, vy)`` and ``ω (−sin θ, cos θ)``.
         """
         q, v = self.check_configuration(q), self.check_velocity(v)
-        return self._per_joint("configuration_rate", q, v)
+        return self._configuration_map(configuration.configuration_rate, q, v, (self.nq,))
 
     # ------------------------------------------------------------------ charts for Lie-group integration
 
@@ -311,12 +299,14 @@ class Model:
         :func:`multibody.simulate` integrates ``δ`` with :meth:`chart_rate` and starts a new chart
         at the end of every step.
         """
-        return self._per_joint("chart", np.asarray(q0, dtype=float), np.asarray(delta, dtype=float))
+        q0, delta = self._array(q0, self.nq, "q0"), self._array(delta, self.nv, "delta")
+        return self._configuration_map(configuration.chart, q0, delta, (self.nq,))
 
     def chart_rate(self, delta, w) -> np.ndarray:
         """``δ̇ (..., nv)`` of chart coordinates ``delta`` moving with aligned velocity ``w`` (see
         :meth:`velocity_alignment`): ``w`` itself, but ``J_l(δ)⁻¹ ω`` for rotation vectors."""
-        return self._per_joint("chart_rate", np.asarray(delta, dtype=float), np.asarray(w, dtype=float))
+        delta, w = self._array(delta, self.nv, "delta"), self._array(w, self.nv, "w")
+        return self._configuration_map(configuration.chart_rate, delta, w, (self.nv,))
 
     def velocity_alignment(self, q) -> np.ndarray:
         """Orthogonal ``T(q) (..., nv, nv)`` that rotates free-flyer, spherical and planar velocity
@@ -326,98 +316,39 @@ class Model:
         which lets an integrator take steps longer than a revolution. Their rate is
         ``ẇ = T (a + κ(v))`` (:meth:`velocity_coupling`).
         """
-        q = np.asarray(q, dtype=float)
-        T = np.zeros(q.shape[:-1] + (self.nv, self.nv))
-        T[..., self._aligned_dofs, self._aligned_dofs] = 1.0
-        for i in self._rotating_joints:
-            joint, s = self.joints[i], slice(self.idx_v[i], self.idx_v[i] + self.joints[i].nv)
-            T[..., s, s] = joint.velocity_alignment(q[..., self.idx_q[i] : self.idx_q[i] + joint.nq])
-        return T
+        return self._configuration_map(configuration.velocity_alignment, self._array(q, self.nq, "q"), None,
+                                       (self.nv, self.nv))
 
     def velocity_coupling(self, v) -> np.ndarray:
         """``κ(v) (..., nv)`` with ``d/dt (T v) = T (v̇ + κ(v))`` (see :meth:`velocity_alignment`):
-        ``[ω × v_lin; 0]`` for a free flyer, zero for angles and displacements."""
-        v = np.asarray(v, dtype=float)
-        kappa = np.zeros(v.shape)
-        for i in self._rotating_joints:
-            joint, s = self.joints[i], slice(self.idx_v[i], self.idx_v[i] + self.joints[i].nv)
-            coupling = joint.velocity_coupling(v[..., s])
-            if coupling is not None:
-                kappa[..., s] = coupling
-        return kappa
+        ``[ω × v_lin; 0]`` for a free flyer, ``ω (−vy, vx, 0)`` for a planar joint, zero for spherical
+        joints, angles and displacements."""
+        return self._configuration_map(configuration.velocity_coupling, self._array(v, self.nv, "v"), None, (self.nv,))
 
     def chart_magnitude(self, q) -> np.ndarray:
         """Size ``(..., nv)`` of the configuration ``q`` in each chart direction (see :meth:`chart`): ``|q|``
         for angles and displacements, 1 (rad) for rotation vectors. :func:`multibody.simulate` measures
         the relative error of the chart coordinates ``δ`` against it, as against ``q`` itself, rather
         than against ``δ``, which starts at zero in every step."""
-        q = np.asarray(q, dtype=float)
-        return np.concatenate([joint.chart_magnitude(q[..., s : s + joint.nq]) for joint, s in zip(self.joints, self.idx_q)]
-                              + [np.zeros(q.shape[:-1] + (0,))], axis=-1)
-
-    @cached_property
-    def _aligned_dofs(self) -> np.ndarray:
-        """The velocity coordinates already expressed in their parent frames (``T`` is 1 there)."""
-        rotating = [np.arange(self.idx_v[i], self.idx_v[i] + self.joints[i].nv) for i in self._rotating_joints]
-        return _frozen(np.setdiff1d(np.arange(self.nv), np.concatenate(rotating + [np.zeros(0, int)])), int)
+        return self._configuration_map(configuration.chart_magnitude, self._array(q, self.nq, "q"), None, (self.nv,))
 
     @cached_property
     def is_vector_space(self) -> bool:
         """Whether every configuration coordinate is an angle or displacement (``q̇ = v``; charts add and
         :meth:`velocity_alignment` is the identity)."""
-        return all(type(joint).chart is jt.Joint.chart for joint in self.joints)
-
-    @cached_property
-    def _rotating_joints(self) -> tuple:
-        """Indices of the joints whose velocity is not expressed in their parent frame (see ``velocity_alignment``)."""
-        return tuple(i for i, joint in enumerate(self.joints) if type(joint).velocity_alignment is not jt.Joint.velocity_alignment)
+        return all(joint.vector_space for joint in self.joints)
 
     def normalize(self, q) -> np.ndarray:
         """``q`` with every quaternion (and planar ``(cos θ, sin θ)`` pair) scaled to unit norm."""
-        q = np.asarray(q, dtype=float)
-        self._require_last_axis(q, self.nq, "q")
-        blocks = [joint.normalize(q[..., s : s + joint.nq]) for joint, s in zip(self.joints, self.idx_q)]
-        return np.concatenate(blocks, axis=-1) if blocks else q.copy()
+        return self._configuration_map(configuration.normalize, self._array(q, self.nq, "q"), None, (self.nq,))
 
-    def _per_joint(self, method, a, b):
-        """Apply the joint map ``method(a_block, b_block)`` joint by joint and assemble the result; whether
-        ``a``, ``b`` and the result are ``q``- or ``v``-shaped is the map's (``_JOINT_MAP_LAYOUTS``)."""
-        blocks, size = self._joint_map_blocks[method]
-        if len(blocks) == 1 and blocks[0][3] is None:
-            # a lone joint's map gives the whole result
-            joint_map, in_a, in_b, _ = blocks[0]
-            return joint_map(a[..., in_a], b[..., in_b])
-        result = np.empty(spatial.batch_shape(a.shape[:-1], b.shape[:-1]) + (size,))
-        for joint_map, in_a, in_b, in_out in blocks:
-            result[..., in_out] = joint_map(a[..., in_a], b[..., in_b])
-        return result
-
-    @cached_property
-    def _joint_map_blocks(self) -> dict:
-        """For each joint map of :meth:`_per_joint`: its blocks ``(bound map, a indices, b indices,
-        result indices)`` and the result's size. The joints that keep the base class's map (angles and
-        displacements, where ``nq = nv`` and the map is plain arithmetic) form one block, all their
-        coordinates in one call; every other joint is a block of its own. A lone joint with a map of
-        its own (a single free flyer) gives the whole result: result indices ``None``."""
-        out = {}
-        for method, layout in _JOINT_MAP_LAYOUTS.items():
-            starts = [self.idx_q if kind == "q" else self.idx_v for kind in layout]
-            sizes = [(lambda j: j.nq) if kind == "q" else (lambda j: j.nv) for kind in layout]
-            size = self.nq if layout[2] == "q" else self.nv
-            shared = [i for i, joint in enumerate(self.joints)
-                      if getattr(type(joint), method) is getattr(jt.Joint, method) and joint.nq == joint.nv]
-            groups = ([shared] if shared else []) + [[i] for i in range(self.njoints) if i not in shared]
-            blocks = []
-            for group in groups:
-                indices = [_index(np.concatenate([np.arange(start[i], start[i] + length(self.joints[i])) for i in group]))
-                           for start, length in zip(starts, sizes)]
-                blocks.append((getattr(self.joints[group[0]], method), *indices))
-            if len(groups) == 1 and getattr(type(self.joints[groups[0][0]]), method) is not getattr(jt.Joint, method):
-                # (a joint's own map returns a new array of the common batch shape; the base class's
-                # may return an argument, so its block is still copied into a result)
-                blocks = [blocks[0][:3] + (None,)]
-            out[method] = (tuple(blocks), size)
-        return out
+    def _configuration_map(self, kernel, a, b, shape):
+        """``kernel`` of :mod:`multibody.kernels.configuration` on the float arrays ``a`` and ``b`` (``None``
+        when unused), of checked sizes, their leading axes broadcast, through the batch driver: ``(..., *shape)``
+        with ``shape`` ``(size,)`` or, for a matrix, ``(rows, cols)``. No other checks."""
+        batch = a.shape[:-1] if b is None else spatial.batch_shape(a.shape[:-1], b.shape[:-1])
+        out = driver.evaluate(kernel, self.tree, (a, b), shape if len(shape) == 2 else (1,) + shape, batch)
+        return out if len(shape) == 2 else out.reshape(batch + shape)
 
     # ------------------------------------------------------------------ input checking
 
@@ -425,6 +356,13 @@ class Model:
     def _require_last_axis(x, size, name):
         if x.ndim == 0 or x.shape[-1] != size:
             raise ValueError(f"{name} must have shape (..., {size}), got {x.shape}")
+
+    @classmethod
+    def _array(cls, x, size, name):
+        """``x`` as a float array of shape ``(..., size)``, or ``ValueError`` (the maps that take any numbers)."""
+        x = np.asarray(x, dtype=float)
+        cls._require_last_axis(x, size, name)
+        return x
 
     @staticmethod
     def _as_float_array(x, name):

@@ -1,6 +1,8 @@
 """The configuration-space kernels (:mod:`multibody.kernels.configuration`) called directly, one state
-at a time, against the NumPy maps of :class:`multibody.Model` (which they reproduce to rounding) and
-against Pinocchio's ``integrate`` and ``difference``.
+at a time, against a NumPy reference (the per-joint maps on :mod:`multibody.spatial` that
+:class:`multibody.Model` used before it ran these kernels; reproduced to rounding) and against
+Pinocchio's ``integrate`` and ``difference``; and :class:`multibody.Model`'s maps, which run the kernels
+through the batch driver, against direct kernel calls state by state.
 
 Models: the random trees with every joint kind (free flyer, spherical, planar, translation, revolute
 and prismatic about random axes, continuous), Solo12 and Talos on a free flyer, Panda fixed. Rotation
@@ -15,12 +17,13 @@ import pytest
 
 import multibody as mb
 from multibody import joints as jt
+from multibody import spatial as sp
 from multibody.kernels import configuration as cfg
 from multibody.tree import compile_tree
 
 from conftest import erd_urdf, pinocchio_twin, q_from_pinocchio, q_to_pinocchio, random_tree_model
 
-#: Agreement with the NumPy maps: the same formulas, summed in other orders
+#: Agreement with the NumPy reference: the same formulas, summed in other orders
 TOL = 1e-14
 #: Agreement with Pinocchio (other formulas, e.g. its SE(3) log from the rotation matrix's trace)
 PIN_TOL = 1e-12
@@ -110,59 +113,189 @@ def states(model, seed, angle=None, planar=True):
         yield q, (v if angle is None else with_rotation_angle(model, v, angle, rng, planar))
 
 
+# ----------------------------------------------------------------------------- NumPy reference
+
+def _unit(x):
+    return x / np.linalg.norm(x, axis=-1, keepdims=True)
+
+
+def _se2_v(theta):
+    """``(a, b)`` of the SE(2) ``V(θ)``: ``sin θ/θ``, ``(1 − cos θ)/θ = 2 sin²(θ/2)/θ``; series below 1e-4."""
+    small = np.abs(theta) < 1e-4
+    t = np.where(small, 1.0, theta)
+    a = np.where(small, 1.0 - theta**2 / 6.0, np.sin(t) / t)
+    b = np.where(small, 0.5 * theta - theta**3 / 24.0, 2.0 * np.sin(0.5 * t) ** 2 / t)
+    return a, b
+
+
+def _turned(quat, delta):
+    """``exp(δ) ⊗ quat``, unit."""
+    return _unit(sp.quat_multiply(sp.quat_exp(delta), quat))
+
+
+def _planar_integrate(q, v):
+    c0, s0 = _unit(q[2:4])
+    theta = v[2]
+    a, b = _se2_v(theta)
+    dx, dy = a * v[0] - b * v[1], b * v[0] + a * v[1]
+    c1, s1 = np.cos(theta), np.sin(theta)
+    return np.array([q[0] + c0 * dx - s0 * dy, q[1] + s0 * dx + c0 * dy, c0 * c1 - s0 * s1, s0 * c1 + c0 * s1])
+
+
+def _planar_difference(q0, q1):
+    (c0, s0), (c1, s1) = _unit(q0[2:4]), _unit(q1[2:4])
+    theta = np.arctan2(c0 * s1 - s0 * c1, c0 * c1 + s0 * s1)
+    ex, ey = q1[0] - q0[0], q1[1] - q0[1]
+    dx, dy = c0 * ex + s0 * ey, -s0 * ex + c0 * ey
+    a, b = _se2_v(theta)
+    det = a * a + b * b
+    return np.array([(a * dx + b * dy) / det, (-b * dx + a * dy) / det, theta])
+
+
+def _planar_chart(q0, delta):
+    c0, s0 = _unit(q0[2:4])
+    c, s = np.cos(delta[2]), np.sin(delta[2])
+    return np.array([q0[0] + delta[0], q0[1] + delta[1], c * c0 - s * s0, s * c0 + c * s0])
+
+
+def _free_flyer_integrate(q, v):
+    _, dp = sp.se3_exp(v)
+    return np.concatenate([q[:3] + sp.quat_to_rotation(q[3:]) @ dp, _unit(sp.quat_multiply(q[3:], sp.quat_exp(v[3:])))])
+
+
+def _free_flyer_difference(q0, q1):
+    R0, R1 = sp.quat_to_rotation(q0[3:]), sp.quat_to_rotation(q1[3:])
+    return sp.se3_log(*sp.compose(*sp.inverse_pose(R0, q0[:3]), R1, q1[:3]))
+
+
+def _rotation_blocks(R, n):
+    T = np.zeros((n, n))
+    for k in range(0, n, 3):
+        T[k : k + 3, k : k + 3] = R
+    return T
+
+
+#: Per joint class: the maps of one joint's blocks (``None``: the vector-space default)
+_REFERENCE = {
+    jt.Planar: dict(
+        integrate=_planar_integrate,
+        difference=_planar_difference,
+        configuration_rate=lambda q, v: np.array([q[2] * v[0] - q[3] * v[1], q[3] * v[0] + q[2] * v[1],
+                                                  -q[3] * v[2], q[2] * v[2]]),
+        chart=_planar_chart,
+        chart_rate=lambda d, w: w,
+        velocity_alignment=lambda q: np.array([[q[2], -q[3], 0.0], [q[3], q[2], 0.0], [0.0, 0.0, 1.0]]),
+        velocity_coupling=lambda v: np.array([-v[2] * v[1], v[2] * v[0], 0.0]),
+        chart_magnitude=lambda q: np.array([abs(q[0]), abs(q[1]), 1.0]),
+        normalize=lambda q: np.concatenate([q[:2], _unit(q[2:4])]),
+    ),
+    jt.Spherical: dict(
+        integrate=lambda q, v: _unit(sp.quat_multiply(q, sp.quat_exp(v))),
+        difference=lambda q0, q1: sp.quat_log(sp.quat_multiply(sp.quat_conjugate(q0), q1)),
+        configuration_rate=sp.quat_rate,
+        chart=_turned,
+        chart_rate=sp.so3_left_jacobian_inverse_times,
+        velocity_alignment=sp.quat_to_rotation,
+        velocity_coupling=lambda v: np.zeros(3),
+        chart_magnitude=lambda q: np.ones(3),
+        normalize=_unit,
+    ),
+    jt.FreeFlyer: dict(
+        integrate=_free_flyer_integrate,
+        difference=_free_flyer_difference,
+        configuration_rate=lambda q, v: np.concatenate([sp.quat_rotate(q[3:], v[:3]), sp.quat_rate(q[3:], v[3:])]),
+        chart=lambda q0, d: np.concatenate([q0[:3] + d[:3], _turned(q0[3:], d[3:])]),
+        chart_rate=lambda d, w: np.concatenate([w[:3], sp.so3_left_jacobian_inverse_times(d[3:], w[3:])]),
+        velocity_alignment=lambda q: _rotation_blocks(sp.quat_to_rotation(q[3:]), 6),
+        velocity_coupling=lambda v: np.concatenate([np.cross(v[3:], v[:3]), np.zeros(3)]),
+        chart_magnitude=lambda q: np.concatenate([np.abs(q[:3]), np.ones(3)]),
+        normalize=lambda q: np.concatenate([q[:3], _unit(q[3:])]),
+    ),
+}
+_VECTOR_SPACE = dict(
+    integrate=lambda q, v: q + v,
+    difference=lambda q0, q1: q1 - q0,
+    configuration_rate=lambda q, v: v,
+    chart=lambda q0, d: q0 + d,
+    chart_rate=lambda d, w: w,
+    velocity_alignment=lambda q: np.eye(q.shape[-1]),
+    velocity_coupling=lambda v: np.zeros(v.shape[-1]),
+    chart_magnitude=np.abs,
+    normalize=lambda q: q,
+)
+#: ``(a, b, result)`` of each map: ``q``- or ``v``-shaped (``"T"``: the ``(nv, nv)`` matrix)
+_LAYOUTS = {"integrate": "qvq", "difference": "qqv", "configuration_rate": "qvq", "chart": "qvq", "chart_rate": "vvv",
+            "velocity_alignment": "q-T", "velocity_coupling": "v-v", "chart_magnitude": "q-v", "normalize": "q-q"}
+
+
+def reference(name, model, a, b=None):
+    """The NumPy reference of the map ``name`` of one state, joint by joint."""
+    layout = _LAYOUTS[name]
+    out = np.zeros((model.nv, model.nv)) if layout[2] == "T" else np.empty(model.nq if layout[2] == "q" else model.nv)
+    for joint, iq, iv in zip(model.joints, model.idx_q, model.idx_v):
+        blocks = {"q": slice(iq, iq + joint.nq), "v": slice(iv, iv + joint.nv)}
+        fn = _REFERENCE.get(type(joint), _VECTOR_SPACE)[name]
+        args = [a[blocks[layout[0]]]] + ([] if b is None else [b[blocks[layout[1]]]])
+        if layout[2] == "T":
+            out[blocks["v"], blocks["v"]] = fn(*args)
+        else:
+            out[blocks[layout[2]]] = fn(*args)
+    return out
+
+
 # Angles (rad) across the series switches (1e-2 for V(ω), 1e-4 for log and J_l⁻¹), 0 and near π
 ANGLES = [None, 0.5, 2e-2, 5e-3, 1e-3, 1.5e-4, 5e-5, 1e-9, 0.0, np.pi - 1e-3, np.pi - 1e-7]
 
 
-# ----------------------------------------------------------------------------- against the NumPy maps
+# ----------------------------------------------------------------------------- against the NumPy reference
 
 @pytest.mark.parametrize("name", MODELS)
 @pytest.mark.parametrize("angle", ANGLES, ids=lambda a: "random" if a is None else f"{a:.3g}")
-def test_integrate_difference_rate_match_model(name, angle):
+def test_integrate_difference_rate_match_reference(name, angle):
     model, tree = case(name)
     nq, nv = model.nq, model.nv
     for q, v in states(model, 1, angle):
         q1 = call(cfg.integrate, tree, q, v, (1, nq))
-        assert_close(q1[0], model.integrate(q, v), TOL, "integrate")
+        assert_close(q1[0], reference("integrate", model, q, v), TOL, "integrate")
         # the difference of configurations the step v apart: rotation angle |ω| < π
-        assert_close(call(cfg.difference, tree, q, q1[0], (1, nv))[0], model.difference(q, q1[0]), TOL, "difference")
-        assert_close(call(cfg.configuration_rate, tree, q, v, (1, nq))[0], model.configuration_rate(q, v), TOL,
+        assert_close(call(cfg.difference, tree, q, q1[0], (1, nv))[0], reference("difference", model, q, q1[0]), TOL, "difference")
+        assert_close(call(cfg.configuration_rate, tree, q, v, (1, nq))[0], reference("configuration_rate", model, q, v), TOL,
                      "configuration_rate")
 
 
 @pytest.mark.parametrize("name", MODELS)
-def test_difference_of_random_configurations_matches_model(name):
+def test_difference_of_random_configurations_matches_reference(name):
     model, tree = case(name)
     rng = np.random.default_rng(2)
     for _ in range(N_STATES):
         q0, q1 = model.random_configuration(rng), model.random_configuration(rng)
-        assert_close(call(cfg.difference, tree, q0, q1, (1, model.nv))[0], model.difference(q0, q1), TOL, "difference")
+        assert_close(call(cfg.difference, tree, q0, q1, (1, model.nv))[0], reference("difference", model, q0, q1), TOL, "difference")
 
 
 @pytest.mark.parametrize("name", MODELS)
 @pytest.mark.parametrize("angle", ANGLES, ids=lambda a: "random" if a is None else f"{a:.3g}")
-def test_charts_match_model(name, angle):
+def test_charts_match_reference(name, angle):
     model, tree = case(name)
     nq, nv = model.nq, model.nv
     rng = np.random.default_rng(3)
     for q, delta in states(model, 4, angle):
         w = rng.standard_normal(nv)
-        assert_close(call(cfg.chart, tree, q, delta, (1, nq))[0], model.chart(q, delta), TOL, "chart")
-        assert_close(call(cfg.chart_rate, tree, delta, w, (1, nv))[0], model.chart_rate(delta, w), TOL, "chart_rate")
+        assert_close(call(cfg.chart, tree, q, delta, (1, nq))[0], reference("chart", model, q, delta), TOL, "chart")
+        assert_close(call(cfg.chart_rate, tree, delta, w, (1, nv))[0], reference("chart_rate", model, delta, w), TOL, "chart_rate")
 
 
 @pytest.mark.parametrize("name", MODELS)
-def test_alignment_coupling_magnitude_normalize_match_model(name):
+def test_alignment_coupling_magnitude_normalize_match_reference(name):
     model, tree = case(name)
     nq, nv = model.nq, model.nv
     rng = np.random.default_rng(5)
     for q, v in states(model, 6):
         T = call(cfg.velocity_alignment, tree, q, shape=(nv, nv))
-        assert_close(T, model.velocity_alignment(q), TOL, "velocity_alignment")
+        assert_close(T, reference("velocity_alignment", model, q), TOL, "velocity_alignment")
         assert_close(T @ T.T, np.eye(nv), 1e-14, "T orthogonal")
-        assert_close(call(cfg.velocity_coupling, tree, v, shape=(1, nv))[0], model.velocity_coupling(v), TOL,
+        assert_close(call(cfg.velocity_coupling, tree, v, shape=(1, nv))[0], reference("velocity_coupling", model, v), TOL,
                      "velocity_coupling")
-        assert_close(call(cfg.chart_magnitude, tree, q, shape=(1, nv))[0], model.chart_magnitude(q), TOL,
+        assert_close(call(cfg.chart_magnitude, tree, q, shape=(1, nv))[0], reference("chart_magnitude", model, q), TOL,
                      "chart_magnitude")
         # quaternions and planar pairs scaled off the unit sphere
         off = q.copy()
@@ -173,8 +306,47 @@ def test_alignment_coupling_magnitude_normalize_match_model(name):
             if isinstance(joint, jt.Planar):
                 off[iq + 2 : iq + 4] *= rng.uniform(0.5, 2.0)
         unit = call(cfg.normalize, tree, off, shape=(1, nq))[0]
-        assert_close(unit, model.normalize(off), TOL, "normalize")
+        assert_close(unit, reference("normalize", model, off), TOL, "normalize")
         assert_close(call(cfg.normalize, tree, q, shape=(1, nq))[0], q, TOL, "normalize of a unit q")
+
+
+# ----------------------------------------------------------------------------- the Model's maps (batch driver)
+
+_MODEL_MAPS = [  # (Model method, kernel, input layouts, result shape of one state: "q", "v" or "T")
+    ("integrate", cfg.integrate, "qv", "q"), ("difference", cfg.difference, "qq", "v"),
+    ("configuration_rate", cfg.configuration_rate, "qv", "q"), ("chart", cfg.chart, "qv", "q"),
+    ("chart_rate", cfg.chart_rate, "vv", "v"), ("velocity_alignment", cfg.velocity_alignment, "q", "T"),
+    ("velocity_coupling", cfg.velocity_coupling, "v", "v"), ("chart_magnitude", cfg.chart_magnitude, "q", "v"),
+    ("normalize", cfg.normalize, "q", "q"),
+]
+
+
+@pytest.mark.parametrize("name", ["random_tree_0", "solo12"])
+@pytest.mark.parametrize("method, kernel, inputs, result", _MODEL_MAPS, ids=[m[0] for m in _MODEL_MAPS])
+def test_model_maps_run_the_kernels_with_broadcast_batches(name, method, kernel, inputs, result):
+    """``Model.<map>`` on one state and on broadcast batches ``(3, 1, ·)`` × ``(4, ·)`` equals the kernel called
+    state by state; ``integrate`` scales ``v`` by ``dt``."""
+    model, tree = case(name)
+    rng = np.random.default_rng(14)
+    size = {"q": model.nq, "v": model.nv}
+    draw = {"q": lambda shape: model.random_configuration(rng, shape),
+            "v": lambda shape: rng.standard_normal(shape + (model.nv,))}
+    shape = (model.nv, model.nv) if result == "T" else (1, size[result])
+
+    def direct(*xs):
+        out = call(kernel, tree, *xs, shape=shape)
+        return out if result == "T" else out[0]
+
+    one = [draw[k](()) for k in inputs]
+    assert_close(getattr(model, method)(*one), direct(*one), 0.0, method)
+    batches = [draw[inputs[0]]((3, 1))] + [draw[k]((4,)) for k in inputs[1:]]
+    ours = getattr(model, method)(*batches)
+    assert ours.shape == ((3, 4) if len(inputs) == 2 else (3, 1)) + shape[(0 if result == "T" else 1):]
+    for i in range(ours.shape[0]):
+        for j in range(ours.shape[1]):
+            assert_close(ours[i, j], direct(*([batches[0][i, 0]] + [b[j] for b in batches[1:]])), 0.0, method)
+    if method == "integrate":
+        assert_close(model.integrate(*one, dt=0.25), direct(one[0], 0.25 * one[1]), 0.0, "integrate with dt")
 
 
 # ----------------------------------------------------------------------------- identities
@@ -300,10 +472,8 @@ def test_planar_small_angles_exact(theta):
     c0, s0 = mpmath.mpf(q[2]), mpmath.mpf(q[3])
     exact = [x + c0 * dx - s0 * dy, y + s0 * dx + c0 * dy, mpmath.cos(mpmath.atan2(s0, c0) + t),
              mpmath.sin(mpmath.atan2(s0, c0) + t)]
-    # Above the series switch (1e-4 rad) (1 − cos θ)/θ, as in multibody.joints.Planar, which this reproduces,
-    # keeps the absolute digits of 1 − cos θ only: it is good to ~ε/θ.
-    tol = 4e-16 if abs(theta) < cfg.SMALL_ANGLE else 4e-16 + 2.2e-16 / abs(theta)
-    assert_close(ours, np.array([float(e) for e in exact]), tol, "SE(2) exp")
+    # (1 − cos θ)/θ computed as 2 sin²(θ/2)/θ keeps its digits on both sides of the series switch (1e-4 rad)
+    assert_close(ours, np.array([float(e) for e in exact]), 4e-16, "SE(2) exp")
     assert_close(call(cfg.difference, tree, q, ours, (1, 3))[0], v, 4e-16, "SE(2) log")
 
 
