@@ -10,7 +10,7 @@ Articulated inertias are 6×6 matrices acting on motions to give forces (linear 
 first), kept as ``(nj, 6, 6)``. A joint's ``U = I^A S`` and ``U D⁻¹`` are kept by columns
 (``U[k]`` is column ``k``), ``D = Sᵀ U`` and ``D⁻¹`` as the leading ``nv_i × nv_i`` block of a 6×6.
 Per-joint entries are read by index (``Y[i, r, c]``), not through row views ``Y[i]`` (see
-:func:`multibody.kernels.crba.row3`).
+:func:`multibody.kernels.spatial.row3`).
 """
 
 from __future__ import annotations
@@ -21,8 +21,8 @@ from numba import njit
 
 from ..tree import AXIS, GRAVITY, INERTIA, IV, KIND, NV, PARENT
 from . import joints as kinds
-from .crba import joint_pose, row3, row6, row9, row10, store_row
-from .spatial import (add6, compose_rotations, cross, dot6, force_cross, force_to_parent, inertia_times,
+from .placement import joint_pose
+from .spatial import (row3, row6, row9, row10, store_row, add6, compose_rotations, cross, dot6, force_cross, force_to_parent, inertia_times,
                       motion_cross, motion_to_child, scale6, sub6)
 
 ZERO6 = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)

@@ -15,8 +15,9 @@ from __future__ import annotations
 
 from numba import njit
 
-from ..tree import AXIS, INERTIA, IQ, IV, KIND, NV, PARENT, POSITION, ROTATION
+from ..tree import AXIS, INERTIA, IV, KIND, NV, PARENT
 from . import joints as kinds
+from .placement import joint_pose
 from .spatial import (add6, compose, cross, dot3, dot6, inertia_times, inertia_to_parent, load3, load6, load9,
                       load10, motion_cross, motion_to_parent, store, sub3)
 
@@ -41,7 +42,7 @@ def body_factor(I, V):
     and ``(I V)×̄* = [[0, −[a]×], [−[a]×, −[n]×]]`` with ``I V = (a, n)``, ``n = h × v + Ī ω``; so
     ``E = ½ (D − [n]×)``.
     """
-    m, h = I[0], (I[1], I[2], I[3])
+    h = (I[1], I[2], I[3])
     inertia = (I[4], I[5], I[6], I[7], I[8], I[9])
     v, w = (V[0], V[1], V[2]), (V[3], V[4], V[5])
     # a = m v + ω × h ;  n = h × v + Ī ω
@@ -116,9 +117,7 @@ def coriolis_matrix(joints, reals, frames, q, v, x2, x3, out, ws):
         parent, kind, iv, nv = joints[i, PARENT], joints[i, KIND], joints[i, IV], joints[i, NV]
         row = reals[i]
         axis = load3(row, AXIS)
-        # X_λ(i),i = X_T X_J(q_i)
-        R_J, p_J = kinds.transform(kind, axis, q, joints[i, IQ])
-        R_Pi, p_Pi = compose(load9(row, ROTATION), load3(row, POSITION), R_J, p_J)
+        R_Pi, p_Pi = joint_pose(joints, reals, q, i)
         if parent < 0:
             # X_Wi, its position taken from the first joint's origin
             if i == 0:

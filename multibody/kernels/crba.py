@@ -9,52 +9,11 @@ from __future__ import annotations
 
 from numba import njit
 
-from ..tree import AXIS, INERTIA, IQ, IV, KIND, NV, PARENT, POSITION, ROTATION
+from ..tree import AXIS, INERTIA, IV, KIND, NV, PARENT
 from . import joints as kinds
-from .spatial import add10, compose, dot6, force_to_parent, inertia_times, inertia_to_parent
-
-
-# Loaders of a row's entries by (row, column) index, so that the loops over joints take no row views
-# ``X[i]``: each view is a reference-counted array on the CPU, its counting dearer than the arithmetic.
-
-@njit(cache=True)
-def row3(X, i, s):
-    """``X[i, s : s + 3]`` as a tuple."""
-    return (X[i, s], X[i, s + 1], X[i, s + 2])
-
-
-@njit(cache=True)
-def row6(X, i, s):
-    """``X[i, s : s + 6]`` as a tuple."""
-    return (X[i, s], X[i, s + 1], X[i, s + 2], X[i, s + 3], X[i, s + 4], X[i, s + 5])
-
-
-@njit(cache=True)
-def row9(X, i, s):
-    """``X[i, s : s + 9]`` as a tuple."""
-    return (X[i, s], X[i, s + 1], X[i, s + 2], X[i, s + 3], X[i, s + 4], X[i, s + 5], X[i, s + 6], X[i, s + 7],
-            X[i, s + 8])
-
-
-@njit(cache=True)
-def row10(X, i, s):
-    """``X[i, s : s + 10]`` as a tuple."""
-    return (X[i, s], X[i, s + 1], X[i, s + 2], X[i, s + 3], X[i, s + 4], X[i, s + 5], X[i, s + 6], X[i, s + 7],
-            X[i, s + 8], X[i, s + 9])
-
-
-@njit(cache=True)
-def store_row(X, i, s, values):
-    """``X[i, s : s + len(values)] = values``."""
-    for k in range(len(values)):
-        X[i, s + k] = values[k]
-
-
-@njit(cache=True)
-def joint_pose(joints, reals, q, i):
-    """``X_λ(i),i = X_T X_J(q_i)``: joint i's frame in its parent's, ``(R, p)``."""
-    R_J, p_J = kinds.transform(joints[i, KIND], row3(reals, i, AXIS), q, joints[i, IQ])
-    return compose(row9(reals, i, ROTATION), row3(reals, i, POSITION), R_J, p_J)
+from .placement import joint_pose
+from .spatial import (add10, dot6, force_to_parent, inertia_times, inertia_to_parent, row3, row9, row10,
+                      store_row)
 
 
 def workspace_size(nj, nv):

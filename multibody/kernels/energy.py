@@ -11,10 +11,11 @@ from __future__ import annotations
 
 from numba import njit
 
-from ..tree import AXIS, GRAVITY, INERTIA, IQ, IV, KIND, NV, PARENT, POSITION, ROTATION
+from ..tree import AXIS, GRAVITY, INERTIA, IV, KIND, NV, PARENT
 from . import joints as kinds
+from .placement import joint_pose
 from .kinematics import joint_placements, world_position
-from .spatial import add3, add6, compose, dot3, dot6, inertia_times, load3, load6, load9, load10, motion_to_child, \
+from .spatial import add3, add6, dot3, dot6, inertia_times, load3, load6, load9, load10, motion_to_child, \
     rotate, scale3, store
 
 ZERO6 = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
@@ -40,9 +41,7 @@ def kinetic_energy(joints, reals, frames, q, v, x2, x3, out, ws):
         parent, kind = joints[i, PARENT], joints[i, KIND]
         row = reals[i]
         axis = load3(row, AXIS)
-        # X_λ(i),i = X_T X_J(q_i)
-        R_J, p_J = kinds.transform(kind, axis, q, joints[i, IQ])
-        R, p = compose(load9(row, ROTATION), load3(row, POSITION), R_J, p_J)
+        R, p = joint_pose(joints, reals, q, i)
         v_parent = ZERO6 if parent < 0 else load6(vel[parent], 0)
         # v_i = ⁱX_λ v_λ + S q̇_i
         v_i = add6(motion_to_child(R, p, v_parent), kinds.motion(kind, axis, joints[i, NV], v, joints[i, IV]))

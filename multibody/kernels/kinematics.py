@@ -21,8 +21,9 @@ from __future__ import annotations
 
 from numba import njit
 
-from ..tree import AXIS, FRAME_JOINT, FRAME_POSITION, FRAME_ROTATION, IQ, IV, KIND, NV, PARENT, POSITION, ROTATION
+from ..tree import AXIS, FRAME_JOINT, FRAME_POSITION, FRAME_ROTATION, IV, KIND, NV, PARENT
 from . import joints as kinds
+from .placement import joint_pose
 from .spatial import (add3, add6, compose, cross, load3, load6, load9, motion_cross, motion_to_child, rotate, store,
                       sub3)
 
@@ -57,11 +58,8 @@ def joint_placements(joints, reals, q, ws):
     pose = ws[: 12 * (nj + 1)].reshape((nj + 1, 12))
     origin = reference_point(joints, reals, q, pose)
     for i in range(nj):
-        parent, kind = joints[i, PARENT], joints[i, KIND]
-        row = reals[i]
-        # X_λ(i),i = X_T X_J(q_i)
-        R_J, p_J = kinds.transform(kind, load3(row, AXIS), q, joints[i, IQ])
-        R, p = compose(load9(row, ROTATION), load3(row, POSITION), R_J, p_J)
+        parent = joints[i, PARENT]
+        R, p = joint_pose(joints, reals, q, i)
         if parent >= 0:
             # X_Wi = X_Wλ X_λ(i),i
             R, p = compose(load9(pose[parent], 0), load3(pose[parent], 9), R, p)
@@ -89,9 +87,7 @@ def joint_motions(joints, reals, q, v, ws):
         parent, kind = joints[i, PARENT], joints[i, KIND]
         row = reals[i]
         axis = load3(row, AXIS)
-        # X_λ(i),i = X_T X_J(q_i)
-        R_J, p_J = kinds.transform(kind, axis, q, joints[i, IQ])
-        R, p = compose(load9(row, ROTATION), load3(row, POSITION), R_J, p_J)
+        R, p = joint_pose(joints, reals, q, i)
         # v_J = S q̇_i   (S constant in the joint frame: c_J = 0)
         v_J = kinds.motion(kind, axis, joints[i, NV], v, joints[i, IV])
         if parent < 0:
@@ -135,9 +131,7 @@ def reference_point(joints, reals, q, pose):
     model without joints), stored in ``pose``'s last row at column 9 and returned."""
     origin = (0.0, 0.0, 0.0)
     if joints.shape[0] > 0:
-        row = reals[0]
-        R_J, p_J = kinds.transform(joints[0, KIND], load3(row, AXIS), q, joints[0, IQ])
-        origin = compose(load9(row, ROTATION), load3(row, POSITION), R_J, p_J)[1]
+        origin = joint_pose(joints, reals, q, 0)[1]
     last = pose[pose.shape[0] - 1]
     store(last, 0, (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0))
     store(last, 9, origin)

@@ -9,9 +9,10 @@ from __future__ import annotations
 
 from numba import njit
 
-from ..tree import AXIS, GRAVITY, INERTIA, IQ, IV, KIND, NV, PARENT, POSITION, ROTATION
+from ..tree import AXIS, GRAVITY, INERTIA, IV, KIND, NV, PARENT
 from . import joints as kinds
-from .spatial import (add6, compose, force_cross, force_to_parent, inertia_times, load3, load6, load9, load10,
+from .placement import joint_pose
+from .spatial import (add6, force_cross, force_to_parent, inertia_times, load3, load6, load9, load10,
                       motion_cross, motion_to_child, store, sub6)
 
 ZERO6 = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
@@ -44,9 +45,7 @@ def forces(joints, reals, q, v, a, f_ext, ws):
         parent, kind, iv, nv = joints[i, PARENT], joints[i, KIND], joints[i, IV], joints[i, NV]
         row = reals[i]
         axis = load3(row, AXIS)
-        # X_λ(i),i = X_T X_J(q_i)
-        R_J, p_J = kinds.transform(kind, axis, q, joints[i, IQ])
-        R, p = compose(load9(row, ROTATION), load3(row, POSITION), R_J, p_J)
+        R, p = joint_pose(joints, reals, q, i)
         store(pose[i], 0, R)
         store(pose[i], 9, p)
         # v_J = S q̇_i ;  a_J = S q̈_i   (S constant in the joint frame: c_J = 0)

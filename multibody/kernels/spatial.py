@@ -227,3 +227,39 @@ def inertia_to_parent(R, p, I):
 def add10(a, b):
     return (a[0] + b[0], a[1] + b[1], a[2] + b[2], a[3] + b[3], a[4] + b[4], a[5] + b[5],
             a[6] + b[6], a[7] + b[7], a[8] + b[8], a[9] + b[9])
+
+
+# Loaders of a row's entries by (row, column) index, so that the loops over joints take no row views
+# ``X[i]``: each view is a reference-counted array on the CPU, its counting dearer than the arithmetic.
+
+@njit(cache=True)
+def row3(X, i, s):
+    """``X[i, s : s + 3]`` as a tuple."""
+    return (X[i, s], X[i, s + 1], X[i, s + 2])
+
+
+@njit(cache=True)
+def row6(X, i, s):
+    """``X[i, s : s + 6]`` as a tuple."""
+    return (X[i, s], X[i, s + 1], X[i, s + 2], X[i, s + 3], X[i, s + 4], X[i, s + 5])
+
+
+@njit(cache=True)
+def row9(X, i, s):
+    """``X[i, s : s + 9]`` as a tuple."""
+    return (X[i, s], X[i, s + 1], X[i, s + 2], X[i, s + 3], X[i, s + 4], X[i, s + 5], X[i, s + 6], X[i, s + 7],
+            X[i, s + 8])
+
+
+@njit(cache=True)
+def row10(X, i, s):
+    """``X[i, s : s + 10]`` as a tuple."""
+    return (X[i, s], X[i, s + 1], X[i, s + 2], X[i, s + 3], X[i, s + 4], X[i, s + 5], X[i, s + 6], X[i, s + 7],
+            X[i, s + 8], X[i, s + 9])
+
+
+@njit(cache=True)
+def store_row(X, i, s, values):
+    """``X[i, s : s + len(values)] = values``."""
+    for k in range(len(values)):
+        X[i, s + k] = values[k]

@@ -1,0 +1,17 @@
+"""The pose of each joint frame in its parent's, the first step of every pass down the tree."""
+
+from __future__ import annotations
+
+from numba import njit
+
+from ..tree import AXIS, IQ, KIND, POSITION, ROTATION
+from . import joints as kinds
+from .spatial import compose, row3, row9
+
+
+@njit(cache=True)
+def joint_pose(joints, reals, q, i):
+    """``X_λ(i),i = X_T X_J(q_i)`` (RBDA §4.1): joint i's frame in its parent's, ``(R, p)``, from its
+    placement ``X_T`` and its joint transform ``X_J``."""
+    R_J, p_J = kinds.transform(joints[i, KIND], row3(reals, i, AXIS), q, joints[i, IQ])
+    return compose(row9(reals, i, ROTATION), row3(reals, i, POSITION), R_J, p_J)
