@@ -118,19 +118,26 @@ def _batch(code, joints, reals, frames, X0, X1, X2, X3, OUT, workspace_size, sha
 
 _NONE = np.zeros(0)
 _NO_ROWS = np.zeros((1, 0))
+_UNUSED = (None, None, None, None)
+_FLOAT = np.dtype(np.float64)
 
 
 def _contiguous(x):
-    """``x`` as a writable C-contiguous float64 array: one compiled signature serves every caller."""
-    if x.flags.c_contiguous and x.flags.writeable and x.dtype == np.float64:
+    """``x`` as a C-contiguous float64 array (``None``: of length 0): one compiled signature serves every caller."""
+    if x is None:
+        return _NONE
+    if x.dtype is _FLOAT and x.flags.c_contiguous:
         return x
-    return np.array(x, dtype=np.float64, order="C")
+    return np.ascontiguousarray(x, dtype=np.float64)
 
 
-def _finite(x):
-    """Whether every entry of ``x`` is finite: a non-finite entry makes the sum non-finite (Python sums a
-    few numbers faster than NumPy reduces them)."""
-    return math.isfinite(sum(x.reshape(-1).tolist()) if x.size <= 64 else np.add.reduce(x, axis=None))
+def _rows(x, batch, n):
+    """Input ``x (..., k)`` as ``(n, k)`` rows of the batch, or one row that serves every state: a
+    writable C-contiguous float64 array (a read-only one would compile the loop again)."""
+    if x is None:
+        return _NO_ROWS
+    x = x.reshape(1, -1) if math.prod(x.shape[:-1]) == 1 else np.broadcast_to(x, batch + x.shape[-1:]).reshape(n, -1)
+    return x if x.dtype is _FLOAT and x.flags.c_contiguous and x.flags.writeable else np.array(x, dtype=np.float64)
 
 
 def evaluate(kernel, tree, inputs, out_shape, batch=(), frames=None):
@@ -138,28 +145,20 @@ def evaluate(kernel, tree, inputs, out_shape, batch=(), frames=None):
 
     ``inputs``: up to four float arrays ``(..., k)`` whose leading axes broadcast to ``batch``
     (``None``: unused); ``out_shape``: ``(rows, cols)`` of one state's output; ``frames``: frame rows
-    ``(m, 13)`` (default ``tree.bodies``). A state with a non-finite input gets an output of NaN, also
-    where the kernel's arithmetic would not reach it (the mass matrix does not depend on the position of
-    a free-flying base, say).
+    ``(m, 13)`` (default ``tree.bodies``). A state with a non-finite input gets an output of NaN (every
+    kernel ends with :func:`~multibody.kernels.spatial.nan_unless_finite`).
     """
     frames = tree.bodies if frames is None else frames
-    workspace = _WORKSPACE[kernel](tree.joints.shape[0], tree.nv)
-    x = [_NONE if a is None else a for a in inputs] + [_NONE] * (4 - len(inputs))
+    workspace = np.empty(_WORKSPACE[kernel](tree.joints.shape[0], tree.nv))
+    x0, x1, x2, x3 = inputs + _UNUSED[len(inputs):]
     if not batch:
         out = np.empty(out_shape)
-        kernel(tree.joints, tree.reals, frames, _contiguous(x[0]), _contiguous(x[1]), _contiguous(x[2]),
-               _contiguous(x[3]), out, np.empty(workspace))
-        if not (_finite(x[0]) and _finite(x[1]) and _finite(x[2]) and _finite(x[3])):
-            out[...] = np.nan
+        kernel(tree.joints, tree.reals, frames, _contiguous(x0), _contiguous(x1), _contiguous(x2), _contiguous(x3), out,
+               workspace)
         return out
     n = math.prod(batch)
     out = np.empty((n,) + tuple(out_shape))
     if n:
-        rows = [_NO_ROWS if a.size == 0 and a.ndim == 1 else
-                _contiguous(a.reshape(1, -1) if math.prod(a.shape[:-1]) == 1 else
-                            np.broadcast_to(a, batch + a.shape[-1:]).reshape(n, a.shape[-1])) for a in x]
-        _batch(_CODES[kernel], tree.joints, tree.reals, frames, *rows, out, workspace, min(get_num_threads(), n))
-        for r in rows:
-            if not _finite(r):
-                out[~np.isfinite(r).all(axis=-1)] = np.nan
+        _batch(_CODES[kernel], tree.joints, tree.reals, frames, _rows(x0, batch, n), _rows(x1, batch, n),
+               _rows(x2, batch, n), _rows(x3, batch, n), out, workspace.size, min(get_num_threads(), n))
     return out.reshape(batch + tuple(out_shape))

@@ -31,8 +31,10 @@ from .kinematics import _frame_arguments, frame_motions, joint_world_poses
 def _check(model, q, v=None, a=None, tau=None, f_ext=None):
     """Validated float arrays and their common batch shape (``f_ext`` flattened to ``(..., 6 nj)``)."""
     q = model.check_configuration(q)
-    arrays = [None if x is None else model.check_velocity(x, name) for x, name in ((v, "v"), (a, "a"), (tau, "tau"))]
-    shapes = [q.shape[:-1]] + [x.shape[:-1] for x in arrays if x is not None]
+    v = None if v is None else model.check_velocity(v, "v")
+    a = None if a is None else model.check_velocity(a, "a")
+    tau = None if tau is None else model.check_velocity(tau, "tau")
+    shapes = [x.shape[:-1] for x in (q, v, a, tau) if x is not None]
     if f_ext is not None:
         f_ext = model._as_float_array(f_ext, "f_ext")
         if f_ext.shape[-2:] != (model.njoints, 6):
@@ -40,7 +42,7 @@ def _check(model, q, v=None, a=None, tau=None, f_ext=None):
                              f"joint, in its frame), got {f_ext.shape}")
         shapes.append(f_ext.shape[:-2])
         f_ext = f_ext.reshape(f_ext.shape[:-2] + (6 * model.njoints,))
-    return q, *arrays, f_ext, spatial.batch_shape(*shapes)
+    return q, v, a, tau, f_ext, spatial.batch_shape(*shapes)
 
 
 def _vector(model, kernel, inputs, batch):

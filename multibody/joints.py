@@ -36,7 +36,7 @@ import numpy as np
 
 #: Largest accepted ``| |q| − 1 |`` for a quaternion or a planar ``(cos θ, sin θ)`` pair.
 UNIT_NORM_TOLERANCE = 1e-6
-_UNIT_SQUARED_NORMS = ((1.0 - UNIT_NORM_TOLERANCE) ** 2, (1.0 + UNIT_NORM_TOLERANCE) ** 2)
+UNIT_SQUARED_NORMS = ((1.0 - UNIT_NORM_TOLERANCE) ** 2, (1.0 + UNIT_NORM_TOLERANCE) ** 2)
 
 # Position range used by random_configuration for an unbounded translation (m).
 _DEFAULT_TRANSLATION_RANGE = 1.0
@@ -64,7 +64,7 @@ def _require_unit_norm(values, joint_name, what):
     # One state: a dot product and Python's comparisons (NumPy's reductions cost microseconds each).
     single = values.ndim == 1
     squared = float(values @ values) if single else np.einsum("...i,...i->...", values, values)
-    bad = (squared < _UNIT_SQUARED_NORMS[0]) | (squared > _UNIT_SQUARED_NORMS[1])  # (NaN passes)
+    bad = (squared < UNIT_SQUARED_NORMS[0]) | (squared > UNIT_SQUARED_NORMS[1])  # (NaN passes)
     if bad if single else bad.any():
         raise ValueError(
             f"joint {joint_name!r}: {what} must have unit norm (tolerance {UNIT_NORM_TOLERANCE:g}), "
@@ -103,6 +103,8 @@ class Joint:
     vector_space: ClassVar[bool] = True
     #: motion subspace in joint-frame coordinates, ``(6, nv)``
     motion_subspace: ClassVar[np.ndarray]
+    #: ``(start, stop, what)``: the slice of ``q`` that must have unit norm and what it is, or ``None``
+    unit_norm: ClassVar[tuple[int, int, str] | None] = None
 
     def neutral(self) -> np.ndarray:
         return np.zeros(self.nq)
@@ -194,7 +196,11 @@ class Joint:
         return _random_uniform(rng, lower, upper, _DEFAULT_TRANSLATION_RANGE, shape)
 
     def validate(self, q, joint_name):
-        """Raise ``ValueError`` if ``q`` is not a valid configuration of this joint."""
+        """Raise ``ValueError`` if ``q`` is not a valid configuration of this joint (its :attr:`unit_norm`
+        part off the unit sphere)."""
+        if self.unit_norm is not None:
+            start, stop, what = self.unit_norm
+            _require_unit_norm(q[..., start:stop], joint_name, what)
 
     @property
     def default_limits(self):
@@ -277,6 +283,7 @@ class Planar(Joint):
     motion_subspace: ClassVar[np.ndarray] = _constant(
         [[1, 0, 0], [0, 1, 0], [0, 0, 0], [0, 0, 0], [0, 0, 0], [0, 0, 1]]
     )
+    unit_norm: ClassVar[tuple[int, int, str]] = (2, 4, "planar (cos θ, sin θ)")
 
     def neutral(self):
         return np.array([0.0, 0.0, 1.0, 0.0])
@@ -285,9 +292,6 @@ class Planar(Joint):
         xy = _random_uniform(rng, lower[:2], upper[:2], _DEFAULT_TRANSLATION_RANGE, shape)
         theta = rng.uniform(-np.pi, np.pi, size=shape)
         return np.concatenate([xy, np.cos(theta)[..., None], np.sin(theta)[..., None]], axis=-1)
-
-    def validate(self, q, joint_name):
-        _require_unit_norm(q[..., 2:4], joint_name, "planar (cos θ, sin θ)")
 
     @property
     def default_limits(self):
@@ -303,15 +307,13 @@ class Spherical(Joint):
     nv: ClassVar[int] = 3
     vector_space: ClassVar[bool] = False
     motion_subspace: ClassVar[np.ndarray] = _constant(np.vstack([np.zeros((3, 3)), np.eye(3)]))
+    unit_norm: ClassVar[tuple[int, int, str]] = (0, 4, "quaternion")
 
     def neutral(self):
         return np.array([0.0, 0.0, 0.0, 1.0])
 
     def random(self, rng, lower, upper, shape=()):
         return _random_unit_quaternion(rng, shape)
-
-    def validate(self, q, joint_name):
-        _require_unit_norm(q, joint_name, "quaternion")
 
     @property
     def default_limits(self):
@@ -330,6 +332,7 @@ class FreeFlyer(Joint):
     nv: ClassVar[int] = 6
     vector_space: ClassVar[bool] = False
     motion_subspace: ClassVar[np.ndarray] = _constant(np.eye(6))
+    unit_norm: ClassVar[tuple[int, int, str]] = (3, 7, "quaternion")
 
     def neutral(self):
         return np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0])
@@ -337,9 +340,6 @@ class FreeFlyer(Joint):
     def random(self, rng, lower, upper, shape=()):
         p = _random_uniform(rng, lower[:3], upper[:3], _DEFAULT_TRANSLATION_RANGE, shape)
         return np.concatenate([p, _random_unit_quaternion(rng, shape)], axis=-1)
-
-    def validate(self, q, joint_name):
-        _require_unit_norm(q[..., 3:], joint_name, "quaternion")
 
     @property
     def default_limits(self):

@@ -25,6 +25,7 @@ STANDARD_GRAVITY = (0.0, 0.0, -9.81)
 
 #: Largest input whose finiteness check sums a Python list rather than reducing in NumPy
 _PYTHON_SUM_SIZE = 64
+_FLOAT = np.dtype(np.float64)
 
 
 @dataclass(frozen=True, eq=False)
@@ -367,8 +368,8 @@ class Model:
     @staticmethod
     def _as_float_array(x, name):
         if type(x) is np.ndarray and x.dtype == np.float64:
-            # The common case, checked cheaply: a non-finite entry makes the sum non-finite. Python sums a
-            # single state's few numbers for a fraction of a NumPy reduction's cost.
+            # A non-finite entry makes the sum non-finite; Python sums a single state's few numbers for a
+            # fraction of a NumPy reduction's cost.
             total = sum(x.reshape(-1).tolist()) if x.size <= _PYTHON_SUM_SIZE else np.add.reduce(x, axis=None)
             if not math.isfinite(total) and not np.all(np.isfinite(x)):
                 warnings.warn(f"{name} contains NaN or infinite values; results will contain NaN", RuntimeWarning,
@@ -384,12 +385,30 @@ class Model:
             warnings.warn(f"{name} contains NaN or infinite values; results will contain NaN", RuntimeWarning, stacklevel=3)
         return x
 
+    def _is_one_valid_state(self, x, size, unit_norm_slices=()):
+        """Whether ``x`` is one state that the checks below would pass unchanged: a C-contiguous float64
+        array of shape ``(size,)`` with finite entries, and ``(start, stop)`` blocks of unit norm within
+        tolerance. Plain Python on the state's few numbers, a fraction of the checks' cost; ``False``
+        sends the caller to the full checks, which convert, warn and raise."""
+        if not (type(x) is np.ndarray and x.dtype is _FLOAT and x.shape == (size,) and x.flags.c_contiguous):
+            return False
+        values = x.tolist()
+        if not math.isfinite(sum(values)):
+            return False
+        lower, upper = jt.UNIT_SQUARED_NORMS
+        for start, stop in unit_norm_slices:
+            if not lower <= sum([c * c for c in values[start:stop]]) <= upper:
+                return False
+        return True
+
     def check_configuration(self, q, name="q") -> np.ndarray:
         """``q`` as a float array of shape ``(..., nq)``, or ``ValueError``.
 
         Quaternions must have unit norm within :data:`multibody.joints.UNIT_NORM_TOLERANCE`
         (they are then used as normalised). Non-finite values warn and propagate as NaN.
         """
+        if self._is_one_valid_state(q, self.nq, self._unit_norm_slices):
+            return q
         q = self._as_float_array(q, name)
         self._require_last_axis(q, self.nq, name)
         # NaN norms compare false, so non-finite entries pass here and propagate (with the warning above).
@@ -401,10 +420,17 @@ class Model:
     def _unit_norm_blocks(self):
         """``(joint, name, start in q)`` of the joints whose configuration must have unit norm."""
         return tuple((joint, name, start) for joint, name, start in zip(self.joints, self.joint_names, self.idx_q)
-                     if type(joint).validate is not jt.Joint.validate)
+                     if joint.unit_norm is not None)
+
+    @cached_property
+    def _unit_norm_slices(self):
+        """``(start, stop)`` in ``q`` of each block that must have unit norm."""
+        return tuple((start + joint.unit_norm[0], start + joint.unit_norm[1]) for joint, _, start in self._unit_norm_blocks)
 
     def check_velocity(self, v, name="v") -> np.ndarray:
         """``v`` as a float array of shape ``(..., nv)``, or ``ValueError``."""
+        if self._is_one_valid_state(v, self.nv):
+            return v
         v = self._as_float_array(v, name)
         self._require_last_axis(v, self.nv, name)
         return v

@@ -22,8 +22,9 @@ from numba import njit
 from ..tree import AXIS, GRAVITY, INERTIA, IV, KIND, NV, PARENT
 from . import joints as kinds
 from .placement import joint_pose
-from .spatial import (row3, row6, row9, row10, store_row, add6, compose_rotations, cross, dot6, force_cross, force_to_parent, inertia_times,
-                      motion_cross, motion_to_child, scale6, sub6)
+from .spatial import (add6, compose_rotations, cross, dot6, force_cross, force_to_parent, inertia_times,
+                      motion_cross, motion_to_child, nan_unless_finite, row10, row3, row6, row9, scale6, store_row,
+                      sub6)
 
 ZERO6 = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 
@@ -326,6 +327,7 @@ def forward_dynamics(joints, reals, frames, q, v, tau, f_ext, out, ws):
             # a_i = a'_i + S_i q̈_i
             a_i = add6(a_i, scale6(qdd[iv + k], kinds.subspace_column(kind, axis, k)))
         store_row(acc, i, 0, a_i)
+    nan_unless_finite(q, v, tau, f_ext, out)
 
 
 @njit(cache=True)
@@ -425,3 +427,4 @@ def inverse_mass_matrix(joints, reals, frames, q, x1, x2, x3, out, ws):
     for r in range(n):
         for c in range(r):
             out[r, c] = out[c, r]
+    nan_unless_finite(q, x1, x2, x3, out)

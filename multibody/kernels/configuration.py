@@ -15,6 +15,7 @@ from numba import njit
 
 from ..tree import IQ, IV, KIND, NV
 from . import joints as kinds
+from .spatial import nan_unless_finite
 
 
 def workspace_size(nj, nv):
@@ -34,6 +35,7 @@ def integrate(joints, reals, frames, q, v, x2, x3, out, ws):
     """
     for i in range(joints.shape[0]):
         kinds.integrate(joints[i, KIND], joints[i, NV], q, v, joints[i, IQ], joints[i, IV], out[0])
+    nan_unless_finite(q, v, x2, x3, out)
 
 
 @njit(cache=True)
@@ -42,6 +44,7 @@ def difference(joints, reals, frames, q0, q1, x2, x3, out, ws):
     (Solà et al. 2018 App. B–D, Pinocchio's ``difference``). ``q0, q1 (nq,)``."""
     for i in range(joints.shape[0]):
         kinds.difference(joints[i, KIND], joints[i, NV], q0, q1, joints[i, IQ], joints[i, IV], out[0])
+    nan_unless_finite(q0, q1, x2, x3, out)
 
 
 @njit(cache=True)
@@ -51,6 +54,7 @@ def configuration_rate(joints, reals, frames, q, v, x2, x3, out, ws):
     ``R v_lin`` for free-flyer positions and ``R(θ) (vx, vy)``, ``ω (−sin θ, cos θ)`` for planar joints."""
     for i in range(joints.shape[0]):
         kinds.configuration_rate(joints[i, KIND], joints[i, NV], q, v, joints[i, IQ], joints[i, IV], out[0])
+    nan_unless_finite(q, v, x2, x3, out)
 
 
 @njit(cache=True)
@@ -60,6 +64,7 @@ def chart(joints, reals, frames, q0, delta, x2, x3, out, ws):
     quaternions (``δ`` a rotation vector in the parent frame, rad), planar angles turned by ``δ_θ``."""
     for i in range(joints.shape[0]):
         kinds.chart(joints[i, KIND], joints[i, NV], q0, delta, joints[i, IQ], joints[i, IV], out[0])
+    nan_unless_finite(q0, delta, x2, x3, out)
 
 
 @njit(cache=True)
@@ -68,6 +73,7 @@ def chart_rate(joints, reals, frames, delta, w, x2, x3, out, ws):
     velocity ``w (nv,)``: ``w``, but ``J_l(δ)⁻¹ ω`` for rotation vectors (Solà et al. 2018 App. B)."""
     for i in range(joints.shape[0]):
         kinds.chart_rate(joints[i, KIND], joints[i, NV], delta, w, joints[i, IV], out[0])
+    nan_unless_finite(delta, w, x2, x3, out)
 
 
 @njit(cache=True)
@@ -81,6 +87,7 @@ def velocity_alignment(joints, reals, frames, q, x1, x2, x3, out, ws):
             out[r, c] = 0.0
     for i in range(joints.shape[0]):
         kinds.velocity_alignment(joints[i, KIND], joints[i, NV], q, joints[i, IQ], joints[i, IV], out)
+    nan_unless_finite(q, x1, x2, x3, out)
 
 
 @njit(cache=True)
@@ -89,6 +96,7 @@ def velocity_coupling(joints, reals, frames, v, x1, x2, x3, out, ws):
     ``[ω × v_lin; 0]`` for a free flyer, ``ω (−vy, vx, 0)`` for a planar joint, zero elsewhere."""
     for i in range(joints.shape[0]):
         kinds.velocity_coupling(joints[i, KIND], joints[i, NV], v, joints[i, IV], out[0])
+    nan_unless_finite(v, x1, x2, x3, out)
 
 
 @njit(cache=True)
@@ -98,6 +106,7 @@ def chart_magnitude(joints, reals, frames, q, x1, x2, x3, out, ws):
     rotation vectors (``docs/conventions.md``, charts)."""
     for i in range(joints.shape[0]):
         kinds.chart_magnitude(joints[i, KIND], joints[i, NV], q, joints[i, IQ], joints[i, IV], out[0])
+    nan_unless_finite(q, x1, x2, x3, out)
 
 
 @njit(cache=True)
@@ -105,3 +114,4 @@ def normalize(joints, reals, frames, q, x1, x2, x3, out, ws):
     """``q (nq,)`` with every quaternion and planar ``(cos θ, sin θ)`` scaled to unit norm, into ``out[0]``."""
     for i in range(joints.shape[0]):
         kinds.normalize(joints[i, KIND], joints[i, NV], q, joints[i, IQ], out[0])
+    nan_unless_finite(q, x1, x2, x3, out)

@@ -18,8 +18,8 @@ from numba import njit
 from ..tree import AXIS, INERTIA, IV, KIND, NV, PARENT
 from . import joints as kinds
 from .placement import joint_pose
-from .spatial import (add6, compose, cross, dot3, dot6, inertia_times, inertia_to_parent, load3, load6, load9,
-                      load10, motion_cross, motion_to_parent, store, sub3)
+from .spatial import (add6, compose, cross, dot3, dot6, inertia_times, inertia_to_parent, load10, load3, load6,
+                      load9, motion_cross, motion_to_parent, nan_unless_finite, store, sub3)
 
 ZERO6 = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 
@@ -177,3 +177,4 @@ def coriolis_matrix(joints, reals, frames, q, v, x2, x3, out, ws):
                 inertia_c[parent, c] += inertia_c[j, c]
             for c in range(12):
                 factor_c[parent, c] += factor_c[j, c]
+    nan_unless_finite(q, v, x2, x3, out)

@@ -12,8 +12,8 @@ from numba import njit
 from ..tree import AXIS, INERTIA, IV, KIND, NV, PARENT
 from . import joints as kinds
 from .placement import joint_pose
-from .spatial import (add10, dot6, force_to_parent, inertia_times, inertia_to_parent, row3, row9, row10,
-                      store_row)
+from .spatial import (add10, dot6, force_to_parent, inertia_times, inertia_to_parent, nan_unless_finite, row10, row3,
+                      row9, store_row)
 
 
 def workspace_size(nj, nv):
@@ -73,3 +73,4 @@ def mass_matrix(joints, reals, frames, q, x1, x2, x3, out, ws):
                     h = dot6(kinds.subspace_column(kind_j, axis_j, m), F)
                     out[iv_j + m, col] = h
                     out[col, iv_j + m] = h
+    nan_unless_finite(q, x1, x2, x3, out)

@@ -15,8 +15,8 @@ from ..tree import AXIS, GRAVITY, INERTIA, IV, KIND, NV, PARENT
 from . import joints as kinds
 from .placement import joint_pose
 from .kinematics import joint_placements, world_position
-from .spatial import add3, add6, dot3, dot6, inertia_times, load3, load6, load9, load10, motion_to_child, \
-    rotate, scale3, store
+from .spatial import (add3, add6, dot3, dot6, inertia_times, load3, load6, load9, load10, motion_to_child,
+                      nan_unless_finite, rotate, scale3, store)
 
 ZERO6 = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 
@@ -49,6 +49,7 @@ def kinetic_energy(joints, reals, frames, q, v, x2, x3, out, ws):
         # T += ½ v_iᵀ I_i v_i
         T += 0.5 * dot6(v_i, inertia_times(load10(row, INERTIA), v_i))
     out[0, 0] = T
+    nan_unless_finite(q, v, x2, x3, out)
 
 
 @njit(cache=True)
@@ -71,3 +72,4 @@ def potential_energy(joints, reals, frames, q, x1, x2, x3, out, ws):
         # U −= gᵀ m_i c_i
         U -= dot3(g, moment)
     out[0, 0] = U
+    nan_unless_finite(q, x1, x2, x3, out)

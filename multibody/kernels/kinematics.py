@@ -24,8 +24,8 @@ from numba import njit
 from ..tree import AXIS, FRAME_JOINT, FRAME_POSITION, FRAME_ROTATION, IV, KIND, NV, PARENT
 from . import joints as kinds
 from .placement import joint_pose
-from .spatial import (add3, add6, compose, cross, load3, load6, load9, motion_cross, motion_to_child, rotate, store,
-                      sub3)
+from .spatial import (add3, add6, compose, cross, load3, load6, load9, motion_cross, motion_to_child,
+                      nan_unless_finite, rotate, store, sub3)
 
 ZERO6 = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 
@@ -203,6 +203,7 @@ def frame_placements(joints, reals, frames, q, x1, x2, x3, out, ws):
             X[4 * r + 2] = R[3 * r + 2]
             X[4 * r + 3] = p[r]
         X[12], X[13], X[14], X[15] = 0.0, 0.0, 0.0, 1.0
+    nan_unless_finite(q, x1, x2, x3, out)
 
 
 @njit(cache=True)
@@ -217,6 +218,7 @@ def frame_jacobian(joints, reals, frames, q, point, x2, x3, out, ws):
     """
     pose = joint_placements(joints, reals, q, ws)
     jacobian_columns(joints, reals, pose, frame_joint(frames, 0), frame_point(frames, pose, point), out)
+    nan_unless_finite(q, point, x2, x3, out)
 
 
 @njit(cache=True)
@@ -238,6 +240,7 @@ def frame_jacobian_time_variation(joints, reals, frames, q, v, point, x3, out, w
             out[r, c] = 0.0
     j = frame_joint(frames, 0)
     if j < 0:
+        nan_unless_finite(q, v, point, x3, out)
         return
     x = frame_point(frames, pose, point)
     # ẋ = R_Wj v_j + (R_Wj ω_j) × (x − p_Wj)
@@ -262,6 +265,7 @@ def frame_jacobian_time_variation(joints, reals, frames, q, v, point, x3, out, w
                 out[r, iv + k] = u[r]
                 out[3 + r, iv + k] = c_w[r]
         i = joints[i, PARENT]
+    nan_unless_finite(q, v, point, x3, out)
 
 
 @njit(cache=True)
@@ -307,3 +311,4 @@ def frame_motions(joints, reals, frames, q, v, x2, x3, out, ws):
         R_Wj = load9(pose[j], 0)
         store(row, bias, rotate(R_Wj, x_ddot))
         store(row, bias + 3, rotate(R_Wj, alpha_j))
+    nan_unless_finite(q, v, x2, x3, out)

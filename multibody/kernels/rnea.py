@@ -12,8 +12,8 @@ from numba import njit
 from ..tree import AXIS, GRAVITY, INERTIA, IV, KIND, NV, PARENT
 from . import joints as kinds
 from .placement import joint_pose
-from .spatial import (add6, force_cross, force_to_parent, inertia_times, load3, load6, load9, load10,
-                      motion_cross, motion_to_child, store, sub6)
+from .spatial import (add6, force_cross, force_to_parent, inertia_times, load10, load3, load6, load9, motion_cross,
+                      motion_to_child, nan_unless_finite, store, sub6)
 
 ZERO6 = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 
@@ -89,6 +89,7 @@ def inverse_dynamics(joints, reals, frames, q, v, a, f_ext, out, ws):
         kind, iv, nv = joints[i, KIND], joints[i, IV], joints[i, NV]
         # τ_i = S_iᵀ f_i
         kinds.project_force(kind, load3(reals[i], AXIS), nv, load6(force[i], 0), tau, iv)
+    nan_unless_finite(q, v, a, f_ext, out)
 
 
 @njit(cache=True)
@@ -99,3 +100,4 @@ def joint_reaction_forces(joints, reals, frames, q, v, a, f_ext, out, ws):
     for i in range(joints.shape[0]):
         for k in range(6):
             out[i, k] = force[i, k]
+    nan_unless_finite(q, v, a, f_ext, out)

@@ -12,6 +12,8 @@ Formulas: R. Featherstone, *Rigid Body Dynamics Algorithms* (RBDA), Springer 200
 
 from __future__ import annotations
 
+import math
+
 from numba import njit
 
 IDENTITY = (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0)
@@ -263,3 +265,24 @@ def store_row(X, i, s, values):
     """``X[i, s : s + len(values)] = values``."""
     for k in range(len(values)):
         X[i, s + k] = values[k]
+
+
+@njit(cache=True)
+def all_finite(x):
+    """Whether every entry of the vector ``x`` is finite."""
+    for k in range(x.shape[0]):
+        if not math.isfinite(x[k]):
+            return False
+    return True
+
+
+@njit(cache=True)
+def nan_unless_finite(x0, x1, x2, x3, out):
+    """Fill ``out`` with NaN when an input vector has a NaN or infinite entry, so that such a state's
+    whole output is NaN, also where its arithmetic would not carry the NaN (the mass matrix does not
+    depend on the position of a floating base). Every kernel ends with it."""
+    if all_finite(x0) and all_finite(x1) and all_finite(x2) and all_finite(x3):
+        return
+    for r in range(out.shape[0]):
+        for c in range(out.shape[1]):
+            out[r, c] = math.nan
