@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import dynamics, kinematics, linalg
+from . import dynamics, kinematics, linalg, spatial
 from .model import Model
 from .spatial import matvec
 
@@ -48,6 +48,13 @@ class ModelSystem:
 
     def bias_forces(self, q, v):
         return dynamics.bias_forces(self.model, q, v)
+
+    def forward_dynamics(self, q, v, tau=None):
+        """``a = M⁻¹ (τ − h)`` by the Articulated Body Algorithm (:func:`multibody.dynamics.forward_dynamics`):
+        an unconstrained step without forming ``M``. Float arrays ``q (..., nq)``, ``v (..., nv)``, ``tau
+        (..., nv)`` or ``None`` (zero), as :meth:`ConstrainedSystem.solve` checked them."""
+        return dynamics.articulated_body_accelerations(self.model, q, v, tau, None, spatial.batch_shape(
+            q.shape[:-1], v.shape[:-1], () if tau is None else tau.shape[:-1]))
 
     def integrate(self, q, v, dt=1.0):
         return self.model.integrate(q, v, dt)
@@ -326,6 +333,9 @@ class ConstrainedSystem:
             raise ValueError(f"q and v must have shapes ({self.nq},) and ({self.nv},), got {q.shape} and {v.shape}: "
                              "this system takes one state at a time (its mechanical system or one of its "
                              "constraints does not accept batches; see ConstrainedSystem.batched)")
+        if self.model is not None:
+            # the model's checks too: unit norms, a warning on non-finite values
+            q, v = self.model.check_configuration(q), self.model.check_velocity(v)
         return q, v
 
     def solve(self, q, v, tau=None, t=0.0) -> KKTSolution:
@@ -336,6 +346,13 @@ class ConstrainedSystem:
         """
         q, v = self._check_state(q, v)
         tau = None if tau is None else self._tau(tau, q.shape[:-1])
+        if not self.num_rows and hasattr(self.system, "forward_dynamics"):
+            batch = q.shape[:-1]
+            try:
+                a = self.system.forward_dynamics(q, v, tau)
+            except np.linalg.LinAlgError as error:
+                raise ConstraintError(str(error)) from None
+            return KKTSolution(a, np.zeros(batch + (0,)), 0, np.zeros(batch + (0, self.nv)), np.zeros(batch + (0,)))
         M, h, evaluated = self._mass_matrix_and_bias(q, v)
         free_force = -h if tau is None else tau - h  # τ − h
         L = self._factor(q, M)

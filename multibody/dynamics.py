@@ -19,6 +19,8 @@ its array arguments and broadcasts them.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from . import driver, spatial
@@ -215,7 +217,9 @@ def _require_nonsingular(model, inputs, result):
     """``result``, or ``LinAlgError`` when it is not finite at a finite state (a NaN input, already warned
     about, just propagates): the mass matrix is singular. The error names the first joint whose subtree
     carries no inertia at all, the usual cause."""
-    if np.isfinite(result).all() or not all(np.isfinite(x).all() for x in inputs if x is not None):
+    # A non-finite entry makes the sum non-finite (and a finite sum needs no further look).
+    if math.isfinite(sum(result.reshape(-1).tolist())) or np.isfinite(result).all() \
+            or not all(np.isfinite(x).all() for x in inputs if x is not None):
         return result
     for i in range(model.njoints):
         subtree = [model.joint_inertias[j] for j in range(i, model.njoints) if model.ancestors[j, i]]
@@ -236,6 +240,13 @@ def forward_dynamics(model, q, v, tau, f_ext=None):
     counterpart: ``aba``.
     """
     q, v, _, tau, f_ext, batch = _check(model, q, v, tau=tau, f_ext=f_ext)
+    return articulated_body_accelerations(model, q, v, tau, f_ext, batch)
+
+
+def articulated_body_accelerations(model, q, v, tau, f_ext, batch):
+    """:func:`forward_dynamics` of inputs already checked: float64 arrays of the right sizes, whose
+    leading axes broadcast to ``batch`` (``f_ext (..., 6 nj)`` or ``None``). For callers that produce
+    their own states, such as the integrators."""
     return _require_nonsingular(model, (q, v, tau, f_ext), _vector(model, aba.forward_dynamics, (q, v, tau, f_ext), batch))
 
 
