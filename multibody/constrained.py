@@ -11,12 +11,16 @@ Eliminating ``a`` gives the multipliers from the *Delassus* matrix ``G = A M⁻�
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
-from . import dynamics, kinematics, linalg, spatial
+from . import driver, dynamics, kinematics, linalg, spatial
+from .kernels import constraints as compiled_rows
+from .kernels import kkt
 from .model import Model
 from .spatial import matvec
+from .tree import frame_rows
 
 
 class ConstraintError(RuntimeError):
@@ -183,6 +187,54 @@ class ConstrainedSystem:
         frames = {} if not isinstance(self.system, ModelSystem) else {
             _frame_key(self.system.model, *frame): frame for c in self.constraints for frame in c.body_frames}
         self._body_frames = list(frames.values())
+
+    @cached_property
+    def _compiled_step(self):
+        """``(program, frame rows, workspace size)`` of the compiled step (:mod:`multibody.kernels.kkt`),
+        or ``None`` when a constraint has no compiled rows (a user constraint, a moving surface) or
+        the system is not a :class:`Model`."""
+        if not self.num_rows or not isinstance(self.system, ModelSystem):
+            return None
+        model = self.system.model
+        keys = [_frame_key(model, *frame) for frame in self._body_frames]
+        if any(getattr(c, "moving", False) for c in self.constraints):
+            return None
+        entries = [c.program_entry(model, lambda body, placement: keys.index(_frame_key(model, body, placement)))
+                   for c in self.constraints]
+        if any(entry is None for entry in entries):
+            return None
+        alpha, beta = self.baumgarte or (0.0, 0.0)
+        program = np.zeros(compiled_rows.HEADER + compiled_rows.STRIDE * len(entries))
+        program[: compiled_rows.HEADER] = (len(entries), self.num_rows, alpha, beta, self.rank_tolerance)
+        first_row = 0
+        for k, ((kind, parameters, frame_a, frame_b), rows) in enumerate(zip(entries, self._rows)):
+            start = compiled_rows.HEADER + k * compiled_rows.STRIDE
+            program[start : start + compiled_rows.PARAMETERS] = (kind, first_row, rows, frame_a, frame_b)
+            program[start + compiled_rows.PARAMETERS : start + compiled_rows.PARAMETERS + len(parameters)] = parameters
+            first_row += rows
+        frames = frame_rows(model, [kinematics._frame_arguments(model, *frame) for frame in self._body_frames])
+        workspace = kkt.workspace_size(model.njoints, self.nv, len(frames), self.num_rows)
+        return program, frames, workspace
+
+    def _solve_compiled(self, q, v, tau):
+        """:meth:`solve` by the compiled step, or ``None`` where it does not apply or did not solve (a
+        singular ``M``, inconsistent rows, undefined geometry): the NumPy path then raises the error
+        that explains why. A state with a non-finite input gets NaN results and rank 0."""
+        if self._compiled_step is None:
+            return None
+        program, frames, workspace = self._compiled_step
+        nv, m = self.nv, self.num_rows
+        batch = q.shape[:-1] if tau is None else spatial.batch_shape(q.shape[:-1], tau.shape[:-1])
+        row = driver.evaluate(kkt.constrained_accelerations, self.system.model.tree, (q, v, tau, program),
+                              (1, kkt.output_columns(nv, m)), batch, frames, workspace)[..., 0, :]
+        status = row[..., -1]
+        # NaN: a state with a non-finite input (warned about), all of whose results are NaN
+        if not ((status == kkt.SOLVED) | np.isnan(status)).all():
+            return None
+        A = row[..., nv + m : nv + m + m * nv].reshape(batch + (m, nv))
+        rank = np.nan_to_num(row[..., -2]).astype(int)
+        return KKTSolution(row[..., :nv], row[..., nv : nv + m], int(rank) if rank.ndim == 0 else rank, A,
+                           row[..., nv + m + m * nv : nv + 2 * m + m * nv])
 
     @property
     def num_rows(self) -> int:
@@ -353,6 +405,9 @@ class ConstrainedSystem:
             except np.linalg.LinAlgError as error:
                 raise ConstraintError(str(error)) from None
             return KKTSolution(a, np.zeros(batch + (0,)), 0, np.zeros(batch + (0, self.nv)), np.zeros(batch + (0,)))
+        solution = self._solve_compiled(q, v, tau)
+        if solution is not None:
+            return solution
         M, h, evaluated = self._mass_matrix_and_bias(q, v)
         free_force = -h if tau is None else tau - h  # τ − h
         L = self._factor(q, M)

@@ -21,9 +21,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import kinematics, spatial
+from . import driver, kinematics, spatial
+from .kernels import constraints as compiled
 from .model import Model
 from .spatial import matvec, transpose
+from .tree import frame_rows
 
 # Steps of the numerical derivatives: fourth-order stencils keep the truncation error near
 # (h/L)⁴ for features of size L, and the rounding error near ε/h (first) or ε/h² (second derivative).
@@ -117,8 +119,77 @@ class Constraint:
         raise TypeError(f"{self.name} acts on generalized coordinates, not through body points: "
                         "it has no body forces (its generalized force is Aᵀ λ)")
 
+    def program_entry(self, model, frame_index):
+        """``(kind, parameters, frame a, frame b)`` of this constraint's compiled rows
+        (:mod:`multibody.kernels.constraints`), or ``None`` when it has none and is evaluated here, in
+        Python. ``frame_index(body, placement)`` gives a frame's index among the system's frames."""
+        return None
+
     def __repr__(self):
         return f"{type(self).__name__}({self.name!r})"
+
+
+class CompiledRows(Constraint):
+    """A built-in constraint whose rows are compiled (:mod:`multibody.kernels.constraints`): ``φ``, ``A`` and
+    ``γ`` come from one kernel, for one state or a batch, and a constrained step evaluates them inside
+    its compiled pass (:mod:`multibody.kernels.kkt`). Subclasses give :meth:`program_entry` and the
+    message for a configuration where the rows have no defined direction. ``b = 0``: the surfaces
+    and frames are fixed."""
+
+    batched = True
+    undefined = "its rows are undefined at this configuration"
+
+    #: whether the rows also need Python terms (a user function of time: ``b`` and its rate in ``γ``), so
+    #: that a constrained step cannot run them compiled
+    moving = False
+
+    def _levels(self, system, q, v, t):
+        """``(A (..., m, nv), b (..., m), γ (..., m), φ (..., m))`` at ``(q, v, t)`` (``v`` ``None``: zero)."""
+        model = _require_model(system, self)
+        frames = self.body_frames
+        entry = self.program_entry(model, lambda body, placement: next(
+            k for k, (b, X) in enumerate(frames) if b is body and X is placement))
+        kind, parameters, frame_a, frame_b = entry
+        m = self.rows(model)
+        program = np.zeros(compiled.HEADER + compiled.STRIDE)
+        program[: compiled.HEADER] = (1, m, 0.0, 0.0, 0.0)
+        program[compiled.HEADER : compiled.HEADER + compiled.PARAMETERS] = (kind, 0, m, frame_a, frame_b)
+        program[compiled.HEADER + compiled.PARAMETERS : compiled.HEADER + compiled.PARAMETERS + len(parameters)] = parameters
+        q = model.check_configuration(q)
+        v = None if v is None else model.check_velocity(v)
+        batch = q.shape[:-1] if v is None else spatial.batch_shape(q.shape[:-1], v.shape[:-1])
+        rows = frame_rows(model, [kinematics._frame_arguments(model, *frame) for frame in frames])
+        nv = model.nv
+        out = driver.evaluate(compiled.constraint_levels, model.tree, (q, v, None, program),
+                              (1, compiled.levels_columns(nv, m)), batch, rows,
+                              compiled.workspace_size(model.njoints, nv, len(frames)))[..., 0, :]
+        if np.any(out[..., -1] == compiled.UNDEFINED):
+            raise ValueError(f"{self.name}: {self.undefined}")
+        gamma = out[..., m * nv : m * nv + m]
+        return out[..., : m * nv].reshape(batch + (m, nv)), np.zeros(gamma.shape), gamma, out[..., m * nv + m : -1]
+
+    def position(self, system, q, t=0.0):
+        return self._levels(system, q, None, t)[3]
+
+    def jacobian(self, system, q, t=0.0):
+        return self._levels(system, q, None, t)[0]
+
+    def velocity_bias(self, system, q, t=0.0):
+        return self._levels(system, q, None, t)[1]
+
+    def acceleration_rhs(self, system, q, v, t=0.0):
+        return self._levels(system, q, v, t)[2]
+
+    def evaluate(self, system, q, v, t=0.0):
+        return self._levels(system, q, v, t)[:3]
+
+    def velocity_level(self, system, q, t=0.0):
+        return self._levels(system, q, None, t)[:2]
+
+    def position_and_velocity_level(self, system, q, t=0.0):
+        A, b, _, phi = self._levels(system, q, None, t)
+        return phi, A, b
+
 
 
 # ============================================================================= user constraints
@@ -425,7 +496,7 @@ class PointOnSurface(Constraint):
         return matvec(transpose(J[..., :3, :]), gradient)[..., None, :], np.zeros_like(gamma), gamma
 
 
-class Distance(Constraint):
+class Distance(CompiledRows):
     """Two points (on bodies, or fixed in the world) stay a given distance apart: a massless rod.
 
     One row, ``φ = d − |x_a − x_b|``; the multiplier is the rod's **tension** (N, positive when it
@@ -438,6 +509,7 @@ class Distance(Constraint):
     """
 
     holonomic = True
+    undefined = "the two points coincide, so the rod has no direction"
 
     def __init__(self, body_a, body_b, distance, *, point_a=None, point_b=None, name=None):
         super().__init__(name or f"distance {body_a}-{body_b}")
@@ -456,9 +528,8 @@ class Distance(Constraint):
     def _points(self, system, q, v):
         return tuple(_frame(system, self, q, v, body, placement) for body, placement in self.body_frames)
 
-    def position(self, system, q, t=0.0):
-        (_, x_a, _, _), (_, x_b, _, _) = self._points(system, q, None)
-        return (self.distance - np.linalg.norm(x_a - x_b, axis=-1))[..., None]
+    def program_entry(self, model, frame_index):
+        return compiled.DISTANCE, [self.distance], *(frame_index(*frame) for frame in self.body_frames)
 
     def body_forces(self, system, q, lam, t=0.0):
         (_, x_a, _, _), (_, x_b, _, _) = self._points(system, q, None)
@@ -468,28 +539,8 @@ class Distance(Constraint):
         return _wrenches(_require_model(system, self), q,
                          [(self.body_a, -u * lam[0], x_a, zero), (self.body_b, u * lam[0], x_b, zero)])
 
-    def jacobian(self, system, q, t=0.0):
-        return self.evaluate(system, q, np.zeros(system.nv), t)[0]
 
-    def acceleration_rhs(self, system, q, v, t=0.0):
-        return self.evaluate(system, q, v, t)[2]
-
-    def evaluate(self, system, q, v, t=0.0):
-        (_, x_a, J_a, Jv_a), (_, x_b, J_b, Jv_b) = self._points(system, q, v)
-        delta = x_a - x_b
-        length = np.linalg.norm(delta, axis=-1)
-        u = delta / length[..., None]
-        J_delta = J_a[..., :3, :] - J_b[..., :3, :]
-        # φ̇ = −u · Δ̇; the force on a, −λ u, pulls it towards b when λ > 0
-        A = -matvec(transpose(J_delta), u)[..., None, :]
-        delta_dot = matvec(J_delta, v)
-        # φ̈ = −u·Δ̈ − (|Δ̇|² − (u·Δ̇)²)/|Δ| = A a − u·(J̇v_a − J̇v_b) − (...) = 0
-        normal_part = (np.sum(delta_dot**2, axis=-1) - np.sum(u * delta_dot, axis=-1) ** 2) / length
-        gamma = (np.sum(u * (Jv_a[..., :3] - Jv_b[..., :3]), axis=-1) + normal_part)[..., None]
-        return A, np.zeros_like(gamma), gamma
-
-
-class LoopClosure(Constraint):
+class LoopClosure(CompiledRows):
     """Closes a kinematic loop between frame A (fixed in ``body_a``) and frame B (in ``body_b``).
 
     Position rows: the position of B's origin relative to A's, expressed in frame A,
@@ -542,15 +593,11 @@ class LoopClosure(Constraint):
     def _frames(self, system, q, v):
         return tuple(_frame(system, self, q, v, body, placement) for body, placement in self.body_frames)
 
-    def position(self, system, q, t=0.0):
-        (R_a, p_a, _, _), (R_b, p_b, _, _) = self._frames(system, q, None)
-        relative = matvec(transpose(R_a), p_b - p_a)[..., list(self.position_axes)]
-        aligned = [np.sum(R_a[..., :, i] * R_b[..., :, j], axis=-1) for i, j in self.aligned_axes]
-        return np.concatenate([relative] + [x[..., None] for x in aligned], axis=-1)
-
-    def jacobian(self, system, q, t=0.0):
-        (R_a, p_a, J_a, _), (R_b, p_b, J_b, _) = self._frames(system, q, None)
-        return self._rows(R_a, p_a, J_a, R_b, p_b, J_b)
+    def program_entry(self, model, frame_index):
+        axes = list(self.position_axes) + [0] * (3 - len(self.position_axes))
+        pairs = [index for pair in self.aligned_axes for index in pair]
+        parameters = [len(self.position_axes), *axes, len(self.aligned_axes), *pairs, *[0] * (6 - len(pairs))]
+        return compiled.LOOP_CLOSURE, parameters, *(frame_index(*frame) for frame in self.body_frames)
 
     def body_forces(self, system, q, lam, t=0.0):
         (R_a, _, _, _), (R_b, p_b, _, _) = self._frames(system, q, None)
@@ -563,43 +610,8 @@ class LoopClosure(Constraint):
         return _wrenches(_require_model(system, self), q,
                          [(self.body_b, force, p_b, -moment), (self.body_a, -force, p_b, moment)])
 
-    def _rows(self, R_a, p_a, J_a, R_b, p_b, J_b):
-        # d/dt R_aᵀ(p_b − p_a) = R_aᵀ (ẋ_b − ẋ_a − ω_a × Δ): B's velocity relative to the point of
-        # body a that coincides with B's origin.
-        delta = p_b - p_a
-        relative = J_b[..., :3, :] - J_a[..., :3, :] + spatial.skew(delta) @ J_a[..., 3:, :]
-        rows = [(transpose(R_a) @ relative)[..., list(self.position_axes), :]]
-        # d/dt (e_i · f_j) = (e_i × f_j) · (ω_a − ω_b)
-        for i, j in self.aligned_axes:
-            axis = spatial.cross(R_a[..., :, i], R_b[..., :, j])
-            rows.append(matvec(transpose(J_a[..., 3:, :] - J_b[..., 3:, :]), axis)[..., None, :])
-        return np.concatenate(rows, axis=-2)
 
-    def acceleration_rhs(self, system, q, v, t=0.0):
-        return self.evaluate(system, q, v, t)[2]
-
-    def evaluate(self, system, q, v, t=0.0):
-        (R_a, p_a, J_a, Jv_a), (R_b, p_b, J_b, Jv_b) = self._frames(system, q, v)
-        w_a, w_b = matvec(J_a[..., 3:, :], v), matvec(J_b[..., 3:, :], v)
-        delta = p_b - p_a
-        delta_dot = matvec(J_b[..., :3, :] - J_a[..., :3, :], v)
-        # r̈ = R_aᵀ [Δ̈ − ω̇_a × Δ − 2 ω_a × Δ̇ + ω_a × (ω_a × Δ)]; the a-free part with Δ̈ → J̇v_b − J̇v_a,
-        # ω̇_a → J̇v_a (angular).
-        free = (Jv_b[..., :3] - Jv_a[..., :3] - spatial.cross(Jv_a[..., 3:], delta) - 2.0 * spatial.cross(w_a, delta_dot)
-                + spatial.cross(w_a, spatial.cross(w_a, delta)))
-        gamma = [-matvec(transpose(R_a), free)[..., list(self.position_axes)]]
-        for i, j in self.aligned_axes:
-            e, f = R_a[..., :, i], R_b[..., :, j]
-            e_dot, f_dot = spatial.cross(w_a, e), spatial.cross(w_b, f)
-            axis, axis_dot = spatial.cross(e, f), spatial.cross(e_dot, f) + spatial.cross(e, f_dot)
-            # d²/dt² (e·f) = (e×f)·(ω̇_a − ω̇_b) + d/dt(e×f)·(ω_a − ω_b)
-            value = np.sum(axis * (Jv_a[..., 3:] - Jv_b[..., 3:]), axis=-1) + np.sum(axis_dot * (w_a - w_b), axis=-1)
-            gamma.append(-value[..., None])
-        gamma = np.concatenate(gamma, axis=-1)
-        return self._rows(R_a, p_a, J_a, R_b, p_b, J_b), np.zeros_like(gamma), gamma
-
-
-class JointCoupling(Constraint):
+class JointCoupling(CompiledRows):
     """Two one-coordinate joints geared together: ``q_b = ratio · q_a + offset`` (a URDF mimic).
 
     One row, ``φ = q_b − ratio q_a − offset``; the multiplier is the coupling torque (or force) on
@@ -625,19 +637,9 @@ class JointCoupling(Constraint):
             out.append((model.idx_q[i], model.idx_v[i]))
         return out
 
-    def position(self, system, q, t=0.0):
-        (qa, _), (qb, _) = self._indices(system)
-        return (q[..., qb] - self.ratio * q[..., qa] - self.offset)[..., None]
-
-    def jacobian(self, system, q, t=0.0):
-        (_, va), (_, vb) = self._indices(system)
-        row = np.zeros(system.nv)
-        row[vb] += 1.0
-        row[va] -= self.ratio
-        return np.broadcast_to(row, np.shape(q)[:-1] + (1, system.nv)).copy()
-
-    def acceleration_rhs(self, system, q, v, t=0.0):
-        return np.zeros(np.broadcast_shapes(np.shape(q)[:-1], np.shape(v)[:-1]) + (1,))
+    def program_entry(self, model, frame_index):
+        (qa, va), (qb, vb) = self._indices(model)
+        return compiled.JOINT_COUPLING, [self.ratio, self.offset, qa, va, qb, vb], 0, 0
 
 
 def mimic_constraints(model):

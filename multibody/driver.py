@@ -9,7 +9,8 @@ states in parallel: each thread takes its own contiguous share of the states and
 workspace. The states are independent, so any number of threads gives the same numbers.
 
 Batches run on Numba's threads: :func:`set_num_threads` or the environment variable
-``MULTIBODY_NUM_THREADS`` sets how many (at most ``NUMBA_NUM_THREADS``, the cores by default).
+``MULTIBODY_NUM_THREADS`` sets how many (at most ``NUMBA_NUM_THREADS``, the cores by default); a batch
+of fewer than ``STATES_PER_THREAD`` states per thread runs on fewer of them.
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ import numba
 import numpy as np
 from numba import njit, prange
 
-from .kernels import aba, configuration, coriolis, crba, energy, kinematics, rnea
+from .kernels import aba, configuration, constraints, coriolis, crba, energy, kinematics, kkt, rnea
 
 # Each kernel's code in the parallel loop (one compiled loop serves them all) and its workspace size.
 _CODES = {kernel: code for code, kernel in enumerate((
@@ -30,7 +31,8 @@ _CODES = {kernel: code for code, kernel in enumerate((
     kinematics.frame_placements, kinematics.frame_jacobian, kinematics.frame_jacobian_time_variation,
     kinematics.frame_motions, configuration.integrate, configuration.difference, configuration.configuration_rate,
     configuration.chart, configuration.chart_rate, configuration.velocity_alignment, configuration.velocity_coupling,
-    configuration.chart_magnitude, configuration.normalize))}
+    configuration.chart_magnitude, configuration.normalize, kkt.constrained_accelerations,
+    constraints.constraint_levels))}
 _WORKSPACE = {kernel: module.workspace_size for module in (rnea, crba, aba, coriolis, energy, kinematics, configuration)
               for kernel in _CODES if getattr(kernel, "py_func", kernel).__module__ == module.__name__}
 
@@ -103,6 +105,10 @@ def _kernel(code, joints, reals, frames, x0, x1, x2, x3, out, ws):
         configuration.chart_magnitude(joints, reals, frames, x0, x1, x2, x3, out, ws)
     elif code == 20:
         configuration.normalize(joints, reals, frames, x0, x1, x2, x3, out, ws)
+    elif code == 21:
+        kkt.constrained_accelerations(joints, reals, frames, x0, x1, x2, x3, out, ws)
+    elif code == 22:
+        constraints.constraint_levels(joints, reals, frames, x0, x1, x2, x3, out, ws)
 
 
 @njit(cache=True, parallel=True)
@@ -115,6 +121,9 @@ def _batch(code, joints, reals, frames, X0, X1, X2, X3, OUT, workspace_size, sha
             _kernel(code, joints, reals, frames, X0[s if X0.shape[0] > 1 else 0], X1[s if X1.shape[0] > 1 else 0],
                     X2[s if X2.shape[0] > 1 else 0], X3[s if X3.shape[0] > 1 else 0], OUT[s], ws)
 
+
+#: Fewest states a batch gives each thread (the results do not depend on it).
+STATES_PER_THREAD = 256
 
 _NONE = np.zeros(0)
 _NO_ROWS = np.zeros((1, 0))
@@ -140,16 +149,17 @@ def _rows(x, batch, n):
     return x if x.dtype is _FLOAT and x.flags.c_contiguous and x.flags.writeable else np.array(x, dtype=np.float64)
 
 
-def evaluate(kernel, tree, inputs, out_shape, batch=(), frames=None):
+def evaluate(kernel, tree, inputs, out_shape, batch=(), frames=None, workspace=None):
     """Run ``kernel`` on every state of ``batch``: ``-> batch + out_shape``.
 
     ``inputs``: up to four float arrays ``(..., k)`` whose leading axes broadcast to ``batch``
     (``None``: unused); ``out_shape``: ``(rows, cols)`` of one state's output; ``frames``: frame rows
-    ``(m, 13)`` (default ``tree.bodies``). A state with a non-finite input gets an output of NaN (every
+    ``(m, 13)`` (default ``tree.bodies``); ``workspace``: floats of workspace per state, for a kernel whose
+    need depends on more than the tree (default its module's ``workspace_size(nj, nv)``). A state with a non-finite input gets an output of NaN (every
     kernel ends with :func:`~multibody.kernels.spatial.nan_unless_finite`).
     """
     frames = tree.bodies if frames is None else frames
-    workspace = np.empty(_WORKSPACE[kernel](tree.joints.shape[0], tree.nv))
+    workspace = np.empty(_WORKSPACE[kernel](tree.joints.shape[0], tree.nv) if workspace is None else workspace)
     x0, x1, x2, x3 = inputs + _UNUSED[len(inputs):]
     if not batch:
         out = np.empty(out_shape)
@@ -159,6 +169,15 @@ def evaluate(kernel, tree, inputs, out_shape, batch=(), frames=None):
     n = math.prod(batch)
     out = np.empty((n,) + tuple(out_shape))
     if n:
-        _batch(_CODES[kernel], tree.joints, tree.reals, frames, _rows(x0, batch, n), _rows(x1, batch, n),
-               _rows(x2, batch, n), _rows(x3, batch, n), out, workspace.size, min(get_num_threads(), n))
+        threads = get_num_threads()
+        # A small batch runs on fewer threads: waking a sleeping thread costs more than it would compute.
+        shares = max(1, min(threads, n // STATES_PER_THREAD))
+        if shares < threads:
+            numba.set_num_threads(shares)
+        try:
+            _batch(_CODES[kernel], tree.joints, tree.reals, frames, _rows(x0, batch, n), _rows(x1, batch, n),
+                   _rows(x2, batch, n), _rows(x3, batch, n), out, workspace.size, shares)
+        finally:
+            if shares < threads:
+                numba.set_num_threads(threads)
     return out.reshape(batch + tuple(out_shape))

@@ -24,7 +24,8 @@ from __future__ import annotations
 import numpy as np
 
 from . import spatial
-from .constraints import Constraint, _first_derivative, _frame, _point_placement, _require_model, _wrenches
+from .kernels import constraints as compiled
+from .constraints import CompiledRows, Constraint, _first_derivative, _frame, _point_placement, _require_model, _wrenches
 from .spatial import matvec
 
 
@@ -40,7 +41,7 @@ def _plane_frame(normal):
     return n, np.column_stack([t1, np.cross(n, t1), n])
 
 
-class _RollingOnPlane(Constraint):
+class _RollingOnPlane(CompiledRows):
     """Shared machinery of bodies rolling on a plane (see the module docstring)."""
 
     def __init__(self, body, radius, *, center, plane_point, plane_normal, surface_velocity, normal, name):
@@ -66,19 +67,28 @@ class _RollingOnPlane(Constraint):
     def body_frames(self):
         return ((self.body, self.placement),)
 
+    def program_entry(self, model, frame_index):
+        parameters = [*self.frame.T.reshape(9), self.radius, float(self.plane_point @ self.normal), *self._axis()]
+        kind = compiled.ROLLING_SPHERE if isinstance(self, RollingSphere) else compiled.ROLLING_DISC
+        return kind, parameters, frame_index(self.body, self.placement), 0
+
+    def _axis(self):
+        """The disc's axis in the contact frame's coordinates (none for a sphere)."""
+        return []
+
     def _offset(self, R_WB, omega):
         """Contact offset ``d`` from the centre and its rate ``ḋ`` (world axes, ``(..., 3)`` each; ``ḋ``
         ``None`` where ``d`` is fixed in the world)."""
         raise NotImplementedError
 
-    def _lever_rows(self, d):
-        """``Eᵀ [d]× (..., k, 3)``, whose row i is ``(e_i × d)ᵀ``: the rows' lever on the angular velocity."""
-        return spatial.cross(self._plane_rows, d[..., None, :])
-
     @property
     def batched(self):
         """Every method takes leading batch axes, unless a user ``surface_velocity`` is involved."""
         return self.surface_velocity is None
+
+    @property
+    def moving(self):
+        return self.surface_velocity is not None
 
     def _contact(self, system, q, v, t):
         R_WB, x_O, J, J_dot_v = _frame(system, self, q, v, self.body, self.placement)
@@ -86,61 +96,25 @@ class _RollingOnPlane(Constraint):
         d, d_dot = self._offset(R_WB, omega)
         return x_O, J, J_dot_v, omega, d, d_dot
 
-    def position(self, system, q, t=0.0):
-        x_O, _, _, _, d, _ = self._contact(system, q, np.zeros(np.shape(q)[:-1] + (system.nv,)), t)
-        return self._position(x_O, d)
-
-    def _position(self, x_O, d):
-        # Only the normal row has a position level: the contact point lies on the plane.
-        phi = np.zeros(np.shape(x_O)[:-1] + (self.rows(None),))
-        if self.include_normal:
-            phi[..., 2] = (x_O + d - self.plane_point) @ self.normal
-        return phi
-
     def _surface_velocity(self, point, t):
-        return np.zeros(3) if self.surface_velocity is None else np.asarray(self.surface_velocity(point, t), float)
-
-    def evaluate(self, system, q, v, t=0.0):
-        return self._levels(system, q, v, t)[:3]
+        return np.asarray(self.surface_velocity(point, t), float)
 
     def _levels(self, system, q, v, t):
-        """``(A, b, γ, φ)`` from one kinematics pass (shapes ``(..., k, nv)``, ``(..., k)`` ×3)."""
-        x_O, J, J_dot_v, omega, d, d_dot = self._contact(system, q, v, t)
-        E_T = self._plane_rows
-        # v_c = (J_O − [d]× J_ω) v, in the plane frame: Eᵀ J_O − (Eᵀ [d]×) J_ω
-        A = E_T @ J[..., :3, :] - self._lever_rows(d) @ J[..., 3:, :]
-        # d/dt v_c at a = 0: J̇v_O + ω̇₀ × d + ω × ḋ
-        contact_acceleration = J_dot_v[..., :3] + spatial.cross(J_dot_v[..., 3:], d)
-        if d_dot is not None:
-            contact_acceleration = contact_acceleration + spatial.cross(omega, d_dot)
+        """The compiled rows of a fixed plane, and for a moving surface ``b = −Eᵀ v_surface(c, t)`` and
+        its rate along the motion in ``γ = −Eᵀ (J̇v_O + ω̇₀ × d + ω × ḋ − d/dt v_surface)``, numerically."""
+        A, b, gamma, phi = super()._levels(system, q, v, t)
         if self.surface_velocity is None:
-            b = np.zeros(np.shape(x_O)[:-1] + (E_T.shape[0],))
-        else:
-            b = -E_T @ self._surface_velocity(x_O + d, t)
+            return A, b, gamma, phi
+        E_T = self._plane_rows
+        v = np.zeros(system.nv) if v is None else v
+        x_O, _, _, _, d, _ = self._contact(system, q, v, t)
+        b = -E_T @ self._surface_velocity(x_O + d, t)
 
-            # d/dt v_surface(c(q(s)), t + s) along the motion, numerically.
-            def surface_at(s):
-                x_s, _, _, _, d_s, _ = self._contact(system, system.integrate(q, v, s), v, t + s)
-                return self._surface_velocity(x_s + d_s, t + s)
+        def surface_at(s):
+            x_s, _, _, _, d_s, _ = self._contact(system, system.integrate(q, v, s), v, t + s)
+            return self._surface_velocity(x_s + d_s, t + s)
 
-            contact_acceleration = contact_acceleration - _first_derivative(surface_at)
-        return A, b, -contact_acceleration @ E_T.T, self._position(x_O, d)
-
-    def velocity_level(self, system, q, t=0.0):
-        return self.evaluate(system, q, np.zeros(np.shape(q)[:-1] + (system.nv,)), t)[:2]
-
-    def position_and_velocity_level(self, system, q, t=0.0):
-        A, b, _, phi = self._levels(system, q, np.zeros(np.shape(q)[:-1] + (system.nv,)), t)
-        return phi, A, b
-
-    def jacobian(self, system, q, t=0.0):
-        return self.velocity_level(system, q, t)[0]
-
-    def velocity_bias(self, system, q, t=0.0):
-        return self.velocity_level(system, q, t)[1]
-
-    def acceleration_rhs(self, system, q, v, t=0.0):
-        return self.evaluate(system, q, v, t)[2]
+        return A, b, gamma + E_T @ _first_derivative(surface_at), phi
 
     def contact_point(self, system, q):
         """World position of the contact point ``(3,)``."""
@@ -176,14 +150,10 @@ class RollingSphere(_RollingOnPlane):
         super().__init__(body, radius, center=center, plane_point=plane_point, plane_normal=plane_normal,
                          surface_velocity=surface_velocity, normal=normal, name=name or f"rolling sphere {body}")
         self._offset_in_world = -self.radius * self.normal
-        self._fixed_lever_rows = super()._lever_rows(self._offset_in_world)
 
     def _offset(self, R_WB, omega):
         # d = −r n is fixed in the world: ḋ = 0.
         return self._offset_in_world, None
-
-    def _lever_rows(self, d):
-        return self._fixed_lever_rows  # (d is fixed in the world)
 
 
 class RollingDisc(_RollingOnPlane):
@@ -196,6 +166,8 @@ class RollingDisc(_RollingOnPlane):
     defined contact point.
     """
 
+    undefined = "the disc lies flat on the plane; its contact point is undefined"
+
     def __init__(self, body, radius, *, axis=(0.0, 1.0, 0.0), center=None, plane_point=(0.0, 0.0, 0.0),
                  plane_normal=(0.0, 0.0, 1.0), surface_velocity=None, normal=True, name=None):
         super().__init__(body, radius, center=center, plane_point=plane_point, plane_normal=plane_normal,
@@ -204,6 +176,9 @@ class RollingDisc(_RollingOnPlane):
         if axis.shape != (3,) or not np.linalg.norm(axis) > 0:
             raise ValueError(f"disc axis must be a non-zero 3-vector, got {axis!r}")
         self.axis = axis / np.linalg.norm(axis)
+
+    def _axis(self):
+        return list(self.placement[:3, :3] @ self.axis)
 
     def _offset(self, R_WB, omega):
         n = self.normal
@@ -221,7 +196,7 @@ class RollingDisc(_RollingOnPlane):
         return -self.radius * e, -self.radius * e_dot
 
 
-class KnifeEdge(Constraint):
+class KnifeEdge(CompiledRows):
     """A blade (or a non-slipping wheel seen from above) cannot move sideways on a plane.
 
     The point ``point`` of ``body`` has no velocity along ``w = n × e``, with ``e`` the blade's
@@ -229,6 +204,8 @@ class KnifeEdge(Constraint):
     ``wᵀ ẋ = 0``. The multiplier is the sideways force of the blade on the body (N) along ``w``.
     This is the Chaplygin sleigh and the unicycle constraint.
     """
+
+    undefined = "the blade is perpendicular to the plane"
 
     def __init__(self, body, *, point=None, direction=(1.0, 0.0, 0.0), plane_normal=(0.0, 0.0, 1.0), name=None):
         super().__init__(name or f"knife edge {body}")
@@ -246,6 +223,9 @@ class KnifeEdge(Constraint):
     def body_frames(self):
         return ((self.body, self.placement),)
 
+    def program_entry(self, model, frame_index):
+        return compiled.KNIFE_EDGE, [*self.normal, *self.direction], frame_index(self.body, self.placement), 0
+
     def _sideways(self, R_WB):
         w = spatial.cross(self.normal, R_WB @ self.direction)
         length = np.linalg.norm(w)
@@ -253,22 +233,7 @@ class KnifeEdge(Constraint):
             raise ValueError(f"{self.name}: the blade is perpendicular to the plane")
         return w / length, length
 
-    def evaluate(self, system, q, v, t=0.0):
-        R_WB, _, J, J_dot_v = _frame(system, self, q, v, self.body, self.placement)
-        w, length = self._sideways(R_WB)
-        omega = matvec(J[3:], v)
-        x_dot = matvec(J[:3], v)
-        # ẇ: the blade direction turns with the body, w = n × e / |n × e|.
-        raw_dot = spatial.cross(self.normal, spatial.cross(omega, R_WB @ self.direction))
-        w_dot = (raw_dot - w * (w @ raw_dot)) / length
-        gamma = -(w_dot @ x_dot + w @ J_dot_v[:3])
-        return (w @ J[:3])[None, :], np.zeros(1), np.array([gamma])
-
-    def jacobian(self, system, q, t=0.0):
-        return self.evaluate(system, q, np.zeros(system.nv), t)[0]
-
-    def acceleration_rhs(self, system, q, v, t=0.0):
-        return self.evaluate(system, q, v, t)[2]
+    position = Constraint.position  # no position level
 
     def body_forces(self, system, q, lam, t=0.0):
         model = _require_model(system, self)

@@ -798,8 +798,14 @@ def test_forward_dynamics_rejects_wrong_shapes(pendulum):
         cs.forward_dynamics(q[:2], v)
     with pytest.raises(ValueError, match="shapes"):
         cs.forward_dynamics(q, np.zeros(4))
+    # the distance's rows take batches: a batch of two equal states gives the state's answer twice
+    a, lam = cs.forward_dynamics(q, v)
+    a2, lam2 = cs.forward_dynamics(np.stack([q, q]), np.stack([v, v]))
+    assert np.array_equal(a2, [a, a]) and np.array_equal(lam2, [lam, lam])
+    # a user constraint takes one state at a time
+    user = mb.ConstrainedSystem(cs.model, [mb.Pfaffian(lambda q, t: np.array([[0.0, 0.0, 1.0]]))])
     with pytest.raises(ValueError, match="shapes"):
-        cs.forward_dynamics(np.stack([q, q]), np.stack([v, v]))
+        user.forward_dynamics(np.stack([q, q]), np.stack([v, v]))
     with pytest.raises(ValueError, match="tau"):
         cs.forward_dynamics(q, v, tau=np.zeros(2))
 

@@ -1,0 +1,167 @@
+"""The compiled constrained step (multibody.kernels.kkt) against the NumPy KKT path of ConstrainedSystem.
+
+The NumPy path (CRBA + RNEA + LAPACK Cholesky and eigh) is reached by withholding the compiled step
+from a system; both read the same compiled constraint rows, so they differ only by the rounding of
+the linear algebra.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import multibody as mb
+from multibody.kernels import kkt
+from multibody.spatial import pose_from_xyz_rpy
+
+from constraint_helpers import assert_close, four_bar
+
+
+def numpy_solution(system, q, v, tau=None):
+    system.__dict__["_compiled_step"] = None  # the cached property, withheld
+    try:
+        return system.solve(q, v, tau)
+    finally:
+        del system.__dict__["_compiled_step"]
+
+
+def compare(system, q, v, tau=None, tol=1e-12):
+    """The compiled and NumPy solutions agree to ``tol`` relative, or to the rounding that the condition
+    number of ``G = A M⁻¹ Aᵀ`` allows where that is more (two different eigen-solvers of ``G``)."""
+    assert system._compiled_step is not None
+    fast, slow = system.solve(q, v, tau), numpy_solution(system, q, v, tau)
+    assert np.array_equal(fast.A, slow.A) and fast.rank == slow.rank
+    if slow.rank == system.num_rows:
+        G = slow.A @ np.linalg.solve(mb.mass_matrix(system.model, q), slow.A.T)
+        tol = max(tol, 1e-15 * np.linalg.cond(G))
+    scale = max(1.0, np.abs(slow.a).max(), np.abs(slow.lam).max())
+    assert_close(fast.a, slow.a, tol, scale=scale, what="a")
+    assert_close(fast.lam, slow.lam, tol, scale=scale, what="λ")
+    assert_close(fast.gamma, slow.gamma, tol, scale=max(1.0, np.abs(slow.gamma).max()), what="γ")
+    return fast
+
+
+def ball():
+    return mb.load_urdf(mb.robots.path("ball"), floating_base=True)
+
+
+TILTED = (np.sin(0.1), 0.0, np.cos(0.1))
+BALL_CONSTRAINTS = {
+    "sphere": lambda: [mb.RollingSphere("ball", 0.1, plane_normal=TILTED, plane_point=(0.0, 0.0, -0.2))],
+    "sphere without normal row": lambda: [mb.RollingSphere("ball", 0.1, normal=False)],
+    "disc": lambda: [mb.RollingDisc("ball", 0.1, axis=(0.3, 1.0, 0.2), plane_normal=TILTED)],
+    "knife edge": lambda: [mb.KnifeEdge("ball", point=(0.0, 0.05, 0.0), direction=(1.0, 0.2, 0.0))],
+    "distance": lambda: [mb.Distance("ball", None, 0.5, point_a=(0.1, 0.0, 0.0), point_b=(0.2, 0.3, 0.4))],
+    "sphere and knife edge": lambda: [mb.RollingSphere("ball", 0.1), mb.KnifeEdge("ball")],
+}
+
+
+@pytest.mark.parametrize("baumgarte", [None, (3.0, 4.0)], ids=["plain", "baumgarte"])
+@pytest.mark.parametrize("name", list(BALL_CONSTRAINTS))
+def test_compiled_step_matches_numpy_on_a_free_body(name, baumgarte):
+    model = ball()
+    system = mb.ConstrainedSystem(model, BALL_CONSTRAINTS[name](), baumgarte=baumgarte)
+    rng = np.random.default_rng(3)
+    for _ in range(5):
+        q, v, tau = model.random_configuration(rng), rng.standard_normal(model.nv), rng.standard_normal(model.nv)
+        compare(system, q, v, tau)
+    compare(system, q, v)  # no joint forces
+
+
+@pytest.mark.parametrize("kind", ["point", "planar", "revolute", "weld"])
+def test_compiled_loop_closures_match_numpy(kind):
+    model = mb.robots.load("double_pendulum") if kind == "planar" else mb.load_urdf(mb.robots.path("ball"),
+                                                                                        floating_base=True)
+    rng = np.random.default_rng(7)
+    body = model.body_names[-1]
+    constraint = mb.LoopClosure(body, None, frame_a=pose_from_xyz_rpy([0.05, 0.02, 0.1], [0.1, 0.2, 0.3]),
+                                frame_b=pose_from_xyz_rpy([0.3, -0.1, 0.2], [0.3, -0.2, 0.1]), kind=kind)
+    system = mb.ConstrainedSystem(model, [constraint], baumgarte=2.0)
+    for _ in range(4):
+        compare(system, model.random_configuration(rng), rng.standard_normal(model.nv), rng.standard_normal(model.nv))
+
+
+def test_redundant_rows_give_the_minimum_norm_multipliers():
+    """The planar four-bar closed by a point constraint: the out-of-plane row is redundant (rank 2 of 3)."""
+    model, tip, pivot = four_bar()
+    system = mb.ConstrainedSystem(model, [mb.LoopClosure(None, "link3", frame_a=pose_from_xyz_rpy(pivot), frame_b=tip)])
+    rng = np.random.default_rng(11)
+    q, v = system.project(np.array([0.9, -0.9, -0.8]), rng.standard_normal(model.nv))
+    solution = compare(system, q, v, tol=1e-10)
+    assert solution.rank < system.num_rows
+
+
+def test_joint_coupling_is_compiled():
+    model = mb.robots.load("double_pendulum")
+    system = mb.ConstrainedSystem(model, [mb.JointCoupling(model.joint_names[0], model.joint_names[1], 2.0, 0.1)])
+    rng = np.random.default_rng(2)
+    solution = compare(system, rng.standard_normal(2), rng.standard_normal(2), rng.standard_normal(2))
+    assert_close(solution.a[1], 2.0 * solution.a[0], 1e-12, scale=1.0, what="coupled accelerations")
+
+
+def test_batch_equals_single_states():
+    model = ball()
+    system = mb.ConstrainedSystem(model, BALL_CONSTRAINTS["sphere"](), baumgarte=1.0)
+    rng = np.random.default_rng(5)
+    q = np.stack([model.random_configuration(rng) for _ in range(4)])
+    v, tau = rng.standard_normal((4, model.nv)), rng.standard_normal(model.nv)
+    batch = system.solve(q, v, tau)
+    for k in range(4):
+        single = system.solve(q[k], v[k], tau)
+        assert np.array_equal(batch.a[k], single.a) and np.array_equal(batch.lam[k], single.lam)
+        assert batch.rank[k] == single.rank
+
+
+def test_steps_the_compiled_kernel_cannot_take_fall_back_with_the_numpy_errors():
+    model = ball()
+    q = model.neutral()
+    q[:3] = (0.5, 0.0, 0.0)
+    v = np.array([0.0, 0.3, 0.0, 0.0, 0.0, 1.0])
+    # the same rod twice: redundant but consistent, one row counts
+    twice = mb.ConstrainedSystem(model, [mb.Distance("ball", None, 0.5), mb.Distance("ball", None, 0.5)])
+    assert compare(twice, q, v).rank == 1
+    # rods of different lengths on the same point: Baumgarte's −β² φ asks for two accelerations at once
+    different = mb.ConstrainedSystem(model, [mb.Distance("ball", None, 0.5), mb.Distance("ball", None, 0.6)],
+                                     baumgarte=(0.0, 1.0))
+    with pytest.raises(mb.ConstraintError, match="inconsistent"):
+        different.solve(q, v)
+    # a disc lying flat has no contact direction
+    flat = mb.ConstrainedSystem(model, [mb.RollingDisc("ball", 0.1, axis=(0.0, 0.0, 1.0))])
+    with pytest.raises(ValueError, match="lies flat"):
+        flat.solve(model.neutral(), np.zeros(model.nv))
+    # an indefinite mass matrix: the NumPy path's error
+    massless = mb.ModelBuilder("ghost")
+    massless.add_body("p", mb.joints.Translation())
+    ghost = massless.build(check_inertia=False)
+    with pytest.raises(mb.ConstraintError, match="positive definite"):
+        mb.ConstrainedSystem(ghost, [mb.Distance("p", None, 1.0)]).solve(np.array([1.0, 0.0, 0.0]), np.zeros(3))
+
+
+def test_non_finite_input_gives_nan_with_a_warning():
+    model = ball()
+    system = mb.ConstrainedSystem(model, BALL_CONSTRAINTS["sphere"]())
+    v = np.zeros(model.nv)
+    v[0] = np.nan
+    with pytest.warns(RuntimeWarning, match="NaN"):
+        solution = system.solve(model.neutral(), v)
+    assert np.isnan(solution.a).all()
+
+
+def test_symmetric_eigen_and_cholesky_agree_with_lapack():
+    rng = np.random.default_rng(0)
+    for m in (1, 2, 5, 12):
+        X = rng.standard_normal((m, m + 2))
+        G = X @ X.T
+        V, w = np.empty((m, m)), np.empty(m)
+        work = G.copy()
+        kkt.symmetric_eigen(work, V, w, m)
+        assert_close(V @ np.diag(w) @ V.T, G, 1e-13, scale=np.abs(G).max(), what="V diag(w) Vᵀ")
+        assert_close(V.T @ V, np.eye(m), 1e-13, scale=1.0, what="VᵀV")
+        assert_close(np.sort(w), np.linalg.eigvalsh(G), 1e-13, scale=np.abs(w).max(), what="eigenvalues")
+        L = G.copy()
+        assert kkt.cholesky(L, m)
+        x = rng.standard_normal(m)
+        solved = x.copy()
+        kkt.cholesky_solve(L, m, solved)
+        assert_close(G @ solved, x, 1e-10, scale=np.abs(x).max(), what="M⁻¹ x")
+    assert not kkt.cholesky(-np.eye(3), 3)
