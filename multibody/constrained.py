@@ -10,6 +10,7 @@ Eliminating ``a`` gives the multipliers from the *Delassus* matrix ``G = A M⁻�
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from functools import cached_property
 
@@ -17,7 +18,7 @@ import numpy as np
 
 from . import driver, dynamics, kinematics, linalg, spatial
 from .kernels import constraints as compiled_rows
-from .kernels import kkt
+from .kernels import aba, integration, kkt
 from .model import Model
 from .spatial import matvec
 from .tree import frame_rows
@@ -227,14 +228,48 @@ class ConstrainedSystem:
         batch = q.shape[:-1] if tau is None else spatial.batch_shape(q.shape[:-1], tau.shape[:-1])
         row = driver.evaluate(kkt.constrained_accelerations, self.system.model.tree, (q, v, tau, program),
                               (1, kkt.output_columns(nv, m)), batch, frames, workspace)[..., 0, :]
+        A = row[..., nv + m : nv + m + m * nv].reshape(batch + (m, nv))
+        solution = row[..., :nv], row[..., nv : nv + m], A, row[..., nv + m + m * nv : nv + 2 * m + m * nv]
+        # status NaN: a state with a non-finite input (warned about), all of whose results are NaN; rank 0
+        if not batch:
+            status = float(row[-1])
+            if status != kkt.SOLVED and status == status:
+                return None
+            return KKTSolution(solution[0], solution[1], int(row[-2]) if status == kkt.SOLVED else 0, *solution[2:])
         status = row[..., -1]
-        # NaN: a state with a non-finite input (warned about), all of whose results are NaN
         if not ((status == kkt.SOLVED) | np.isnan(status)).all():
             return None
-        A = row[..., nv + m : nv + m + m * nv].reshape(batch + (m, nv))
-        rank = np.nan_to_num(row[..., -2]).astype(int)
-        return KKTSolution(row[..., :nv], row[..., nv : nv + m], int(rank) if rank.ndim == 0 else rank, A,
-                           row[..., nv + m + m * nv : nv + 2 * m + m * nv])
+        return KKTSolution(solution[0], solution[1], np.nan_to_num(row[..., -2]).astype(int), *solution[2:])
+
+    @cached_property
+    def _compiled_motion(self):
+        """``(program, frame rows, workspace size)`` of the compiled chart derivative
+        (:mod:`multibody.kernels.integration`), or ``None`` when the step is not compiled."""
+        if not isinstance(self.system, ModelSystem):
+            return None
+        model = self.system.model
+        if not self.num_rows:
+            program, frames = np.zeros(0), model.tree.bodies
+            step_workspace, step_columns = aba.workspace_size(model.njoints, self.nv), self.nv
+        elif self._compiled_step is not None:
+            program, frames, step_workspace = self._compiled_step
+            step_columns = kkt.output_columns(self.nv, self.num_rows)
+        else:
+            return None
+        return program, frames, integration.workspace_size(model.njoints, self.nq, self.nv, step_workspace, step_columns)
+
+    def _chart_derivative(self, q_chart, y, tau):
+        """``ẏ (2 nv,)`` of the chart state ``y = [δ, w]`` around ``q_chart`` with constant joint forces
+        ``tau`` (``None``: zero), by one compiled call; ``None`` where the compiled step does not apply or
+        did not solve (the NumPy path then gives the answer or the error)."""
+        program, frames, workspace = self._compiled_motion
+        nv = self.nv
+        row = driver.evaluate(integration.chart_derivative, self.system.model.tree, (q_chart, y, tau, program),
+                              (1, integration.output_columns(nv)), (), frames, workspace)[0]
+        y_dot = row[: 2 * nv]
+        if row[2 * nv] != kkt.SOLVED or not math.isfinite(sum(y_dot.tolist())):
+            return None
+        return y_dot
 
     @property
     def num_rows(self) -> int:
@@ -377,6 +412,10 @@ class ConstrainedSystem:
         return tau
 
     def _check_state(self, q, v):
+        model = self.model
+        if model is not None and model._is_one_valid_state(q, model.nq, model._unit_norm_slices) \
+                and model._is_one_valid_state(v, model.nv):
+            return q, v
         q, v = np.asarray(q, dtype=float), np.asarray(v, dtype=float)
         if q.shape[-1:] != (self.nq,) or v.shape[-1:] != (self.nv,) or q.shape[:-1] != v.shape[:-1]:
             raise ValueError(f"q and v must have shapes (..., {self.nq}) and (..., {self.nv}) with the same "

@@ -22,7 +22,7 @@ import numba
 import numpy as np
 from numba import njit, prange
 
-from .kernels import aba, configuration, constraints, coriolis, crba, energy, kinematics, kkt, rnea
+from .kernels import aba, configuration, constraints, coriolis, crba, energy, integration, kinematics, kkt, rnea
 
 # Each kernel's code in the parallel loop (one compiled loop serves them all) and its workspace size.
 _CODES = {kernel: code for code, kernel in enumerate((
@@ -32,7 +32,7 @@ _CODES = {kernel: code for code, kernel in enumerate((
     kinematics.frame_motions, configuration.integrate, configuration.difference, configuration.configuration_rate,
     configuration.chart, configuration.chart_rate, configuration.velocity_alignment, configuration.velocity_coupling,
     configuration.chart_magnitude, configuration.normalize, kkt.constrained_accelerations,
-    constraints.constraint_levels))}
+    constraints.constraint_levels, integration.chart_derivative))}
 _WORKSPACE = {kernel: module.workspace_size for module in (rnea, crba, aba, coriolis, energy, kinematics, configuration)
               for kernel in _CODES if getattr(kernel, "py_func", kernel).__module__ == module.__name__}
 
@@ -109,6 +109,8 @@ def _kernel(code, joints, reals, frames, x0, x1, x2, x3, out, ws):
         kkt.constrained_accelerations(joints, reals, frames, x0, x1, x2, x3, out, ws)
     elif code == 22:
         constraints.constraint_levels(joints, reals, frames, x0, x1, x2, x3, out, ws)
+    elif code == 23:
+        integration.chart_derivative(joints, reals, frames, x0, x1, x2, x3, out, ws)
 
 
 @njit(cache=True, parallel=True)

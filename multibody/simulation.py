@@ -143,7 +143,15 @@ def simulate(system, q0, v0, t_final, *, dt=None, method="RK45", tau=None, rtol=
         w = y[..., nv:]
         return q_t, T, (w if T is None else matvec(transpose(T), w))
 
+    # Constant joint forces and a compiled step: each evaluation is one compiled call.
+    compiled = not callable(tau) and constrained._compiled_motion is not None
+    constant_tau = None if tau is None or callable(tau) else torque(t0, None, None)
+
     def derivative(t, y, q_chart):
+        if compiled:
+            y_dot = constrained._chart_derivative(q_chart, y, constant_tau)
+            if y_dot is not None:
+                return y_dot
         q_t, T, v_t = unchart(q_chart, y)
         a, _ = constrained.forward_dynamics(q_t, v_t, torque(t, q_t, v_t), t)
         # ẇ = T (a + κ(v))

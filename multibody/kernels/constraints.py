@@ -268,7 +268,7 @@ def levels_columns(nv, m):
 
 def workspace_size(nj, nv, nframes):
     """Floats of workspace of :func:`constraint_levels` with ``nframes`` frames."""
-    return nv + nframes * (18 + 6 * nv) + kinematics.workspace_size(nj, nv)
+    return nv + nframes * kinematics.motion_columns(nv) + kinematics.workspace_size(nj, nv)
 
 
 @njit(cache=True)
@@ -278,7 +278,7 @@ def constraint_levels(joints, reals, frames, q, v, x2, program, out, ws):
     :func:`constraint_rows`. ``v`` of length 0 stands for zero; ``x2`` is unused."""
     m = int(program[1])
     nv = (out.shape[1] - 1 - 2 * m) // m
-    cols = 18 + 6 * nv
+    cols = kinematics.motion_columns(nv)
     k = frames.shape[0]
     zeros = ws[:nv]
     motions = ws[nv : nv + k * cols].reshape((k, cols))

@@ -34,6 +34,7 @@ ZERO6 = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 MOTION_ROTATION, MOTION_POSITION, MOTION_JACOBIAN = 0, 9, 12
 
 
+@njit(cache=True)
 def motion_columns(nv):
     """Columns of one frame's row in :func:`frame_motions`: ``18 + 6 nv``."""
     return 18 + 6 * nv

@@ -28,6 +28,7 @@ from .spatial import nan_unless_finite
 SOLVED, NOT_POSITIVE_DEFINITE, INCONSISTENT = 0, 1, 2
 
 
+@njit(cache=True)
 def output_columns(nv, m):
     """Columns of the step's output row: ``a (nv) | λ (m) | A (m nv, row-major) | γ (m) | rank | status``."""
     return nv + m + m * nv + m + 2
@@ -136,7 +137,7 @@ def constrained_accelerations(joints, reals, frames, q, v, tau, program, out, ws
     nv = (out.shape[1] - 2 - 2 * m) // (1 + m)
     alpha, beta, rank_tolerance = program[2], program[3], program[4]
     none = program[:0]
-    cols = 18 + 6 * nv  # kinematics.motion_columns(nv)
+    cols = kinematics.motion_columns(nv)
     # workspace
     start = 0
     M = ws[start : start + nv * nv].reshape((nv, nv))

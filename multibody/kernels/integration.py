@@ -1,0 +1,77 @@
+"""The right-hand side of the equations of motion in the integrator's chart, for :func:`multibody.simulate`.
+
+The integrator's state is ``y = [δ, w]`` around a configuration ``q_c`` (``docs/conventions.md``,
+charts; E. Hairer, C. Lubich and G. Wanner, *Geometric Numerical Integration*, §IV.8.2):
+
+    q = chart(q_c, δ),   v = T(q)ᵀ w
+    a from ABA (no constraints) or the constrained step (:mod:`multibody.kernels.kkt`)
+    ẇ = T(q) (a + κ(v)),   δ̇ = chart_rate(δ, w)
+
+One kernel call per evaluation, with the maps of :mod:`multibody.kernels.configuration`.
+"""
+
+from __future__ import annotations
+
+from numba import njit
+
+from . import aba, configuration, kkt
+from .spatial import nan_unless_finite
+
+
+def output_columns(nv):
+    """Columns of :func:`chart_derivative`'s output row: ``ẏ = [δ̇ (nv), ẇ (nv)]`` and a status."""
+    return 2 * nv + 1
+
+
+def workspace_size(nj, nq, nv, step_workspace, step_columns):
+    """Floats of workspace: ``q``, ``v``, ``T``, ``κ``, the step's output row and its workspace."""
+    return nq + 2 * nv + nv * nv + step_columns + step_workspace
+
+
+@njit(cache=True)
+def chart_derivative(joints, reals, frames, q_chart, y, tau, program, out, ws):
+    """``ẏ = [δ̇; ẇ]`` of the chart state ``y = [δ; w] (2 nv,)`` around ``q_chart (nq,)`` into ``out[0]``
+    (layout :func:`output_columns`), with joint forces ``tau (nv,)`` or length 0 (zero).
+
+    ``program`` of length 0: no constraints, ``a`` by ABA (status 0, or NaN where ``M`` is singular);
+    else the constraint program of :mod:`multibody.kernels.constraints` for the constrained step, whose
+    status is passed on (0: solved).
+    """
+    nq, nv = q_chart.shape[0], y.shape[0] // 2
+    delta, w = y[:nv], y[nv:]
+    none = program[:0]
+    q = ws[:nq].reshape((1, nq))
+    v = ws[nq : nq + nv]
+    kappa = ws[nq + nv : nq + 2 * nv].reshape((1, nv))
+    T = ws[nq + 2 * nv : nq + 2 * nv + nv * nv].reshape((nv, nv))
+    start = nq + 2 * nv + nv * nv
+    row = out[0]
+    # q = chart(q_c, δ) ;  v = Tᵀ w
+    configuration.chart(joints, reals, frames, q_chart, delta, none, none, q, none)
+    configuration.velocity_alignment(joints, reals, frames, q[0], none, none, none, T, none)
+    for c in range(nv):
+        s = 0.0
+        for r in range(nv):
+            s += T[r, c] * w[r]
+        v[c] = s
+    if program.shape[0] == 0:
+        step = ws[start : start + nv].reshape((1, nv))
+        aba.forward_dynamics(joints, reals, frames, q[0], v, tau, none, step, ws[start + nv :])
+        status = 0.0
+    else:
+        m = int(program[1])
+        columns = kkt.output_columns(nv, m)
+        step = ws[start : start + columns].reshape((1, columns))
+        kkt.constrained_accelerations(joints, reals, frames, q[0], v, tau, program, step, ws[start + columns :])
+        status = step[0, columns - 1]
+    a = step[0, :nv]
+    # ẇ = T (a + κ(v)) ;  δ̇ = chart_rate(δ, w)
+    configuration.velocity_coupling(joints, reals, frames, v, none, none, none, kappa, none)
+    for r in range(nv):
+        s = 0.0
+        for c in range(nv):
+            s += T[r, c] * (a[c] + kappa[0, c])
+        row[nv + r] = s
+    configuration.chart_rate(joints, reals, frames, delta, w, none, none, out, none)
+    row[2 * nv] = status
+    nan_unless_finite(q_chart, y, tau, program, out)
