@@ -1,8 +1,8 @@
-"""A bead sliding on a wire, done both ways the seed describes.
+"""A bead sliding on a wire, done both ways the lecture note describes.
 
 1. Cartesian coordinates (x, y, z) of the bead, held on the wire r(s) by Lagrange multipliers:
    the multipliers come out as the normal force the wire exerts (N, world axes).
-2. The seed's single generalized coordinate s along the wire: T = ½ m |r'(s)|² ṡ², U = m g z(s),
+2. The lecture note's single generalized coordinate s along the wire: T = ½ m |r'(s)|² ṡ², U = m g z(s),
    so Lagrange's equation reads m |r'|² s̈ + m (r'·r'') ṡ² + m g z'(s) = 0. No multiplier at all.
 
 The two trajectories agree, and the normal force m r̈ − m g of the second matches the multipliers

@@ -1,7 +1,7 @@
 """The simple pendulum as a particle held on a circle by a Lagrange multiplier.
 
 Coordinates are the particle's Cartesian x, y, z; the rod is the constraint |x| = l. The
-multiplier is the rod tension, which the seed's Newtonian picture gives as
+multiplier is the rod tension, which the lecture note's Newtonian picture gives as
 λ = m g cos θ + m l θ̇². Writes PNG figures to the output folder.
 Run: python examples/pendulum_tension.py [output_folder]
 """

@@ -1,6 +1,6 @@
 """Holonomy of the rolling ball: roll it once around a closed loop, and it comes back turned.
 
-The seed's point about nonholonomic systems: returning the coordinates of the centre to where
+The lecture note's point about nonholonomic systems: returning the coordinates of the centre to where
 they started does not return the orientation. Here the centre of a ball of radius r is driven
 once around a circle of radius R, rolling without slipping and without spinning about the
 vertical (ω = n × ẋ / r, the rolling constraint solved for ω). After the loop the ball is turned by

@@ -1,4 +1,4 @@
-"""The seed's examples, written the textbook way: coordinates, T and U, then Lagrange's equations.
+"""The lecture note's examples, written the textbook way: coordinates, T and U, then Lagrange's equations.
 
 1. A particle under gravity: x and y are cyclic, so ẋ and ẏ stay constant; z̈ = −g.
 2. The simple pendulum: θ̈ + (g/l) sin θ = 0, and linearised about θ = 0, ω² = g/l.

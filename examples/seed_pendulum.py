@@ -1,4 +1,4 @@
-"""The seed's simple pendulum, built in Python, against its Lagrangian.
+"""The lecture note's simple pendulum, built in Python, against its Lagrangian.
 
 The seed writes T = ½ m l² θ̇² and U = m g l (1 − cos θ), so Lagrange's equation gives
 M = m l² and g(θ) = ∂U/∂θ = m g l sin θ. Here the same numbers come out of the recursive engine.

@@ -1,4 +1,4 @@
-"""The seed's rolling sphere in its five coordinates, with its two nonholonomic constraints.
+"""The lecture note's rolling sphere in its five coordinates, with its two nonholonomic constraints.
 
 Two coordinates (x, y) for the centre on an inclined plane (x downhill, slope α) and three Euler
 angles (yaw ψ, pitch θ, roll φ: R = Rz(ψ) Ry(θ) Rx(φ)) for the orientation. Rolling without

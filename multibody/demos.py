@@ -15,7 +15,7 @@ from .urdf import load_urdf
 
 
 def rolling_ball(out_dir, duration=6.0):
-    """The seed's nonholonomic example: a ball rolling without slipping on a tilted plane.
+    """The lecture note's nonholonomic example: a ball rolling without slipping on a tilted plane.
 
     A uniform ball (1 kg, radius 0.1 m) is launched across a plane tilted by 0.15 rad. Rolling
     makes its centre accelerate downhill at 5/7 g sin α (not g sin α as when sliding), so the

@@ -142,7 +142,7 @@ class RollingSphere(_RollingOnPlane):
         surface_velocity: ``v(point, t) -> (3,)``, velocity of the surface material at a world point
             (a moving or turning plane: rheonomic rolling); ``None`` for a fixed plane.
         normal: include the normal row (default). Leave it out when the model already keeps the
-            centre at a constant height (e.g. the seed's five-coordinate ball).
+            centre at a constant height (e.g. the lecture note's five-coordinate ball).
     """
 
     def __init__(self, body, radius, *, center=None, plane_point=(0.0, 0.0, 0.0), plane_normal=(0.0, 0.0, 1.0),

@@ -1,6 +1,6 @@
 """The textbook front-end: Lagrangians in generalized coordinates with SymPy, then numbers.
 
-Following the seed: pick generalized coordinates ``q_k(t)``, write ``T`` and ``U``, and let
+Following the lecture note: pick generalized coordinates ``q_k(t)``, write ``T`` and ``U``, and let
 Hamilton's principle ``δ∫(T − U) dt = 0`` give Lagrange's equations
 
     d/dt ∂L/∂q̇_k − ∂L/∂q_k = Q_k,        L = T − U,
@@ -27,7 +27,7 @@ _t = dynamicsymbols._t
 
 
 def generalized_forces(q, points, forces):
-    """``Q_k = Σᵢ Fᵢ · ∂xᵢ/∂q_k``: the seed's generalized forces from Cartesian ones.
+    """``Q_k = Σᵢ Fᵢ · ∂xᵢ/∂q_k``: the lecture note's generalized forces from Cartesian ones.
 
     Args:
         q: the generalized coordinates (functions of time).
