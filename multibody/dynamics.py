@@ -32,6 +32,10 @@ from .kinematics import _frame_arguments, frame_motions, joint_world_poses
 
 def _check(model, q, v=None, a=None, tau=None, f_ext=None):
     """Validated float arrays and their common batch shape (``f_ext`` flattened to ``(..., 6 nj)``)."""
+    one = model._is_one_valid_state
+    if f_ext is None and one(q, model.nq, model._unit_norm_slices) and (v is None or one(v, model.nv)) \
+            and (a is None or one(a, model.nv)) and (tau is None or one(tau, model.nv)):
+        return q, v, a, tau, None, ()
     q = model.check_configuration(q)
     v = None if v is None else model.check_velocity(v, "v")
     a = None if a is None else model.check_velocity(a, "a")
