@@ -143,13 +143,20 @@ def simulate(system, q0, v0, t_final, *, dt=None, method="RK45", tau=None, rtol=
         w = y[..., nv:]
         return q_t, T, (w if T is None else matvec(transpose(T), w))
 
-    # Constant joint forces and a compiled step: each evaluation is one compiled call.
-    compiled = not callable(tau) and constrained._compiled_motion is not None
+    # With a compiled step, each evaluation is one compiled call (after the joint forces, when they
+    # depend on the state); the NumPy composition below is the fallback that raises the right error.
+    compiled = constrained._compiled_motion is not None
     constant_tau = None if tau is None or callable(tau) else torque(t0, None, None)
 
     def derivative(t, y, q_chart):
         if compiled:
-            y_dot = constrained._chart_derivative(q_chart, y, constant_tau)
+            if callable(tau):
+                q_t, _, v_t = unchart(q_chart, y)
+                tau_t = torque(t, q_t, v_t)
+                tau_t = None if tau_t is None else constrained._tau(tau_t)
+            else:
+                tau_t = constant_tau
+            y_dot = constrained._chart_derivative(q_chart, y, tau_t)
             if y_dot is not None:
                 return y_dot
         q_t, T, v_t = unchart(q_chart, y)
