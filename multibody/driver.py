@@ -170,7 +170,10 @@ def evaluate(kernel, tree, inputs, out_shape, batch=(), frames=None, workspace=N
         return out
     n = math.prod(batch)
     out = np.empty((n,) + tuple(out_shape))
-    if n:
+    if n == 1:  # one state with batch axes: the kernel directly, as for no batch axes
+        kernel(tree.joints, tree.reals, frames, _rows(x0, batch, 1)[0], _rows(x1, batch, 1)[0], _rows(x2, batch, 1)[0],
+               _rows(x3, batch, 1)[0], out[0], workspace)
+    elif n:
         threads = get_num_threads()
         # A small batch runs on fewer threads: waking a sleeping thread costs more than it would compute.
         shares = max(1, min(threads, n // STATES_PER_THREAD))
