@@ -156,9 +156,10 @@ def evaluate(kernel, tree, inputs, out_shape, batch=(), frames=None, workspace=N
 
     ``inputs``: up to four float arrays ``(..., k)`` whose leading axes broadcast to ``batch``
     (``None``: unused); ``out_shape``: ``(rows, cols)`` of one state's output; ``frames``: frame rows
-    ``(m, 13)`` (default ``tree.bodies``); ``workspace``: floats of workspace per state, for a kernel whose
-    need depends on more than the tree (default its module's ``workspace_size(nj, nv)``). A state with a non-finite input gets an output of NaN (every
-    kernel ends with :func:`~multibody.kernels.spatial.nan_unless_finite`).
+    ``(m, 13)`` (default ``tree.bodies``); ``workspace``: floats of workspace per state, for a kernel
+    whose need depends on more than the tree (default its module's ``workspace_size(nj, nv)``). A state
+    with a non-finite input gets an output of NaN (every kernel ends with
+    :func:`~multibody.kernels.spatial.nan_unless_finite`).
     """
     frames = tree.bodies if frames is None else frames
     workspace = np.empty(_WORKSPACE[kernel](tree.joints.shape[0], tree.nv) if workspace is None else workspace)
