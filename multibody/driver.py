@@ -24,7 +24,7 @@ from numba import njit, prange
 
 from .kernels import aba, configuration, constraints, coriolis, crba, energy, integration, kinematics, kkt, rnea
 
-# Each kernel's code in the parallel loop (one compiled loop serves them all) and its workspace size.
+# Each kernel's code in the parallel loop and its workspace size.
 _CODES = {kernel: code for code, kernel in enumerate((
     rnea.inverse_dynamics, rnea.joint_reaction_forces, crba.mass_matrix, aba.forward_dynamics,
     aba.inverse_mass_matrix, coriolis.coriolis_matrix, energy.kinetic_energy, energy.potential_energy,
@@ -33,17 +33,20 @@ _CODES = {kernel: code for code, kernel in enumerate((
     configuration.chart, configuration.chart_rate, configuration.velocity_alignment, configuration.velocity_coupling,
     configuration.chart_magnitude, configuration.normalize, kkt.constrained_accelerations,
     constraints.constraint_levels, integration.chart_derivative))}
+#: The marker of each kernel for the batch loop: an array whose number of dimensions is the code plus one.
+_MARKERS = {kernel: np.zeros((1,) * (code + 1)) for kernel, code in _CODES.items()}
 _WORKSPACE = {kernel: module.workspace_size for module in (rnea, crba, aba, coriolis, energy, kinematics, configuration)
               for kernel in _CODES if getattr(kernel, "py_func", kernel).__module__ == module.__name__}
 
 
 def compiled_before() -> bool:
-    """Whether this machine has the kernels' compiled code on disk already (Numba's cache of the batch
-    loop, compiled last), so that a first run can say it is compiling."""
-    cache = getattr(_batch, "_cache", None)
-    locator = getattr(cache, "_cache_path", None)
-    return locator is not None and os.path.isdir(locator) and any(
-        name.startswith("driver._batch") and name.endswith(".nbi") for name in os.listdir(locator))
+    """Whether this machine has every kernel's compiled code on disk already (Numba's cache index of
+    each), so that a first run can say it is compiling."""
+    for kernel in _CODES:
+        cache_file = getattr(getattr(kernel, "_cache", None), "_cache_file", None)
+        if cache_file is None or not os.path.isfile(cache_file._index_path):
+            return False
+    return True
 
 
 def set_num_threads(n: int) -> None:
@@ -61,66 +64,68 @@ if os.environ.get("MULTIBODY_NUM_THREADS"):
 
 
 @njit(cache=True)
-def _kernel(code, joints, reals, frames, x0, x1, x2, x3, out, ws):
-    # the codes of _CODES, in order
-    if code == 0:
+def _kernel(marker, joints, reals, frames, x0, x1, x2, x3, out, ws):
+    # the kernel's code is the marker's number of dimensions, a constant of its type: each kernel's
+    # loop is a compiled specialization of its own, which holds that kernel only
+    code = marker.ndim
+    if code == 1:
         rnea.inverse_dynamics(joints, reals, frames, x0, x1, x2, x3, out, ws)
-    elif code == 1:
-        rnea.joint_reaction_forces(joints, reals, frames, x0, x1, x2, x3, out, ws)
     elif code == 2:
-        crba.mass_matrix(joints, reals, frames, x0, x1, x2, x3, out, ws)
+        rnea.joint_reaction_forces(joints, reals, frames, x0, x1, x2, x3, out, ws)
     elif code == 3:
-        aba.forward_dynamics(joints, reals, frames, x0, x1, x2, x3, out, ws)
+        crba.mass_matrix(joints, reals, frames, x0, x1, x2, x3, out, ws)
     elif code == 4:
-        aba.inverse_mass_matrix(joints, reals, frames, x0, x1, x2, x3, out, ws)
+        aba.forward_dynamics(joints, reals, frames, x0, x1, x2, x3, out, ws)
     elif code == 5:
-        coriolis.coriolis_matrix(joints, reals, frames, x0, x1, x2, x3, out, ws)
+        aba.inverse_mass_matrix(joints, reals, frames, x0, x1, x2, x3, out, ws)
     elif code == 6:
-        energy.kinetic_energy(joints, reals, frames, x0, x1, x2, x3, out, ws)
+        coriolis.coriolis_matrix(joints, reals, frames, x0, x1, x2, x3, out, ws)
     elif code == 7:
-        energy.potential_energy(joints, reals, frames, x0, x1, x2, x3, out, ws)
+        energy.kinetic_energy(joints, reals, frames, x0, x1, x2, x3, out, ws)
     elif code == 8:
-        kinematics.frame_placements(joints, reals, frames, x0, x1, x2, x3, out, ws)
+        energy.potential_energy(joints, reals, frames, x0, x1, x2, x3, out, ws)
     elif code == 9:
-        kinematics.frame_jacobian(joints, reals, frames, x0, x1, x2, x3, out, ws)
+        kinematics.frame_placements(joints, reals, frames, x0, x1, x2, x3, out, ws)
     elif code == 10:
-        kinematics.frame_jacobian_time_variation(joints, reals, frames, x0, x1, x2, x3, out, ws)
+        kinematics.frame_jacobian(joints, reals, frames, x0, x1, x2, x3, out, ws)
     elif code == 11:
-        kinematics.frame_motions(joints, reals, frames, x0, x1, x2, x3, out, ws)
+        kinematics.frame_jacobian_time_variation(joints, reals, frames, x0, x1, x2, x3, out, ws)
     elif code == 12:
-        configuration.integrate(joints, reals, frames, x0, x1, x2, x3, out, ws)
+        kinematics.frame_motions(joints, reals, frames, x0, x1, x2, x3, out, ws)
     elif code == 13:
-        configuration.difference(joints, reals, frames, x0, x1, x2, x3, out, ws)
+        configuration.integrate(joints, reals, frames, x0, x1, x2, x3, out, ws)
     elif code == 14:
-        configuration.configuration_rate(joints, reals, frames, x0, x1, x2, x3, out, ws)
+        configuration.difference(joints, reals, frames, x0, x1, x2, x3, out, ws)
     elif code == 15:
-        configuration.chart(joints, reals, frames, x0, x1, x2, x3, out, ws)
+        configuration.configuration_rate(joints, reals, frames, x0, x1, x2, x3, out, ws)
     elif code == 16:
-        configuration.chart_rate(joints, reals, frames, x0, x1, x2, x3, out, ws)
+        configuration.chart(joints, reals, frames, x0, x1, x2, x3, out, ws)
     elif code == 17:
-        configuration.velocity_alignment(joints, reals, frames, x0, x1, x2, x3, out, ws)
+        configuration.chart_rate(joints, reals, frames, x0, x1, x2, x3, out, ws)
     elif code == 18:
-        configuration.velocity_coupling(joints, reals, frames, x0, x1, x2, x3, out, ws)
+        configuration.velocity_alignment(joints, reals, frames, x0, x1, x2, x3, out, ws)
     elif code == 19:
-        configuration.chart_magnitude(joints, reals, frames, x0, x1, x2, x3, out, ws)
+        configuration.velocity_coupling(joints, reals, frames, x0, x1, x2, x3, out, ws)
     elif code == 20:
-        configuration.normalize(joints, reals, frames, x0, x1, x2, x3, out, ws)
+        configuration.chart_magnitude(joints, reals, frames, x0, x1, x2, x3, out, ws)
     elif code == 21:
-        kkt.constrained_accelerations(joints, reals, frames, x0, x1, x2, x3, out, ws)
+        configuration.normalize(joints, reals, frames, x0, x1, x2, x3, out, ws)
     elif code == 22:
-        constraints.constraint_levels(joints, reals, frames, x0, x1, x2, x3, out, ws)
+        kkt.constrained_accelerations(joints, reals, frames, x0, x1, x2, x3, out, ws)
     elif code == 23:
+        constraints.constraint_levels(joints, reals, frames, x0, x1, x2, x3, out, ws)
+    elif code == 24:
         integration.chart_derivative(joints, reals, frames, x0, x1, x2, x3, out, ws)
 
 
 @njit(cache=True, parallel=True)
-def _batch(code, joints, reals, frames, X0, X1, X2, X3, OUT, workspace_size, shares):
+def _batch(marker, joints, reals, frames, X0, X1, X2, X3, OUT, workspace_size, shares):
     n = OUT.shape[0]
     for share in prange(shares):
         ws = np.empty(workspace_size)
         for s in range(share * n // shares, (share + 1) * n // shares):
             # an input of one row serves every state
-            _kernel(code, joints, reals, frames, X0[s if X0.shape[0] > 1 else 0], X1[s if X1.shape[0] > 1 else 0],
+            _kernel(marker, joints, reals, frames, X0[s if X0.shape[0] > 1 else 0], X1[s if X1.shape[0] > 1 else 0],
                     X2[s if X2.shape[0] > 1 else 0], X3[s if X3.shape[0] > 1 else 0], OUT[s], ws)
 
 
@@ -181,7 +186,7 @@ def evaluate(kernel, tree, inputs, out_shape, batch=(), frames=None, workspace=N
         if shares < threads:
             numba.set_num_threads(shares)
         try:
-            _batch(_CODES[kernel], tree.joints, tree.reals, frames, _rows(x0, batch, n), _rows(x1, batch, n),
+            _batch(_MARKERS[kernel], tree.joints, tree.reals, frames, _rows(x0, batch, n), _rows(x1, batch, n),
                    _rows(x2, batch, n), _rows(x3, batch, n), out, workspace.size, shares)
         finally:
             if shares < threads:
