@@ -88,8 +88,9 @@ def compare_with_pinocchio(path, floating_base=False, samples=20, seed=0, packag
         for b, frame in enumerate(frame_ids):
             if frame < reference.nframes:
                 record("forward kinematics", placements[b], data.oMf[frame].homogeneous)
-                record("jacobian", kinematics.jacobian(model, q, b),
-                       pin.getFrameJacobian(reference, data, frame, pin.LOCAL_WORLD_ALIGNED))
+                if model.nv:  # (Pinocchio's getFrameJacobian crashes on a model without joints)
+                    record("jacobian", kinematics.jacobian(model, q, b),
+                           pin.getFrameJacobian(reference, data, frame, pin.LOCAL_WORLD_ALIGNED))
         if model.nv == 0:
             continue
         M_pin = _symmetric(pin.crba(reference, data, q_pin))

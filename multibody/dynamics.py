@@ -30,16 +30,20 @@ from .kinematics import _frame_arguments, frame_motions, joint_world_poses
 
 # ============================================================================= shared pieces
 
-def _check(model, q, v=None, a=None, tau=None, f_ext=None):
-    """Validated float arrays and their common batch shape (``f_ext`` flattened to ``(..., 6 nj)``)."""
+_ABSENT = object()  # the default of an argument a function does not take (``None`` itself is refused)
+
+
+def _check(model, q, v=_ABSENT, a=_ABSENT, tau=_ABSENT, f_ext=None):
+    """Validated float arrays and their common batch shape (``f_ext`` flattened to ``(..., 6 nj)``);
+    the arguments a function does not take come back as ``None``."""
     one = model._is_one_valid_state
-    if f_ext is None and one(q, model.nq, model._unit_norm_slices) and (v is None or one(v, model.nv)) \
-            and (a is None or one(a, model.nv)) and (tau is None or one(tau, model.nv)):
-        return q, v, a, tau, None, ()
+    if f_ext is None and one(q, model.nq, model._unit_norm_slices) and (v is _ABSENT or one(v, model.nv)) \
+            and (a is _ABSENT or one(a, model.nv)) and (tau is _ABSENT or one(tau, model.nv)):
+        return q, None if v is _ABSENT else v, None if a is _ABSENT else a, None if tau is _ABSENT else tau, None, ()
     q = model.check_configuration(q)
-    v = None if v is None else model.check_velocity(v, "v")
-    a = None if a is None else model.check_velocity(a, "a")
-    tau = None if tau is None else model.check_velocity(tau, "tau")
+    v = None if v is _ABSENT else model.check_velocity(v, "v")
+    a = None if a is _ABSENT else model.check_velocity(a, "a")
+    tau = None if tau is _ABSENT else model.check_velocity(tau, "tau")
     shapes = [x.shape[:-1] for x in (q, v, a, tau) if x is not None]
     if f_ext is not None:
         f_ext = model._as_float_array(f_ext, "f_ext")

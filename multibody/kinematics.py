@@ -42,7 +42,12 @@ def _point(point):
     """A body-frame point ``(..., 3)`` (m) as a float array, ``None`` for the body origin."""
     if point is None:
         return None
-    point = np.asarray(point, dtype=float)
+    if np.iscomplexobj(point):
+        raise ValueError(f"point must be real, got {np.asarray(point).dtype}")
+    try:
+        point = np.asarray(point, dtype=float)
+    except (TypeError, ValueError):
+        raise ValueError(f"point must be a real numeric array of shape (..., 3), got {point!r}") from None
     if point.shape[-1:] != (3,):
         raise ValueError(f"point must have shape (..., 3), got {point.shape}")
     return point

@@ -18,11 +18,21 @@ import sys
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, settings
 
 import multibody as mb
 from multibody.check import to_pinocchio_configuration
 from multibody import joints as jt
 from multibody.spatial import pose_from_xyz_rpy
+
+# ----------------------------------------------------------------------------- hypothesis profiles
+
+# "ci": the default, small enough for .ci/run; "thorough" (pytest --hypothesis-profile=thorough):
+# thousands of random robots and URDF mutants, before a release. Deadlines are off: a first example
+# may compile kernels.
+settings.register_profile("ci", max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+settings.register_profile("thorough", max_examples=2000, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+settings.load_profile("ci")
 
 # ----------------------------------------------------------------------------- example-robot-data
 
