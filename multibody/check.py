@@ -38,10 +38,13 @@ def to_pinocchio_configuration(model, q):
     return np.concatenate(blocks, axis=-1) if blocks else q.copy()
 
 
-def _relative(ours, reference):
-    """``max |ours − reference| / max |reference|`` (absolute error when the reference is zero)."""
+def _relative(ours, reference, floor=0.0):
+    """``max |ours − reference| / max(max |reference|, floor)``: relative, but against at least the
+    natural size ``floor`` of the quantity at that state, so that a result that is zero in exact
+    arithmetic (a Coriolis matrix of one joint) compares its rounding with the terms it is made of
+    (absolute error when both are zero)."""
     ours, reference = np.asarray(ours, dtype=float), np.asarray(reference, dtype=float)
-    scale = np.abs(reference).max(initial=0.0)
+    scale = max(np.abs(reference).max(initial=0.0), floor)
     error = np.abs(ours - reference).max(initial=0.0)
     return error / scale if scale > 0.0 else error
 
@@ -70,8 +73,10 @@ def compare_with_pinocchio(path, floating_base=False, samples=20, seed=0, packag
     rng = np.random.default_rng(seed)
     errors, condition = {}, 1.0
 
-    def record(name, ours, theirs):
-        errors[name] = max(errors.get(name, 0.0), _relative(ours, theirs))
+    def record(name, ours, theirs, floor=1.0):
+        # (Pinocchio returns a matrix with one column, a Jacobian of one coordinate, as a vector)
+        theirs = np.reshape(theirs, np.shape(ours))
+        errors[name] = max(errors.get(name, 0.0), _relative(ours, theirs, floor))
 
     frame_ids = [reference.getFrameId(name, pin.BODY) for name in model.body_names]
     for _ in range(samples):
@@ -95,29 +100,37 @@ def compare_with_pinocchio(path, floating_base=False, samples=20, seed=0, packag
             continue
         M_pin = _symmetric(pin.crba(reference, data, q_pin))
         condition = max(condition, np.linalg.cond(M_pin))
-        record("mass matrix (crba)", dynamics.mass_matrix(model, q), M_pin)
-        record("mass matrix (lagrangian)", dynamics.mass_matrix(model, q, method="lagrangian"), M_pin)
+        # natural sizes at this state: of the forces (N, N m) and energies (J) M (a + v v) and m g
+        force = np.abs(M_pin).max() * (np.abs(a).max() + np.abs(tau).max() + np.abs(v).max() ** 2) \
+            + model.total_mass * np.linalg.norm(model.gravity)
+        energy = np.abs(M_pin).max() * np.abs(v).max() ** 2 + model.total_mass * np.linalg.norm(model.gravity)
+        record("mass matrix (crba)", dynamics.mass_matrix(model, q), M_pin, 0.0)
+        record("mass matrix (lagrangian)", dynamics.mass_matrix(model, q, method="lagrangian"), M_pin, 0.0)
         C_pin = pin.computeCoriolisMatrix(reference, data, q_pin, v)
-        record("coriolis (recursive)", dynamics.coriolis_matrix(model, q, v), C_pin)
+        record("coriolis (recursive)", dynamics.coriolis_matrix(model, q, v), C_pin, np.abs(M_pin).max() * np.abs(v).max())
         if all(joint.nq == joint.nv for joint in model.joints):
-            record("coriolis (lagrangian)", dynamics.coriolis_matrix(model, q, v, method="lagrangian"), C_pin)
-        record("gravity g(q)", dynamics.generalized_gravity(model, q), pin.computeGeneralizedGravity(reference, data, q_pin))
-        record("bias h(q, v)", dynamics.bias_forces(model, q, v), pin.nonLinearEffects(reference, data, q_pin, v))
+            record("coriolis (lagrangian)", dynamics.coriolis_matrix(model, q, v, method="lagrangian"), C_pin,
+                   np.abs(M_pin).max() * np.abs(v).max())
+        record("gravity g(q)", dynamics.generalized_gravity(model, q), pin.computeGeneralizedGravity(reference, data, q_pin),
+               force)
+        record("bias h(q, v)", dynamics.bias_forces(model, q, v), pin.nonLinearEffects(reference, data, q_pin, v), force)
         record("inverse dynamics (rnea, f_ext)", dynamics.inverse_dynamics(model, q, v, a, f_ext),
-               pin.rnea(reference, data, q_pin, v, a, f_pin))
+               pin.rnea(reference, data, q_pin, v, a, f_pin), force)
         a_ours = dynamics.forward_dynamics(model, q, v, tau, f_ext)
-        record("forward dynamics (aba, f_ext)", a_ours, pin.aba(reference, data, q_pin, v, tau, f_pin))
+        record("forward dynamics (aba, f_ext)", a_ours, pin.aba(reference, data, q_pin, v, tau, f_pin), 0.0)
         # Backward error: how far our a is from solving Pinocchio's own equations of motion.
         residual = pin.rnea(reference, data, q_pin, v, a_ours, f_pin) - tau
         backward = np.abs(residual).max() / (np.abs(M_pin).sum(axis=1).max() * np.abs(a_ours).max() + np.abs(tau).max())
         errors["forward dynamics, backward error"] = max(errors.get("forward dynamics, backward error", 0.0), backward)
         M_inv = dynamics.inverse_mass_matrix(model, q)
-        record("inverse mass matrix", M_inv, _symmetric(pin.computeMinverse(reference, data, q_pin)))
+        record("inverse mass matrix", M_inv, _symmetric(pin.computeMinverse(reference, data, q_pin)), 0.0)
         backward = np.abs(M_pin @ M_inv - np.eye(model.nv)).sum(axis=1).max() / (
             np.abs(M_pin).sum(axis=1).max() * np.abs(M_inv).sum(axis=1).max())
         errors["inverse mass matrix, backward error"] = max(errors.get("inverse mass matrix, backward error", 0.0), backward)
-        record("kinetic energy", dynamics.kinetic_energy(model, q, v), pin.computeKineticEnergy(reference, data, q_pin, v))
-        record("potential energy", dynamics.potential_energy(model, q), pin.computePotentialEnergy(reference, data, q_pin))
+        record("kinetic energy", dynamics.kinetic_energy(model, q, v), pin.computeKineticEnergy(reference, data, q_pin, v),
+               energy)
+        record("potential energy", dynamics.potential_energy(model, q), pin.computePotentialEnergy(reference, data, q_pin),
+               energy)
 
     solve_tolerance = max(TOLERANCE, 10.0 * condition * np.finfo(float).eps)
     rows = [Row(name, error, solve_tolerance if name in ("forward dynamics (aba, f_ext)", "inverse mass matrix") else TOLERANCE)

@@ -10,7 +10,7 @@ import warnings
 
 import numpy as np
 import pytest
-from hypothesis import given
+from hypothesis import example, given
 from hypothesis import strategies as st
 
 import multibody as mb
@@ -26,6 +26,14 @@ SOLVED = ("forward dynamics (aba, f_ext)", "inverse mass matrix")
 
 
 @given(urdf_trees())
+@example((  # one continuous joint: Pinocchio gives its 6×1 Jacobian as a vector
+    '<?xml version="1.0"?>\n<robot name="one_joint"><link name="link0"><inertial><mass value="1.0"/>'
+    '<inertia ixx="0.1" ixy="0" ixz="0" iyy="0.1" iyz="0" izz="0.1"/></inertial></link><link name="link1">'
+    '<inertial><mass value="1.0"/><inertia ixx="0.1" ixy="0" ixz="0" iyy="0.1" iyz="0" izz="0.1"/></inertial>'
+    '</link><joint name="joint1" type="continuous"><parent link="link0"/><child link="link1"/>'
+    '<axis xyz="0 0 1"/></joint></robot>', False))
+@example(('<?xml version="1.0"?>\n<robot name="no_joint"><link name="link0"><inertial><mass value="1.0"/>'
+          '<inertia ixx="0.1" ixy="0" ixz="0" iyy="0.1" iyz="0" izz="0.1"/></inertial></link></robot>', False))
 def test_random_urdf_trees_agree_with_pinocchio(tree):
     """Every quantity of ``multibody check`` at two random states: ≤ 1e-10 relative, and ABA and
     ``M⁻¹`` within the conditioning of ``M``."""
