@@ -31,7 +31,7 @@ from multibody.spatial import pose_from_xyz_rpy
 # thousands of random robots and URDF mutants, before a release. Deadlines are off: a first example
 # may compile kernels.
 settings.register_profile("ci", max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
-settings.register_profile("thorough", max_examples=2000, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+settings.register_profile("thorough", max_examples=5000, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 settings.load_profile("ci")
 
 # ----------------------------------------------------------------------------- example-robot-data
