@@ -74,10 +74,16 @@ def _require_unit_norm(values, joint_name, what):
 
 
 def _random_uniform(rng, lower, upper, default_half_range, shape):
-    """Uniform samples in [lower, upper], replacing infinite bounds by ±default_half_range."""
-    lower = np.where(np.isfinite(lower), lower, -default_half_range)
-    upper = np.where(np.isfinite(upper), upper, default_half_range)
-    return rng.uniform(lower, upper, size=shape + np.shape(lower))
+    """Uniform samples in [lower, upper]. An infinite side is replaced by ±default_half_range, or, when
+    the other side is finite, by a range of that width from it (a joint limited only from above at
+    −4 rad samples [−4 − 2π, −4])."""
+    lower, upper = np.asarray(lower, dtype=float), np.asarray(upper, dtype=float)
+    width = 2.0 * default_half_range
+    low = np.where(np.isfinite(lower), lower, np.where(np.isfinite(upper), np.minimum(upper - width, -default_half_range),
+                                                       -default_half_range))
+    high = np.where(np.isfinite(upper), upper, np.where(np.isfinite(lower), np.maximum(lower + width, default_half_range),
+                                                        default_half_range))
+    return rng.uniform(low, high, size=shape + np.shape(lower))
 
 
 def _random_unit_quaternion(rng, shape):

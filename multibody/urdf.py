@@ -11,6 +11,15 @@ The model follows Pinocchio's ``buildModelFromUrdf`` exactly where both are defi
 * ``floating`` joints, and ``floating_base=True``, give free-flyer joints (``q = [p, quat]``).
 * Mimic joints stay independent coordinates; the relation is recorded in ``model.mimic``.
 * A link without ``<inertial>`` is massless.
+* Numbers are decimal (``-1.5``, ``2e-3``; no ``inf``, ``nan``, hexadecimal or digit separators)
+  and at most :data:`LARGEST_MAGNITUDE` in absolute value: larger values describe no physical
+  robot, and products of a few of them in the dynamics (``m · L² · ω²``) would overflow.
+* Joint limits are the exception: a limit at or beyond ``±UNBOUNDED_LIMIT`` (``±1e16``, the
+  SDFormat convention for "no limit"), ``±inf`` included, leaves that side unbounded.
+* A ``<mimic>`` must name another joint with one coordinate (revolute, continuous or prismatic),
+  and the joint that carries it must have one coordinate too. A mimicked joint that does not
+  exist only warns, and the relation is dropped; a ``<mimic>`` on a fixed joint is ignored
+  (reduced models such as Talos's freeze the mimicking joints and keep the tag).
 
 Malformed files raise :class:`URDFError` naming the file, the element and the problem.
 """
@@ -18,6 +27,7 @@ Malformed files raise :class:`URDFError` naming the file, the element and the pr
 from __future__ import annotations
 
 import os
+import re
 import warnings
 import xml.etree.ElementTree as ET
 
@@ -33,6 +43,21 @@ class URDFError(ValueError):
     """A URDF that cannot describe a valid model."""
 
 
+#: Largest absolute value accepted for a number in a URDF, joint limits aside (SI units).
+LARGEST_MAGNITUDE = 1e50
+
+#: Joint limits at or beyond this absolute value (``inf`` included) mean "no limit on that side".
+UNBOUNDED_LIMIT = 1e16
+
+# A decimal number as URDF writers produce it (Python's float() would also take "1_0", "inf" and
+# non-ASCII digits, which urdfdom rejects).
+_DECIMAL = re.compile(r"[+-]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]+)?")
+_INFINITY = re.compile(r"[+-]?inf(?:inity)?", re.IGNORECASE)
+
+# Joint types whose configuration is one number: the only ones a <mimic> can relate.
+_ONE_COORDINATE_TYPES = ("revolute", "continuous", "prismatic")
+
+
 class _Context:
     """Where we are in the document, for error messages."""
 
@@ -43,18 +68,28 @@ class _Context:
         return URDFError(f"{self.source_name}: {element_path}: {problem}")
 
 
-def _floats(ctx, element, attribute, path, count, default=None):
+def _floats(ctx, element, attribute, path, count, default=None, allow_infinite=False):
+    """``count`` numbers from ``element``'s ``attribute`` (``default`` when it is absent), finite and at
+    most :data:`LARGEST_MAGNITUDE` in absolute value unless ``allow_infinite`` (joint limits: any size,
+    and ``inf``)."""
     text = element.get(attribute) if element is not None else None
     if text is None:
         if default is None:
             raise ctx.error(path, f"missing attribute {attribute!r}")
         return np.array(default, dtype=float)
-    try:
-        values = np.array([float(token) for token in text.split()], dtype=float)
-    except ValueError:
-        raise ctx.error(path, f"attribute {attribute}={text!r} is not a list of numbers") from None
-    if values.shape != (count,) or not np.all(np.isfinite(values)):
-        raise ctx.error(path, f"attribute {attribute}={text!r} must be {count} finite number(s)")
+    tokens = text.split()
+    for token in tokens:
+        if not (_DECIMAL.fullmatch(token) or (allow_infinite and _INFINITY.fullmatch(token))):
+            raise ctx.error(path, f"attribute {attribute}={text!r}: {token!r} is not a decimal number")
+    if len(tokens) != count:
+        raise ctx.error(path, f"attribute {attribute}={text!r} must be {count} number(s), got {len(tokens)}")
+    values = np.array([float(token) for token in tokens], dtype=float)
+    if not allow_infinite:
+        if not np.all(np.isfinite(values)):
+            raise ctx.error(path, f"attribute {attribute}={text!r} must be {count} finite number(s)")
+        if np.any(np.abs(values) > LARGEST_MAGNITUDE):
+            raise ctx.error(path, f"attribute {attribute}={text!r}: magnitude above {LARGEST_MAGNITUDE:g}, "
+                                  "the largest accepted (no physical robot needs it; the dynamics would overflow)")
     return values
 
 
@@ -113,8 +148,9 @@ def _joint_type(ctx, joint, path, name):
     axis_element = joint.find("axis")
     axis = _floats(ctx, axis_element, "xyz", path + "/<axis>", 3, (1.0, 0.0, 0.0)) if axis_element is not None \
         else np.array([1.0, 0.0, 0.0])
-    if kind in ("revolute", "continuous", "prismatic") and np.linalg.norm(axis) < 1e-12:
-        raise ctx.error(path + "/<axis>", "axis must be non-zero")
+    if kind in _ONE_COORDINATE_TYPES and np.linalg.norm(axis) < 1e-12:
+        raise ctx.error(path + "/<axis>", f"attribute xyz={axis_element.get('xyz')!r}: axis must be non-zero "
+                                          "(length at least 1e-12)")
     if kind == "revolute":
         return jt.Revolute(axis)
     if kind == "continuous":
@@ -142,15 +178,43 @@ def _joint_type(ctx, joint, path, name):
 
 
 def _limits(ctx, joint_element, joint, path):
+    """``(lower, upper)`` of a one-coordinate joint; a side at or beyond ``±UNBOUNDED_LIMIT`` is unbounded."""
     lower, upper = joint.default_limits
     limit = joint_element.find("limit")
     if limit is None or joint.nq != 1 or isinstance(joint, jt.Continuous):
         return lower, upper
-    lower = _floats(ctx, limit, "lower", path + "/<limit>", 1, lower)
-    upper = _floats(ctx, limit, "upper", path + "/<limit>", 1, upper)
+    path = path + "/<limit>"
+    lower = _floats(ctx, limit, "lower", path, 1, lower, allow_infinite=True)
+    upper = _floats(ctx, limit, "upper", path, 1, upper, allow_infinite=True)
+    if lower[0] >= UNBOUNDED_LIMIT:
+        raise ctx.error(path, f"attribute lower={limit.get('lower')!r} leaves no finite position "
+                              f"(limits at or beyond ±{UNBOUNDED_LIMIT:g} mean unbounded)")
+    if upper[0] <= -UNBOUNDED_LIMIT:
+        raise ctx.error(path, f"attribute upper={limit.get('upper')!r} leaves no finite position "
+                              f"(limits at or beyond ±{UNBOUNDED_LIMIT:g} mean unbounded)")
     if lower[0] > upper[0]:
-        raise ctx.error(path + "/<limit>", f"lower limit {lower[0]:g} exceeds upper limit {upper[0]:g}")
+        raise ctx.error(path, f"lower limit {lower[0]:g} exceeds upper limit {upper[0]:g}")
+    lower = np.where(lower <= -UNBOUNDED_LIMIT, -np.inf, lower)
+    upper = np.where(upper >= UNBOUNDED_LIMIT, np.inf, upper)
     return lower, upper
+
+
+def _mimic(ctx, mimic, joint_name, joint_type, path):
+    """The :class:`Mimic` of a ``<mimic>`` element carried by ``joint_name`` (its target checked later)."""
+    mimicked = mimic.get("joint")
+    if not mimicked:
+        raise ctx.error(path, "missing attribute 'joint'")
+    if mimicked == joint_name:
+        raise ctx.error(path, f"attribute joint={mimicked!r}: a joint cannot mimic itself")
+    if joint_type not in _ONE_COORDINATE_TYPES:
+        raise ctx.error(path, f"a {joint_type} joint cannot mimic another: only revolute, continuous and "
+                              "prismatic joints can (a fixed joint's <mimic> is ignored)")
+    return Mimic(
+        joint_name,
+        mimicked,
+        float(_floats(ctx, mimic, "multiplier", path, 1, (1.0,))[0]),
+        float(_floats(ctx, mimic, "offset", path, 1, (0.0,))[0]),
+    )
 
 
 def _resolve_mesh(uri, base_dir, package_dirs):
@@ -172,6 +236,14 @@ def _resolve_mesh(uri, base_dir, package_dirs):
     return None
 
 
+def _sizes(ctx, element, attribute, path, count):
+    """Dimensions of a primitive shape: ``count`` non-negative numbers."""
+    values = _floats(ctx, element, attribute, path, count)
+    if np.any(values < 0.0):
+        raise ctx.error(path, f"attribute {attribute}={element.get(attribute)!r} must not be negative")
+    return tuple(float(x) for x in values)
+
+
 def _geometries(ctx, link, path, base_dir, package_dirs):
     out = []
     for kind in ("visual", "collision"):
@@ -189,14 +261,14 @@ def _geometries(ctx, link, path, base_dir, package_dirs):
                 scale = tuple(_floats(ctx, shape_element, "scale", element_path + "/<mesh>", 3, (1.0, 1.0, 1.0)))
                 out.append(Geometry(link.get("name"), kind, "mesh", placement, uri=uri, filename=filename, scale=scale))
             elif shape == "box":
-                size = tuple(_floats(ctx, shape_element, "size", element_path + "/<box>", 3))
+                size = _sizes(ctx, shape_element, "size", element_path + "/<box>", 3)
                 out.append(Geometry(link.get("name"), kind, "box", placement, size=size))
             elif shape == "sphere":
-                size = tuple(_floats(ctx, shape_element, "radius", element_path + "/<sphere>", 1))
+                size = _sizes(ctx, shape_element, "radius", element_path + "/<sphere>", 1)
                 out.append(Geometry(link.get("name"), kind, "sphere", placement, size=size))
             elif shape == "cylinder":
-                radius = _floats(ctx, shape_element, "radius", element_path + "/<cylinder>", 1)[0]
-                length = _floats(ctx, shape_element, "length", element_path + "/<cylinder>", 1)[0]
+                radius, = _sizes(ctx, shape_element, "radius", element_path + "/<cylinder>", 1)
+                length, = _sizes(ctx, shape_element, "length", element_path + "/<cylinder>", 1)
                 out.append(Geometry(link.get("name"), kind, "cylinder", placement, size=(radius, length)))
     return out
 
@@ -244,7 +316,10 @@ def load_urdf(source, *, floating_base=False, package_dirs=None, invalid_inertia
 
     Raises:
         URDFError: malformed XML, missing links, cycles, several roots, unknown joint types,
-            negative masses, invalid inertias, zero axes, duplicate names.
+            negative masses, invalid inertias, zero axes, duplicate names, numbers that are not
+            decimal, not finite or above :data:`LARGEST_MAGNITUDE`, negative shape sizes, and
+            mimic relations that cannot hold (a joint that mimics itself, or a joint without
+            exactly one coordinate on either side).
         FileNotFoundError: ``source`` is neither an existing file nor XML text.
     """
     if invalid_inertia not in ("error", "warn", "ignore"):
@@ -330,13 +405,9 @@ def load_urdf(source, *, floating_base=False, package_dirs=None, invalid_inertia
         lower, upper = _limits(ctx, joint, joint_type, path)
         add_link(child, None if parent_link == world_root else parent_link, joint_type, name, _origin(ctx, joint, path), lower, upper)
         mimic = joint.find("mimic")
-        if mimic is not None:
-            mimics.append(Mimic(
-                name,
-                mimic.get("joint"),
-                _floats(ctx, mimic, "multiplier", path + "/<mimic>", 1, (1.0,))[0],
-                _floats(ctx, mimic, "offset", path + "/<mimic>", 1, (0.0,))[0],
-            ))
+        # A fixed joint has no coordinate to couple: reduced models freeze mimicking joints and keep the tag.
+        if mimic is not None and not isinstance(joint_type, jt.Fixed):
+            mimics.append(_mimic(ctx, mimic, name, joint.get("type"), path + "/<mimic>"))
         stack.extend((child, j) for j in sorted(children.get(child, []), key=lambda j: j.get("name"), reverse=True))
 
     unreached = [name for name in links if name not in visited]
@@ -344,8 +415,13 @@ def load_urdf(source, *, floating_base=False, package_dirs=None, invalid_inertia
         cycle = [parent_joint[name].get("name") for name in unreached if name in parent_joint]
         raise ctx.error("<robot>", f"the joints {cycle} form a cycle: links {unreached} are not reachable "
                                    f"from root {root_link!r}")
+    joint_types = {joint.get("name"): joint.get("type") for joint in root.findall("joint")}
     for mimic in mimics:
         if mimic.mimicked in joint_names:
+            if joint_types[mimic.mimicked] not in _ONE_COORDINATE_TYPES:
+                raise ctx.error(f"<joint name='{mimic.joint}'>/<mimic>",
+                                f"attribute joint={mimic.mimicked!r} names a {joint_types[mimic.mimicked]} joint; "
+                                "a mimic must follow a revolute, continuous or prismatic joint")
             builder.add_mimic(mimic)
         else:
             warnings.warn(f"{source_name}: <joint name='{mimic.joint}'>/<mimic>: mimicked joint {mimic.mimicked!r} "
