@@ -146,3 +146,23 @@ def test_batches_that_do_not_broadcast_are_refused(name):
     args = {n: (two if k == 0 else three)[n] for k, n in enumerate(names)}
     with pytest.raises(ValueError, match="broadcast"):
         function(**args)
+
+
+@pytest.mark.filterwarnings("ignore::RuntimeWarning")  # the non-finite input's warning, by design
+@given(name=st.sampled_from(sorted(FUNCTIONS)), which=st.integers(0, 3), value=st.sampled_from([np.nan, np.inf, -np.inf]),
+       entry=st.integers(0, 100), seed=st.integers(0, 2**31 - 1))
+def test_a_non_finite_input_never_gives_a_finite_answer(name, which, value, entry, seed):
+    """NaN or ±inf anywhere in one state's input: that state's result is NaN throughout (the kernels'
+    rule), or the call raises ``ValueError``; the other state of the batch is unaffected."""
+    function, names = FUNCTIONS[name]
+    args = {n: x for n, x in arguments((2,), np.random.default_rng(seed)).items() if n in names}
+    target = names[which % len(names)]
+    bad = args[target].copy()
+    bad[1].flat[entry % bad[1].size] = value
+    try:
+        result = function(**{**args, target: bad})
+    except ValueError:
+        return
+    clean = function(**args)
+    assert np.isnan(result[1]).all()
+    np.testing.assert_array_equal(result[0], clean[0])
