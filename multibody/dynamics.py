@@ -44,15 +44,20 @@ def _check(model, q, v=_ABSENT, a=_ABSENT, tau=_ABSENT, f_ext=None):
     v = None if v is _ABSENT else model.check_velocity(v, "v")
     a = None if a is _ABSENT else model.check_velocity(a, "a")
     tau = None if tau is _ABSENT else model.check_velocity(tau, "tau")
-    shapes = [x.shape[:-1] for x in (q, v, a, tau) if x is not None]
+    shapes = {name: x.shape[:-1] for name, x in (("q", q), ("v", v), ("a", a), ("tau", tau)) if x is not None}
     if f_ext is not None:
         f_ext = model._as_float_array(f_ext, "f_ext")
         if f_ext.shape[-2:] != (model.njoints, 6):
             raise ValueError(f"f_ext must have shape (..., {model.njoints}, 6) (one spatial force per moving "
                              f"joint, in its frame), got {f_ext.shape}")
-        shapes.append(f_ext.shape[:-2])
+        shapes["f_ext"] = f_ext.shape[:-2]
         f_ext = f_ext.reshape(f_ext.shape[:-2] + (6 * model.njoints,))
-    return q, v, a, tau, f_ext, spatial.batch_shape(*shapes)
+    try:
+        batch = spatial.batch_shape(*shapes.values())
+    except ValueError:
+        raise ValueError("the leading (batch) axes of " + ", ".join(f"{name} {shape}" for name, shape in shapes.items())
+                         + " do not broadcast") from None
+    return q, v, a, tau, f_ext, batch
 
 
 def _vector(model, kernel, inputs, batch):
