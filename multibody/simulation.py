@@ -128,10 +128,13 @@ def simulate(system, q0, v0, t_final, *, dt=None, method="RK45", tau=None, rtol=
     if q.shape != (nq,) or v.shape != (nv,):
         raise ValueError(f"q0 and v0 must have shapes ({nq},) and ({nv},), got {q.shape} and {v.shape}")
     q_projected, v_projected = constrained.project(q, v, t0)
-    moved = max(np.abs(q_projected - q).max(initial=0.0), np.abs(v_projected - v).max(initial=0.0))
+    dq, dv = np.abs(q_projected - q), np.abs(v_projected - v)
+    moved = max(dq.max(initial=0.0), dv.max(initial=0.0))
     if moved > 1e-10 and constrained.num_rows:
-        warnings.warn(f"initial state violated the constraints; projected onto them (moved by {moved:.3g})",
-                      UserWarning, stacklevel=2)
+        largest = [f"{_coordinate(mechanical, int(np.argmax(d)), rate)} by {d.max():.3g}"
+                   for d, rate in ((dq, False), (dv, True)) if d.size and d.max() > 1e-10]
+        warnings.warn(f"initial state violated the constraints; projected onto them (moved by {moved:.3g}: "
+                      f"{' and '.join(largest)})", UserWarning, stacklevel=2)
     q, v = q_projected, v_projected
 
     # The integrator's state is y = [δ, w] in the chart around a configuration q_c: q = chart(q_c, δ),
@@ -251,9 +254,53 @@ def simulate(system, q0, v0, t_final, *, dt=None, method="RK45", tau=None, rtol=
                     solver, q_chart = start(solver.t, end, getattr(solver, "h_abs", solver.step_size), w_dot)
     except (SimulationError, ConstraintError, np.linalg.LinAlgError, ValueError, FloatingPointError) as exc:
         t_fail = times[max(done - 1, 0)]
-        message = f"simulation stopped at t = {t_fail:.6g} s: {exc}"
-        raise SimulationError(message, _trajectory(constrained, times[:done], states[:done], torque, message, tolerance)) from exc
+        message = f"simulation stopped at t = {t_fail:.6g} s: {_grown(mechanical, states[:done], nq, v) or exc}"
+        try:
+            partial = _trajectory(constrained, times[:done], states[:done], torque, message, tolerance)
+        except (ConstraintError, np.linalg.LinAlgError, ValueError, FloatingPointError):
+            # states so far out that their multipliers cannot be computed: the states alone
+            m = constrained.num_rows
+            partial = Trajectory(t=times[:done].copy(), q=states[:done, :nq].copy(), v=states[:done, nq:].copy(),
+                                 lam=np.full((done, m), np.nan), energy=np.full(done, np.nan),
+                                 residual=np.full(done, np.nan), row_names=list(constrained.row_names), status=message)
+        raise SimulationError(message, partial) from exc
     return _trajectory(constrained, times, states, torque, "completed", tolerance)
+
+
+def _coordinate(system, k, rate):
+    """``"q[k] (joint 'name', unit)"`` or ``"v[k] (...)"``: a coordinate of ``system`` named for messages."""
+    symbol = f"{'v' if rate else 'q'}[{k}]"
+    model = getattr(system, "model", None)
+    if model is None:
+        return symbol
+    offsets = model.idx_v if rate else model.idx_q
+    joint = max(j for j in range(model.njoints) if offsets[j] <= k)
+    within = k - offsets[joint]
+    kind = model.joints[joint].kind
+    if kind in ("revolute", "continuous"):
+        unit = "rad/s" if rate else "rad"
+    elif kind in ("prismatic", "translation") or (kind in ("free-flyer", "planar") and within < (3 if kind == "free-flyer" else 2)):
+        unit = "m/s" if rate else "m"
+    else:  # quaternion or (cos θ, sin θ) entries, angular velocities
+        unit = "rad/s" if rate else "unit-norm component"
+    return f"{symbol} (joint {model.joint_names[joint]!r}, {unit})"
+
+
+def _grown(system, states, nq, v0):
+    """A message when the last computed state's velocities grew beyond a thousand times their start
+    (and 1e3): the integration diverged, which is what a failure then means; ``None`` otherwise."""
+    if not len(states):
+        return None
+    v = states[-1, nq:]
+    bound = 1e3 * max(1.0, np.abs(v0).max(initial=0.0))
+    finite = np.isfinite(v).all()
+    if finite and np.abs(v).max(initial=0.0) <= bound:
+        return None
+    k = int(np.argmax(np.where(np.isfinite(v), np.abs(v), np.inf)))
+    size = "is not finite" if not finite else f"reached {abs(v[k]):.3g}"
+    return (f"the state grew beyond bounds: {_coordinate(system, k, True)} {size}, over {bound:.3g} (a thousand "
+            "times the initial velocities); the integration diverged: take a smaller step (dt with RK4) or an "
+            "adaptive method")
 
 
 class _Charts:

@@ -565,3 +565,27 @@ class _CircleWithoutCharts:
 def test_simulate_refuses_a_curved_system_without_chart_maps():
     with pytest.raises(ValueError, match="nq = 2 != nv = 1 but no chart maps"):
         mb.simulate(_CircleWithoutCharts(), np.array([1.0, 0.0]), np.array([1.0]), 1.0)
+
+
+def test_a_diverging_integration_says_so():
+    """A stiff PD gain with a long RK4 step diverges: the error says the state grew beyond bounds,
+    names the coordinate and its size, and suggests a smaller step, rather than blaming the mass
+    matrix."""
+    model = mb.robots.load("double_pendulum")
+    gains = 1e6
+
+    def stiff(t, q, v):
+        return -gains * (q - 0.3) - 10.0 * v
+
+    with pytest.raises(mb.SimulationError) as info:
+        mb.simulate(model, np.zeros(2), np.zeros(2), 5.0, dt=0.05, method="RK4", tau=stiff)
+    message = str(info.value)
+    assert "grew beyond bounds" in message and "smaller step" in message
+    assert re.search(r"v\[\d\] \(joint '\w+', rad/s\)", message), message
+
+
+def test_the_projection_warning_names_the_coordinates_and_units():
+    cs = pendulum_system()
+    q_ok, v_ok = pendulum_state(L_PEND, 0.6, 0.4)
+    with pytest.warns(UserWarning, match=r"moved by [0-9.e+-]+: q\[\d\] .* by [0-9.e+-]+ and v\[\d\] .*m/s.* by"):
+        mb.simulate(cs, 1.01 * q_ok, v_ok + 0.05 * q_ok / L_PEND, 0.2, dt=0.1)
