@@ -48,6 +48,13 @@ def _along_path(system, q, v, t, fn):
     return lambda s: fn(system.integrate(q, v, s), t + s)
 
 
+def _path_step(v, step):
+    """The stencil step in ``s`` along ``q ⊕ v s``: ``step / max(1, |v|_∞)``, so that one step moves every
+    coordinate by at most ``step`` (rad or m) whatever the speed, and time by at most ``step`` s. A step
+    in time alone would carry a fast mechanism a radian through one stencil."""
+    return step / max(1.0, float(np.abs(v).max(initial=0.0)))
+
+
 class Constraint:
     """Base class. Subclasses define ``rows(system)``, ``jacobian``, and ``acceleration_rhs``;
     holonomic ones also ``position``.
@@ -239,9 +246,11 @@ class Holonomic(Constraint):
         if self._jacobian is not None:
             # γ = −d/ds [J v + ∂φ/∂t] along the path with a = 0.
             return -_first_derivative(_along_path(
-                system, q, v, t, lambda qs, ts: self.jacobian(system, qs, ts) @ v + self.velocity_bias(system, qs, ts)))
+                system, q, v, t, lambda qs, ts: self.jacobian(system, qs, ts) @ v + self.velocity_bias(system, qs, ts)),
+                _path_step(v, _FIRST_STEP))
         # γ = −d²/ds² φ(q ⊕ v s, t + s)
-        return -_second_derivative(_along_path(system, q, v, t, lambda qs, ts: self.position(system, qs, ts)))
+        return -_second_derivative(_along_path(system, q, v, t, lambda qs, ts: self.position(system, qs, ts)),
+                                   _path_step(v, _SECOND_STEP))
 
 
 class Pfaffian(Constraint):
@@ -274,7 +283,8 @@ class Pfaffian(Constraint):
             return np.atleast_1d(np.asarray(self._gamma(q, v, t), dtype=float))
         # γ = −d/ds [A v + b] along the path with a = 0.
         return -_first_derivative(_along_path(
-            system, q, v, t, lambda qs, ts: self.jacobian(system, qs, ts) @ v + self.velocity_bias(system, qs, ts)))
+            system, q, v, t, lambda qs, ts: self.jacobian(system, qs, ts) @ v + self.velocity_bias(system, qs, ts)),
+            _path_step(v, _FIRST_STEP))
 
 
 def _neutral(system):

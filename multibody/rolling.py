@@ -25,7 +25,8 @@ import numpy as np
 
 from . import spatial
 from .kernels import constraints as compiled
-from .constraints import CompiledRows, Constraint, _first_derivative, _frame, _point_placement, _require_model, _wrenches
+from .constraints import (_FIRST_STEP, CompiledRows, Constraint, _first_derivative, _frame, _path_step, _point_placement,
+                          _require_model, _wrenches)
 from .spatial import matvec
 
 
@@ -114,7 +115,7 @@ class _RollingOnPlane(CompiledRows):
             x_s, _, _, _, d_s, _ = self._contact(system, system.integrate(q, v, s), v, t + s)
             return self._surface_velocity(x_s + d_s, t + s)
 
-        return A, b, gamma + E_T @ _first_derivative(surface_at), phi
+        return A, b, gamma + E_T @ _first_derivative(surface_at, _path_step(v, _FIRST_STEP)), phi
 
     def contact_point(self, system, q):
         """World position of the contact point ``(3,)``."""
