@@ -63,7 +63,7 @@ if os.environ.get("MULTIBODY_NUM_THREADS"):
     set_num_threads(int(os.environ["MULTIBODY_NUM_THREADS"]))
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _kernel(marker, joints, reals, frames, x0, x1, x2, x3, out, ws):
     # the kernel's code is the marker's number of dimensions, a constant of its type: each kernel's
     # loop is a compiled specialization of its own, which holds that kernel only
@@ -118,7 +118,7 @@ def _kernel(marker, joints, reals, frames, x0, x1, x2, x3, out, ws):
         integration.chart_derivative(joints, reals, frames, x0, x1, x2, x3, out, ws)
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, parallel=True, error_model="numpy")
 def _batch(marker, joints, reals, frames, X0, X1, X2, X3, OUT, workspace_size, shares):
     n = OUT.shape[0]
     for share in prange(shares):

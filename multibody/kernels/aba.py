@@ -39,19 +39,19 @@ def workspace_size(nj, nv):
 
 # ----------------------------------------------------------------------------- 6×6 helpers
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def transpose3(A):
     """``Aᵀ`` of a 3×3 row-major 9-tuple."""
     return (A[0], A[3], A[6], A[1], A[4], A[7], A[2], A[5], A[8])
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def times_skew(A, p):
     """``A [p]×``: row ``r`` is ``a_r × p``."""
     return cross((A[0], A[1], A[2]), p) + cross((A[3], A[4], A[5]), p) + cross((A[6], A[7], A[8]), p)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def skew_times(p, A):
     """``[p]× A``: column ``c`` is ``p × a_c``."""
     c0 = cross(p, (A[0], A[3], A[6]))
@@ -60,7 +60,7 @@ def skew_times(p, A):
     return (c0[0], c1[0], c2[0], c0[1], c1[1], c2[1], c0[2], c1[2], c2[2])
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def load_block(Y, i, r0, c0):
     """The 3×3 block ``Y[i, r0 : r0 + 3, c0 : c0 + 3]`` as a row-major 9-tuple."""
     return (Y[i, r0, c0], Y[i, r0, c0 + 1], Y[i, r0, c0 + 2],
@@ -68,7 +68,7 @@ def load_block(Y, i, r0, c0):
             Y[i, r0 + 2, c0], Y[i, r0 + 2, c0 + 1], Y[i, r0 + 2, c0 + 2])
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def add_block(Y, i, r0, c0, A):
     """``Y[i, r0 : r0 + 3, c0 : c0 + 3] += A``."""
     for r in range(3):
@@ -76,7 +76,7 @@ def add_block(Y, i, r0, c0, A):
             Y[i, r0 + r, c0 + c] += A[3 * r + c]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def add_block_transposed(Y, i, r0, c0, A):
     """``Y[i, r0 : r0 + 3, c0 : c0 + 3] += Aᵀ``."""
     for r in range(3):
@@ -84,7 +84,7 @@ def add_block_transposed(Y, i, r0, c0, A):
             Y[i, r0 + r, c0 + c] += A[3 * c + r]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def rigid_to_matrix(I, Y, i):
     """``Y[i] = [[m 1, −[h]×], [[h]×, Ī]]``: the 6×6 matrix of the inertia 10-tuple ``I`` (RBDA
     eq. 2.63)."""
@@ -100,7 +100,7 @@ def rigid_to_matrix(I, Y, i):
             Y[i, r, c] = rows[r][c]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def matrix_times(Y, i, m):
     """``Y[i] m`` for 6×6 matrices ``Y`` and a 6-tuple ``m``."""
     return (dot6((Y[i, 0, 0], Y[i, 0, 1], Y[i, 0, 2], Y[i, 0, 3], Y[i, 0, 4], Y[i, 0, 5]), m),
@@ -111,13 +111,25 @@ def matrix_times(Y, i, m):
             dot6((Y[i, 5, 0], Y[i, 5, 1], Y[i, 5, 2], Y[i, 5, 3], Y[i, 5, 4], Y[i, 5, 5]), m))
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
+def block_times(Y, i, c0, x):
+    """``Y[i, :, c0 : c0 + 3] x`` for 6×6 matrices ``Y`` and a 3-vector ``x``: ``Y[i] S`` for a subspace
+    column ``S`` that is zero outside those three entries (a revolute or a prismatic joint)."""
+    return (Y[i, 0, c0] * x[0] + Y[i, 0, c0 + 1] * x[1] + Y[i, 0, c0 + 2] * x[2],
+            Y[i, 1, c0] * x[0] + Y[i, 1, c0 + 1] * x[1] + Y[i, 1, c0 + 2] * x[2],
+            Y[i, 2, c0] * x[0] + Y[i, 2, c0 + 1] * x[1] + Y[i, 2, c0 + 2] * x[2],
+            Y[i, 3, c0] * x[0] + Y[i, 3, c0 + 1] * x[1] + Y[i, 3, c0 + 2] * x[2],
+            Y[i, 4, c0] * x[0] + Y[i, 4, c0 + 1] * x[1] + Y[i, 4, c0 + 2] * x[2],
+            Y[i, 5, c0] * x[0] + Y[i, 5, c0 + 1] * x[1] + Y[i, 5, c0 + 2] * x[2])
+
+
+@njit(cache=True, error_model="numpy")
 def column(X, i, k):
     """Column ``k`` of joint i's ``X`` kept by columns (``X[i, k]``), as a 6-tuple."""
     return (X[i, k, 0], X[i, k, 1], X[i, k, 2], X[i, k, 3], X[i, k, 4], X[i, k, 5])
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def subspace_transpose_times(kind, axis, nv, f):
     """``Sᵀ f`` as a 6-tuple (zero past ``nv``): the joint's share of the force ``f`` (joint frame)."""
     y0 = dot6(kinds.subspace_column(kind, axis, 0), f) if nv > 0 else 0.0
@@ -129,7 +141,7 @@ def subspace_transpose_times(kind, axis, nv, f):
     return (y0, y1, y2, y3, y4, y5)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def articulated_to_parent(R, p, Y, i, parent):
     """``Y[parent] += ᴾX_C* Y[i] ᶜX_P`` for an articulated inertia ``Y[i]`` about the child frame C,
     with ``X_PC = (R, p)`` (RBDA eq. 2.66, which holds for any symmetric 6×6 inertia).
@@ -158,7 +170,7 @@ def articulated_to_parent(R, p, Y, i, parent):
     add_block(Y, parent, 3, 3, C_P)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def invert_symmetric(n, D, D_inv):
     """``D_inv[:n, :n] = D⁻¹`` for a symmetric positive definite ``D[:n, :n]`` (its lower triangle is
     read), by ``D = L diag(d) Lᵀ`` with ``L`` unit lower triangular, which overwrites the lower triangle
@@ -194,7 +206,7 @@ def invert_symmetric(n, D, D_inv):
             D_inv[r, c] = x
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def factor_joint(kind, axis, nv, IA, i, U, D, D_inv, U_D_inv):
     """For joint i of articulated inertia ``IA[i]`` (RBDA Table 7.1): ``U = I^A S`` (into ``U``, by
     columns), ``D = Sᵀ U``, ``D⁻¹`` (into ``D_inv``; ``D`` is overwritten), ``U D⁻¹`` (into
@@ -202,7 +214,8 @@ def factor_joint(kind, axis, nv, IA, i, U, D, D_inv, U_D_inv):
     if nv == 1:
         # one coordinate (revolute, prismatic): D is a scalar
         s = kinds.subspace_column(kind, axis, 0)
-        U_0 = matrix_times(IA, i, s)
+        # S is an axis in the angular (revolute) or linear (prismatic) rows: U = I^A S reads three columns
+        U_0 = block_times(IA, i, 3 if kind == kinds.REVOLUTE else 0, axis)
         D_0 = dot6(s, U_0)
         d_inv = 1.0 / D_0 if D_0 > 0.0 else math.nan
         UD_0 = scale6(d_inv, U_0)
@@ -242,7 +255,7 @@ def factor_joint(kind, axis, nv, IA, i, U, D, D_inv, U_D_inv):
 
 # ----------------------------------------------------------------------------- kernels
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def forward_dynamics(joints, reals, frames, q, v, tau, f_ext, out, ws):
     """Accelerations ``q̈`` (RBDA Table 7.1) into ``out[0] (nv,)``: m/s² or rad/s² per coordinate.
 
@@ -330,7 +343,7 @@ def forward_dynamics(joints, reals, frames, q, v, tau, f_ext, out, ws):
     nan_unless_finite(q, v, tau, f_ext, out)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def inverse_mass_matrix(joints, reals, frames, q, x1, x2, x3, out, ws):
     """``M(q)⁻¹`` into ``out (nv, nv)``: full and symmetric (1/kg, 1/(kg m²), ...).
 

@@ -25,7 +25,7 @@ def workspace_size(nj, nv):
 
 # ----------------------------------------------------------------------------- kernels
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def integrate(joints, reals, frames, q, v, x2, x3, out, ws):
     """Configuration exponential ``q ⊕ v`` into ``out[0] (nq,)`` (Solà et al. 2018 App. B–D, Pinocchio's
     ``integrate``): each joint moves with constant ``v`` for unit time (scale ``v`` by ``dt`` first).
@@ -38,7 +38,7 @@ def integrate(joints, reals, frames, q, v, x2, x3, out, ws):
     nan_unless_finite(q, v, x2, x3, out)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def difference(joints, reals, frames, q0, q1, x2, x3, out, ws):
     """Configuration logarithm ``q₁ ⊖ q₀`` into ``out[0] (nv,)``: the ``v`` with ``q₀ ⊕ v = q₁``
     (Solà et al. 2018 App. B–D, Pinocchio's ``difference``). ``q0, q1 (nq,)``."""
@@ -47,7 +47,7 @@ def difference(joints, reals, frames, q0, q1, x2, x3, out, ws):
     nan_unless_finite(q0, q1, x2, x3, out)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def configuration_rate(joints, reals, frames, q, v, x2, x3, out, ws):
     """``q̇ (nq,)`` into ``out[0]`` of the configuration ``q (nq,)`` moving with velocity ``v (nv,)``:
     ``v`` for angles and displacements, ``½ q ⊗ (ω, 0)`` for quaternions (Solà et al. 2018 App. B),
@@ -57,7 +57,7 @@ def configuration_rate(joints, reals, frames, q, v, x2, x3, out, ws):
     nan_unless_finite(q, v, x2, x3, out)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def chart(joints, reals, frames, q0, delta, x2, x3, out, ws):
     """Configuration ``(nq,)`` into ``out[0]`` at chart coordinates ``delta (nv,)`` around ``q0 (nq,)``
     (``docs/conventions.md``, charts): ``q₀ + δ`` for angles and displacements, ``exp(δ) ⊗ q₀`` for
@@ -67,7 +67,7 @@ def chart(joints, reals, frames, q0, delta, x2, x3, out, ws):
     nan_unless_finite(q0, delta, x2, x3, out)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def chart_rate(joints, reals, frames, delta, w, x2, x3, out, ws):
     """``δ̇ (nv,)`` into ``out[0]`` of chart coordinates ``delta (nv,)`` moving with the parent-aligned
     velocity ``w (nv,)``: ``w``, but ``J_l(δ)⁻¹ ω`` for rotation vectors (Solà et al. 2018 App. B)."""
@@ -76,7 +76,7 @@ def chart_rate(joints, reals, frames, delta, w, x2, x3, out, ws):
     nan_unless_finite(delta, w, x2, x3, out)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def velocity_alignment(joints, reals, frames, q, x1, x2, x3, out, ws):
     """The block-diagonal orthogonal ``T(q)`` into ``out (nv, nv)``, with ``w = T v`` the velocities in
     their parent frames' axes: ``diag(R, R)`` for a free flyer, ``R`` for a spherical joint, ``R(θ)``
@@ -90,7 +90,7 @@ def velocity_alignment(joints, reals, frames, q, x1, x2, x3, out, ws):
     nan_unless_finite(q, x1, x2, x3, out)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def velocity_coupling(joints, reals, frames, v, x1, x2, x3, out, ws):
     """``κ(v) (nv,)`` into ``out[0]`` with ``d/dt (T v) = T (v̇ + κ(v))`` (see :func:`velocity_alignment`):
     ``[ω × v_lin; 0]`` for a free flyer, ``ω (−vy, vx, 0)`` for a planar joint, zero elsewhere."""
@@ -99,7 +99,7 @@ def velocity_coupling(joints, reals, frames, v, x1, x2, x3, out, ws):
     nan_unless_finite(v, x1, x2, x3, out)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def chart_magnitude(joints, reals, frames, q, x1, x2, x3, out, ws):
     """Size ``(nv,)`` into ``out[0]`` of the configuration ``q (nq,)`` in each chart direction, against which
     an integrator measures relative errors of ``δ``: ``|q|`` for angles and displacements, 1 rad for
@@ -109,7 +109,7 @@ def chart_magnitude(joints, reals, frames, q, x1, x2, x3, out, ws):
     nan_unless_finite(q, x1, x2, x3, out)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def normalize(joints, reals, frames, q, x1, x2, x3, out, ws):
     """``q (nq,)`` with every quaternion and planar ``(cos θ, sin θ)`` scaled to unit norm, into ``out[0]``."""
     for i in range(joints.shape[0]):

@@ -34,13 +34,13 @@ ROLLING_SPHERE, ROLLING_DISC, KNIFE_EDGE, DISTANCE, LOOP_CLOSURE, JOINT_COUPLING
 UNDEFINED = 3
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def column(R, k):
     """Column ``k`` of the row-major rotation ``R``: axis k of the rotated frame."""
     return (R[k], R[3 + k], R[6 + k])
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def jacobian_vector(motion, nv, first, v):
     """``J[first : first + 3] v`` of a frame's motion row: its linear (first = 0) or angular (3) velocity."""
     base = MOTION_JACOBIAN + first * nv
@@ -54,7 +54,7 @@ def jacobian_vector(motion, nv, first, v):
     return (x, y, z)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def add_row(A, row, motion, nv, first, u, scale):
     """``A[row] += scale · uᵀ J[first : first + 3]`` for a frame's motion row (3-vector ``u``)."""
     base = MOTION_JACOBIAN + first * nv
@@ -62,7 +62,7 @@ def add_row(A, row, motion, nv, first, u, scale):
         A[row, c] += scale * (u[0] * motion[base + c] + u[1] * motion[base + nv + c] + u[2] * motion[base + 2 * nv + c])
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def clear_rows(A, gamma, phi, first, rows):
     for r in range(first, first + rows):
         for c in range(A.shape[1]):
@@ -71,7 +71,7 @@ def clear_rows(A, gamma, phi, first, rows):
         phi[r] = 0.0
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def rolling(entry, motions, v, A, gamma, phi, disc):
     """A sphere (``disc`` False) or a thin disc rolling without slipping on a plane
     (:class:`multibody.RollingSphere`, :class:`multibody.RollingDisc`).
@@ -121,7 +121,7 @@ def rolling(entry, motions, v, A, gamma, phi, disc):
     return 0
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def knife_edge(entry, motions, v, A, gamma, phi):
     """A blade that cannot move sideways on a plane (:class:`multibody.KnifeEdge`).
 
@@ -149,7 +149,7 @@ def knife_edge(entry, motions, v, A, gamma, phi):
     return 0
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def distance(entry, motions, v, A, gamma, phi):
     """Two points a given distance apart (:class:`multibody.Distance`). Parameter: the distance.
 
@@ -176,7 +176,7 @@ def distance(entry, motions, v, A, gamma, phi):
     return 0
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def loop_closure(entry, motions, v, A, gamma, phi):
     """Frame B held to frame A (:class:`multibody.LoopClosure`).
 
@@ -221,7 +221,7 @@ def loop_closure(entry, motions, v, A, gamma, phi):
     return 0
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def joint_coupling(entry, q, A, gamma, phi):
     """Two one-coordinate joints geared together (:class:`multibody.JointCoupling`). Parameters:
     ratio, offset, and the joints' ``q`` and ``v`` indices ``(q_a, v_a, q_b, v_b)``.
@@ -237,7 +237,7 @@ def joint_coupling(entry, q, A, gamma, phi):
     return 0
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def constraint_rows(program, motions, q, v, A, gamma, phi):
     """Every constraint of ``program`` into ``A (m, nv)``, ``γ (m,)``, ``φ (m,)``; returns 0, or the
     first non-zero status of a row function."""
@@ -271,7 +271,7 @@ def workspace_size(nj, nv, nframes):
     return nv + nframes * kinematics.motion_columns(nv) + kinematics.workspace_size(nj, nv)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def constraint_levels(joints, reals, frames, q, v, x2, program, out, ws):
     """The rows of every constraint of ``program`` at ``(q, v)`` into ``out[0]`` (layout
     :func:`levels_columns`): ``A``, ``γ`` (no Baumgarte terms) and ``φ``, and the status of

@@ -31,7 +31,7 @@ def workspace_size(nj, nv):
     return 40 * nj + 12 * nv
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def body_factor(I, V):
     """``Bᵢ = ½ [(V×*) I + (I V)×̄* − I (V×)]`` (Echeandia and Wensing, eq. 20) of a body of inertia
     ``I (m, h, Ī)`` moving at ``V = (v, ω)``, in the same coordinates, as ``(a, E)``: ``B = [[0, −[a]×],
@@ -67,7 +67,7 @@ def body_factor(I, V):
     return a, E
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def factor_times(B, m):
     """``B m = (−a × ω, E ω)`` for ``B = [[0, −[a]×], [0, E]]`` stored as ``(a, E)`` (12 floats) and
     ``m = (v, ω)``."""
@@ -78,7 +78,7 @@ def factor_times(B, m):
                   B[9] * w[0] + B[10] * w[1] + B[11] * w[2])
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def factor_transpose_times(B, m):
     """``Bᵀ m = (0, a × v + Eᵀ ω)`` for ``B`` stored as ``(a, E)`` and ``m = (v, ω)``."""
     w = (m[3], m[4], m[5])
@@ -88,7 +88,7 @@ def factor_transpose_times(B, m):
             ang[2] + B[5] * w[0] + B[8] * w[1] + B[11] * w[2])
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def coriolis_matrix(joints, reals, frames, q, v, x2, x3, out, ws):
     """``C(q, v)`` into ``out (nv, nv)`` (N m s per unit of velocity, Pinocchio's ``computeCoriolisMatrix``).
 

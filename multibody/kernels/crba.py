@@ -22,7 +22,7 @@ def workspace_size(nj, nv):
     return 22 * nj
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def mass_matrix(joints, reals, frames, q, x1, x2, x3, out, ws):
     """``M(q)`` (RBDA Table 6.2) into ``out (nv, nv)``: full and symmetric (kg, kg m, kg m²).
 

@@ -27,7 +27,7 @@ def workspace_size(nj, nv):
     return 12 * nj + 12
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def kinetic_energy(joints, reals, frames, q, v, x2, x3, out, ws):
     """``T = Σᵢ ½ vᵢᵀ Iᵢ vᵢ`` (J) into ``out (1, 1)``, with ``vᵢ`` each body's velocity and ``Iᵢ`` its
     inertia, both in its joint frame (RBDA eq. 2.67, velocities by Table 5.1's forward pass).
@@ -52,7 +52,7 @@ def kinetic_energy(joints, reals, frames, q, v, x2, x3, out, ws):
     nan_unless_finite(q, v, x2, x3, out)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def potential_energy(joints, reals, frames, q, x1, x2, x3, out, ws):
     """``U = −Σᵢ mᵢ gᵀ cᵢ`` (J) into ``out (1, 1)`` over the moving bodies, ``cᵢ`` their world centres of
     mass and ``g`` the gravity (m/s², world axes).

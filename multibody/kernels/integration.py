@@ -28,7 +28,7 @@ def workspace_size(nj, nq, nv, step_workspace, step_columns):
     return nq + 2 * nv + nv * nv + step_columns + step_workspace
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def chart_derivative(joints, reals, frames, q_chart, y, tau, program, out, ws):
     """``ẏ = [δ̇; ẇ]`` of the chart state ``y = [δ; w] (2 nv,)`` around ``q_chart (nq,)`` into ``out[0]``
     (layout :func:`output_columns`), with joint forces ``tau (nv,)`` or length 0 (zero).

@@ -39,7 +39,7 @@ SMALL_ANGLE = 1e-4
 SERIES_ANGLE = 1e-2
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def quaternion_rotation(x, y, z, w):
     """Rotation matrix (9-tuple) of the quaternion ``(x, y, z, w)``, divided by its squared norm so that
     a quaternion within rounding of unit norm gives an orthogonal matrix."""
@@ -49,7 +49,7 @@ def quaternion_rotation(x, y, z, w):
             s * (x * z - y * w), s * (y * z + x * w), 1.0 - s * (x * x + y * y))
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def axis_rotation(axis, angle):
     """Rodrigues: ``R = 1 + sin θ [a]× + (1 − cos θ) [a]×²`` for a unit ``axis`` (3-tuple)."""
     x, y, z = axis
@@ -60,7 +60,7 @@ def axis_rotation(axis, angle):
             t * x * z - s * y, t * y * z + s * x, c + t * z * z)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def transform(kind, axis, q, iq):
     """``X_J(q) = (R_J, p_J)``: pose of the joint frame in the pre-joint frame, from ``q[iq:]``."""
     if kind == REVOLUTE:
@@ -81,7 +81,7 @@ def transform(kind, axis, q, iq):
     return IDENTITY, (q[iq], q[iq + 1], q[iq + 2])
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def subspace_column(kind, axis, k):
     """Column ``k`` of the motion subspace ``S`` in joint-frame coordinates (6-tuple ``[v; ω]``)."""
     if kind == REVOLUTE:
@@ -97,7 +97,7 @@ def subspace_column(kind, axis, k):
             1.0 if j == 3 else 0.0, 1.0 if j == 4 else 0.0, 1.0 if j == 5 else 0.0)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def motion(kind, axis, nv, x, iv):
     """``S x[iv : iv + nv]``: the joint's spatial motion for the rates ``x`` (joint frame, 6-tuple)."""
     m = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
@@ -108,7 +108,7 @@ def motion(kind, axis, nv, x, iv):
     return m
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def project_force(kind, axis, nv, f, out, iv):
     """``out[iv : iv + nv] = Sᵀ f``: the joint's share of the force ``f`` (joint frame)."""
     for k in range(nv):
@@ -118,13 +118,13 @@ def project_force(kind, axis, nv, f, out, iv):
 
 # ----------------------------------------------------------------------------- quaternions and SO(3)
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def load4(x, start):
     """``x[start : start + 4]`` as a tuple."""
     return (x[start], x[start + 1], x[start + 2], x[start + 3])
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def quat_multiply(a, b):
     """Hamilton product ``a ⊗ b = (w_a u_b + w_b u_a + u_a × u_b, w_a w_b − u_a·u_b)`` of ``[x, y, z, w]`` quaternions."""
     return (a[3] * b[0] + b[3] * a[0] + a[1] * b[2] - a[2] * b[1],
@@ -133,20 +133,20 @@ def quat_multiply(a, b):
             a[3] * b[3] - a[0] * b[0] - a[1] * b[1] - a[2] * b[2])
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def quat_normalized(quat):
     """``quat / |quat|``."""
     norm = math.sqrt(quat[0] * quat[0] + quat[1] * quat[1] + quat[2] * quat[2] + quat[3] * quat[3])
     return (quat[0] / norm, quat[1] / norm, quat[2] / norm, quat[3] / norm)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def quat_rotation(quat):
     """Rotation matrix (9-tuple, row-major) of ``quat / |quat|``."""
     return quaternion_rotation(quat[0], quat[1], quat[2], quat[3])
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def quat_exp(w):
     """Unit quaternion of the rotation vector ``w`` (rad): ``[sin(θ/2) w/θ, cos(θ/2)]``, ``θ = |w|``."""
     theta = math.sqrt(dot3(w, w))
@@ -155,7 +155,7 @@ def quat_exp(w):
     return (sinc_half * w[0], sinc_half * w[1], sinc_half * w[2], math.cos(0.5 * theta))
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def quat_log(quat):
     """Rotation vector (rad, angle in ``[0, π]``) of a unit quaternion; inverse of :func:`quat_exp`."""
     # q and −q are the same rotation: take the one with w ≥ 0 so that the angle is ≤ π.
@@ -171,7 +171,7 @@ def quat_log(quat):
     return scale3(factor, u)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def quat_rotate(quat, x):
     """``R(q) x`` without forming ``R``: ``x + w t + u × t`` with ``t = 2 u × x / |q|²`` (the rotation of ``q/|q|``)."""
     u = (quat[0], quat[1], quat[2])
@@ -179,7 +179,7 @@ def quat_rotate(quat, x):
     return add3(add3(x, scale3(quat[3], t)), cross(u, t))
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def quat_rate(quat, omega):
     """``q̇ = ½ q ⊗ (ω, 0) = ½ [w ω + u × ω; −u·ω]`` for a body-frame angular velocity ``ω``."""
     u = (quat[0], quat[1], quat[2])
@@ -187,7 +187,7 @@ def quat_rate(quat, omega):
     return (0.5 * du[0], 0.5 * du[1], 0.5 * du[2], -0.5 * dot3(u, omega))
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def rotation_to_quat(R):
     """Unit quaternion ``[x, y, z, w]`` with ``w ≥ 0`` of a rotation matrix (9-tuple, row-major).
 
@@ -216,13 +216,13 @@ def rotation_to_quat(R):
     return quat
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def transpose_rotation(R):
     """``Rᵀ`` of a row-major 9-tuple."""
     return (R[0], R[3], R[6], R[1], R[4], R[7], R[2], R[5], R[8])
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def so3_left_jacobian_times(w, x):
     """``J_l(w) x = V(w) x = x + a w × x + b w × (w × x)`` with ``a = (1 − cos θ)/θ²``,
     ``b = (θ − sin θ)/θ³`` (Solà et al. 2018, App. B), the ``V`` of the SE(3) exponential."""
@@ -240,7 +240,7 @@ def so3_left_jacobian_times(w, x):
     return add3(add3(x, scale3(a, w_x)), scale3(b, cross(w, w_x)))
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def so3_left_jacobian_inverse_times(w, x):
     """``J_l(w)⁻¹ x = x − ½ w × x + c w × (w × x)``, ``c = (1/θ²)(1 − (θ/2) cot(θ/2))`` (Solà et al.
     2018, App. B): the rate ``ẇ`` of a rotation vector turning with fixed-frame angular velocity ``x``,
@@ -256,7 +256,7 @@ def so3_left_jacobian_inverse_times(w, x):
     return add3(sub3(x, scale3(0.5, w_x)), scale3(c, cross(w, w_x)))
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def se2_v(theta):
     """``(a, b)`` of ``V(θ) = [[a, −b], [b, a]]`` of the SE(2) exponential (Solà et al. 2018, App. C):
     ``a = sin θ/θ``, ``b = (1 − cos θ)/θ``."""
@@ -269,7 +269,7 @@ def se2_v(theta):
 
 # ----------------------------------------------------------------------------- configuration maps per kind
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def integrate(kind, nv, q, v, iq, iv, out):
     """``out[iq : iq + nq] = q ⊕ v``: the joint's configuration ``q[iq:]`` moved with constant velocity
     ``v[iv:]`` (joint frame) for unit time; quaternions and planar ``(cos θ, sin θ)`` come out unit."""
@@ -303,7 +303,7 @@ def integrate(kind, nv, q, v, iq, iv, out):
             out[iq + k] = q[iq + k] + v[iv + k]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def difference(kind, nv, q0, q1, iq, iv, out):
     """``out[iv : iv + nv] = q₁ ⊖ q₀``: the velocity ``v`` with ``q₀ ⊕ v = q₁`` (inverse of
     :func:`integrate`; rotation angles in ``[0, π]``)."""
@@ -340,7 +340,7 @@ def difference(kind, nv, q0, q1, iq, iv, out):
             out[iv + k] = q1[iq + k] - q0[iq + k]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def configuration_rate(kind, nv, q, v, iq, iv, out):
     """``out[iq : iq + nq] = q̇``: the rate of the joint's configuration ``q[iq:]`` moving with velocity ``v[iv:]``."""
     if kind == SPHERICAL:
@@ -364,7 +364,7 @@ def configuration_rate(kind, nv, q, v, iq, iv, out):
             out[iq + k] = v[iv + k]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def chart(kind, nv, q0, delta, iq, iv, out):
     """``out[iq : iq + nq]``: the configuration at chart coordinates ``delta[iv:]`` around ``q0[iq:]``.
     Angles and displacements add; a quaternion becomes ``exp(δ) ⊗ q₀`` (``δ`` a rotation vector in the
@@ -391,7 +391,7 @@ def chart(kind, nv, q0, delta, iq, iv, out):
             out[iq + k] = q0[iq + k] + delta[iv + k]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def chart_rate(kind, nv, delta, w, iv, out):
     """``out[iv : iv + nv] = δ̇``: the rate of the chart coordinates ``delta[iv:]`` moving with the
     parent-aligned velocity ``w[iv:]``."""
@@ -408,7 +408,7 @@ def chart_rate(kind, nv, delta, w, iv, out):
             out[iv + k] = w[iv + k]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def velocity_alignment(kind, nv, q, iq, iv, T):
     """``T[iv : iv + nv, iv : iv + nv]``: the joint's orthogonal block of ``w = T v``, which rotates its
     velocity coordinates into its parent frame (the identity for angles and displacements). Entries
@@ -431,7 +431,7 @@ def velocity_alignment(kind, nv, q, iq, iv, T):
                 T[iv + r, iv + c] = 1.0 if r == c else 0.0
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def velocity_coupling(kind, nv, v, iv, out):
     """``out[iv : iv + nv] = κ(v)`` with ``d/dt (T v) = T (v̇ + κ(v))``: ``Ṫ = T [κ]`` of the rotating frame."""
     if kind == FREE_FLYER:
@@ -449,7 +449,7 @@ def velocity_coupling(kind, nv, v, iv, out):
             out[iv + k] = 0.0
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def chart_magnitude(kind, nv, q, iq, iv, out):
     """``out[iv : iv + nv]``: the joint's size in each chart direction: ``|q|`` for angles and
     displacements, 1 (rad) for rotations."""
@@ -464,7 +464,7 @@ def chart_magnitude(kind, nv, q, iq, iv, out):
             out[iv + k] = abs(q[iq + k])
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def normalize(kind, nv, q, iq, out):
     """``out[iq : iq + nq]``: ``q[iq:]`` with its quaternion or planar ``(cos θ, sin θ)`` scaled to unit norm."""
     if kind == SPHERICAL:

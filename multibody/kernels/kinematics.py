@@ -34,7 +34,7 @@ ZERO6 = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 MOTION_ROTATION, MOTION_POSITION, MOTION_JACOBIAN = 0, 9, 12
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def motion_columns(nv):
     """Columns of one frame's row in :func:`frame_motions`: ``18 + 6 nv``."""
     return 18 + 6 * nv
@@ -46,7 +46,7 @@ def workspace_size(nj, nv):
     return 24 * nj + 12
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def joint_placements(joints, reals, q, ws):
     """World pose ``X_Wi = (R_Wi, p_Oi)`` of every joint frame into ``ws[:12 (nj + 1)]``, returned as
     ``pose (nj + 1, 12)`` (``R_Wi`` row-major, then ``p_Oi`` in m): RBDA §4.1, ``X_Wi = X_Wλ(i) X_T X_J(q_i)``.
@@ -71,7 +71,7 @@ def joint_placements(joints, reals, q, ws):
     return pose
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def joint_motions(joints, reals, q, v, ws):
     """World poses, velocities and velocity-product accelerations of every joint frame (RBDA Table 5.1,
     forward pass with ``q̈ = 0`` and no gravity), in ``ws[:24 nj]``. Returns
@@ -108,13 +108,13 @@ def joint_motions(joints, reals, q, v, ws):
     return pose, vel, acc
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def frame_joint(frames, k):
     """The joint that moves frame row ``k`` (``-1``: fixed in the world)."""
     return int(frames[k, FRAME_JOINT])
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def frame_pose(pose, frames, k):
     """Pose ``(R_WF, p_OF)`` of frame row ``k``, position from the reference point O, from the joint poses
     ``pose (nj + 1, 12)`` of :func:`joint_placements`: ``X_WF = X_WJ X_JF`` (``X_JF`` itself for a frame
@@ -126,7 +126,7 @@ def frame_pose(pose, frames, k):
     return compose(load9(pose[j], 0), load3(pose[j], 9), R_JF, p_JF)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def reference_point(joints, reals, q, pose):
     """World position ``p_WO`` of the reference point O, the first joint's origin (the world origin for a
     model without joints), stored in ``pose``'s last row at column 9 and returned."""
@@ -139,13 +139,13 @@ def reference_point(joints, reals, q, pose):
     return origin
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def world_position(pose, p_O):
     """``p_W = p_WO + p_O``: a position from the reference point back in world coordinates."""
     return add3(load3(pose[pose.shape[0] - 1], 9), p_O)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def jacobian_columns(joints, reals, pose, j, x, J):
     """World-aligned Jacobian at the world point ``x`` of the body of joint ``j`` into ``J (6, nv)``
     (every entry written; ``j = -1`` gives zero).
@@ -174,7 +174,7 @@ def jacobian_columns(joints, reals, pose, j, x, J):
         i = joints[i, PARENT]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def frame_point(frames, pose, point):
     """World position ``x`` of frames[0]'s origin displaced by ``point (3,)`` (frame axes, m; length 0:
     the origin): ``x = p_WF + R_WF point``."""
@@ -184,7 +184,7 @@ def frame_point(frames, pose, point):
     return add3(p_WF, rotate(R_WF, load3(point, 0)))
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def frame_placements(joints, reals, frames, q, x1, x2, x3, out, ws):
     """World placements of every frame row into ``out (m, 16)``: row k the homogeneous ``X_WF`` of
     ``frames[k]``, row-major 4×4 (bottom row ``0 0 0 1``; rotation, then position in m). RBDA §4.1.
@@ -207,7 +207,7 @@ def frame_placements(joints, reals, frames, q, x1, x2, x3, out, ws):
     nan_unless_finite(q, x1, x2, x3, out)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def frame_jacobian(joints, reals, frames, q, point, x2, x3, out, ws):
     """Jacobian ``J (6, nv)`` of a point of frames[0] into ``out``: ``[ẋ; ω] = J q̇`` with rows
     ``[linear; angular]`` in world axes at the point (``LOCAL_WORLD_ALIGNED``); RBDA §8.4, eq. 8.20.
@@ -222,7 +222,7 @@ def frame_jacobian(joints, reals, frames, q, point, x2, x3, out, ws):
     nan_unless_finite(q, point, x2, x3, out)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def frame_jacobian_time_variation(joints, reals, frames, q, v, point, x3, out, ws):
     """Time derivative ``J̇ (6, nv)`` of :func:`frame_jacobian` along the motion ``v`` into ``out``, so
     that ``J q̈ + J̇ q̇`` is the point's classical acceleration ``[ẍ; ω̇]`` (world axes).
@@ -269,7 +269,7 @@ def frame_jacobian_time_variation(joints, reals, frames, q, v, point, x3, out, w
     nan_unless_finite(q, v, point, x3, out)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def frame_motions(joints, reals, frames, q, v, x2, x3, out, ws):
     """What a constraint on a frame needs, for every frame row, from one forward pass: row k of
     ``out (m, 18 + 6 nv)`` holds for ``frames[k]``

@@ -28,7 +28,7 @@ from .spatial import nan_unless_finite
 SOLVED, NOT_POSITIVE_DEFINITE, INCONSISTENT = 0, 1, 2
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def output_columns(nv, m):
     """Columns of the step's output row: ``a (nv) | λ (m) | A (m nv, row-major) | γ (m) | rank | status``."""
     return nv + m + m * nv + m + 2
@@ -41,7 +41,7 @@ def workspace_size(nj, nv, nframes, m):
             + passes)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def cholesky(M, n):
     """``M = L Lᵀ`` in place (lower triangle; Golub & Van Loan, *Matrix Computations*, 4th ed., Alg. 4.2.2).
     Returns ``False`` when ``M`` is not positive definite."""
@@ -63,7 +63,7 @@ def cholesky(M, n):
     return True
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def cholesky_solve(L, n, x):
     """``x ← M⁻¹ x`` from the factor of :func:`cholesky`: ``L y = x``, then ``Lᵀ x = y``."""
     for i in range(n):
@@ -78,7 +78,7 @@ def cholesky_solve(L, n, x):
         x[i] = s / L[i, i]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def symmetric_eigen(G, V, w, m):
     """Eigen-decomposition ``G = V diag(w) Vᵀ`` of the symmetric ``G (m, m)`` by cyclic Jacobi rotations
     (Golub & Van Loan, *Matrix Computations*, 4th ed., Alg. 8.5.2 and 8.5.3). ``G`` is overwritten (its
@@ -123,7 +123,7 @@ def symmetric_eigen(G, V, w, m):
         w[i] = G[i, i]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def constrained_accelerations(joints, reals, frames, q, v, tau, program, out, ws):
     """One constrained step into ``out[0]`` (layout :func:`output_columns`): ``a`` (m/s², rad/s²), ``λ``,
     ``A``, ``γ``, the rank of ``A`` and a status (``SOLVED``, ``NOT_POSITIVE_DEFINITE``, ``INCONSISTENT``

@@ -9,7 +9,7 @@ from . import joints as kinds
 from .spatial import compose, row3, row9
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def joint_pose(joints, reals, q, i):
     """``X_λ(i),i = X_T X_J(q_i)`` (RBDA §4.1): joint i's frame in its parent's, ``(R, p)``, from its
     placement ``X_T`` and its joint transform ``X_J``."""

@@ -24,7 +24,7 @@ def workspace_size(nj, nv):
     return 30 * nj
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def forces(joints, reals, q, v, a, f_ext, ws):
     """The two passes of RBDA Table 5.1; returns the per-joint arrays of ``ws`` they fill:
     ``pose (nj, 12)`` the pose ``(R, p)`` of each joint frame in its parent's (``R`` row-major, then
@@ -76,7 +76,7 @@ def forces(joints, reals, q, v, a, f_ext, ws):
     return pose, vel, acc, force
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def inverse_dynamics(joints, reals, frames, q, v, a, f_ext, out, ws):
     """``τ = Sᵢᵀ fᵢ`` for every joint (RBDA Table 5.1) into ``out[0] (nv,)``: N or N m per coordinate.
 
@@ -92,7 +92,7 @@ def inverse_dynamics(joints, reals, frames, q, v, a, f_ext, out, ws):
     nan_unless_finite(q, v, a, f_ext, out)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def joint_reaction_forces(joints, reals, frames, q, v, a, f_ext, out, ws):
     """The force ``f_i`` each joint transmits to its subtree, in its frame, into ``out (nj, 6)``
     (RBDA Table 5.1, backward pass). Arguments as :func:`inverse_dynamics`."""

@@ -19,87 +19,87 @@ from numba import njit
 IDENTITY = (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def load3(x, start):
     """``x[start : start + 3]`` as a tuple."""
     return (x[start], x[start + 1], x[start + 2])
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def load6(x, start):
     """``x[start : start + 6]`` as a tuple."""
     return (x[start], x[start + 1], x[start + 2], x[start + 3], x[start + 4], x[start + 5])
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def load9(x, start):
     """``x[start : start + 9]`` as a tuple."""
     return (x[start], x[start + 1], x[start + 2], x[start + 3], x[start + 4], x[start + 5],
             x[start + 6], x[start + 7], x[start + 8])
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def load10(x, start):
     """``x[start : start + 10]`` as a tuple."""
     return (x[start], x[start + 1], x[start + 2], x[start + 3], x[start + 4], x[start + 5],
             x[start + 6], x[start + 7], x[start + 8], x[start + 9])
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def store(x, start, values):
     """``x[start : start + len(values)] = values``."""
     for k in range(len(values)):
         x[start + k] = values[k]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def add3(a, b):
     return (a[0] + b[0], a[1] + b[1], a[2] + b[2])
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def sub3(a, b):
     return (a[0] - b[0], a[1] - b[1], a[2] - b[2])
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def scale3(s, a):
     return (s * a[0], s * a[1], s * a[2])
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def dot3(a, b):
     return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def add6(a, b):
     return (a[0] + b[0], a[1] + b[1], a[2] + b[2], a[3] + b[3], a[4] + b[4], a[5] + b[5])
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def sub6(a, b):
     return (a[0] - b[0], a[1] - b[1], a[2] - b[2], a[3] - b[3], a[4] - b[4], a[5] - b[5])
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def scale6(s, a):
     return (s * a[0], s * a[1], s * a[2], s * a[3], s * a[4], s * a[5])
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def dot6(a, b):
     """``aᵀ b``: the power of a force on a motion (or any 6-vector product)."""
     return a[0] * b[0] + a[1] * b[1] + a[2] * b[2] + a[3] * b[3] + a[4] * b[4] + a[5] * b[5]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def cross(a, b):
     """``a × b``."""
     return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def rotate(R, x):
     """``R x``."""
     return (R[0] * x[0] + R[1] * x[1] + R[2] * x[2],
@@ -107,7 +107,7 @@ def rotate(R, x):
             R[6] * x[0] + R[7] * x[1] + R[8] * x[2])
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def rotate_back(R, x):
     """``Rᵀ x``."""
     return (R[0] * x[0] + R[3] * x[1] + R[6] * x[2],
@@ -115,7 +115,7 @@ def rotate_back(R, x):
             R[2] * x[0] + R[5] * x[1] + R[8] * x[2])
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def compose_rotations(A, B):
     """``A B``."""
     return (A[0] * B[0] + A[1] * B[3] + A[2] * B[6], A[0] * B[1] + A[1] * B[4] + A[2] * B[7],
@@ -126,13 +126,13 @@ def compose_rotations(A, B):
             A[6] * B[2] + A[7] * B[5] + A[8] * B[8])
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def compose(R_AB, p_AB, R_BC, p_BC):
     """``X_AC = X_AB X_BC``: ``(R_AB R_BC, p_AB + R_AB p_BC)``."""
     return compose_rotations(R_AB, R_BC), add3(p_AB, rotate(R_AB, p_BC))
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def motion_cross(m1, m2):
     """``m1 × m2 = [ω1 × v2 + v1 × ω2; ω1 × ω2]`` (RBDA eq. 2.31)."""
     v1, w1 = (m1[0], m1[1], m1[2]), (m1[3], m1[4], m1[5])
@@ -140,7 +140,7 @@ def motion_cross(m1, m2):
     return add3(cross(w1, v2), cross(v1, w2)) + cross(w1, w2)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def force_cross(m, f):
     """``m ×* f = [ω × f; ω × n + v × f]`` (RBDA eq. 2.32)."""
     v, w = (m[0], m[1], m[2]), (m[3], m[4], m[5])
@@ -148,7 +148,7 @@ def force_cross(m, f):
     return cross(w, lin) + add3(cross(w, ang), cross(v, lin))
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def motion_to_child(R, p, m):
     """``ᶜX_P m``: a motion vector in parent coordinates P expressed in child coordinates C, where
     ``X_PC = (R, p)``: ``[Rᵀ (v + ω × p); Rᵀ ω]`` (RBDA eq. 2.24)."""
@@ -156,28 +156,28 @@ def motion_to_child(R, p, m):
     return rotate_back(R, add3(v, cross(w, p))) + rotate_back(R, w)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def motion_to_parent(R, p, m):
     """``ᴾX_C m``: ``[R v + p × R ω; R ω]`` with ``X_PC = (R, p)``."""
     v, w = rotate(R, (m[0], m[1], m[2])), rotate(R, (m[3], m[4], m[5]))
     return add3(v, cross(p, w)) + w
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def force_to_parent(R, p, f):
     """``ᴾX_C* f``: ``[R f; R n + p × R f]`` with ``X_PC = (R, p)`` (RBDA eq. 2.25)."""
     lin, ang = rotate(R, (f[0], f[1], f[2])), rotate(R, (f[3], f[4], f[5]))
     return lin + add3(ang, cross(p, lin))
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def force_to_child(R, p, f):
     """``ᶜX_P* f``: ``[Rᵀ f; Rᵀ (n − p × f)]`` with ``X_PC = (R, p)``."""
     lin, ang = (f[0], f[1], f[2]), (f[3], f[4], f[5])
     return rotate_back(R, lin) + rotate_back(R, sub3(ang, cross(p, lin)))
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def symmetric_times(S, x):
     """``S x`` for a symmetric 3×3 ``S = (Sxx, Sxy, Sxz, Syy, Syz, Szz)``."""
     return (S[0] * x[0] + S[1] * x[1] + S[2] * x[2],
@@ -185,7 +185,7 @@ def symmetric_times(S, x):
             S[2] * x[0] + S[4] * x[1] + S[5] * x[2])
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def inertia_times(I, m):
     """``I m`` for a rigid-body inertia ``I = (mass, h, Ī)``: ``[mass v − h × ω; h × v + Ī ω]``."""
     mass, h, inertia = I[0], (I[1], I[2], I[3]), (I[4], I[5], I[6], I[7], I[8], I[9])
@@ -193,7 +193,7 @@ def inertia_times(I, m):
     return sub3(scale3(mass, v), cross(h, w)) + add3(cross(h, v), symmetric_times(inertia, w))
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def inertia_to_parent(R, p, I):
     """``ᴾX_C* I ᶜX_P``: a rigid-body inertia about the child frame's origin, in its axes, moved to the
     parent frame (``X_PC = (R, p)``) (RBDA eq. 2.66).
@@ -225,7 +225,7 @@ def inertia_to_parent(R, p, I):
             rzz + mass * (pp - p[2] * p[2]) + 2.0 * ph - 2.0 * p[2] * h[2])
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def add10(a, b):
     return (a[0] + b[0], a[1] + b[1], a[2] + b[2], a[3] + b[3], a[4] + b[4], a[5] + b[5],
             a[6] + b[6], a[7] + b[7], a[8] + b[8], a[9] + b[9])
@@ -234,40 +234,40 @@ def add10(a, b):
 # Loaders of a row's entries by (row, column) index, so that the loops over joints take no row views
 # ``X[i]``: each view is a reference-counted array on the CPU, its counting dearer than the arithmetic.
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def row3(X, i, s):
     """``X[i, s : s + 3]`` as a tuple."""
     return (X[i, s], X[i, s + 1], X[i, s + 2])
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def row6(X, i, s):
     """``X[i, s : s + 6]`` as a tuple."""
     return (X[i, s], X[i, s + 1], X[i, s + 2], X[i, s + 3], X[i, s + 4], X[i, s + 5])
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def row9(X, i, s):
     """``X[i, s : s + 9]`` as a tuple."""
     return (X[i, s], X[i, s + 1], X[i, s + 2], X[i, s + 3], X[i, s + 4], X[i, s + 5], X[i, s + 6], X[i, s + 7],
             X[i, s + 8])
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def row10(X, i, s):
     """``X[i, s : s + 10]`` as a tuple."""
     return (X[i, s], X[i, s + 1], X[i, s + 2], X[i, s + 3], X[i, s + 4], X[i, s + 5], X[i, s + 6], X[i, s + 7],
             X[i, s + 8], X[i, s + 9])
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def store_row(X, i, s, values):
     """``X[i, s : s + len(values)] = values``."""
     for k in range(len(values)):
         X[i, s + k] = values[k]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def all_finite(x):
     """Whether every entry of the vector ``x`` is finite."""
     for k in range(x.shape[0]):
@@ -276,7 +276,7 @@ def all_finite(x):
     return True
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def nan_unless_finite(x0, x1, x2, x3, out):
     """Fill ``out`` with NaN when an input vector has a NaN or infinite entry, so that such a state's
     whole output is NaN, also where its arithmetic would not carry the NaN (the mass matrix does not
