@@ -39,10 +39,10 @@ _WORKSPACE = {kernel: module.workspace_size for module in (rnea, crba, aba, cori
               for kernel in _CODES if getattr(kernel, "py_func", kernel).__module__ == module.__name__}
 
 
-def compiled_before() -> bool:
-    """Whether this machine has every kernel's compiled code on disk already (Numba's cache index of
-    each), so that a first run can say it is compiling."""
-    for kernel in _CODES:
+def compiled_before(kernels=None) -> bool:
+    """Whether this machine has the compiled code of ``kernels`` (default: every kernel) on disk
+    already (Numba's cache index of each), so that a first run can say it is compiling."""
+    for kernel in _CODES if kernels is None else kernels:
         cache_file = getattr(getattr(kernel, "_cache", None), "_cache_file", None)
         if cache_file is None or not os.path.isfile(cache_file._index_path):
             return False

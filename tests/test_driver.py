@@ -366,3 +366,11 @@ def test_rnea_as_a_cuda_kernel_under_the_simulator(robot, tmp_path):
     assert tau.shape == ref.shape == (6, model.nv)
     assert np.all(np.isfinite(tau))
     np.testing.assert_allclose(tau, ref, rtol=0, atol=TOL_CUDASIM * max(1.0, np.max(np.abs(ref))))
+
+
+def test_compiled_before_reports_kernels_with_code_on_disk():
+    """After a kernel has run, its compiled code is on disk (Numba's cache index), which is what the
+    demo asks before saying that it is compiling."""
+    model = mb.robots.load("double_pendulum")
+    mb.inverse_dynamics(model, np.zeros(2), np.zeros(2), np.zeros(2))
+    assert mb.driver.compiled_before((mb.kernels.rnea.inverse_dynamics,))
