@@ -376,33 +376,42 @@ class ConstrainedSystem:
         """``M⁻¹ rhs`` from the Cholesky factor ``L`` (``M = L Lᵀ``); ``rhs`` ``(..., nv, k)``."""
         return linalg.cholesky_solve(L, rhs)
 
-    def _multipliers(self, A, M_inv_At, rhs):
-        """Minimum-norm solution of ``G λ = rhs`` with ``G = A M⁻¹ Aᵀ``, the rank, and a consistency check.
+    def _metric_singular_values(self, A, L):
+        """Singular values ``σ (..., k)`` and left singular vectors ``U (..., m, k)`` of ``B = A L⁻ᵀ``, the
+        constraint Jacobian in the metric of ``M = L Lᵀ``: ``G = A M⁻¹ Aᵀ = U diag(σ²) Uᵀ``, without
+        forming ``G`` (whose eigenvalues would square the condition number)."""
+        B_T = linalg.lower_triangular_solve(L, np.swapaxes(A, -1, -2))  # (A L⁻ᵀ)ᵀ = L⁻¹ Aᵀ
+        _, sigma, U_T = np.linalg.svd(B_T, full_matrices=False)
+        return sigma, np.swapaxes(U_T, -1, -2)
 
-        Shapes ``A (..., m, nv)``, ``M_inv_At (..., nv, m)``, ``rhs (..., m)``; ``rank`` is an int, or an
-        int array ``(...)`` for a batch.
-        """
-        G = A @ M_inv_At
-        # G is symmetric positive semi-definite: G = V diag(w) Vᵀ, and λ = V diag(w)⁺ Vᵀ rhs.
-        w, V = linalg.eigh(G)
-        keep = w > self.rank_tolerance * w[..., -1:]
-        inverse = np.divide(1.0, w, out=np.zeros_like(w), where=keep)
-        lam = matvec(V, inverse * matvec(np.swapaxes(V, -1, -2), rhs))
+    def _minimum_norm(self, A, L, rhs):
+        """Minimum-norm ``λ = G⁺ rhs`` with ``G = A M⁻¹ Aᵀ``, the rank, and the part of ``rhs`` that no ``λ``
+        meets: ``(λ (..., m), rank, residual (..., m))``. One rank decision: a direction counts when its
+        singular value in the metric of ``M`` exceeds ``rank_tolerance`` times the largest, the rule of
+        :meth:`rank`."""
+        sigma, U = self._metric_singular_values(A, L)
+        keep = sigma > self.rank_tolerance * sigma[..., :1]
+        inverse = np.divide(1.0, sigma**2, out=np.zeros_like(sigma), where=keep)
+        coefficients = matvec(np.swapaxes(U, -1, -2), rhs)
+        lam = matvec(U, inverse * coefficients)
+        residual = rhs - matvec(U, np.where(keep, coefficients, 0.0))
         rank = keep.sum(axis=-1)
-        deficient = rank < w.shape[-1]
-        if deficient.any():
-            # Consistency: the part of rhs outside the range of G cannot be met by any λ (a G of full
-            # rank meets every rhs).
-            mismatch = np.abs(rhs - matvec(G, lam))
-            scale = np.maximum(np.abs(rhs).max(axis=-1), 1.0)
-            bad = deficient & (mismatch.max(axis=-1) > 1e-8 * scale)
-            if bad.any():
-                state = np.unravel_index(int(np.argmax(bad)), bad.shape) if bad.ndim else ()
-                worst = int(np.argmax(mismatch[state]))
-                raise ConstraintError(
-                    f"inconsistent constraints: no accelerations satisfy all {A.shape[-2]} rows (rank {int(rank[state])}); "
-                    f"row {self.row_names[worst]!r} is off by {(rhs - matvec(G, lam))[state][worst]:.3g}")
-        return lam, int(rank) if rank.ndim == 0 else rank
+        return lam, int(rank) if rank.ndim == 0 else rank, residual
+
+    def _multipliers(self, A, L, rhs, scale):
+        """:meth:`_minimum_norm` and a consistency check: rows whose right-hand side has a part that no
+        ``λ`` meets, larger than ``1e-8`` of ``scale (..., m)`` (the size of the terms that make it),
+        raise :class:`ConstraintError`."""
+        lam, rank, residual = self._minimum_norm(A, L, rhs)
+        bad = np.abs(residual) > 1e-8 * np.maximum(scale, np.finfo(float).tiny)
+        if bad.any():
+            state = np.unravel_index(int(np.argmax(bad.any(axis=-1))), bad.shape[:-1]) if bad.ndim > 1 else ()
+            worst = int(np.argmax(np.abs(residual[state]) / np.maximum(scale[state], np.finfo(float).tiny)))
+            rank_state = rank if np.ndim(rank) == 0 else rank[state]
+            raise ConstraintError(
+                f"inconsistent constraints: no accelerations satisfy all {A.shape[-2]} rows (rank {int(rank_state)}); "
+                f"row {self.row_names[worst]!r} is off by {residual[state][worst]:.3g}")
+        return lam, rank
 
     def _tau(self, tau, batch=()):
         """``tau`` as a float array ``(nv,)`` or ``batch + (nv,)``, or ``ValueError``."""
@@ -460,7 +469,9 @@ class ConstrainedSystem:
         solved = self._solve_factored(L, np.concatenate([free_force[..., None], np.swapaxes(A, -1, -2)], axis=-1))
         a_free, M_inv_At = solved[..., 0], solved[..., 1:]
         # (A M⁻¹ Aᵀ) λ = γ − A a_free ;  a = a_free + M⁻¹ Aᵀ λ
-        lam, rank = self._multipliers(A, M_inv_At, gamma - matvec(A, a_free))
+        A_a_free = matvec(A, a_free)
+        scale = np.maximum(np.maximum(np.abs(gamma), np.abs(A_a_free)), 1.0)
+        lam, rank = self._multipliers(A, L, gamma - A_a_free, scale)
         return KKTSolution(a_free + matvec(M_inv_At, lam), lam, rank, A, gamma)
 
     def forward_dynamics(self, q, v, tau=None, t=0.0):
@@ -474,10 +485,12 @@ class ConstrainedSystem:
         return solution.a, solution.lam
 
     def rank(self, q, t=0.0) -> int:
-        """Rank of the constraint Jacobian at ``q``: the number of independent rows."""
+        """Rank of the constraint Jacobian at ``q``: the number of independent rows, judged as :meth:`solve`
+        judges them, by the singular values of ``A L⁻ᵀ`` (``M = L Lᵀ``) above ``rank_tolerance`` times the
+        largest."""
         if not self.num_rows:
             return 0
-        sigma = np.linalg.svd(self.jacobian(q, t), compute_uv=False)
+        sigma, _ = self._metric_singular_values(self.jacobian(q, t), self._factor(q))
         return int(np.sum(sigma > self.rank_tolerance * sigma[0])) if sigma.size and sigma[0] > 0 else 0
 
     # ------------------------------------------------------------------ projection onto the constraints
@@ -499,9 +512,9 @@ class ConstrainedSystem:
 
         def correction(A, error):
             # M⁻¹Aᵀ (A M⁻¹ Aᵀ)⁺ error, with M from the current q
-            M_inv_At = self._solve_factored(self._factor(q), np.swapaxes(A, -1, -2))
-            G_pinv = np.linalg.pinv(A @ M_inv_At, rcond=self.rank_tolerance, hermitian=True)
-            return matvec(M_inv_At, matvec(G_pinv, error))
+            L = self._factor(q)
+            M_inv_At = self._solve_factored(L, np.swapaxes(A, -1, -2))
+            return matvec(M_inv_At, self._minimum_norm(A, L, error)[0])
 
         # Each pass gives φ, A and b together: A serves both the next position step and, at the end,
         # the velocity projection.

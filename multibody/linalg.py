@@ -61,3 +61,13 @@ def eigh(G):
     if info != 0:
         raise np.linalg.LinAlgError(f"eigenvalue decomposition did not converge (LAPACK dsyevd info {info})")
     return w, V
+
+
+def lower_triangular_solve(L, rhs):
+    """``L⁻¹ rhs`` for lower-triangular ``L (..., n, n)`` (a Cholesky factor), ``rhs (..., n, k)``."""
+    if L.ndim != 2 or rhs.ndim != 2:
+        return np.linalg.solve(L, rhs)
+    x, info = lapack.dtrtrs(L, rhs, lower=1)
+    if info != 0:
+        raise np.linalg.LinAlgError(f"LAPACK dtrtrs failed (info {info})")
+    return x

@@ -147,17 +147,21 @@ def test_non_finite_input_gives_nan_with_a_warning():
     assert np.isnan(solution.a).all()
 
 
-def test_symmetric_eigen_and_cholesky_agree_with_lapack():
+def test_row_orthogonalization_and_cholesky_agree_with_lapack():
     rng = np.random.default_rng(0)
+    for m, n in ((1, 3), (2, 5), (5, 7), (12, 14), (6, 4)):
+        B = rng.standard_normal((m, n))
+        U, sigma = np.empty((m, m)), np.empty(m)
+        work = B.copy()
+        kkt.orthogonalize_rows(work, U, sigma, m)
+        assert_close(U @ np.diag(sigma**2) @ U.T, B @ B.T, 1e-13, scale=np.abs(B @ B.T).max(), what="U diag(σ²) Uᵀ")
+        assert_close(U.T @ U, np.eye(m), 1e-13, scale=1.0, what="UᵀU")
+        expected = np.zeros(m)
+        expected[: min(m, n)] = np.linalg.svd(B, compute_uv=False)
+        assert_close(np.sort(sigma)[::-1], expected, 1e-13, scale=expected.max(), what="singular values")
     for m in (1, 2, 5, 12):
         X = rng.standard_normal((m, m + 2))
         G = X @ X.T
-        V, w = np.empty((m, m)), np.empty(m)
-        work = G.copy()
-        kkt.symmetric_eigen(work, V, w, m)
-        assert_close(V @ np.diag(w) @ V.T, G, 1e-13, scale=np.abs(G).max(), what="V diag(w) Vᵀ")
-        assert_close(V.T @ V, np.eye(m), 1e-13, scale=1.0, what="VᵀV")
-        assert_close(np.sort(w), np.linalg.eigvalsh(G), 1e-13, scale=np.abs(w).max(), what="eigenvalues")
         L = G.copy()
         assert kkt.cholesky(L, m)
         x = rng.standard_normal(m)

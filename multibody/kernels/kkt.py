@@ -8,9 +8,10 @@ of λ of :class:`multibody.ConstrainedSystem`):
     a = a_free + M⁻¹ Aᵀ λ
 
 ``M`` comes from CRBA, ``h`` from RNEA, the constraint frames from one forward pass, and the rows from
-:mod:`multibody.kernels.constraints`; ``M`` is factored by Cholesky and ``G`` diagonalised by cyclic
-Jacobi rotations, so that ``λ = V diag(w)⁺ Vᵀ rhs`` drops the directions with
-``w ≤ rank tolerance · max w``, as :meth:`multibody.ConstrainedSystem.solve` does with LAPACK.
+:mod:`multibody.kernels.constraints`. ``M = L Lᵀ`` by Cholesky; ``G = B Bᵀ`` with ``B = A L⁻ᵀ``, whose
+rows one-sided Jacobi rotations make orthogonal, ``B = V diag(σ) Pᵀ``, so that
+``λ = V diag(σ²)⁺ Vᵀ rhs`` drops the directions with ``σ ≤ rank tolerance · max σ`` without squaring
+the condition number, as :meth:`multibody.ConstrainedSystem.solve` does with LAPACK's SVD.
 """
 
 from __future__ import annotations
@@ -37,8 +38,7 @@ def output_columns(nv, m):
 def workspace_size(nj, nv, nframes, m):
     """Floats of workspace of one step with ``nframes`` constraint frames and ``m`` rows."""
     passes = max(crba.workspace_size(nj, nv), rnea.workspace_size(nj, nv), kinematics.workspace_size(nj, nv))
-    return (nv * nv + 2 * nv + nframes * kinematics.motion_columns(nv) + m * nv + 2 * m + nv * m + 2 * m * m + 2 * m
-            + passes)
+    return nv * nv + 2 * nv + nframes * kinematics.motion_columns(nv) + 3 * m * nv + m * m + 6 * m + passes
 
 
 @njit(cache=True, error_model="numpy")
@@ -64,13 +64,18 @@ def cholesky(M, n):
 
 
 @njit(cache=True, error_model="numpy")
-def cholesky_solve(L, n, x):
-    """``x ← M⁻¹ x`` from the factor of :func:`cholesky`: ``L y = x``, then ``Lᵀ x = y``."""
+def forward_substitution(L, n, x):
+    """``x ← L⁻¹ x`` for the lower-triangular factor of :func:`cholesky`."""
     for i in range(n):
         s = x[i]
         for k in range(i):
             s -= L[i, k] * x[k]
         x[i] = s / L[i, i]
+
+
+@njit(cache=True, error_model="numpy")
+def back_substitution(L, n, x):
+    """``x ← L⁻ᵀ x`` for the lower-triangular factor of :func:`cholesky`."""
     for i in range(n - 1, -1, -1):
         s = x[i]
         for k in range(i + 1, n):
@@ -79,48 +84,56 @@ def cholesky_solve(L, n, x):
 
 
 @njit(cache=True, error_model="numpy")
-def symmetric_eigen(G, V, w, m):
-    """Eigen-decomposition ``G = V diag(w) Vᵀ`` of the symmetric ``G (m, m)`` by cyclic Jacobi rotations
-    (Golub & Van Loan, *Matrix Computations*, 4th ed., Alg. 8.5.2 and 8.5.3). ``G`` is overwritten (its
-    diagonal ends as ``w``); ``V`` gets the orthonormal eigenvectors as columns."""
+def cholesky_solve(L, n, x):
+    """``x ← M⁻¹ x`` from the factor of :func:`cholesky`: ``L y = x``, then ``Lᵀ x = y``."""
+    forward_substitution(L, n, x)
+    back_substitution(L, n, x)
+
+
+@njit(cache=True, error_model="numpy")
+def orthogonalize_rows(B, U, sigma, m):
+    """``B = U diag(σ) Pᵀ`` for ``B (m, n)`` by one-sided Jacobi rotations of its rows (Hestenes; Golub
+    & Van Loan, *Matrix Computations*, 4th ed., §8.6.3): pairs of rows are rotated until all are
+    orthogonal, ``B ← Uᵀ B``. ``U (m, m)`` gets the left singular vectors as columns and ``sigma (m,)``
+    the singular values (the final row norms); ``B B ᵀ = U diag(σ²) Uᵀ`` without forming it."""
+    n = B.shape[1]
     for i in range(m):
         for j in range(m):
-            V[i, j] = 1.0 if i == j else 0.0
-    for sweep in range(100):
-        off, total = 0.0, 0.0
-        for i in range(m):
-            total += G[i, i] * G[i, i]
-            for j in range(i + 1, m):
-                off += 2.0 * G[i, j] * G[i, j]
-        if off <= 1e-32 * (total + off):
-            break
+            U[i, j] = 1.0 if i == j else 0.0
+    for sweep in range(60):
+        rotated = False
         for p in range(m - 1):
             for r in range(p + 1, m):
-                if G[p, r] == 0.0:
+                alpha, beta, gamma = 0.0, 0.0, 0.0
+                for c in range(n):
+                    alpha += B[p, c] * B[p, c]
+                    beta += B[r, c] * B[r, c]
+                    gamma += B[p, c] * B[r, c]
+                if gamma == 0.0 or abs(gamma) <= 1e-15 * math.sqrt(alpha * beta):
                     continue
-                # the rotation (c, s) that zeroes G_pr: τ = (G_rr − G_pp) / (2 G_pr), t = sign(τ)/(|τ| + √(1 + τ²))
-                tau = (G[r, r] - G[p, p]) / (2.0 * G[p, r])
-                t = 1.0 / (abs(tau) + math.sqrt(1.0 + tau * tau))
-                if tau < 0.0:
+                rotated = True
+                # the rotation (c, s) that makes rows p and r orthogonal: ζ = (β − α)/(2γ), t = sign(ζ)/(|ζ| + √(1 + ζ²))
+                zeta = (beta - alpha) / (2.0 * gamma)
+                t = 1.0 / (abs(zeta) + math.sqrt(1.0 + zeta * zeta))
+                if zeta < 0.0:
                     t = -t
-                c = 1.0 / math.sqrt(1.0 + t * t)
-                s = t * c
-                # G ← Jᵀ G J on rows and columns p and r
+                cos = 1.0 / math.sqrt(1.0 + t * t)
+                sin = t * cos
+                for c in range(n):
+                    b_p, b_r = B[p, c], B[r, c]
+                    B[p, c] = cos * b_p - sin * b_r
+                    B[r, c] = sin * b_p + cos * b_r
                 for k in range(m):
-                    g_kp, g_kr = G[k, p], G[k, r]
-                    G[k, p] = c * g_kp - s * g_kr
-                    G[k, r] = s * g_kp + c * g_kr
-                for k in range(m):
-                    g_pk, g_rk = G[p, k], G[r, k]
-                    G[p, k] = c * g_pk - s * g_rk
-                    G[r, k] = s * g_pk + c * g_rk
-                # V ← V J
-                for k in range(m):
-                    v_kp, v_kr = V[k, p], V[k, r]
-                    V[k, p] = c * v_kp - s * v_kr
-                    V[k, r] = s * v_kp + c * v_kr
+                    u_p, u_r = U[k, p], U[k, r]
+                    U[k, p] = cos * u_p - sin * u_r
+                    U[k, r] = sin * u_p + cos * u_r
+        if not rotated:
+            break
     for i in range(m):
-        w[i] = G[i, i]
+        s = 0.0
+        for c in range(n):
+            s += B[i, c] * B[i, c]
+        sigma[i] = math.sqrt(s)
 
 
 @njit(cache=True, error_model="numpy")
@@ -156,13 +169,17 @@ def constrained_accelerations(joints, reals, frames, q, v, tau, program, out, ws
     start += m
     Y = ws[start : start + m * nv].reshape((m, nv))  # rows: M⁻¹ A_iᵀ
     start += m * nv
-    G = ws[start : start + m * m].reshape((m, m))
-    start += m * m
+    W = ws[start : start + m * nv].reshape((m, nv))  # rows: L⁻¹ A_iᵀ, then rotated
+    start += m * nv
     V = ws[start : start + m * m].reshape((m, m))
     start += m * m
-    w = ws[start : start + m]
+    sigma = ws[start : start + m]
     start += m
     rhs = ws[start : start + m]
+    start += m
+    scale = ws[start : start + m]
+    start += m
+    coefficients = ws[start : start + m]
     start += m
     passes = ws[start:]
     row = out[0]
@@ -194,52 +211,41 @@ def constrained_accelerations(joints, reals, frames, q, v, tau, program, out, ws
     for c in range(nv):
         a_free[c] = (tau[c] if tau.shape[0] > 0 else 0.0) - h[0, c]
     cholesky_solve(M, nv, a_free)
-    # Y_i = M⁻¹ A_iᵀ ;  G = A M⁻¹ Aᵀ ;  rhs = γ − A a_free
+    # W_i = L⁻¹ A_iᵀ (rows of B = A L⁻ᵀ) ;  Y_i = L⁻ᵀ W_i = M⁻¹ A_iᵀ ;  rhs = γ − A a_free
     for i in range(m):
         for c in range(nv):
-            Y[i, c] = A[i, c]
-        cholesky_solve(M, nv, Y[i])
-    for i in range(m):
-        s = gamma[i]
+            W[i, c] = A[i, c]
+        forward_substitution(M, nv, W[i])
         for c in range(nv):
-            s -= A[i, c] * a_free[c]
-        rhs[i] = s
-        for j in range(i, m):
-            g = 0.0
-            for c in range(nv):
-                g += A[i, c] * Y[j, c]
-            G[i, j] = g
-            G[j, i] = g
-    # λ = V diag(w)⁺ Vᵀ rhs, keeping w > tolerance · max w
-    symmetric_eigen(G, V, w, m)
-    w_max = 0.0
+            Y[i, c] = W[i, c]
+        back_substitution(M, nv, Y[i])
     for i in range(m):
-        w_max = max(w_max, w[i])
+        A_a_free = 0.0
+        for c in range(nv):
+            A_a_free += A[i, c] * a_free[c]
+        rhs[i] = gamma[i] - A_a_free
+        scale[i] = max(abs(gamma[i]), abs(A_a_free), 1.0)
+    # G = A M⁻¹ Aᵀ = B Bᵀ = V diag(σ²) Vᵀ ;  λ = V diag(σ²)⁺ Vᵀ rhs, keeping σ > tolerance · max σ
+    orthogonalize_rows(W, V, sigma, m)
+    sigma_max = 0.0
+    for i in range(m):
+        sigma_max = max(sigma_max, sigma[i])
     rank = 0
-    for i in range(m):
-        if w[i] > rank_tolerance * w_max:
+    for j in range(m):
+        coefficients[j] = 0.0
+        if sigma[j] > rank_tolerance * sigma_max:
             rank += 1
-            coefficient = 0.0
-            for j in range(m):
-                coefficient += V[j, i] * rhs[j]
-            coefficient /= w[i]
-            for j in range(m):
-                lam[j] += V[j, i] * coefficient
-    if rank < m:
-        # the part of rhs outside the range of G cannot be met: G λ must reproduce rhs
-        scale = 1.0
-        for i in range(m):
-            scale = max(scale, abs(rhs[i]))
-        for i in range(m):
-            # G's rows, rebuilt from the eigen-decomposition (G itself was overwritten)
-            g_lam = 0.0
-            for j in range(m):
-                g_ij = 0.0
-                for k in range(m):
-                    g_ij += V[i, k] * w[k] * V[j, k]
-                g_lam += g_ij * lam[j]
-            if abs(rhs[i] - g_lam) > 1e-8 * scale:
-                row[status_column] = INCONSISTENT
+            for i in range(m):
+                coefficients[j] += V[i, j] * rhs[i]
+            for i in range(m):
+                lam[i] += V[i, j] * coefficients[j] / (sigma[j] * sigma[j])
+    # the part of rhs in the dropped directions cannot be met, judged against the terms that make it
+    for i in range(m):
+        met = 0.0
+        for j in range(m):
+            met += V[i, j] * coefficients[j]
+        if abs(rhs[i] - met) > 1e-8 * scale[i]:
+            row[status_column] = INCONSISTENT
     # a = a_free + M⁻¹ Aᵀ λ
     for c in range(nv):
         s = a_free[c]
