@@ -17,7 +17,7 @@ from functools import cached_property
 import numpy as np
 
 from . import driver, dynamics, kinematics, linalg, spatial
-from .kernels import constraints as compiled_rows
+from .constraints import CompiledRows, _frame_key, constraint_program
 from .kernels import aba, integration, kkt
 from .model import Model
 from .spatial import matvec
@@ -118,11 +118,6 @@ class _ModelAtState(ModelSystem):
         return value
 
 
-def _frame_key(model, body, placement):
-    b, X_BF = kinematics._frame_arguments(model, body, placement)
-    return b, X_BF.tobytes()
-
-
 def as_system(system):
     """The mechanical-system interface of a Model, a ConstrainedSystem, or a system that already has it."""
     if isinstance(system, Model):
@@ -184,9 +179,11 @@ class ConstrainedSystem:
         self._position_mask = np.concatenate(masks) if masks else np.zeros(0, dtype=bool)
         self._has_position = [bool(mask.any()) for mask in masks]
         self.row_names = [f"{c.name}[{k}]" for c, m in zip(self.constraints, self._rows) for k in range(m)]
-        # The body frames the constraints read, once each: a step computes them with M and h.
+        # The body frames that constraints evaluated in Python read, once each: the NumPy step computes
+        # them with M and h (compiled rows compute their own frames).
         frames = {} if not isinstance(self.system, ModelSystem) else {
-            _frame_key(self.system.model, *frame): frame for c in self.constraints for frame in c.body_frames}
+            _frame_key(self.system.model, *frame): frame for c in self.constraints
+            if not isinstance(c, CompiledRows) or c.moving for frame in c.body_frames}
         self._body_frames = list(frames.values())
 
     @cached_property
@@ -196,24 +193,15 @@ class ConstrainedSystem:
         the system is not a :class:`Model`."""
         if not self.num_rows or not isinstance(self.system, ModelSystem):
             return None
-        model = self.system.model
-        keys = [_frame_key(model, *frame) for frame in self._body_frames]
         if any(getattr(c, "moving", False) for c in self.constraints):
             return None
-        entries = [c.program_entry(model, lambda body, placement: keys.index(_frame_key(model, body, placement)))
-                   for c in self.constraints]
-        if any(entry is None for entry in entries):
-            return None
+        model = self.system.model
+        frames = list({_frame_key(model, *frame): frame for c in self.constraints for frame in c.body_frames}.values())
         alpha, beta = self.baumgarte or (0.0, 0.0)
-        program = np.zeros(compiled_rows.HEADER + compiled_rows.STRIDE * len(entries))
-        program[: compiled_rows.HEADER] = (len(entries), self.num_rows, alpha, beta, self.rank_tolerance)
-        first_row = 0
-        for k, ((kind, parameters, frame_a, frame_b), rows) in enumerate(zip(entries, self._rows)):
-            start = compiled_rows.HEADER + k * compiled_rows.STRIDE
-            program[start : start + compiled_rows.PARAMETERS] = (kind, first_row, rows, frame_a, frame_b)
-            program[start + compiled_rows.PARAMETERS : start + compiled_rows.PARAMETERS + len(parameters)] = parameters
-            first_row += rows
-        frames = frame_rows(model, [kinematics._frame_arguments(model, *frame) for frame in self._body_frames])
+        program = constraint_program(model, self.constraints, frames, (alpha, beta), self.rank_tolerance)
+        if program is None:
+            return None
+        frames = frame_rows(model, [kinematics._frame_arguments(model, *frame) for frame in frames])
         workspace = kkt.workspace_size(model.njoints, self.nv, len(frames), self.num_rows)
         return program, frames, workspace
 
@@ -256,7 +244,7 @@ class ConstrainedSystem:
             step_columns = kkt.output_columns(self.nv, self.num_rows)
         else:
             return None
-        return program, frames, integration.workspace_size(model.njoints, self.nq, self.nv, step_workspace, step_columns)
+        return program, frames, integration.workspace_size(self.nq, self.nv, step_workspace, step_columns)
 
     def _chart_derivative(self, q_chart, y, tau):
         """``ẏ (2 nv,)`` of the chart state ``y = [δ, w]`` around ``q_chart`` with constant joint forces

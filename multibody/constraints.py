@@ -136,6 +136,34 @@ class Constraint:
         return f"{type(self).__name__}({self.name!r})"
 
 
+def constraint_program(model, constraints, frames, baumgarte=(0.0, 0.0), rank_tolerance=0.0):
+    """The program of ``constraints`` for :mod:`multibody.kernels.constraints` (its layout is there): each
+    constraint's :meth:`~Constraint.program_entry`, its rows numbered in order, its frames indexed in
+    ``frames`` (``(body, placement)`` pairs, matched by body and pose). ``None`` when a constraint has no
+    compiled rows."""
+    keys = [_frame_key(model, *frame) for frame in frames]
+    entries = [c.program_entry(model, lambda body, placement: keys.index(_frame_key(model, body, placement)))
+               for c in constraints]
+    if any(entry is None for entry in entries):
+        return None
+    rows = [c.rows(model) for c in constraints]
+    program = np.zeros(compiled.HEADER + compiled.STRIDE * len(entries))
+    program[: compiled.HEADER] = (len(entries), sum(rows), *baumgarte, rank_tolerance)
+    first_row = 0
+    for k, ((kind, parameters, frame_a, frame_b), m) in enumerate(zip(entries, rows)):
+        start = compiled.HEADER + k * compiled.STRIDE
+        program[start : start + compiled.PARAMETERS] = (kind, first_row, m, frame_a, frame_b)
+        program[start + compiled.PARAMETERS : start + compiled.PARAMETERS + len(parameters)] = parameters
+        first_row += m
+    return program
+
+
+def _frame_key(model, body, placement):
+    """A frame as ``(body index or None, pose bytes)``: equal for the same frame given by other objects."""
+    b, X_BF = kinematics._frame_arguments(model, body, placement)
+    return b, X_BF.tobytes()
+
+
 class CompiledRows(Constraint):
     """A built-in constraint whose rows are compiled (:mod:`multibody.kernels.constraints`): ``φ``, ``A`` and
     ``γ`` come from one kernel, for one state or a batch, and a constrained step evaluates them inside
@@ -154,14 +182,8 @@ class CompiledRows(Constraint):
         """``(A (..., m, nv), b (..., m), γ (..., m), φ (..., m))`` at ``(q, v, t)`` (``v`` ``None``: zero)."""
         model = _require_model(system, self)
         frames = self.body_frames
-        entry = self.program_entry(model, lambda body, placement: next(
-            k for k, (b, X) in enumerate(frames) if b is body and X is placement))
-        kind, parameters, frame_a, frame_b = entry
         m = self.rows(model)
-        program = np.zeros(compiled.HEADER + compiled.STRIDE)
-        program[: compiled.HEADER] = (1, m, 0.0, 0.0, 0.0)
-        program[compiled.HEADER : compiled.HEADER + compiled.PARAMETERS] = (kind, 0, m, frame_a, frame_b)
-        program[compiled.HEADER + compiled.PARAMETERS : compiled.HEADER + compiled.PARAMETERS + len(parameters)] = parameters
+        program = constraint_program(model, [self], frames)
         q = model.check_configuration(q)
         v = None if v is None else model.check_velocity(v)
         batch = q.shape[:-1] if v is None else spatial.batch_shape(q.shape[:-1], v.shape[:-1])

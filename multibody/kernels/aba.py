@@ -214,8 +214,8 @@ def factor_joint(kind, axis, nv, IA, i, U, D, D_inv, U_D_inv):
     if nv == 1:
         # one coordinate (revolute, prismatic): D is a scalar
         s = kinds.subspace_column(kind, axis, 0)
-        # S is an axis in the angular (revolute) or linear (prismatic) rows: U = I^A S reads three columns
-        U_0 = block_times(IA, i, 3 if kind == kinds.REVOLUTE else 0, axis)
+        # S is the axis in three rows: U = I^A S reads three columns
+        U_0 = block_times(IA, i, kinds.axis_rows(kind), axis)
         D_0 = dot6(s, U_0)
         d_inv = 1.0 / D_0 if D_0 > 0.0 else math.nan
         UD_0 = scale6(d_inv, U_0)

@@ -23,7 +23,7 @@ def output_columns(nv):
     return 2 * nv + 1
 
 
-def workspace_size(nj, nq, nv, step_workspace, step_columns):
+def workspace_size(nq, nv, step_workspace, step_columns):
     """Floats of workspace: ``q``, ``v``, ``T``, ``κ``, the step's output row and its workspace."""
     return nq + 2 * nv + nv * nv + step_columns + step_workspace
 
