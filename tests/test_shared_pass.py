@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 import multibody as mb
+from multibody.constraints import CompiledRows
 from multibody import dynamics, kinematics, linalg
 from multibody.constrained import _ModelAtState
 from multibody.spatial import pose_from_xyz_rpy
@@ -105,16 +106,22 @@ def _every_body_constraint(model):
             mb.LoopClosure(b, None, kind="revolute", frame_a=pose_from_xyz_rpy([0, 0, 0.1], [0.2, 0, 0])),
             mb.PointOnSurface(a, lambda x: x[..., 2] - 0.3, point=[0.0, 0.1, 0.0]),
             mb.RollingSphere(model.body_names[1], 0.1, plane_normal=(0.1, 0.0, 1.0)),
-            mb.KnifeEdge(b, point=[0.0, 0.0, 0.05])]
+            mb.KnifeEdge(b, point=[0.0, 0.0, 0.05]),
+            mb.RollingSphere(model.body_names[1], 0.1, surface_velocity=lambda x, t: np.array([0.1, 0.0, 0.0]))]
 
 
-@pytest.mark.parametrize("index", range(5), ids=["distance", "loop", "surface", "sphere", "knife"])
+@pytest.mark.parametrize("index", range(6), ids=["distance", "loop", "surface", "sphere", "knife", "moving sphere"])
 def test_constrained_step_with_shared_frames_equals_separate_passes(tree, index):
-    """The KKT step that reads the frames from the shared pass gives the same a, λ and rows as the
-    constraints evaluated on their own, and every frame a constraint reads is one it declares."""
+    """The KKT step gives the same a, λ and rows as the constraints evaluated on their own: a compiled
+    step for constraints with compiled rows (which compute their frames themselves), the NumPy step
+    reading frames from the shared pass for those evaluated in Python, where every frame a constraint
+    reads is one it declares."""
     constraint = _every_body_constraint(tree)[index]
     system = mb.ConstrainedSystem(tree, [constraint])
-    assert system._body_frames  # the shared path is taken
+    if isinstance(constraint, CompiledRows) and not constraint.moving:
+        assert system._compiled_step is not None and not system._body_frames
+    else:
+        assert system._compiled_step is None and system._body_frames  # the shared path is taken
     rng = np.random.default_rng(5 + index)
     q, v = tree.random_configuration(rng), rng.standard_normal(tree.nv)
     solution = system.solve(q, v)
