@@ -39,7 +39,7 @@ ROBOTS = {
     "solo12": ("solo_description/robots/solo12.urdf", True, "FL_FOOT"),
     "talos_reduced": ("talos_data/robots/talos_reduced.urdf", True, "arm_left_7_link"),
 }
-ALGORITHMS = ("rnea", "crba", "aba", "coriolis", "bias", "jacobian")
+ALGORITHMS = ("rnea", "crba", "aba", "coriolis", "bias", "jacobian", "rnea_derivatives", "aba_derivatives")
 
 
 def example_robot_data():
@@ -81,6 +81,8 @@ def ours(model, algorithm, q, v, a, body):
         "coriolis": lambda: mb.coriolis_matrix(model, q, v),
         "bias": lambda: mb.bias_forces(model, q, v),
         "jacobian": lambda: mb.jacobian(model, q, body),
+        "rnea_derivatives": lambda: mb.inverse_dynamics_derivatives(model, q, v, a),
+        "aba_derivatives": lambda: mb.forward_dynamics_derivatives(model, q, v, a),
     }[algorithm]
 
 
@@ -95,6 +97,8 @@ def theirs(pin, model, data, algorithm, q, v, a, frame):
         "coriolis": lambda: pin.computeCoriolisMatrix(model, data, q, v),
         "bias": lambda: pin.nonLinearEffects(model, data, q, v),
         "jacobian": jacobian,
+        "rnea_derivatives": lambda: pin.computeRNEADerivatives(model, data, q, v, a),
+        "aba_derivatives": lambda: pin.computeABADerivatives(model, data, q, v, a),
     }[algorithm]
 
 

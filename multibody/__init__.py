@@ -17,6 +17,7 @@ from .constraints import (
     PointOnSurface,
     mimic_constraints,
 )
+from .derivatives import forward_dynamics_derivatives, gravity_derivatives, inverse_dynamics_derivatives
 from .dynamics import (
     bias_forces,
     coriolis_matrix,
@@ -32,12 +33,23 @@ from .dynamics import (
 from .inertia import Inertia
 from .kinematics import (
     forward_kinematics,
+    frame_placement,
+    frame_velocity,
     jacobian,
     jacobian_time_variation,
     point_acceleration,
     point_velocity,
 )
 from .model import Geometry, Mimic, Model, ModelBuilder
+from .robotics import (
+    center_of_mass,
+    center_of_mass_acceleration,
+    center_of_mass_jacobian,
+    center_of_mass_velocity,
+    centroidal_momentum,
+    centroidal_momentum_matrix,
+    centroidal_momentum_matrix_derivative,
+)
 from .rolling import KnifeEdge, RollingDisc, RollingSphere
 from .simulation import SimulationError, Trajectory, simulate
 
@@ -49,6 +61,11 @@ def __getattr__(name):
 
         symbolic = importlib.import_module("multibody.symbolic")
         return symbolic if name == "symbolic" else getattr(symbolic, name)
+    # Figures (and matplotlib with them) likewise.
+    if name == "plotting":
+        import importlib
+
+        return importlib.import_module("multibody.plotting")
     raise AttributeError(f"module 'multibody' has no attribute {name!r}")
 from .urdf import URDFError, load_urdf
 
@@ -76,6 +93,9 @@ __all__ = [
     "bias_forces",
     "coriolis_matrix",
     "forward_dynamics",
+    "forward_dynamics_derivatives",
+    "gravity_derivatives",
+    "inverse_dynamics_derivatives",
     "generalized_gravity",
     "inverse_dynamics",
     "inverse_mass_matrix",
@@ -90,6 +110,15 @@ __all__ = [
     "ModelBuilder",
     "URDFError",
     "forward_kinematics",
+    "frame_placement",
+    "frame_velocity",
+    "center_of_mass",
+    "center_of_mass_acceleration",
+    "center_of_mass_jacobian",
+    "center_of_mass_velocity",
+    "centroidal_momentum",
+    "centroidal_momentum_matrix",
+    "centroidal_momentum_matrix_derivative",
     "get_num_threads",
     "set_num_threads",
     "generalized_forces",

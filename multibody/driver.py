@@ -22,7 +22,8 @@ import numba
 import numpy as np
 from numba import njit, prange
 
-from .kernels import aba, configuration, constraints, coriolis, crba, energy, integration, kinematics, kkt, rnea
+from .kernels import (aba, centroidal, configuration, constraints, coriolis, crba, derivatives, energy, integration,
+                      kinematics, kkt, rnea)
 
 # Each kernel's code in the parallel loop and its workspace size.
 _CODES = {kernel: code for code, kernel in enumerate((
@@ -32,10 +33,13 @@ _CODES = {kernel: code for code, kernel in enumerate((
     kinematics.frame_motions, configuration.integrate, configuration.difference, configuration.configuration_rate,
     configuration.chart, configuration.chart_rate, configuration.velocity_alignment, configuration.velocity_coupling,
     configuration.chart_magnitude, configuration.normalize, kkt.constrained_accelerations,
-    constraints.constraint_levels, integration.chart_derivative))}
+    constraints.constraint_levels, integration.chart_derivative, derivatives.inverse_dynamics_derivatives,
+    derivatives.forward_dynamics_derivatives, centroidal.center_of_mass, centroidal.centroidal_momentum,
+    centroidal.centroidal_map, centroidal.centroidal_map_time_variation))}
 #: The marker of each kernel for the batch loop: an array whose number of dimensions is the code plus one.
 _MARKERS = {kernel: np.zeros((1,) * (code + 1)) for kernel, code in _CODES.items()}
-_WORKSPACE = {kernel: module.workspace_size for module in (rnea, crba, aba, coriolis, energy, kinematics, configuration)
+_WORKSPACE = {kernel: module.workspace_size for module in (rnea, crba, aba, coriolis, energy, kinematics, configuration,
+                                                           derivatives, centroidal)
               for kernel in _CODES if getattr(kernel, "py_func", kernel).__module__ == module.__name__}
 
 
@@ -116,6 +120,18 @@ def _kernel(marker, joints, reals, frames, x0, x1, x2, x3, out, ws):
         constraints.constraint_levels(joints, reals, frames, x0, x1, x2, x3, out, ws)
     elif code == 24:
         integration.chart_derivative(joints, reals, frames, x0, x1, x2, x3, out, ws)
+    elif code == 25:
+        derivatives.inverse_dynamics_derivatives(joints, reals, frames, x0, x1, x2, x3, out, ws)
+    elif code == 26:
+        derivatives.forward_dynamics_derivatives(joints, reals, frames, x0, x1, x2, x3, out, ws)
+    elif code == 27:
+        centroidal.center_of_mass(joints, reals, frames, x0, x1, x2, x3, out, ws)
+    elif code == 28:
+        centroidal.centroidal_momentum(joints, reals, frames, x0, x1, x2, x3, out, ws)
+    elif code == 29:
+        centroidal.centroidal_map(joints, reals, frames, x0, x1, x2, x3, out, ws)
+    elif code == 30:
+        centroidal.centroidal_map_time_variation(joints, reals, frames, x0, x1, x2, x3, out, ws)
 
 
 @njit(cache=True, parallel=True, error_model="numpy")

@@ -230,8 +230,9 @@ def _require_nonsingular(model, inputs, result):
     """``result``, or ``LinAlgError`` when it is not finite at a finite state (a NaN input, already warned
     about, just propagates): the mass matrix is singular. The error names the first joint whose subtree
     carries no inertia at all, the usual cause."""
-    # A non-finite entry makes the sum non-finite (and a finite sum needs no further look).
-    if math.isfinite(sum(result.reshape(-1).tolist())) or np.isfinite(result).all() \
+    # A non-finite entry makes the sum non-finite (and a finite sum needs no further look); summing a
+    # short list is quicker than NumPy's call overhead, a long one slower.
+    if (result.size <= 256 and math.isfinite(sum(result.reshape(-1).tolist()))) or np.isfinite(result).all() \
             or not all(np.isfinite(x).all() for x in inputs if x is not None):
         return result
     for i in range(model.njoints):

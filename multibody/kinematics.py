@@ -2,8 +2,25 @@
 
 Each function validates its inputs and hands them to a compiled kernel of
 :mod:`multibody.kernels.kinematics` through the batch driver. Naming: ``R_WJ, p_WJ`` is the pose of
-joint frame J in the world W. Velocities of a point are *world-aligned*: world axes, taken at the
-point (Pinocchio's ``LOCAL_WORLD_ALIGNED``).
+joint frame J in the world W.
+
+A body's frame F, or with ``point`` the frame at that point with the body's axes (Pinocchio's frame
+with that placement), has its velocity and Jacobian in one of Pinocchio's three references
+(``reference``, rows always ``[linear; angular]``):
+
+=========================  ===========================================================================
+``reference``              velocity ``J v``
+=========================  ===========================================================================
+``"local_world_aligned"``  ``[ẋ; ω]``: the velocity of F's origin and the angular velocity, world axes
+                           (the default; Pinocchio's ``LOCAL_WORLD_ALIGNED``)
+``"world"``                the body's spatial velocity in world Plücker coordinates, ``[ẋ − ω × x; ω]``:
+                           the velocity of the body point at the world origin (``WORLD``)
+``"local"``                ``[R_WFᵀ ẋ; R_WFᵀ ω]``: both in F's axes (``LOCAL``)
+=========================  ===========================================================================
+
+``J̇`` is the time derivative of the Jacobian in the same reference (Pinocchio's
+``getFrameJacobianTimeVariation``), so ``J a + J̇ v`` is the derivative of the velocity: the classical
+acceleration ``[ẍ; ω̇]`` world-aligned, the spatial acceleration in the other two.
 """
 
 from __future__ import annotations
@@ -59,29 +76,59 @@ def _body_frame(model, body):
     return model.tree.bodies[b : b + 1]
 
 
-def jacobian(model, q, body, point=None):
-    """World-aligned Jacobian of a body point: ``(..., 6, nv)``, rows ``[linear; angular]``.
+#: The kernels' code of each ``reference`` (module docstring), as the one-entry vector they read
+_REFERENCES = {"world": kernels.WORLD, "local": kernels.LOCAL, "local_world_aligned": kernels.LOCAL_WORLD_ALIGNED}
+_REFERENCE_VECTORS = {name: np.array([float(code)]) for name, code in _REFERENCES.items()}
 
-    ``[ẋ; ω] = J(q) v`` where ``x`` is ``point`` (body-frame coordinates, m; default the body
-    origin) and both rows are in world axes. ``body`` is a name from ``model.body_names`` or an index.
-    Pinocchio counterpart: ``getFrameJacobian(..., LOCAL_WORLD_ALIGNED)``.
+
+def _reference(reference):
+    """The kernels' vector of a ``reference`` name; ``ValueError`` lists the names."""
+    try:
+        return _REFERENCE_VECTORS[reference]
+    except (KeyError, TypeError):
+        raise ValueError(f"reference must be one of {', '.join(map(repr, _REFERENCES))}, got {reference!r}") from None
+
+
+def frame_placement(model, q, name):
+    """World placement of one body's frame: ``(..., 4, 4)`` homogeneous ``X_WF`` (rotation, then
+    position in m).
+
+    ``name`` is any URDF link in ``model.body_names`` (links attached by fixed joints included, and
+    links fixed to the world), or its index. Computes that frame only; :func:`forward_kinematics`
+    gives every body at once. Pinocchio counterpart: ``updateFramePlacements`` + ``data.oMf``.
+    """
+    q, rows = model.check_configuration(q), _body_frame(model, name)
+    return _placements(model, q, rows, q.shape[:-1])[..., 0, :, :]
+
+
+def jacobian(model, q, body, point=None, reference="local_world_aligned"):
+    """Jacobian of a body's frame: ``(..., 6, nv)``, rows ``[linear; angular]`` in ``reference``
+    (module docstring): ``J(q) v`` is the frame's velocity.
+
+    ``body`` is a name from ``model.body_names`` or an index; ``point (..., 3)`` (body-frame
+    coordinates, m; default the body origin) places the frame at that point with the body's axes.
+    With the default ``reference="local_world_aligned"``, ``[ẋ; ω] = J v`` in world axes.
+    Pinocchio counterpart: ``getFrameJacobian`` with ``LOCAL_WORLD_ALIGNED``, ``WORLD`` or ``LOCAL``.
     """
     q, rows, point = model.check_configuration(q), _body_frame(model, body), _point(point)
     batch = q.shape[:-1] if point is None else spatial.batch_shape(q.shape[:-1], point.shape[:-1])
-    return driver.evaluate(kernels.frame_jacobian, model.tree, (q, point), (6, model.nv), batch, rows)
+    return driver.evaluate(kernels.frame_jacobian, model.tree, (q, point, _reference(reference)), (6, model.nv),
+                           batch, rows)
 
 
-def jacobian_time_variation(model, q, v, body, point=None):
-    """Time derivative ``J̇(q, v)`` of :func:`jacobian` along the motion: ``(..., 6, nv)``.
+def jacobian_time_variation(model, q, v, body, point=None, reference="local_world_aligned"):
+    """Time derivative ``J̇(q, v)`` of :func:`jacobian`, in the same ``reference``, along the motion:
+    ``(..., 6, nv)``.
 
-    Together with the Jacobian, ``J a + J̇ v`` is the point's classical acceleration.
-    Pinocchio counterpart: ``getFrameJacobianTimeVariation(..., LOCAL_WORLD_ALIGNED)``.
+    ``J a + J̇ v`` is the time derivative of the frame's velocity ``J v``: the classical acceleration
+    ``[ẍ; ω̇]`` for ``"local_world_aligned"``, the spatial acceleration for ``"world"`` and ``"local"``.
+    Pinocchio counterpart: ``getFrameJacobianTimeVariation`` with the same reference.
     """
     q, v = model.check_configuration(q), model.check_velocity(v)
     rows, point = _body_frame(model, body), _point(point)
     shapes = (q.shape[:-1], v.shape[:-1]) + (() if point is None else (point.shape[:-1],))
-    return driver.evaluate(kernels.frame_jacobian_time_variation, model.tree, (q, v, point), (6, model.nv),
-                           spatial.batch_shape(*shapes), rows)
+    return driver.evaluate(kernels.frame_jacobian_time_variation, model.tree, (q, v, point, _reference(reference)),
+                           (6, model.nv), spatial.batch_shape(*shapes), rows)
 
 
 def _frame_arguments(model, body, placement):
@@ -118,16 +165,36 @@ def frame_kinematics(model, q, v, body, placement=None):
                          spatial.batch_shape(q.shape[:-1], v.shape[:-1]))[0]
 
 
-def point_velocity(model, q, v, body, point=None):
-    """``[ẋ; ω]`` of a body point in world axes (m/s, rad/s): ``J v``. ``-> (..., 6)``."""
-    return matvec(jacobian(model, q, body, point), model.check_velocity(v))
+def point_velocity(model, q, v, body, point=None, reference="local_world_aligned"):
+    """Velocity ``J v`` of a body's frame at ``point`` in ``reference`` (module docstring): ``(..., 6)``,
+    m/s and rad/s. By default ``[ẋ; ω]`` in world axes.
+
+    Pinocchio counterpart: ``getFrameVelocity`` with the same reference.
+    """
+    return matvec(jacobian(model, q, body, point, reference), model.check_velocity(v))
 
 
-def point_acceleration(model, q, v, a, body, point=None):
-    """``[ẍ; ω̇]`` of a body point in world axes (m/s², rad/s²): ``J a + J̇ v``. ``-> (..., 6)``.
+def frame_velocity(model, q, v, name, reference="local_world_aligned"):
+    """Velocity ``[linear; angular]`` of the frame of the body ``name`` in ``reference`` (module docstring):
+    ``(..., 6)``, m/s and rad/s; :func:`point_velocity` at the frame's origin.
 
-    ``ẍ`` is the classical (not spatial) acceleration. With ``a = 0`` this is the velocity-product
-    term ``J̇ v`` that acceleration-level constraints need.
+    Pinocchio counterpart: ``getFrameVelocity(model, data, frame_id, reference)``.
+    """
+    return point_velocity(model, q, v, name, None, reference)
+
+
+def point_acceleration(model, q, v, a, body, point=None, reference="local_world_aligned"):
+    """``J a + J̇ v`` of a body's frame at ``point`` in ``reference``: ``(..., 6)``, m/s² and rad/s²; the
+    time derivative of :func:`point_velocity`.
+
+    * ``"local_world_aligned"`` (default): ``[ẍ; ω̇]`` in world axes, ``ẍ`` the classical (not spatial)
+      acceleration; Pinocchio's ``getFrameClassicalAcceleration(..., LOCAL_WORLD_ALIGNED)``.
+    * ``"world"``: the spatial acceleration in world Plücker coordinates; ``getFrameAcceleration(...,
+      WORLD)``.
+    * ``"local"``: the spatial acceleration in the frame's axes; ``getFrameAcceleration(..., LOCAL)``.
+
+    With ``a = 0`` this is the velocity-product term ``J̇ v`` that acceleration-level constraints need.
     """
     a = model.check_velocity(a, "a")
-    return matvec(jacobian(model, q, body, point), a) + matvec(jacobian_time_variation(model, q, v, body, point), v)
+    return (matvec(jacobian(model, q, body, point, reference), a)
+            + matvec(jacobian_time_variation(model, q, v, body, point, reference), v))

@@ -160,3 +160,27 @@ def dynamics_calls(model):
         calls["coriolis_matrix[lagrangian]"] = lambda q, v, a, f: mb.coriolis_matrix(model, q, v, method="lagrangian")
         calls["mass_matrix_derivative"] = lambda q, v, a, f: mass_matrix_derivative(model, q)
     return calls
+
+
+def central_differences(f, model, q, rel_step=1e-6):
+    """``∂f(q ⊕ δq)/∂δq`` at ``δq = 0`` by central differences in the tangent space: ``(m, nv)`` for
+    ``f(q) -> (m,)``. The step of coordinate k is ``rel_step · max(1, |q|)`` (the scale of the
+    configuration, so that positions far from the origin keep their digits)."""
+    h = rel_step * max(1.0, float(np.abs(q).max()))
+    columns = []
+    for k in range(model.nv):
+        step = np.zeros(model.nv)
+        step[k] = h
+        columns.append((np.asarray(f(model.integrate(q, step))) - np.asarray(f(model.integrate(q, -step)))) / (2 * h))
+    return np.stack(columns, axis=-1)
+
+
+def central_differences_vector(f, x, rel_step=1e-6):
+    """``∂f/∂x`` of ``f(x (n,)) -> (m,)`` by central differences: ``(m, n)``; step ``rel_step · max(1, |x|)``."""
+    h = rel_step * max(1.0, float(np.abs(x).max()))
+    columns = []
+    for k in range(x.shape[-1]):
+        step = np.zeros_like(x)
+        step[k] = h
+        columns.append((np.asarray(f(x + step)) - np.asarray(f(x - step))) / (2 * h))
+    return np.stack(columns, axis=-1)

@@ -41,6 +41,14 @@ FUNCTIONS = {
     "integrate": (lambda q, v: MODEL.integrate(q, v), ("q", "v")),
     "difference": (lambda q, q1: MODEL.difference(q, q1), ("q", "q1")),
     "configuration_rate": (lambda q, v: MODEL.configuration_rate(q, v), ("q", "v")),
+    # the derivatives' tuples stacked on an axis after the batch axes
+    "inverse_dynamics_derivatives": (
+        lambda q, v, a, f_ext: np.stack(mb.inverse_dynamics_derivatives(MODEL, q, v, a, f_ext=f_ext), axis=-3),
+        ("q", "v", "a", "f_ext")),
+    "forward_dynamics_derivatives": (
+        lambda q, v, tau, f_ext: np.stack(mb.forward_dynamics_derivatives(MODEL, q, v, tau, f_ext=f_ext), axis=-3),
+        ("q", "v", "tau", "f_ext")),
+    "gravity_derivatives": (lambda q: mb.gravity_derivatives(MODEL, q), ("q",)),
 }
 
 FORMS = ["list", "integer", "strided", "fortran", "read-only", "float32", "unbatched"]

@@ -152,6 +152,15 @@ class Case:
                     r = pin.aba(pm, data, q, v, tau)
                 elif what == "aba_fext":
                     r = pin.aba(pm, data, q, v, tau, self.pin_forces(k))
+                elif what in ("rnea_derivatives", "rnea_derivatives_fext"):
+                    forces = (self.pin_forces(k),) if what.endswith("fext") else ()
+                    r = np.stack(pin.computeRNEADerivatives(pm, data, q, v, a, *forces)[:2])
+                elif what in ("aba_derivatives", "aba_derivatives_fext"):
+                    forces = (self.pin_forces(k),) if what.endswith("fext") else ()
+                    dq, dv, dtau = pin.computeABADerivatives(pm, data, q, v, tau, *forces)
+                    r = np.stack([dq, dv, _symmetrised(dtau)])
+                elif what == "gravity_derivatives":
+                    r = pin.computeGeneralizedGravityDerivatives(pm, data, q)
                 elif what == "T":
                     r = pin.computeKineticEnergy(pm, data, q, v)
                 elif what == "U":
@@ -299,3 +308,40 @@ def test_potential_energy(name, floating):
     U = mb.potential_energy(case.model, case.q)
     assert U.shape == (N_STATES,)
     assert_rel(U, case.ref("U"), TOL, "potential_energy")
+
+
+# ----------------------------------------------------------------------------- derivatives
+
+@pytest.mark.parametrize("with_fext", [False, True], ids=["no_fext", "fext"])
+@pytest.mark.parametrize("name, floating", ALL)
+def test_inverse_dynamics_derivatives(name, floating, with_fext):
+    """``(∂τ/∂q, ∂τ/∂v)`` in the tangent space equal Pinocchio's ``computeRNEADerivatives``."""
+    case = get_case(name, floating)
+    f_ext = case.f_ext if with_fext else None
+    dtau_dq, dtau_dv = mb.inverse_dynamics_derivatives(case.model, case.q, case.v, case.a, f_ext=f_ext)
+    ref = case.ref("rnea_derivatives_fext" if with_fext else "rnea_derivatives")
+    assert dtau_dq.shape == dtau_dv.shape == (N_STATES, case.model.nv, case.model.nv)
+    assert_rel(dtau_dq, ref[:, 0], TOL, "dtau_dq")
+    assert_rel(dtau_dv, ref[:, 1], TOL, "dtau_dv")
+
+
+@pytest.mark.parametrize("with_fext", [False, True], ids=["no_fext", "fext"])
+@pytest.mark.parametrize("name, floating", INVERTIBLE)
+def test_forward_dynamics_derivatives(name, floating, with_fext):
+    """``(∂a/∂q, ∂a/∂v, ∂a/∂τ)`` equal Pinocchio's ``computeABADerivatives``."""
+    case = get_case(name, floating)
+    f_ext = case.f_ext if with_fext else None
+    da = mb.forward_dynamics_derivatives(case.model, case.q, case.v, case.tau, f_ext=f_ext)
+    ref = case.ref("aba_derivatives_fext" if with_fext else "aba_derivatives")
+    for k, what in enumerate(("da_dq", "da_dv", "da_dtau")):
+        assert da[k].shape == (N_STATES, case.model.nv, case.model.nv)
+        assert_rel(da[k], ref[:, k], TOL, what)
+
+
+@pytest.mark.parametrize("name, floating", ALL)
+def test_gravity_derivatives(name, floating):
+    """``∂g/∂q`` equals Pinocchio's ``computeGeneralizedGravityDerivatives``."""
+    case = get_case(name, floating)
+    dg_dq = mb.gravity_derivatives(case.model, case.q)
+    assert dg_dq.shape == (N_STATES, case.model.nv, case.model.nv)
+    assert_rel(dg_dq, case.ref("gravity_derivatives"), TOL, "dg_dq")

@@ -74,3 +74,73 @@ def mass_matrix(joints, reals, frames, q, x1, x2, x3, out, ws):
                     out[iv_j + m, col] = h
                     out[col, iv_j + m] = h
     nan_unless_finite(q, x1, x2, x3, out)
+
+
+# ----------------------------------------------------------------------------- sparse factorization
+
+@njit(cache=True, error_model="numpy")
+def coordinate_parents(joints, parent):
+    """``λ(k)`` of each velocity coordinate into ``parent (nv,)`` (RBDA §6.5): the coordinate before k in
+    its joint, else the last coordinate of the parent joint, ``-1`` at a root. ``M_ij`` can be non-zero
+    only where one of i and j is an ancestor (by ``λ``) of the other."""
+    for i in range(joints.shape[0]):
+        iv, p = joints[i, IV], joints[i, PARENT]
+        parent[iv] = joints[p, IV] + joints[p, NV] - 1 if p >= 0 else -1
+        for k in range(1, joints[i, NV]):
+            parent[iv + k] = iv + k - 1
+
+
+@njit(cache=True, error_model="numpy")
+def factor_ltl(H, parent):
+    """``H = Lᵀ L`` in place (RBDA Table 6.3, the LTL factorization): ``L`` lower triangular with the
+    sparsity of ``λ`` (``parent`` of :func:`coordinate_parents`), so that the tree's branches cause no
+    fill-in. ``L`` overwrites the lower triangle where ``λ`` allows; other entries are left as they were.
+    Returns False, leaving ``H`` partly factored, when ``H`` is not positive definite."""
+    for k in range(H.shape[0] - 1, -1, -1):
+        if not H[k, k] > 0.0:
+            return False
+        # L_kk = √H_kk ;  L_ki = H_ki / L_kk for the ancestors i of k
+        H[k, k] = H[k, k] ** 0.5
+        i = parent[k]
+        while i >= 0:
+            H[k, i] /= H[k, k]
+            i = parent[i]
+        # H_ij −= L_ki L_kj for the ancestors j ⪯ i of k
+        i = parent[k]
+        while i >= 0:
+            j = i
+            while j >= 0:
+                H[i, j] -= H[k, i] * H[k, j]
+                j = parent[j]
+            i = parent[i]
+    return True
+
+
+@njit(cache=True, error_model="numpy")
+def solve_ltl(L, parent, X):
+    """``X ← H⁻¹ X`` for ``X (nv, k)`` from the factor of :func:`factor_ltl` (RBDA §6.5): ``Lᵀ Y = X``
+    from the leaves to the root, then ``L X = Y`` from the root to the leaves, one row operation per
+    non-zero of ``L``."""
+    n, columns = X.shape[0], X.shape[1]
+    for k in range(n - 1, -1, -1):
+        # y_k = x_k / L_kk ;  x_i −= L_ki y_k for the ancestors i of k
+        pivot = L[k, k]
+        for c in range(columns):
+            X[k, c] /= pivot
+        i = parent[k]
+        while i >= 0:
+            factor = L[k, i]
+            for c in range(columns):
+                X[i, c] -= factor * X[k, c]
+            i = parent[i]
+    for k in range(n):
+        # x_k = (y_k − Σ_{j ancestor of k} L_kj x_j) / L_kk
+        j = parent[k]
+        while j >= 0:
+            factor = L[k, j]
+            for c in range(columns):
+                X[k, c] -= factor * X[j, c]
+            j = parent[j]
+        pivot = L[k, k]
+        for c in range(columns):
+            X[k, c] /= pivot

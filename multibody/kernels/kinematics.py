@@ -12,9 +12,22 @@ A frame row (:mod:`multibody.tree`) is ``[joint, R_JF (9), p_JF (3)]``: a frame 
 moved by ``joint`` with its pose ``X_JF`` in that joint's frame, or, for ``joint = -1``, a frame fixed
 in the world with its world pose. Its world pose is ``X_WF = X_WJ X_JF``.
 
-Jacobians have rows ``[linear; angular]`` in world axes, the linear rows the velocity of the frame's
-point (``LOCAL_WORLD_ALIGNED``), and one column per velocity coordinate (zero for coordinates that do
-not move the frame).
+Jacobians have rows ``[linear; angular]`` and one column per velocity coordinate (zero for coordinates
+that do not move the frame), in one of Pinocchio's three references (``ReferenceFrame``), given to the
+kernels as a vector of one code (length 0: the first):
+
+=======================  ============================================================================
+code                     rows of ``J v``
+=======================  ============================================================================
+``LOCAL_WORLD_ALIGNED``  ``[ẋ; ω]``: the velocity of the frame's point and the angular velocity, world
+                         axes
+``WORLD``                the body's spatial velocity in world Plücker coordinates: ``[ẋ − ω × x; ω]``,
+                         the velocity of the body point at the world origin
+``LOCAL``                ``[R_WFᵀ ẋ; R_WFᵀ ω]``: both in the frame's axes
+=======================  ============================================================================
+
+Each time variation is the time derivative of the Jacobian in the same reference, as in Pinocchio's
+``getFrameJacobianTimeVariation``.
 """
 
 from __future__ import annotations
@@ -25,9 +38,12 @@ from ..tree import AXIS, FRAME_JOINT, FRAME_POSITION, FRAME_ROTATION, IV, KIND, 
 from . import joints as kinds
 from .placement import joint_pose
 from .spatial import (add3, add6, compose, cross, load3, load6, load9, motion_cross, motion_to_child,
-                      nan_unless_finite, rotate, store, sub3)
+                      nan_unless_finite, rotate, rotate_back, scale3, store, sub3)
 
 ZERO6 = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+
+#: Codes of the references a frame Jacobian is expressed in (module docstring)
+LOCAL_WORLD_ALIGNED, WORLD, LOCAL = 0, 1, 2
 
 #: Columns of one row of :func:`frame_motions`: ``R_WF`` (9, row-major), ``p_WF`` (3), ``J`` (6 × nv,
 #: row-major), then ``J̇ v`` (6) at ``MOTION_JACOBIAN + 6 nv``
@@ -72,12 +88,12 @@ def joint_placements(joints, reals, q, ws):
 
 
 @njit(cache=True, error_model="numpy")
-def joint_motions(joints, reals, q, v, ws):
-    """World poses, velocities and velocity-product accelerations of every joint frame (RBDA Table 5.1,
-    forward pass with ``q̈ = 0`` and no gravity), in ``ws[:24 nj]``. Returns
-    ``pose (nj + 1, 12)`` as :func:`joint_placements`, ``vel (nj, 6)`` the body velocities ``v_i`` and
-    ``acc (nj, 6)`` the spatial accelerations ``a_i`` the bodies have when every ``q̈`` is zero, both in
-    joint coordinates at the joint origin (m/s, rad/s; m/s², rad/s²).
+def joint_motions(joints, reals, q, v, ws, qdd=None):
+    """World poses, velocities and accelerations of every joint frame (RBDA Table 5.1, forward pass with
+    no gravity), in ``ws[:24 nj + 12]``. Returns ``pose (nj + 1, 12)`` as :func:`joint_placements`,
+    ``vel (nj, 6)`` the body velocities ``v_i`` and ``acc (nj, 6)`` the spatial accelerations ``a_i`` for the
+    joint accelerations ``qdd (nv,)`` (default zero: the velocity-product accelerations), both in joint
+    coordinates at the joint origin (m/s, rad/s; m/s², rad/s²).
     """
     nj = joints.shape[0]
     pose = ws[: 12 * (nj + 1)].reshape((nj + 1, 12))
@@ -99,8 +115,10 @@ def joint_motions(joints, reals, q, v, ws):
             v_parent, a_parent = load6(vel[parent], 0), load6(acc[parent], 0)
         # v_i = ⁱX_λ v_λ + v_J
         v_i = add6(motion_to_child(R, p, v_parent), v_J)
-        # a_i = ⁱX_λ a_λ + v_i × v_J   (q̈ = 0)
+        # a_i = ⁱX_λ a_λ + S q̈_i + v_i × v_J
         a_i = add6(motion_to_child(R, p, a_parent), motion_cross(v_i, v_J))
+        if qdd is not None:
+            a_i = add6(a_i, kinds.motion(kind, axis, joints[i, NV], qdd, joints[i, IV]))
         store(pose[i], 0, R_W)
         store(pose[i], 9, p_W)
         store(vel[i], 0, v_i)
@@ -143,6 +161,30 @@ def reference_point(joints, reals, q, pose):
 def world_position(pose, p_O):
     """``p_W = p_WO + p_O``: a position from the reference point back in world coordinates."""
     return add3(load3(pose[pose.shape[0] - 1], 9), p_O)
+
+
+@njit(cache=True, error_model="numpy")
+def world_origin(pose):
+    """The world origin's position from the reference point O: ``−p_WO``."""
+    return scale3(-1.0, load3(pose[pose.shape[0] - 1], 9))
+
+
+@njit(cache=True, error_model="numpy")
+def reference_code(reference):
+    """The reference code held by the vector ``reference`` (length 0: ``LOCAL_WORLD_ALIGNED``)."""
+    return LOCAL_WORLD_ALIGNED if reference.shape[0] == 0 else int(reference[0])
+
+
+@njit(cache=True, error_model="numpy")
+def rotate_columns_back(R, J):
+    """``J ← diag(Rᵀ, Rᵀ) J`` for ``J (6, n)``: both row blocks from world axes into those of a frame
+    with world orientation ``R``."""
+    for c in range(J.shape[1]):
+        u = rotate_back(R, (J[0, c], J[1, c], J[2, c]))
+        w = rotate_back(R, (J[3, c], J[4, c], J[5, c]))
+        for r in range(3):
+            J[r, c] = u[r]
+            J[3 + r, c] = w[r]
 
 
 @njit(cache=True, error_model="numpy")
@@ -208,32 +250,45 @@ def frame_placements(joints, reals, frames, q, x1, x2, x3, out, ws):
 
 
 @njit(cache=True, error_model="numpy")
-def frame_jacobian(joints, reals, frames, q, point, x2, x3, out, ws):
-    """Jacobian ``J (6, nv)`` of a point of frames[0] into ``out``: ``[ẋ; ω] = J q̇`` with rows
-    ``[linear; angular]`` in world axes at the point (``LOCAL_WORLD_ALIGNED``); RBDA §8.4, eq. 8.20.
+def frame_jacobian(joints, reals, frames, q, point, reference, x3, out, ws):
+    """Jacobian ``J (6, nv)`` of a point of frames[0] into ``out``: ``J q̇`` is the velocity of the frame F
+    placed at that point with frames[0]'s axes, rows ``[linear; angular]`` in the reference coded by
+    ``reference`` (module docstring; length 0: ``LOCAL_WORLD_ALIGNED``, ``[ẋ; ω]`` in world axes);
+    RBDA §8.4, eq. 8.20.
 
-    ``q (nq,)``; ``point (3,)`` the point in frame F's axes relative to its origin (m), or length 0 for
-    the origin; ``x2, x3`` unused. Columns of coordinates that do not move the frame are zero, all of
-    them for a frame fixed in the world. Pinocchio: ``computeJointJacobians`` +
-    ``getFrameJacobian(..., LOCAL_WORLD_ALIGNED)``.
+    ``q (nq,)``; ``point (3,)`` the point in frames[0]'s axes relative to its origin (m), or length 0 for
+    the origin; ``x3`` unused. Columns of coordinates that do not move the frame are zero, all of
+    them for a frame fixed in the world. Pinocchio: ``computeJointJacobians`` + ``getFrameJacobian``.
     """
     pose = joint_placements(joints, reals, q, ws)
-    jacobian_columns(joints, reals, pose, frame_joint(frames, 0), frame_point(frames, pose, point), out)
-    nan_unless_finite(q, point, x2, x3, out)
+    code = reference_code(reference)
+    # WORLD: the velocity of the body point at the world origin; otherwise at F's origin x
+    x = world_origin(pose) if code == WORLD else frame_point(frames, pose, point)
+    jacobian_columns(joints, reals, pose, frame_joint(frames, 0), x, out)
+    if code == LOCAL:
+        # J_local = diag(R_WFᵀ, R_WFᵀ) J_world-aligned
+        rotate_columns_back(frame_pose(pose, frames, 0)[0], out)
+    nan_unless_finite(q, point, reference, x3, out)
 
 
 @njit(cache=True, error_model="numpy")
-def frame_jacobian_time_variation(joints, reals, frames, q, v, point, x3, out, ws):
-    """Time derivative ``J̇ (6, nv)`` of :func:`frame_jacobian` along the motion ``v`` into ``out``, so
-    that ``J q̈ + J̇ q̇`` is the point's classical acceleration ``[ẍ; ω̇]`` (world axes).
+def frame_jacobian_time_variation(joints, reals, frames, q, v, point, reference, out, ws):
+    """Time derivative ``J̇ (6, nv)`` of :func:`frame_jacobian`, in the same reference, along the motion
+    ``v`` into ``out``: ``J q̈ + J̇ q̇`` is the time derivative of the velocity ``J q̇``, which is
+
+    * ``LOCAL_WORLD_ALIGNED``: the point's classical acceleration ``[ẍ; ω̇]`` (world axes);
+    * ``WORLD``: the body's spatial acceleration in world Plücker coordinates;
+    * ``LOCAL``: the body's spatial acceleration in F's coordinates (the time derivative of F's
+      velocity in its own axes equals the spatial one, since ``v_F × v_F = 0``).
 
     A subspace column ``ξ_k`` of joint i is fixed in body i, so ``ξ̇_k = V_i × ξ_k`` (RBDA eq. 2.37),
-    computed in joint-i coordinates as ``v_i × s``; in world axes at the point ``x``, which itself
-    moves with ``ẋ``: ``J̇_k = [(V_i × ξ_k)_v + ω_k × ẋ; (V_i × ξ_k)_ω]``.
+    computed in joint-i coordinates as ``v_i × s``, then taken at the world origin (``WORLD``) or at the
+    point ``x``, which itself moves with ``ẋ``: ``J̇_k = [(V_i × ξ_k)_v + ω_k × ẋ; (V_i × ξ_k)_ω]``. The
+    ``LOCAL`` Jacobian is ``Rᵀ J`` blockwise with ``Ṙ = [ω_F]× R``, so its rate is ``Rᵀ (J̇ − [ω_F]× J)``.
 
-    ``q (nq,)``, ``v (nv,)``, ``point (3,)`` in frame F's axes (m) or length 0; ``x3`` unused. Zero for a
-    frame fixed in the world. Pinocchio: ``computeJointJacobiansTimeVariation`` +
-    ``getFrameJacobianTimeVariation(..., LOCAL_WORLD_ALIGNED)``.
+    ``q (nq,)``, ``v (nv,)``, ``point (3,)`` in frames[0]'s axes (m) or length 0, ``reference`` as in
+    :func:`frame_jacobian`. Zero for a frame fixed in the world. Pinocchio:
+    ``computeJointJacobiansTimeVariation`` + ``getFrameJacobianTimeVariation``.
     """
     pose, vel, _ = joint_motions(joints, reals, q, v, ws)
     for r in range(6):
@@ -241,32 +296,44 @@ def frame_jacobian_time_variation(joints, reals, frames, q, v, point, x3, out, w
             out[r, c] = 0.0
     j = frame_joint(frames, 0)
     if j < 0:
-        nan_unless_finite(q, v, point, x3, out)
+        nan_unless_finite(q, v, point, reference, out)
         return
+    code = reference_code(reference)
     x = frame_point(frames, pose, point)
-    # ẋ = R_Wj v_j + (R_Wj ω_j) × (x − p_Wj)
+    y = world_origin(pose) if code == WORLD else x
+    R_WF = frame_pose(pose, frames, 0)[0]
+    # ω_F = R_Wj ω_j ;  ẋ = R_Wj v_j + ω_F × (x − p_Wj)
     R_Wj = load9(pose[j], 0)
-    x_dot = add3(rotate(R_Wj, load3(vel[j], 0)), cross(rotate(R_Wj, load3(vel[j], 3)), sub3(x, load3(pose[j], 9))))
+    w_F = rotate(R_Wj, load3(vel[j], 3))
+    x_dot = add3(rotate(R_Wj, load3(vel[j], 0)), cross(w_F, sub3(x, load3(pose[j], 9))))
     i = j
     while i >= 0:
         kind, iv = joints[i, KIND], joints[i, IV]
         axis = load3(reals[i], AXIS)
         R_Wi = load9(pose[i], 0)
-        lever = sub3(x, load3(pose[i], 9))
+        p_Wi = load3(pose[i], 9)
         v_i = load6(vel[i], 0)
         for k in range(joints[i, NV]):
             s = kinds.subspace_column(kind, axis, k)
             # ξ̇_k = v_i × s   (joint-i coordinates)
             c = motion_cross(v_i, s)
-            # in world axes at x: [R c_v + (R c_ω) × (x − p_Wi) + ω_k × ẋ; R c_ω],  ω_k = R s_ω
+            # at y, world axes: [R c_v + (R c_ω) × (y − p_Wi); R c_ω],  and ω_k = R s_ω
             c_w = rotate(R_Wi, (c[3], c[4], c[5]))
             w = rotate(R_Wi, (s[3], s[4], s[5]))
-            u = add3(add3(rotate(R_Wi, (c[0], c[1], c[2])), cross(c_w, lever)), cross(w, x_dot))
+            u = add3(rotate(R_Wi, (c[0], c[1], c[2])), cross(c_w, sub3(y, p_Wi)))
+            if code != WORLD:
+                # the point x moves: + ω_k × ẋ
+                u = add3(u, cross(w, x_dot))
+            if code == LOCAL:
+                # Rᵀ (J̇ − [ω_F]× J), J's column [R s_v + ω_k × (x − p_Wi); ω_k]
+                J_v = add3(rotate(R_Wi, (s[0], s[1], s[2])), cross(w, sub3(x, p_Wi)))
+                u = rotate_back(R_WF, sub3(u, cross(w_F, J_v)))
+                c_w = rotate_back(R_WF, sub3(c_w, cross(w_F, w)))
             for r in range(3):
                 out[r, iv + k] = u[r]
                 out[3 + r, iv + k] = c_w[r]
         i = joints[i, PARENT]
-    nan_unless_finite(q, v, point, x3, out)
+    nan_unless_finite(q, v, point, reference, out)
 
 
 @njit(cache=True, error_model="numpy")

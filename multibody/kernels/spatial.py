@@ -226,6 +226,33 @@ def inertia_to_parent(R, p, I):
 
 
 @njit(cache=True, error_model="numpy")
+def inertia_rate(I, m):
+    """``İ = m ×* I − I m×``: the rate of change of the inertia ``I = (mass, h, Ī)`` about a fixed origin O
+    of a body moving with the twist ``m = (v, ω)``, both in O's coordinates, as a 10-tuple of the same
+    layout (Carpentier & Mansard, RSS 2018, the variation of a spatial inertia).
+
+    From ``h = Σ μ x`` and ``Ī = Σ μ (|x|² 1 − x xᵀ)`` over the body's mass elements ``μ`` at ``x``,
+    moving as ``ẋ = v + ω × x``: ``ṁ = 0``, ``ḣ = mass v + ω × h``,
+    ``d/dt Ī = [ω]× Ī − Ī [ω]× + 2 (hᵀv) 1 − v hᵀ − h vᵀ``.
+    """
+    mass, h = I[0], (I[1], I[2], I[3])
+    v, w = (m[0], m[1], m[2]), (m[3], m[4], m[5])
+    h_dot = add3(scale3(mass, v), cross(w, h))
+    # W = [ω]× Ī column by column; [ω]× Ī − Ī [ω]× = W + Wᵀ since Ī is symmetric
+    c0 = cross(w, (I[4], I[5], I[6]))
+    c1 = cross(w, (I[5], I[7], I[8]))
+    c2 = cross(w, (I[6], I[8], I[9]))
+    hv = dot3(h, v)
+    return (0.0, h_dot[0], h_dot[1], h_dot[2],
+            2.0 * c0[0] + 2.0 * hv - 2.0 * v[0] * h[0],
+            c1[0] + c0[1] - v[0] * h[1] - h[0] * v[1],
+            c2[0] + c0[2] - v[0] * h[2] - h[0] * v[2],
+            2.0 * c1[1] + 2.0 * hv - 2.0 * v[1] * h[1],
+            c2[1] + c1[2] - v[1] * h[2] - h[1] * v[2],
+            2.0 * c2[2] + 2.0 * hv - 2.0 * v[2] * h[2])
+
+
+@njit(cache=True, error_model="numpy")
 def add10(a, b):
     return (a[0] + b[0], a[1] + b[1], a[2] + b[2], a[3] + b[3], a[4] + b[4], a[5] + b[5],
             a[6] + b[6], a[7] + b[7], a[8] + b[8], a[9] + b[9])
