@@ -51,7 +51,7 @@ from .robotics import (
     centroidal_momentum_matrix_derivative,
 )
 from .rolling import KnifeEdge, RollingDisc, RollingSphere
-from .simulation import SimulationError, Trajectory, simulate
+from .simulation import JointLimitWarning, SimulationError, Trajectory, simulate
 
 
 def __getattr__(name):
@@ -86,6 +86,7 @@ __all__ = [
     "PointOnSurface",
     "RollingDisc",
     "RollingSphere",
+    "JointLimitWarning",
     "SimulationError",
     "Trajectory",
     "mimic_constraints",

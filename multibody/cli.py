@@ -1,4 +1,9 @@
-"""Command line: ``multibody demo NAME``, ``multibody info URDF``, ``multibody check URDF``. See ``multibody --help``."""
+"""Command line: ``multibody demo NAME`` (``--list``), ``multibody info URDF|ROBOT``, ``multibody check URDF|ROBOT``,
+``multibody --version``. See ``multibody --help``.
+
+Wrong input (a missing file, a directory, an unknown robot name, a malformed URDF) gives one line on
+standard error, ``multibody COMMAND: what is wrong``, and exit status 2.
+"""
 
 from __future__ import annotations
 
@@ -9,18 +14,43 @@ import warnings
 
 import numpy as np
 
+from . import __version__
+
+
+class InputError(ValueError):
+    """A command's input that names no URDF file or robot; :func:`main` prints it and exits with 2."""
+
+
+def _urdf_path(source):
+    """``(path, robot)``: the URDF file ``source`` names, and whether it named a robot
+    (:func:`multibody.robots.path`: shipped models, and example-robot-data's when installed) rather
+    than a file. Raises :class:`InputError` for a directory or a name that is neither."""
+    from . import robots
+
+    if os.path.isfile(source):
+        return source, False
+    try:
+        return robots.path(source), True
+    except (ValueError, ImportError) as error:
+        if os.path.isdir(source):
+            raise InputError(f"{source!r} is a directory; give a URDF file or a robot name") from None
+        if os.path.dirname(source):  # a path, which no robot name is
+            raise InputError(f"no such file: {source!r}") from None
+        raise InputError(f"{source!r} is neither a URDF file nor a known robot: {error}") from None
+
 
 def _load(source, floating_base, package_dirs):
-    """A model from a URDF path or the name of a shipped robot."""
+    """The model of a URDF file or a robot name (see :func:`_urdf_path`)."""
     from . import robots
     from .urdf import load_urdf
 
-    path = source if os.path.exists(source) else None
-    if path is None and source in robots.names():
-        path = robots.path(source)
-    if path is None:
-        raise SystemExit(f"multibody: {source!r} is neither a URDF file nor a shipped robot ({', '.join(robots.names())})")
-    return load_urdf(path, floating_base=floating_base, package_dirs=package_dirs, invalid_inertia="warn")
+    path, robot = _urdf_path(source)
+    if not robot:
+        return load_urdf(path, floating_base=floating_base, package_dirs=package_dirs, invalid_inertia="warn")
+    # A robot keeps the base and mesh folders robots.load gives it unless the command line says otherwise.
+    options = {"floating_base": True} if floating_base else {}
+    options.update({"package_dirs": package_dirs} if package_dirs else {})
+    return robots.load(source, invalid_inertia="warn", **options)
 
 
 def _format_vector(x):
@@ -77,15 +107,14 @@ def cmd_info(args):
 
 
 def cmd_check(args):
+    path, _ = _urdf_path(args.urdf)
     try:
         import pinocchio  # noqa: F401
     except ImportError:
-        print("multibody check needs Pinocchio: pip install pin", file=sys.stderr)
+        print("multibody check: needs Pinocchio: pip install pin", file=sys.stderr)
         return 2
-    from . import robots
     from .check import compare_with_pinocchio
 
-    path = args.urdf if os.path.exists(args.urdf) else robots.path(args.urdf)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         model, rows, condition = compare_with_pinocchio(path, args.floating_base, args.samples, args.seed, args.package_dir)
@@ -106,8 +135,16 @@ def cmd_check(args):
 def cmd_demo(args):
     from .demos import DEMOS
 
+    if args.list:
+        width = max(len(name) for name in DEMOS)
+        for name in sorted(DEMOS):
+            print(f"{name:<{width}}  {DEMOS[name].__doc__.strip().splitlines()[0]}")
+        return 0
+    if args.name is None:
+        print(f"multibody demo: give a demo name, or --list to list them: {', '.join(sorted(DEMOS))}", file=sys.stderr)
+        return 2
     if args.name not in DEMOS:
-        print(f"unknown demo {args.name!r}; available: {', '.join(sorted(DEMOS))}", file=sys.stderr)
+        print(f"multibody demo: unknown demo {args.name!r}; available: {', '.join(sorted(DEMOS))}", file=sys.stderr)
         return 2
     from .driver import compiled_before
     from .kernels import constraints, integration, kkt
@@ -128,10 +165,12 @@ def build_parser():
     parser = argparse.ArgumentParser(
         prog="multibody", description="Rigid multibody dynamics from Lagrangian mechanics."
     )
+    parser.add_argument("--version", action="version", version=f"multibody {__version__}")
     commands = parser.add_subparsers(dest="command", metavar="COMMAND")
 
     info = commands.add_parser("info", help="print a model's tree, sizes, mass and suspicious inertias")
-    info.add_argument("urdf", help="URDF file, or the name of a shipped robot (e.g. double_pendulum)")
+    info.add_argument("urdf", metavar="URDF|ROBOT",
+                      help="URDF file, or a robot name (e.g. double_pendulum; example-robot-data's when installed)")
     info.add_argument("--floating-base", action="store_true", help="add a free-flyer joint at the root")
     info.add_argument("--package-dir", action="append", default=[], help="where package:// meshes live (repeatable)")
     info.set_defaults(run=cmd_info)
@@ -139,12 +178,14 @@ def build_parser():
     from .demos import DEMOS
 
     demo = commands.add_parser("demo", help=f"run a named demo and write its figures ({', '.join(sorted(DEMOS))})")
-    demo.add_argument("name", help="demo name: " + ", ".join(sorted(DEMOS)))
+    demo.add_argument("name", nargs="?", help="demo name: " + ", ".join(sorted(DEMOS)))
+    demo.add_argument("--list", action="store_true", help="list the demos, each with what it shows")
     demo.add_argument("--out", default="multibody_output", help="folder for the figures (default multibody_output)")
     demo.set_defaults(run=cmd_demo)
 
     check = commands.add_parser("check", help="compare kinematics and dynamics with Pinocchio at random states")
-    check.add_argument("urdf", help="URDF file, or the name of a shipped robot")
+    check.add_argument("urdf", metavar="URDF|ROBOT",
+                       help="URDF file, or a robot name (e.g. double_pendulum; example-robot-data's when installed)")
     check.add_argument("--floating-base", action="store_true", help="add a free-flyer joint at the root")
     check.add_argument("--samples", type=int, default=20, help="number of random states (default 20)")
     check.add_argument("--seed", type=int, default=0, help="random seed (default 0)")

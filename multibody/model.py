@@ -68,6 +68,19 @@ def _frozen(array, dtype=float):
     return array
 
 
+def _per_dof_problem(values, size, finite):
+    """What is wrong with per-coordinate joint parameters ``values`` (damping, friction, effort and
+    velocity limits), or ``None``: they must have shape ``(size,)`` and be non-negative, and finite
+    when ``finite`` (a limit may be ``inf``: none)."""
+    if values.shape != (size,):
+        return f"must have shape ({size},), got {values.shape}"
+    if np.any(np.isnan(values)) or (finite and not np.all(np.isfinite(values))):
+        return f"must be {'finite' if finite else 'numbers (inf for none)'}, got {values.tolist()}"
+    if np.any(values < 0.0):
+        return f"must not be negative, got {values.tolist()}"
+    return None
+
+
 @dataclass(frozen=True, eq=False)
 class Model:
     """An immutable kinematic tree with mass properties.
@@ -82,10 +95,20 @@ class Model:
         body_joints: ``(nb,)`` joint that moves each body, ``-1`` if fixed to the world.
         body_placements: ``(nb, 4, 4)`` pose of each body frame in its joint frame.
         body_inertias: ``(nb,)`` :class:`Inertia` of each body in its own frame.
-        lower, upper: ``(nq,)`` configuration limits (``±inf`` when unbounded).
+        lower, upper: ``(nq,)`` configuration limits (``±inf`` when unbounded; ``±1`` on the unit-norm
+            quaternion and planar ``(cos θ, sin θ)`` components, which can never leave them).
         gravity: ``(3,)`` gravitational acceleration in the world frame, m/s².
         geometries: visual and collision shapes (see :class:`Geometry`).
         mimic: recorded mimic relations (see :class:`Mimic`).
+        damping: ``(nv,)`` viscous joint damping, N·m·s/rad or N·s/m (default zeros); the force
+            ``−damping · v`` when :func:`multibody.simulate` is given ``joint_damping=True``.
+        friction: ``(nv,)`` joint (Coulomb) friction, N·m or N (default zeros); recorded, not applied.
+        effort_limit: ``(nv,)`` largest joint force, N·m or N (``inf`` when none is given).
+        velocity_limit: ``(nv,)`` largest joint speed, rad/s or m/s (``inf`` when none is given).
+
+    The last four are Pinocchio's ``damping``, ``friction``, ``effortLimit`` and ``velocityLimit``;
+    ``lower`` and ``upper`` its ``lowerPositionLimit`` and ``upperPositionLimit`` (see
+    :func:`multibody.load_urdf` for what a URDF gives them).
     """
 
     name: str
@@ -102,6 +125,10 @@ class Model:
     gravity: np.ndarray = field(default_factory=lambda: _frozen(STANDARD_GRAVITY))
     geometries: tuple = ()
     mimic: tuple = ()
+    damping: np.ndarray | None = None
+    friction: np.ndarray | None = None
+    effort_limit: np.ndarray | None = None
+    velocity_limit: np.ndarray | None = None
 
     def __post_init__(self):
         nj, nb = len(self.joints), len(self.body_names)
@@ -125,6 +152,13 @@ class Model:
             raise ValueError("Model: body_joints must index joints (or be -1 for the world)")
         if self.lower.shape != (self.nq,) or self.upper.shape != (self.nq,):
             raise ValueError(f"Model: lower and upper limits must have shape ({self.nq},)")
+        for name, default, bounded in (("damping", 0.0, True), ("friction", 0.0, True),
+                                       ("effort_limit", np.inf, False), ("velocity_limit", np.inf, False)):
+            value = getattr(self, name)
+            set_(name, _frozen(np.full(self.nv, default) if value is None else value).reshape(-1))
+            problem = _per_dof_problem(getattr(self, name), self.nv, bounded)
+            if problem:
+                raise ValueError(f"Model: {name} {problem}")
         for names, what in ((self.joint_names, "joint"), (self.body_names, "body")):
             if len(set(names)) != len(names):
                 raise ValueError(f"Model: {what} names must be unique")
@@ -454,6 +488,10 @@ class _BodySpec:
     inertia: Inertia
     lower: np.ndarray
     upper: np.ndarray
+    damping: np.ndarray
+    friction: np.ndarray
+    effort_limit: np.ndarray
+    velocity_limit: np.ndarray
 
 
 class ModelBuilder:
@@ -482,7 +520,8 @@ class ModelBuilder:
         self.mimic: list[Mimic] = []
 
     def add_body(self, name, joint=None, *, parent=None, placement=None, inertia=None, joint_name=None,
-                 lower=None, upper=None) -> str:
+                 lower=None, upper=None, damping=0.0, friction=0.0, effort_limit=np.inf,
+                 velocity_limit=np.inf) -> str:
         """Add a body moved by ``joint`` relative to ``parent``.
 
         Args:
@@ -493,7 +532,13 @@ class ModelBuilder:
                 identity). At the neutral configuration the new body's frame is this frame.
             inertia: :class:`Inertia` in the new body's frame (default massless).
             joint_name: unique name of the joint (default ``name + "_joint"``).
-            lower, upper: configuration limits, ``(joint.nq,)`` (default: the joint's own).
+            lower, upper: configuration limits, ``(joint.nq,)`` (default: the joint's own, unbounded
+                but for unit-norm components).
+            damping: viscous damping per velocity coordinate, N·m·s/rad or N·s/m: a number or
+                ``(joint.nv,)``, non-negative (default none).
+            friction: joint friction, N·m or N, likewise (default none; recorded, not applied).
+            effort_limit, velocity_limit: largest joint force (N·m or N) and speed (rad/s or m/s),
+                likewise; ``inf`` (the default) for none.
         Returns:
             ``name``.
         """
@@ -515,8 +560,16 @@ class ModelBuilder:
         upper = default_upper if upper is None else np.array(upper, dtype=float).reshape(-1)
         if lower.shape != (joint.nq,) or upper.shape != (joint.nq,):
             raise ValueError(f"limits of joint {joint_name!r} must have shape ({joint.nq},)")
+        per_dof = {}
+        for key, value, finite in (("damping", damping, True), ("friction", friction, True),
+                                   ("effort_limit", effort_limit, False), ("velocity_limit", velocity_limit, False)):
+            value = np.array(value, dtype=float)
+            per_dof[key] = np.full(joint.nv, float(value)) if value.ndim == 0 else value.reshape(-1)
+            problem = _per_dof_problem(per_dof[key], joint.nv, finite)
+            if problem:
+                raise ValueError(f"{key} of joint {joint_name!r} {problem}")
         self._bodies.append(_BodySpec(name, parent, joint, joint_name, placement,
-                                      Inertia.zero() if inertia is None else inertia, lower, upper))
+                                      Inertia.zero() if inertia is None else inertia, lower, upper, **per_dof))
         self._names.add(name)
         self._joint_names.add(joint_name)
         return name
@@ -538,6 +591,7 @@ class ModelBuilder:
         properties no real body can have raises ``ValueError`` (see :func:`inertia_problems`).
         """
         joints, joint_names, parents, joint_placements, lower, upper = [], [], [], [], [], []
+        per_dof = {"damping": [], "friction": [], "effort_limit": [], "velocity_limit": []}
         body_joint, body_placement = {}, {}
         for spec in self._bodies:
             if spec.parent is None:
@@ -556,6 +610,8 @@ class ModelBuilder:
             joint_placements.append(X_joint_pre)
             lower.append(spec.lower)
             upper.append(spec.upper)
+            for key, values in per_dof.items():
+                values.append(getattr(spec, key))
         names = [spec.name for spec in self._bodies]
         model = Model(
             name=self.name,
@@ -572,6 +628,7 @@ class ModelBuilder:
             gravity=self.gravity,
             geometries=tuple(self.geometries),
             mimic=tuple(self.mimic),
+            **{key: np.concatenate(values) if values else np.zeros(0) for key, values in per_dof.items()},
         )
         if check_inertia:
             problems = inertia_problems(model)

@@ -24,8 +24,11 @@ residuals are those of the returned states.
 
 from __future__ import annotations
 
+import os
+import sys
+import time
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import MISSING, dataclass, field, fields, replace
 
 import numpy as np
 from scipy.integrate import BDF, DOP853, LSODA, RK23, RK45, Radau
@@ -36,6 +39,8 @@ from .spatial import matvec, transpose
 METHODS = {"RK45": RK45, "DOP853": DOP853, "Radau": Radau, "RK23": RK23, "BDF": BDF, "LSODA": LSODA}
 ADAPTIVE_METHODS = tuple(METHODS)
 FIXED_STEP_METHODS = ("RK4",)
+#: What ``simulate(..., limits=...)`` does with positions outside ``[model.lower, model.upper]``.
+LIMIT_MODES = ("warn", "error", "ignore")
 
 
 @dataclass
@@ -50,6 +55,8 @@ class Trajectory:
         residual: ``(n,)`` largest constraint violation ``max(|φ|, |A v + b|)``.
         row_names: names of the ``m`` constraint rows.
         status: ``"completed"``, or the reason the simulation stopped early.
+        projection_tolerance: the residual above which output states were projected back onto the
+            constraints (``simulate``'s ``projection_tolerance``), ``None`` when they were not.
     """
 
     t: np.ndarray
@@ -60,9 +67,86 @@ class Trajectory:
     residual: np.ndarray
     row_names: list = field(default_factory=list)
     status: str = "completed"
+    projection_tolerance: float | None = None
 
     def __len__(self):
         return len(self.t)
+
+    def save(self, path):
+        """Write the trajectory to a NumPy ``.npz`` archive at ``path`` (``.npz`` added when missing) and
+        return the path written. Every array keeps its shape and dtype; names and the status are stored
+        as arrays of ``str``, so :meth:`load` reads the file without pickle."""
+        arrays = {_FILE_FORMAT_KEY: np.array(_FILE_FORMAT)}
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if value is not None:  # an absent entry loads as the field's default, None
+                arrays[f.name] = _stored(f.name, value)
+        path = os.fspath(path)
+        path = path if path.endswith(".npz") else path + ".npz"
+        np.savez(path, **arrays)
+        return path
+
+    @classmethod
+    def load(cls, path):
+        """The trajectory that :meth:`save` wrote to ``path``. Raises ``FileNotFoundError`` when there is
+        no such file, ``ValueError`` when the file is not a saved trajectory."""
+        path = os.fspath(path)
+        not_ours = f"{path!r} is not a trajectory saved by Trajectory.save"
+        try:
+            archive = np.load(path, allow_pickle=False)
+        except (ValueError, EOFError, OSError) as error:
+            if isinstance(error, FileNotFoundError | IsADirectoryError):
+                raise
+            raise ValueError(f"{not_ours}: {error}") from None
+        if not isinstance(archive, np.lib.npyio.NpzFile):
+            raise ValueError(f"{not_ours}: it holds one array, not a .npz archive")
+        with archive:
+            if _FILE_FORMAT_KEY not in archive.files:
+                raise ValueError(f"{not_ours}: a .npz archive without the entry {_FILE_FORMAT_KEY!r} "
+                                 f"(it has {sorted(archive.files)})")
+            name, version = archive[_FILE_FORMAT_KEY].tolist()
+            if name != _FILE_FORMAT[0] or version != _FILE_FORMAT[1]:
+                raise ValueError(f"{not_ours}: its format is {name!r} version {version!r}; this version of "
+                                 f"multibody reads {_FILE_FORMAT[0]!r} version {_FILE_FORMAT[1]!r}")
+            required = [f.name for f in fields(cls) if f.default is MISSING and f.default_factory is MISSING]
+            missing = [key for key in required if key not in archive.files]
+            if missing:
+                raise ValueError(f"{not_ours}: it lacks the arrays {missing}")
+            try:
+                values = {f.name: _restored(archive[f.name]) for f in fields(cls) if f.name in archive.files}
+            except ValueError as error:  # an object array, which only pickle could read
+                raise ValueError(f"{not_ours}: {error}") from None
+        return cls(**values)
+
+
+# The entry that marks a file written by Trajectory.save, holding (format name, version).
+_FILE_FORMAT_KEY = "__multibody_format__"
+_FILE_FORMAT = ("multibody.Trajectory", "1")
+
+
+def _stored(name, value):
+    """A :class:`Trajectory` field as an array that loads without pickle: arrays as they are, strings and
+    lists of strings as arrays of ``str``, numbers as 0-d arrays."""
+    if isinstance(value, np.ndarray) and value.dtype != object:
+        return value
+    if isinstance(value, str) or (isinstance(value, list | tuple) and all(isinstance(x, str) for x in value)):
+        return np.array(value, dtype=str)
+    if isinstance(value, bool | int | float | np.number):
+        return np.array(value)
+    raise TypeError(f"Trajectory.save: field {name!r} holds {type(value).__name__} {value!r}, which is not an "
+                    "array, a string, a list of strings or a number")
+
+
+def _restored(array):
+    """The field value of a stored array (inverse of :func:`_stored`): ``str`` arrays become a string
+    (0-d) or a list of strings, 0-d numbers Python numbers, other arrays stay arrays."""
+    if array.dtype.kind == "U":
+        return str(array[()]) if array.ndim == 0 else array.tolist()
+    return array[()].item() if array.ndim == 0 else array
+
+
+class JointLimitWarning(UserWarning):
+    """A simulated joint left its position limits (``simulate(..., limits="warn")``)."""
 
 
 class SimulationError(RuntimeError):
@@ -88,7 +172,8 @@ def _torque_function(tau, nv):
 
 
 def simulate(system, q0, v0, t_final, *, dt=None, method="RK45", tau=None, rtol=1e-8, atol=1e-10,
-             project=True, projection_tolerance=1e-12, t0=0.0, max_step=np.inf):
+             project=True, projection_tolerance=1e-12, t0=0.0, max_step=np.inf, joint_damping=False, limits="warn",
+             progress=None):
     """Integrate the motion of a ``Model`` or ``ConstrainedSystem`` from ``(q0, v0)`` at ``t0`` to ``t_final``.
 
     Args:
@@ -106,10 +191,23 @@ def simulate(system, q0, v0, t_final, *, dt=None, method="RK45", tau=None, rtol=
             end state violates them by more than ``projection_tolerance``, project it and restart there.
         projection_tolerance: largest residual ``max(|φ|, |A v + b|)`` left unprojected at a step end.
         max_step: largest internal step of the adaptive methods (s).
+        joint_damping: add viscous joint damping ``−D v`` (``D = diag(model.damping)``, from URDF
+            ``<dynamics damping>``) to the joint forces; needs a system built on a ``Model``.
+        limits: what to do, after the run, with output positions outside ``[model.lower, model.upper]``
+            (URDF ``<limit lower upper>``; limits are reported, not enforced): ``"warn"`` (default) gives
+            one :class:`JointLimitWarning` per joint, naming it with the first time and value outside;
+            ``"error"`` raises :class:`SimulationError` at the first output time outside, naming the
+            joint, time and value, with the trajectory up to that time; ``"ignore"`` does nothing.
+            Systems without a ``Model`` (symbolic ones) have no limits.
+        progress: a progress bar over simulated time (``tqdm``, on standard error): ``None`` (default) shows
+            one when the run is expected to take more than :data:`PROGRESS_AFTER` seconds, judged from the
+            wall time of its first steps, and the output is a terminal or a notebook; ``True`` always;
+            ``False`` never.
     Returns:
         :class:`Trajectory`.
     Raises:
-        SimulationError: the integration failed; ``.trajectory`` holds the part computed so far.
+        SimulationError: the integration failed, or (``limits="error"``) a joint left its limits;
+            ``.trajectory`` holds the part computed so far.
     """
     constrained = system if isinstance(system, ConstrainedSystem) else ConstrainedSystem(system)
     mechanical = constrained.system
@@ -121,6 +219,17 @@ def simulate(system, q0, v0, t_final, *, dt=None, method="RK45", tau=None, rtol=
     dt = (t_final - t0) / 500.0 if dt is None else float(dt)
     if not dt > 0.0:
         raise ValueError(f"dt must be positive, got {dt}")
+    if progress not in (None, True, False):
+        raise ValueError(f"progress must be None (a bar for long runs), True or False, got {progress!r}")
+    if limits not in LIMIT_MODES:
+        raise ValueError(f"limits must be one of {LIMIT_MODES}, got {limits!r}")
+    model = getattr(mechanical, "model", None)  # limits and damping belong to a Model
+    if joint_damping:
+        if model is None:
+            raise ValueError(f"joint_damping=True needs a system built on a Model (model.damping); "
+                             f"{type(mechanical).__name__} has none: give the damping as tau(t, q, v) instead")
+        if np.any(model.damping):
+            tau = _with_joint_damping(_torque_function(tau, nv), model.damping)
     torque = _torque_function(tau, nv)
     charts = _Charts(mechanical)
 
@@ -194,6 +303,7 @@ def simulate(system, q0, v0, t_final, *, dt=None, method="RK45", tau=None, rtol=
     states = np.empty((len(times), nq + nv))
     states[0] = np.concatenate([q, v])
     done = 0  # output states filled so far
+    bar = _Progress(progress, t0, t_final)
 
     try:
         constrained.solve(q, v, torque(t0, q, v), t0)  # the initial state has a KKT solution
@@ -205,6 +315,7 @@ def simulate(system, q0, v0, t_final, *, dt=None, method="RK45", tau=None, rtol=
                               times[k] - times[k - 1])
                 states[k] = settle(times[k], from_chart(q_chart, y))[0]
                 done = k + 1
+                bar.update(times[k])
         else:
             solver_class = METHODS[method]
 
@@ -240,6 +351,7 @@ def simulate(system, q0, v0, t_final, *, dt=None, method="RK45", tau=None, rtol=
                 message = solver.step()
                 if solver.status == "failed":
                     raise SimulationError(f"{method} failed at t = {t_before:.6g} s: {message}", None)
+                bar.update(solver.t)
                 inside = done + int(np.searchsorted(times[done:], solver.t, side="left"))
                 if inside > done:
                     states[done:inside] = from_chart(q_chart, solver.dense_output()(times[done:inside]).T)
@@ -262,9 +374,59 @@ def simulate(system, q0, v0, t_final, *, dt=None, method="RK45", tau=None, rtol=
             m = constrained.num_rows
             partial = Trajectory(t=times[:done].copy(), q=states[:done, :nq].copy(), v=states[:done, nq:].copy(),
                                  lam=np.full((done, m), np.nan), energy=np.full(done, np.nan),
-                                 residual=np.full(done, np.nan), row_names=list(constrained.row_names), status=message)
+                                 residual=np.full(done, np.nan), row_names=list(constrained.row_names), status=message,
+                                 projection_tolerance=tolerance)
         raise SimulationError(message, partial) from exc
-    return _trajectory(constrained, times, states, torque, "completed", tolerance)
+    finally:
+        bar.close()
+    trajectory = _trajectory(constrained, times, states, torque, "completed", tolerance)
+    if model is not None and limits != "ignore":
+        _report_limits(mechanical, trajectory, limits)
+    return trajectory
+
+
+def _with_joint_damping(torque, damping):
+    """The joint forces ``torque(t, q, v) − D v`` (``D = diag(damping)``, ``(nv,)``), as ``tau(t, q, v)``."""
+    def damped(t, q, v):
+        applied = torque(t, q, v)
+        return -damping * v if applied is None else applied - damping * v
+    return damped
+
+
+def _report_limits(system, trajectory, mode):
+    """Positions of ``trajectory`` outside ``[model.lower, model.upper]`` of ``system.model``: one
+    :class:`JointLimitWarning` per joint at its first output time outside (``mode="warn"``), or a
+    :class:`SimulationError` at the first output time any joint is outside, carrying the trajectory up to
+    it (``mode="error"``). Unit-norm components (quaternions, planar ``(cos θ, sin θ)``) are bounded by ±1
+    by construction and not checked: rounding may take them a few ulps past."""
+    model = system.model
+    q = trajectory.q
+    outside = (q < model.lower) | (q > model.upper)
+    for start, stop in model._unit_norm_slices:
+        outside[:, start:stop] = False
+    if not outside.any():
+        return
+    first = []  # (output index, coordinate) of each joint's first excursion
+    for joint, start in zip(model.joints, model.idx_q):
+        rows, cols = np.nonzero(outside[:, start:start + joint.nq])
+        if rows.size:
+            first.append((int(rows[0]), int(start + cols[0])))
+
+    def describe(k, c):
+        return (f"{_coordinate(system, c, False)} left its limits [{model.lower[c]:.6g}, {model.upper[c]:.6g}] "
+                f"at t = {trajectory.t[k]:.6g} s: q = {q[k, c]:.6g}")
+
+    if mode == "error":
+        k, c = min(first)
+        message = describe(k, c) + " (limits='error')"
+        n = len(trajectory.t)
+        partial = replace(trajectory, status=message, **{
+            f.name: getattr(trajectory, f.name)[:k + 1] for f in fields(trajectory)
+            if isinstance(getattr(trajectory, f.name), np.ndarray) and getattr(trajectory, f.name).shape[:1] == (n,)})
+        raise SimulationError(message, partial)
+    for k, c in first:
+        warnings.warn(describe(k, c) + "; joint limits are reported, not enforced (limits='ignore' silences this)",
+                      JointLimitWarning, stacklevel=3)
 
 
 def _coordinate(system, k, rate):
@@ -321,6 +483,71 @@ class _Charts:
         else:
             self.chart, self.chart_rate = (lambda q0, delta: q0 + delta), (lambda delta, w: w)
             self.velocity_alignment, self.chart_magnitude = (lambda q: None), np.abs
+
+
+#: Wall time (s) above which a run shows a progress bar with ``simulate(..., progress=None)``.
+PROGRESS_AFTER = 2.0
+
+
+class _Progress:
+    """A ``tqdm`` bar over simulated time from ``t0`` to ``t_final`` (s), told each step's end time.
+
+    ``mode`` ``True`` opens it at once, ``False`` never. ``None`` opens it only when the whole run is
+    expected to take more than :data:`PROGRESS_AFTER` seconds of wall time, and only where someone can
+    see it (a terminal or a notebook). The expected time is the wall time so far plus the simulated
+    time left at the rate of the steps after the first, which is timed apart because it may include
+    compiling the kernels.
+    """
+
+    def __init__(self, mode, t0, t_final):
+        self.mode, self.t0, self.span = mode, t0, t_final - t0
+        self.started = time.perf_counter()
+        self.first = None  # (wall time, simulated time) at the end of the first step
+        self.bar = self._open(t0) if mode is True else None
+
+    def _open(self, t):
+        if _in_notebook():  # a notebook widget where ipywidgets is installed, else text
+            from tqdm.auto import tqdm
+        else:
+            from tqdm import tqdm
+        return tqdm(total=self.span, initial=t - self.t0, unit="s", unit_scale=False, desc="simulate",
+                    bar_format="{desc}: {percentage:3.0f}%|{bar}| t = {n:.4g}/{total:.4g} s [{elapsed}<{remaining}]")
+
+    def update(self, t):
+        if self.bar is not None:
+            self.bar.update(t - self.t0 - self.bar.n)
+        elif self.mode is None:
+            self._decide(t)
+
+    def _decide(self, t):
+        now = time.perf_counter()
+        if self.first is None:
+            self.first = (now, t)
+            return
+        wall, simulated = now - self.first[0], t - self.first[1]
+        if wall < 0.1 or simulated <= 0.0:  # too little to judge the rate by yet
+            return
+        expected = now - self.started + (self.t0 + self.span - t) * wall / simulated
+        self.mode = expected > PROGRESS_AFTER and _visible()
+        if self.mode:
+            self.bar = self._open(t)
+
+    def close(self):
+        if self.bar is not None:
+            self.bar.close()
+
+
+def _visible():
+    """Whether a progress bar would be seen: standard error is a terminal, or this runs in a notebook."""
+    stream = sys.stderr
+    return bool(stream is not None and getattr(stream, "isatty", lambda: False)()) or _in_notebook()
+
+
+def _in_notebook():
+    """Whether this runs in a Jupyter kernel (whose standard error is a stream to the notebook)."""
+    ipython = sys.modules.get("IPython")
+    shell = ipython.get_ipython() if ipython is not None and hasattr(ipython, "get_ipython") else None
+    return shell is not None and hasattr(shell, "kernel")
 
 
 def _rk4_step(derivative, t, y, h):
@@ -381,4 +608,5 @@ def _trajectory(constrained, times, states, torque, status, projection_tolerance
         residual=residual,
         row_names=list(constrained.row_names),
         status=status,
+        projection_tolerance=projection_tolerance,
     )

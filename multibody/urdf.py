@@ -16,6 +16,19 @@ The model follows Pinocchio's ``buildModelFromUrdf`` exactly where both are defi
   robot, and products of a few of them in the dynamics (``m · L² · ω²``) would overflow.
 * Joint limits are the exception: a limit at or beyond ``±UNBOUNDED_LIMIT`` (``±1e16``, the
   SDFormat convention for "no limit"), ``±inf`` included, leaves that side unbounded.
+* ``<limit lower upper effort velocity>`` and ``<dynamics damping friction>`` of revolute,
+  continuous and prismatic joints go into ``model.lower``/``model.upper`` (``(nq,)``) and
+  ``model.effort_limit``, ``model.velocity_limit``, ``model.damping``, ``model.friction``
+  (``(nv,)``), Pinocchio's ``lowerPositionLimit``, ``upperPositionLimit``, ``effortLimit``,
+  ``velocityLimit``, ``damping`` and ``friction``. What is not given is unbounded (``±inf``
+  positions, ``inf`` effort and speed) and undamped (zero damping and friction). Where Pinocchio
+  differs: a continuous joint's angle is unbounded here (Pinocchio bounds its ``(cos θ, sin θ)`` by
+  ±1.01); a ``<limit>`` without ``lower`` or ``upper`` leaves that side unbounded here (urdfdom reads
+  0, pinning the joint); a free flyer's position is unbounded and its quaternion bounded by ±1, where
+  Pinocchio writes ±``DBL_MAX`` for the ``root_joint`` of ``floating_base`` (and ±1.01 for the
+  quaternion of a URDF ``floating`` joint). As in Pinocchio, the ``<limit>`` and ``<dynamics>`` of
+  ``floating`` and ``planar`` joints are ignored. Effort and speed limits must not be negative, nor
+  damping and friction; limits at or beyond ``UNBOUNDED_LIMIT`` mean none.
 * A ``<mimic>`` must name another joint with one coordinate (revolute, continuous or prismatic),
   and the joint that carries it must have one coordinate too. A mimicked joint that does not
   exist only warns, and the relation is dropped; a ``<mimic>`` on a fixed joint is ignored
@@ -199,6 +212,29 @@ def _limits(ctx, joint_element, joint, path):
     return lower, upper
 
 
+def _joint_dynamics(ctx, joint_element, joint, path):
+    """``damping``, ``friction``, ``effort_limit`` and ``velocity_limit`` of a joint, ``(joint.nv,)`` each,
+    for :meth:`ModelBuilder.add_body`: from ``<dynamics>`` and ``<limit>`` of a one-coordinate joint
+    (absent: no damping or friction, no limits), the defaults for the others (as in Pinocchio)."""
+    if joint.nq != 1:
+        return {}
+    out = {}
+    dynamics = joint_element.find("dynamics")
+    for key in ("damping", "friction"):
+        value = _floats(ctx, dynamics, key, path + "/<dynamics>", 1, (0.0,))
+        if value[0] < 0.0:
+            raise ctx.error(path + "/<dynamics>", f"attribute {key}={dynamics.get(key)!r} must not be negative")
+        out[key] = value
+    limit = joint_element.find("limit")
+    for key in ("effort", "velocity"):
+        value = _floats(ctx, limit, key, path + "/<limit>", 1, (np.inf,), allow_infinite=True)
+        if value[0] < 0.0:
+            raise ctx.error(path + "/<limit>", f"attribute {key}={limit.get(key)!r} must not be negative "
+                                               f"(give {UNBOUNDED_LIMIT:g} or more, or leave it out, for no limit)")
+        out[f"{key}_limit"] = np.where(value >= UNBOUNDED_LIMIT, np.inf, value)
+    return out
+
+
 def _mimic(ctx, mimic, joint_name, joint_type, path):
     """The :class:`Mimic` of a ``<mimic>`` element carried by ``joint_name`` (its target checked later)."""
     mimicked = mimic.get("joint")
@@ -317,9 +353,9 @@ def load_urdf(source, *, floating_base=False, package_dirs=None, invalid_inertia
     Raises:
         URDFError: malformed XML, missing links, cycles, several roots, unknown joint types,
             negative masses, invalid inertias, zero axes, duplicate names, numbers that are not
-            decimal, not finite or above :data:`LARGEST_MAGNITUDE`, negative shape sizes, and
-            mimic relations that cannot hold (a joint that mimics itself, or a joint without
-            exactly one coordinate on either side).
+            decimal, not finite or above :data:`LARGEST_MAGNITUDE`, negative shape sizes, negative
+            damping, friction, effort or velocity limits, and mimic relations that cannot hold (a
+            joint that mimics itself, or a joint without exactly one coordinate on either side).
         FileNotFoundError: ``source`` is neither an existing file nor XML text.
     """
     if invalid_inertia not in ("error", "warn", "ignore"):
@@ -377,11 +413,11 @@ def load_urdf(source, *, floating_base=False, package_dirs=None, invalid_inertia
     builder = ModelBuilder(root.get("name") or "robot")
     mimics = []
 
-    def add_link(name, parent, joint, joint_name, placement, lower=None, upper=None):
+    def add_link(name, parent, joint, joint_name, placement, lower=None, upper=None, dynamics=None):
         path = f"<link name='{name}'>"
         inertia = _inertial(ctx, links[name], path, invalid_inertia)
         builder.add_body(name, joint, parent=parent, placement=placement, inertia=inertia,
-                         joint_name=joint_name, lower=lower, upper=upper)
+                         joint_name=joint_name, lower=lower, upper=upper, **(dynamics or {}))
         for geometry in _geometries(ctx, links[name], path, base_dir, package_dirs):
             builder.add_geometry(geometry)
 
@@ -403,7 +439,8 @@ def load_urdf(source, *, floating_base=False, package_dirs=None, invalid_inertia
         visited.add(child)
         joint_type = _joint_type(ctx, joint, path, name)
         lower, upper = _limits(ctx, joint, joint_type, path)
-        add_link(child, None if parent_link == world_root else parent_link, joint_type, name, _origin(ctx, joint, path), lower, upper)
+        add_link(child, None if parent_link == world_root else parent_link, joint_type, name, _origin(ctx, joint, path),
+                 lower, upper, _joint_dynamics(ctx, joint, joint_type, path))
         mimic = joint.find("mimic")
         # A fixed joint has no coordinate to couple: reduced models freeze mimicking joints and keep the tag.
         if mimic is not None and not isinstance(joint_type, jt.Fixed):

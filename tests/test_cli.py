@@ -1,4 +1,5 @@
-"""The command line: help, info, check (demo is exercised in test_nonholonomic_simulation.py)."""
+"""The command line: help, --version, info, check, demo --list (running a demo is exercised in
+test_nonholonomic_simulation.py)."""
 
 import pytest
 
@@ -43,8 +44,52 @@ def test_info_on_bad_input_exits_with_a_message(capsys, tmp_path):
     assert main(["info", str(urdf)]) == 2
     err = capsys.readouterr().err
     assert "bad.urdf" in err and "<joint name='j'>" in err and "unknown joint type 'bogus'" in err
-    with pytest.raises(SystemExit, match="neither a URDF file nor a shipped robot"):
-        main(["info", "no_such_robot"])
+
+
+@pytest.mark.parametrize("command", ["info", "check"])
+def test_missing_file_directory_and_unknown_robot_give_one_message_and_status(capsys, tmp_path, command):
+    """info and check answer the same wrong input with the same line on standard error and status 2,
+    before check looks for Pinocchio."""
+    cases = {
+        str(tmp_path / "absent.urdf"): f"multibody {command}: no such file: {str(tmp_path / 'absent.urdf')!r}",
+        str(tmp_path): f"multibody {command}: {str(tmp_path)!r} is a directory; give a URDF file or a robot name",
+        "no_such_robot": f"multibody {command}: 'no_such_robot' is neither a URDF file nor a known robot: "
+                         "no shipped robot named 'no_such_robot'",
+    }
+    for source, message in cases.items():
+        assert main([command, source]) == 2
+        captured = capsys.readouterr()
+        assert captured.out == "" and captured.err.startswith(message), captured.err
+        assert captured.err.count("\n") == 1
+
+
+def test_info_takes_a_robot_name_or_a_path(capsys):
+    assert main(["info", "diff_drive"]) == 0
+    by_name = capsys.readouterr().out
+    assert main(["info", mb.robots.path("diff_drive")]) == 0
+    assert capsys.readouterr().out == by_name
+    assert main(["info", "diff_drive", "--floating-base"]) == 0
+    assert "nq = 13, nv = 11" in capsys.readouterr().out
+
+
+def test_version(capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        main(["--version"])
+    assert exit_info.value.code == 0
+    assert capsys.readouterr().out.strip() == f"multibody {mb.__version__}"
+
+
+def test_demo_list(capsys):
+    from multibody.demos import DEMOS
+
+    assert main(["demo", "--list"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert [line.split()[0] for line in lines] == sorted(DEMOS)
+    assert "rolling-ball" in DEMOS and any(line.startswith("rolling-ball") and "ball rolling" in line for line in lines)
+    assert main(["demo"]) == 2
+    assert "give a demo name, or --list" in capsys.readouterr().err
+    assert main(["demo", "no-such-demo"]) == 2
+    assert "multibody demo: unknown demo 'no-such-demo'; available: " in capsys.readouterr().err
 
 
 def test_check_against_pinocchio(capsys):

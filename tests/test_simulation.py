@@ -442,14 +442,15 @@ def test_every_joint_type_integrates_in_charts():
     """A random tree with every joint type (free flyer, spherical, planar, revolute, prismatic, ...):
     DOP853 with a new chart per step conserves energy to 1e-11 relative, keeps every quaternion and
     planar (cos θ, sin θ) pair unit (the returned states are not normalised afterwards), and agrees
-    with RK4 (one chart per 1 ms step) to 1e-9 (measured: 2e-11 in q, 5e-11 relative in v)."""
+    with RK4 (one chart per 1 ms step) to 1e-9 (measured: 2e-11 in q, 5e-11 relative in v). The free
+    motion leaves the prismatic joint's limits, which are reported, not enforced: not this test's matter."""
     model = random_tree_model(0)
     rng = np.random.default_rng(0)
     q0, v0 = model.random_configuration(rng), rng.standard_normal(model.nv)
-    adaptive = mb.simulate(model, q0, v0, 0.5, dt=0.05, **TIGHT)
+    adaptive = mb.simulate(model, q0, v0, 0.5, dt=0.05, limits="ignore", **TIGHT)
     assert relative_energy_drift(adaptive) <= 1e-11
     assert_close(model.normalize(adaptive.q), adaptive.q, 1e-14, scale=1.0, what="unit blocks")
-    fixed = mb.simulate(model, q0, v0, 0.5, dt=1e-3, method="RK4")
+    fixed = mb.simulate(model, q0, v0, 0.5, dt=1e-3, method="RK4", limits="ignore")
     assert_close(model.difference(fixed.q[-1], adaptive.q[-1]), np.zeros(model.nv), 1e-9, scale=1.0,
                  what="configuration, DOP853 vs RK4")
     assert_close(adaptive.v[-1], fixed.v[-1], 1e-9, scale=max(1.0, np.abs(fixed.v[-1]).max()), what="velocity")

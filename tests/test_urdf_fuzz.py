@@ -59,7 +59,7 @@ ERD_SEEDS = (
 
 
 def _seed_paths():
-    paths = {name: mb.robots.path(name) for name in mb.robots.names()}
+    paths = {name: mb.robots.path(name) for name in mb.robots.names(example_robot_data=False)}
     for relative in ERD_SEEDS:
         path = os.path.join(ERD_DIR, relative) if ERD_DIR else None
         if path and os.path.isfile(path):
