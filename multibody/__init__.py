@@ -6,7 +6,7 @@ Public names are listed in ``docs/api.md``; conventions (vector ordering, frames
 
 from . import inertia, joints, robots, spatial
 from .driver import get_num_threads, set_num_threads
-from .constrained import ConstrainedSystem, ConstraintError, KKTSolution
+from .constrained import ConstrainedSystem, ConstraintError, KKTDerivatives, KKTSolution
 from .constraints import (
     Distance,
     Holonomic,
@@ -40,6 +40,7 @@ from .kinematics import (
     point_acceleration,
     point_velocity,
 )
+from .ik import InverseKinematicsResult, inverse_kinematics
 from .model import Geometry, Mimic, Model, ModelBuilder
 from .robotics import (
     center_of_mass,
@@ -79,6 +80,7 @@ __all__ = [
     "JointCoupling",
     "KnifeEdge",
     "LagrangianSystem",
+    "KKTDerivatives",
     "KKTSolution",
     "LoopClosure",
     "Pfaffian",
@@ -100,6 +102,8 @@ __all__ = [
     "generalized_gravity",
     "inverse_dynamics",
     "inverse_mass_matrix",
+    "inverse_kinematics",
+    "InverseKinematicsResult",
     "joint_reaction_forces",
     "kinetic_energy",
     "mass_matrix",

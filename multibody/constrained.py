@@ -16,7 +16,7 @@ from functools import cached_property
 
 import numpy as np
 
-from . import driver, dynamics, kinematics, linalg, spatial
+from . import derivatives, driver, dynamics, kinematics, linalg, spatial
 from .constraints import CompiledRows, _frame_key, constraint_program
 from .kernels import aba, integration, kkt
 from .model import Model
@@ -146,6 +146,24 @@ class KKTSolution:
     rank: int
     A: np.ndarray
     gamma: np.ndarray
+
+
+@dataclass(frozen=True)
+class KKTDerivatives:
+    """Derivatives of :meth:`ConstrainedSystem.forward_dynamics` at one state (or a batch, with leading
+    axes): ``a`` and ``λ`` with respect to ``q`` (tangent space, ``q ⊕ δq``), ``v`` and ``τ``.
+
+    Attributes:
+        da_dq, da_dv, da_dtau: ``(..., nv, nv)``.
+        dlam_dq, dlam_dv, dlam_dtau: ``(..., m, nv)``; the multipliers' units per unit of the coordinate.
+    """
+
+    da_dq: np.ndarray
+    da_dv: np.ndarray
+    da_dtau: np.ndarray
+    dlam_dq: np.ndarray
+    dlam_dv: np.ndarray
+    dlam_dtau: np.ndarray
 
 
 class ConstrainedSystem:
@@ -471,6 +489,110 @@ class ConstrainedSystem:
         """
         solution = self.solve(q, v, tau, t)
         return solution.a, solution.lam
+
+    #: Step of the five-point central differences of the constraint rows, per unit of ``max(1, |q|)`` (m,
+    #: rad) or ``max(1, |v|)``: about the fifth root of the machine epsilon, which balances the stencil's
+    #: ``O(h⁴)`` truncation against its ``ε/h`` rounding, so that both stay near ``1e-12``.
+    DERIVATIVE_STEP = 7e-4
+
+    def forward_dynamics_derivatives(self, q, v, tau=None, t=0.0) -> KKTDerivatives:
+        """Derivatives of ``(a, λ)`` of :meth:`forward_dynamics` with respect to ``q``, ``v`` and ``τ``; see
+        :class:`KKTDerivatives`. Derivatives with respect to ``q`` are in the tangent space
+        (``system.integrate(q, δq)``), as :func:`multibody.forward_dynamics_derivatives`'.
+
+        Differentiating the KKT system ``M a + h − Aᵀλ = τ``, ``A a = γ`` at the solution gives, for each
+        input x, ``[[M, −Aᵀ], [A, 0]] [∂a; ∂λ] = [r₁; r₂]`` with
+
+            r₁ = ∂τ/∂x − ∂(M a + h)/∂x|_a + ∂(Aᵀλ)/∂x|_λ,      r₂ = ∂γ/∂x − ∂(A a)/∂x|_a,
+
+        solved by eliminating ``∂a``: ``G ∂λ = r₂ − A M⁻¹ r₁`` with ``G = A M⁻¹ Aᵀ``, then
+        ``∂a = M⁻¹ (r₁ + Aᵀ ∂λ)``. ``∂(M a + h)/∂(q, v)`` is analytical for a :class:`Model`
+        (:func:`multibody.inverse_dynamics_derivatives`); the constraint terms ``Aᵀλ`` and ``A a − γ``
+        (Baumgarte terms included) are differentiated by five-point central differences in the tangent space
+        with the step :attr:`DERIVATIVE_STEP` ``· max(1, |q|)``: exact in ``v`` up to rounding (``γ`` is
+        quadratic in ``v``), and to about ``1e-11`` relative in ``q``. Where rows are redundant, ``∂λ`` is the minimum-norm
+        solution, by the rank rule of :meth:`solve`. A system that is not a :class:`Model` gets
+        ``∂(M a + h)`` by central differences too.
+
+        ``q (..., nq)``, ``v (..., nv)``, ``tau (..., nv)`` or ``None``; leading axes need :attr:`batched`.
+        Pinocchio counterpart (holonomic): ``computeConstraintDynamicsDerivatives``.
+        """
+        solution = self.solve(q, v, tau, t)
+        q, v = self._check_state(q, v)
+        a, lam, A = solution.a, solution.lam, solution.A
+        batch, nv, m = a.shape[:-1], self.nv, self.num_rows
+        M = self.system.mass_matrix(q)
+        L = self._factor(q, M)
+        dtau_dq, dtau_dv = self._torque_derivatives(q, v, a)
+        if m:
+            force_dq, level_dq, level_dv = self._row_derivatives(q, v, a, lam, t)
+        else:
+            force_dq, level_dq, level_dv = 0.0, np.zeros(batch + (0, nv)), np.zeros(batch + (0, nv))
+        identity = np.broadcast_to(np.eye(nv), batch + (nv, nv))
+        # r₁ = ∂τ/∂x − ∂(M a + h)/∂x + ∂(Aᵀλ)/∂x ;  r₂ = −∂(A a − γ)/∂x, for x = q, v, τ side by side
+        r1 = np.concatenate([force_dq - dtau_dq, -dtau_dv, identity], axis=-1)
+        r2 = np.concatenate([-level_dq, -level_dv, np.zeros(batch + (m, nv))], axis=-1)
+        # M⁻¹ [r₁ | Aᵀ]
+        solved = self._solve_factored(L, np.concatenate([r1, np.swapaxes(A, -1, -2)], axis=-1))
+        M_inv_r1, M_inv_At = solved[..., : 3 * nv], solved[..., 3 * nv :]
+        # G ∂λ = r₂ − A M⁻¹ r₁ (minimum norm) ;  ∂a = M⁻¹ r₁ + M⁻¹Aᵀ ∂λ
+        dlam = self._delassus_pseudo_inverse(A, L) @ (r2 - A @ M_inv_r1) if m else r2
+        da = M_inv_r1 + M_inv_At @ dlam
+        return KKTDerivatives(da[..., :nv], da[..., nv : 2 * nv], da[..., 2 * nv :],
+                              dlam[..., :nv], dlam[..., nv : 2 * nv], dlam[..., 2 * nv :])
+
+    def _delassus_pseudo_inverse(self, A, L):
+        """``G⁺ (..., m, m)`` of ``G = A M⁻¹ Aᵀ`` from the singular values of ``A L⁻ᵀ``, with the rank rule
+        of :meth:`_minimum_norm`."""
+        sigma, U = self._metric_singular_values(A, L)
+        keep = sigma > self.rank_tolerance * sigma[..., :1]
+        inverse = np.divide(1.0, sigma**2, out=np.zeros_like(sigma), where=keep)
+        return (U * inverse[..., None, :]) @ np.swapaxes(U, -1, -2)
+
+    def _torque_derivatives(self, q, v, a):
+        """``∂(M a + h)/∂q`` (tangent space) and ``∂(M a + h)/∂v`` at fixed ``a``: analytical for a model,
+        central differences otherwise (exact in ``v``, where ``h`` is quadratic)."""
+        if isinstance(self.system, ModelSystem):
+            return derivatives.inverse_dynamics_derivatives(self.system.model, q, v, a)
+
+        def torque(q_, v_):
+            return matvec(self.system.mass_matrix(q_), a) + self.system.bias_forces(q_, v_)
+
+        return self._central_differences(lambda q_: torque(q_, v), q, True), \
+            self._central_differences(lambda v_: torque(q, v_), v, False)
+
+    def _row_derivatives(self, q, v, a, lam, t):
+        """``∂(Aᵀλ)/∂q (..., nv, nv)`` at fixed ``λ``, ``∂(A a − γ)/∂q`` and ``∂(A a − γ)/∂v (..., m, nv)`` at
+        fixed ``a``, by central differences of the rows (Baumgarte terms included)."""
+
+        def force_and_level(q_, v_):
+            A, gamma = self.acceleration_level(q_, v_, t)
+            return np.concatenate([matvec(np.swapaxes(A, -1, -2), lam), matvec(A, a) - gamma], axis=-1)
+
+        nv = self.nv
+        d_dq = self._central_differences(lambda q_: force_and_level(q_, v), q, True)
+        d_dv = self._central_differences(lambda v_: force_and_level(q, v_), v, False)
+        return d_dq[..., :nv, :], d_dq[..., nv:, :], d_dv[..., nv:, :]
+
+    def _central_differences(self, f, x, tangent):
+        """``∂f/∂x (..., k, nv)`` of ``f(x) -> (..., k)`` by five-point central differences,
+        ``(8 (f₊₁ − f₋₁) − (f₊₂ − f₋₂)) / 12h`` with ``f_{±s} = f(x ⊕ ±s h e_j)``: displaced through
+        ``system.integrate`` when ``tangent`` (``x`` a configuration), by ``x ± s h e_j`` otherwise, with
+        ``h = DERIVATIVE_STEP · max(1, |x|)``. The stencil is exact for polynomials of degree four. All
+        ``4 nv`` displaced states go in one call when the system takes batches."""
+        nv = self.nv
+        h = self.DERIVATIVE_STEP * max(1.0, float(np.abs(x).max(initial=0.0)))
+        unit = np.eye(nv)
+        steps = np.concatenate([unit, -unit, 2.0 * unit, -2.0 * unit]) * h  # (4 nv, nv)
+        steps = steps.reshape((4 * nv,) + (1,) * (x.ndim - 1) + (nv,))
+        displaced = self.system.integrate(x, steps, 1.0) if tangent else x + steps
+        if self.batched:
+            values = f(displaced)
+        else:
+            values = np.stack([f(displaced[j]) for j in range(4 * nv)])
+        plus, minus, plus2, minus2 = values[:nv], values[nv : 2 * nv], values[2 * nv : 3 * nv], values[3 * nv :]
+        # column j: (8 (f₊₁ − f₋₁) − (f₊₂ − f₋₂)) / 12h
+        return np.moveaxis((8.0 * (plus - minus) - (plus2 - minus2)) / (12.0 * h), 0, -1)
 
     def rank(self, q, t=0.0) -> int:
         """Rank of the constraint Jacobian at ``q``: the number of independent rows, judged as :meth:`solve`
