@@ -40,7 +40,6 @@ from .kinematics import (
     point_acceleration,
     point_velocity,
 )
-from .ik import InverseKinematicsResult, inverse_kinematics
 from .model import Geometry, Mimic, Model, ModelBuilder
 from .robotics import (
     center_of_mass,
@@ -52,6 +51,7 @@ from .robotics import (
     centroidal_momentum_matrix_derivative,
 )
 from .rolling import KnifeEdge, RollingDisc, RollingSphere
+from .shooting import StepDerivatives, rk4_step, rk4_step_derivatives
 from .simulation import JointLimitWarning, SimulationError, Trajectory, simulate
 
 
@@ -93,6 +93,9 @@ __all__ = [
     "Trajectory",
     "mimic_constraints",
     "simulate",
+    "StepDerivatives",
+    "rk4_step",
+    "rk4_step_derivatives",
     "bias_forces",
     "coriolis_matrix",
     "forward_dynamics",
@@ -102,8 +105,6 @@ __all__ = [
     "generalized_gravity",
     "inverse_dynamics",
     "inverse_mass_matrix",
-    "inverse_kinematics",
-    "InverseKinematicsResult",
     "joint_reaction_forces",
     "kinetic_energy",
     "mass_matrix",
