@@ -16,7 +16,7 @@ from functools import cached_property
 
 import numpy as np
 
-from . import derivatives, driver, dynamics, kinematics, linalg, spatial
+from . import derivatives, differences, driver, dynamics, kinematics, linalg, spatial
 from .constraints import CompiledRows, _frame_key, constraint_program
 from .kernels import aba, integration, kkt
 from .model import Model
@@ -491,9 +491,8 @@ class ConstrainedSystem:
         return solution.a, solution.lam
 
     #: Step of the five-point central differences of the constraint rows, per unit of ``max(1, |q|)`` (m,
-    #: rad) or ``max(1, |v|)``: about the fifth root of the machine epsilon, which balances the stencil's
-    #: ``O(h⁴)`` truncation against its ``ε/h`` rounding, so that both stay near ``1e-12``.
-    DERIVATIVE_STEP = 7e-4
+    #: rad) or ``max(1, |v|)`` (:data:`multibody.differences.STEP`).
+    DERIVATIVE_STEP = differences.STEP
 
     def forward_dynamics_derivatives(self, q, v, tau=None, t=0.0) -> KKTDerivatives:
         """Derivatives of ``(a, λ)`` of :meth:`forward_dynamics` with respect to ``q``, ``v`` and ``τ``; see
@@ -575,24 +574,22 @@ class ConstrainedSystem:
         return d_dq[..., :nv, :], d_dq[..., nv:, :], d_dv[..., nv:, :]
 
     def _central_differences(self, f, x, tangent):
-        """``∂f/∂x (..., k, nv)`` of ``f(x) -> (..., k)`` by five-point central differences,
-        ``(8 (f₊₁ − f₋₁) − (f₊₂ − f₋₂)) / 12h`` with ``f_{±s} = f(x ⊕ ±s h e_j)``: displaced through
-        ``system.integrate`` when ``tangent`` (``x`` a configuration), by ``x ± s h e_j`` otherwise, with
-        ``h = DERIVATIVE_STEP · max(1, |x|)``. The stencil is exact for polynomials of degree four. All
-        ``4 nv`` displaced states go in one call when the system takes batches."""
+        """``∂f/∂x (..., k, nv)`` of ``f(x) -> (..., k)`` by five-point central differences
+        (:func:`multibody.differences.five_point_jacobian`): ``x`` displaced through ``system.integrate``
+        when ``tangent`` (a configuration), by ``x + s`` otherwise, with the step
+        ``h = DERIVATIVE_STEP · max(1, |x|)``. All ``4 nv`` displaced states go in one call when the
+        system takes batches."""
         nv = self.nv
         h = self.DERIVATIVE_STEP * max(1.0, float(np.abs(x).max(initial=0.0)))
-        unit = np.eye(nv)
-        steps = np.concatenate([unit, -unit, 2.0 * unit, -2.0 * unit]) * h  # (4 nv, nv)
-        steps = steps.reshape((4 * nv,) + (1,) * (x.ndim - 1) + (nv,))
-        displaced = self.system.integrate(x, steps, 1.0) if tangent else x + steps
-        if self.batched:
-            values = f(displaced)
-        else:
-            values = np.stack([f(displaced[j]) for j in range(4 * nv)])
-        plus, minus, plus2, minus2 = values[:nv], values[nv : 2 * nv], values[2 * nv : 3 * nv], values[3 * nv :]
-        # column j: (8 (f₊₁ − f₋₁) − (f₊₂ − f₋₂)) / 12h
-        return np.moveaxis((8.0 * (plus - minus) - (plus2 - minus2)) / (12.0 * h), 0, -1)
+
+        def displace(steps):
+            steps = steps.reshape((4 * nv,) + (1,) * (x.ndim - 1) + (nv,))
+            return self.system.integrate(x, steps, 1.0) if tangent else x + steps
+
+        def values(displaced):
+            return f(displaced) if self.batched else np.stack([f(state) for state in displaced])
+
+        return differences.five_point_jacobian(values, displace, nv, h)
 
     def rank(self, q, t=0.0) -> int:
         """Rank of the constraint Jacobian at ``q``: the number of independent rows, judged as :meth:`solve`
