@@ -15,18 +15,11 @@ import sys
 import numpy as np
 
 import multibody as mb
+from multibody.demos import bead_on_wire_setup, helix, wavy_loop
 from multibody.plotting import plot_trajectory
 
 out = sys.argv[1] if len(sys.argv) > 1 else "output"
 m, g = 0.2, 9.81  # kg, m/s²
-
-
-def helix(s, radius=0.5, rise=0.15):
-    return np.stack([radius * np.cos(s), radius * np.sin(s), rise * s], axis=-1)
-
-
-def wavy_loop(s):
-    return np.stack([np.cos(s), 0.6 * np.sin(s), 0.3 * np.sin(s) + 0.1 * np.cos(3 * s)], axis=-1)
 
 
 class BeadOnWire:
@@ -59,18 +52,14 @@ class BeadOnWire:
         return 0.5 * self.mass * (d1 @ d1) * v[0] ** 2 + self.mass * self.gravity * self.curve(q[0])[2]
 
 
-builder = mb.ModelBuilder("bead", gravity=(0.0, 0.0, -g))
-builder.add_body("bead", joint=mb.joints.Translation(), inertia=mb.inertia.point_mass(m))
-bead = builder.build()
-
 for name, curve, s_range in (("helix", helix, (-40.0, 15.0)), ("wavy_loop", wavy_loop, (-3 * np.pi, 3 * np.pi))):
     s0, s_dot0, duration = 1.0, 2.0, 3.0
     minimal = BeadOnWire(curve, m, g)
-    d1, _ = minimal._derivatives(s0)
 
-    # 1. Cartesian coordinates with multipliers.
-    wire = mb.PointOnCurve("bead", curve, s_range=s_range, samples=4001)
-    cartesian = mb.simulate(mb.ConstrainedSystem(bead, [wire]), curve(s0), d1 * s_dot0, duration, dt=0.01,
+    # 1. Cartesian coordinates (a translation joint) held on the wire by mb.PointOnCurve, with multipliers:
+    #    built in multibody/demos.py (also `multibody demo bead-on-wire`).
+    cartesian_setup = bead_on_wire_setup(curve, s_range, mass=m, gravity=g, s0=s0, s_dot0=s_dot0)
+    cartesian = mb.simulate(cartesian_setup.system, cartesian_setup.q0, cartesian_setup.v0, duration, dt=0.01,
                             method="DOP853", rtol=1e-11, atol=1e-12)
     # 2. The generalized coordinate s.
     generalized = mb.simulate(minimal, np.array([s0]), np.array([s_dot0]), duration, dt=0.01,

@@ -11,19 +11,15 @@ import sys
 import numpy as np
 
 import multibody as mb
+from multibody.demos import four_bar_setup
 from multibody.plotting import plot_trajectory
 
 out = sys.argv[1] if len(sys.argv) > 1 else "output"
-model = mb.robots.load("four_bar")
-
-# Frame A's x–y plane must be the mechanism's plane x–z: rotate it by +90° about x.
-in_plane = mb.spatial.pose_from_xyz_rpy(rpy=(np.pi / 2, 0.0, 0.0))
-closure = mb.LoopClosure("coupler_tip", "rocker_tip", frame_a=in_plane, kind="planar")
-system = mb.ConstrainedSystem(model, [closure])
-
-# Start from a guess (crank at 60°, coupler and rocker roughly placed) and project onto the loop.
-guess = np.array([-np.pi / 3, 0.9, -1.4])  # rotations about +y: negative lifts the link
-q0, v0 = system.project(guess, np.zeros(model.nv))
+# The linkage is built in multibody/demos.py (also `multibody demo four-bar`): the URDF tree, a planar
+# LoopClosure whose frame A is turned by +90° about x so that its x–y plane is the mechanism's x–z
+# plane, and a start projected onto the loop from a guess (crank at 60°, the others roughly placed).
+setup = four_bar_setup()
+model, system, q0, v0 = setup.model, setup.system, setup.q0, setup.v0
 print("consistent start q0 =", np.round(q0, 6), " |φ| =", np.abs(system.position_error(q0)).max())
 
 trajectory = mb.simulate(system, q0, v0, 4.0, dt=0.01, method="DOP853", rtol=1e-10, atol=1e-12)

@@ -67,6 +67,13 @@ def __getattr__(name):
         import importlib
 
         return importlib.import_module("multibody.plotting")
+    # The 3-D viewer (and Viser with it) too; mb.view raises an ImportError naming the [viz] extra
+    # when Viser is missing.
+    if name in ("view", "viewer"):
+        import importlib
+
+        viewer = importlib.import_module("multibody.viewer")
+        return viewer if name == "viewer" else viewer.view
     raise AttributeError(f"module 'multibody' has no attribute {name!r}")
 from .urdf import URDFError, load_urdf
 

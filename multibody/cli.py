@@ -1,5 +1,6 @@
-"""Command line: ``multibody demo NAME`` (``--list``), ``multibody info URDF|ROBOT``, ``multibody check URDF|ROBOT``,
-``multibody --version``. See ``multibody --help``.
+"""Command line: ``multibody demo NAME`` (``--list``, ``--view``), ``multibody info URDF|ROBOT``,
+``multibody check URDF|ROBOT``, ``multibody view URDF|ROBOT [--trajectory FILE.npz]``, ``multibody --version``.
+See ``multibody --help``.
 
 Wrong input (a missing file, a directory, an unknown robot name, a malformed URDF) gives one line on
 standard error, ``multibody COMMAND: what is wrong``, and exit status 2.
@@ -153,12 +154,58 @@ def cmd_demo(args):
     # the kernels a simulation with built-in constraints runs first
     if not compiled_before((integration.chart_derivative, kkt.constrained_accelerations, constraints.constraint_levels)):
         print("compiling multibody's kernels for this machine (first run only; a minute or two)", flush=True)
-    summary, paths = DEMOS[args.name](args.out)
-    for key, value in summary.items():
+    result = DEMOS[args.name](args.out)
+    for key, value in result.summary.items():
         print(f"  {key}: {value:.3e}")
-    for path in paths:
+    for path in result.paths:
         print(f"  wrote {path}")
+    if args.view:
+        from .viewer import view
+
+        return _serve(view(result.model, trajectory=result.trajectory, constraints=result.constraints,
+                           port=args.port, trace=result.trace, title=f"multibody demo {args.name}"))
     return 0
+
+
+def _serve(viewer, html=None):
+    """Serve ``viewer`` until Ctrl-C, or, given ``html``, write its offline page there and stop."""
+    import time
+
+    try:
+        if html is not None:
+            print(f"wrote {viewer.save_html(html)}")
+            return 0
+        print(f"3-D viewer at {viewer.url} (Ctrl-C to stop)", flush=True)
+        while True:
+            time.sleep(1.0)
+    except KeyboardInterrupt:
+        return 0
+    finally:
+        viewer.close()
+
+
+def cmd_view(args):
+    from .simulation import Trajectory
+    from .viewer import INSTALL_HINT
+
+    try:
+        import viser  # noqa: F401
+    except ImportError:
+        print(f"multibody view: {INSTALL_HINT}", file=sys.stderr)
+        return 2
+    from .viewer import view
+
+    model = _load(args.urdf, args.floating_base, args.package_dir)
+    trajectory = None
+    if args.trajectory is not None:
+        if os.path.isdir(args.trajectory):
+            raise InputError(f"{args.trajectory!r} is a directory; give a trajectory file (.npz, Trajectory.save)")
+        if not os.path.isfile(args.trajectory):
+            raise InputError(f"no such file: {args.trajectory!r}")
+        trajectory = Trajectory.load(args.trajectory)
+    viewer = view(model, trajectory=trajectory, port=args.port, trace=args.trace,
+                  title=f"multibody view {os.path.basename(args.urdf)}")
+    return _serve(viewer, args.html)
 
 
 def build_parser():
@@ -181,7 +228,22 @@ def build_parser():
     demo.add_argument("name", nargs="?", help="demo name: " + ", ".join(sorted(DEMOS)))
     demo.add_argument("--list", action="store_true", help="list the demos, each with what it shows")
     demo.add_argument("--out", default="multibody_output", help="folder for the figures (default multibody_output)")
+    demo.add_argument("--view", action="store_true", help="then show the motion in the 3-D viewer (needs multibody[viz])")
+    demo.add_argument("--port", type=int, default=8080, help="the viewer's port (default 8080; the next free one if taken)")
     demo.set_defaults(run=cmd_demo)
+
+    view = commands.add_parser("view", help="show a model, or a saved trajectory of it, in the 3-D viewer (browser)")
+    view.add_argument("urdf", metavar="URDF|ROBOT",
+                      help="URDF file, or a robot name (e.g. double_pendulum; example-robot-data's when installed)")
+    view.add_argument("--trajectory", metavar="FILE.npz", help="a trajectory saved by Trajectory.save, to play")
+    view.add_argument("--port", type=int, default=8080, help="port to serve on (default 8080; the next free one if taken)")
+    view.add_argument("--trace", action="append", default=[], metavar="BODY",
+                      help="draw the path of this body's origin (repeatable)")
+    view.add_argument("--html", metavar="FILE.html",
+                      help="write a self-contained page that replays it offline, and exit instead of serving")
+    view.add_argument("--floating-base", action="store_true", help="add a free-flyer joint at the root")
+    view.add_argument("--package-dir", action="append", default=[], help="where package:// meshes live (repeatable)")
+    view.set_defaults(run=cmd_view)
 
     check = commands.add_parser("check", help="compare kinematics and dynamics with Pinocchio at random states")
     check.add_argument("urdf", metavar="URDF|ROBOT",
