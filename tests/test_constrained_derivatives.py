@@ -48,8 +48,10 @@ def _sleigh():
 
 def _four_bar(baumgarte=None):
     model, tip, pivot = four_bar()
-    system = mb.ConstrainedSystem(model, [mb.LoopClosure(None, "link3", frame_a=pose_from_xyz_rpy(pivot),
-                                                         frame_b=tip, kind="planar")], baumgarte=baumgarte)
+    # frame A's x–y plane is the mechanism's x–z plane
+    in_plane = pose_from_xyz_rpy(pivot, [np.pi / 2, 0.0, 0.0])
+    system = mb.ConstrainedSystem(model, [mb.LoopClosure(None, "link3", frame_a=in_plane, frame_b=tip, kind="planar")],
+                                  baumgarte=baumgarte)
     rng = np.random.default_rng(4)
     q, v = system.project(np.array([-1.2, 1.0, 1.5]) + 0.1 * rng.standard_normal(3), rng.standard_normal(3))
     return system, q, v

@@ -24,8 +24,8 @@ def _systems():
     pendulum = mb.robots.load("double_pendulum")
     tree = coordinate_tree_model(0)
     model, tip, pivot = four_bar()
-    closed = mb.ConstrainedSystem(model, [mb.LoopClosure(None, "link3", frame_a=pose_from_xyz_rpy(pivot), frame_b=tip,
-                                                         kind="planar")])
+    in_plane = pose_from_xyz_rpy(pivot, [np.pi / 2, 0.0, 0.0])  # frame A's x–y plane: the mechanism's x–z
+    closed = mb.ConstrainedSystem(model, [mb.LoopClosure(None, "link3", frame_a=in_plane, frame_b=tip, kind="planar")])
     rng = np.random.default_rng(0)
     q4, v4 = closed.project(np.array([-1.2, 1.0, 1.5]), rng.standard_normal(3))
     every_kind = random_tree_model(1)
