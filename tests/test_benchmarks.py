@@ -15,7 +15,7 @@ def test_benchmark_script_smoke(tmp_path):
     assert main(["--quick", "--out", str(tmp_path)]) == 0
     results = json.loads((tmp_path / "results.json").read_text())
     algorithms = {row["algorithm"] for row in results["rows"]}
-    assert algorithms == {"rnea", "crba", "aba", "coriolis", "bias", "jacobian"}
+    assert algorithms == {"rnea", "crba", "aba", "coriolis", "bias", "jacobian", "rnea_derivatives", "aba_derivatives"}
     assert all(row["single_us"] > 0 and row["pinocchio_us"] > 0 for row in results["rows"])
     assert results["rolling_ball"]["max_residual"] < 1e-9
     assert (tmp_path / "results.md").read_text().startswith("| robot |")
