@@ -5,7 +5,9 @@ batches of N states (on every thread, and for the largest N on one thread too), 
 per call from Python, and their ratios; then the peak memory of a large batched CRBA, one
 constrained-dynamics step of the rolling ball and the wall time of simulating it for 10 s with
 1 kHz output (adaptive DOP853 with dense output, and fixed-step RK4), and a Panda under a PD
-controller simulated for 3 s by RK4 at 1 kHz, next to the same loop written on Pinocchio.
+controller simulated for 3 s by RK4 at 1 kHz, next to the same loop written on Pinocchio; 4096
+double-pendulum and Panda trajectories by batched RK4 for 1 s at 1 kHz, against batched forward dynamics;
+and, with Dask installed, the overhead of chunks of 1e5 states on two local worker processes.
 The table is printed and saved as JSON and Markdown.
 
     python benchmarks/run.py                      # the full table (several minutes)
@@ -216,7 +218,8 @@ def panda_pd_loop(duration=3.0, rate=1000.0):
 
     q0, v0, dt = model.neutral(), np.zeros(model.nv), 1.0 / rate
     start = time.perf_counter()
-    trajectory = mb.simulate(model, q0, v0, duration, dt=dt, method="RK4", tau=controller)
+    # the Pinocchio loop checks no joint limits (and the neutral pose is outside joint 4's): neither does this
+    trajectory = mb.simulate(model, q0, v0, duration, dt=dt, method="RK4", tau=controller, limits="ignore")
     result = {"ours_s": time.perf_counter() - start}
     try:
         import pinocchio as pin
@@ -241,6 +244,68 @@ def panda_pd_loop(duration=3.0, rate=1000.0):
     result["ratio"] = result["ours_s"] / result["pinocchio_s"]
     result["final_state_difference"] = float(max(np.abs(trajectory.q[-1] - q).max(), np.abs(trajectory.v[-1] - v).max()))
     return result
+
+
+def inverse_kinematics_line(n=1000, poses=20):
+    """The benchmark line of ``mb.inverse_kinematics`` on Panda hand poses, the forward kinematics of random
+    configurations within the joint limits, solved to 1e-10 from the default start: the median over
+    ``poses`` poses of one pose's time, and the time per pose of a batch of ``n``."""
+    model = mb.load_urdf(os.path.join(example_robot_data(), ROBOTS["panda"][0]))
+    frame = "panda_hand_tcp"
+    targets = mb.frame_placement(model, model.random_configuration(np.random.default_rng(1), (n,)), frame)
+    single = np.median([best_time(lambda X=X: mb.inverse_kinematics(model, {frame: X}), 0.05) for X in targets[:poses]])
+    batch = best_time(lambda: mb.inverse_kinematics(model, {frame: targets}), 0.5, min_runs=3)
+    converged = int(mb.inverse_kinematics(model, {frame: targets}).converged.sum())
+    return (f"inverse kinematics, Panda: one pose {single * 1e3:.2f} ms (median of {poses}), {n} poses "
+            f"{batch / n * 1e6:.1f} µs/pose ({converged} of {n} converged)")
+
+
+def batched_rk4_line(n=4096, duration=1.0, rate=1000.0, budget=0.5):
+    """The benchmark line of batched RK4: ``n`` double-pendulum and Panda trajectories (random configurations,
+    small random velocities, no joint forces) for ``duration`` s at ``rate`` Hz by one ``mb.simulate`` call
+    each, its wall time per trajectory-step against the per-state time of one batched forward-dynamics call
+    on ``n`` states. RK4 evaluates the dynamics four times a step, so the ratio is at least 4."""
+    rng = np.random.default_rng(2)
+    parts = []
+    for name in ("double_pendulum", "panda"):
+        model = mb.load_urdf(os.path.join(example_robot_data(), ROBOTS[name][0]))
+        q0, v0 = model.random_configuration(rng, (n,)), 0.1 * rng.standard_normal((n, model.nv))
+        tau = np.zeros(model.nv)
+        per_state = best_time(lambda: mb.forward_dynamics(model, q0, v0, tau), budget) / n
+        steps = int(round(duration * rate))
+        start = time.perf_counter()
+        trajectory = mb.simulate(model, q0, v0, duration, dt=1.0 / rate, method="RK4", limits="ignore")
+        step = (time.perf_counter() - start) / (n * steps)
+        parts.append(f"{name} {step * 1e6:.2f} µs per trajectory-step, {step / per_state:.1f}× the "
+                     f"{per_state * 1e6:.2f} µs/state of forward dynamics ({int(trajectory.completed.sum())} of {n} "
+                     "completed)")
+    return f"batched RK4, {n} trajectories for {duration:g} s at {rate:g} Hz (outputs included): " + "; ".join(parts)
+
+
+def dask_line(chunk=100_000, chunks=4, budget=1.0):
+    """The benchmark line of ``mb.distributed.map_states`` on a ``LocalCluster`` of two worker processes (one
+    thread each): Panda forward dynamics and mass matrices of ``chunks`` chunks of ``chunk`` states, the time
+    per state against the same batch in this process (every thread), and the difference as a share of it."""
+    try:
+        import distributed
+    except ImportError:
+        return "Dask: not installed (pip install 'multibody[dask]')"
+    model = mb.load_urdf(os.path.join(example_robot_data(), ROBOTS["panda"][0]))
+    rng = np.random.default_rng(3)
+    n = chunk * chunks
+    q = model.random_configuration(rng, (n,))
+    v, tau = rng.standard_normal((n, model.nv)), rng.standard_normal((n, model.nv))
+    parts = []
+    cases = (("forward dynamics", mb.forward_dynamics, (q, v, tau)), ("CRBA", mb.mass_matrix, (q,)))
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster, \
+            distributed.Client(cluster) as client:
+        for name, fn, arrays in cases:
+            here = best_time(lambda: fn(model, *arrays), budget, min_runs=2) / n
+            there = best_time(lambda: mb.distributed.map_states(fn, model, *arrays, chunks=chunk, client=client),
+                              budget, min_runs=2) / n
+            parts.append(f"{name} {there * 1e6:.2f} µs/state against {here * 1e6:.2f} in one process "
+                         f"(overhead {(there - here) / here:+.0%})")
+    return f"Dask, 2 local worker processes, {chunks} chunks of {chunk} Panda states: " + "; ".join(parts)
 
 
 def markdown(rows, sizes):
@@ -294,6 +359,9 @@ def main(argv=None):
         f"{pd['ours_s']:.2f} s, the same loop on Pinocchio {pd.get('pinocchio_s', float('nan')):.2f} s "
         f"(ratio {pd.get('ratio', float('nan')):.2f}; final states differ by "
         f"{pd.get('final_state_difference', float('nan')):.1e})",
+        inverse_kinematics_line(16 if args.quick else 1000, 2 if args.quick else 20),
+        batched_rk4_line(64 if args.quick else 4096, 0.005 if args.quick else 1.0),
+        dask_line(1000 if args.quick else 100_000, 2 if args.quick else 4, 0.01 if args.quick else 1.0),
         f"threads: {mb.get_num_threads()}",
         "roboticstoolbox rne_python (µs): " + ", ".join(
             f"{k}: {'not installed / no model' if t is None else f'{t:.0f}'}" for k, t in rne.items()),

@@ -40,6 +40,7 @@ from .kinematics import (
     point_acceleration,
     point_velocity,
 )
+from .ik import InverseKinematicsResult, inverse_kinematics
 from .model import Geometry, Mimic, Model, ModelBuilder
 from .robotics import (
     center_of_mass,
@@ -53,6 +54,7 @@ from .robotics import (
 from .rolling import KnifeEdge, RollingDisc, RollingSphere
 from .shooting import StepDerivatives, rk4_step, rk4_step_derivatives
 from .simulation import JointLimitWarning, SimulationError, Trajectory, simulate
+from . import variational
 
 
 def __getattr__(name):
@@ -62,11 +64,11 @@ def __getattr__(name):
 
         symbolic = importlib.import_module("multibody.symbolic")
         return symbolic if name == "symbolic" else getattr(symbolic, name)
-    # Figures (and matplotlib with them) likewise.
-    if name == "plotting":
+    # Figures (and matplotlib with them) likewise; and batches on a Dask cluster (the [dask] extra).
+    if name in ("plotting", "distributed"):
         import importlib
 
-        return importlib.import_module("multibody.plotting")
+        return importlib.import_module(f"multibody.{name}")
     # The 3-D viewer (and Viser with it) too; mb.view raises an ImportError naming the [viz] extra
     # when Viser is missing.
     if name in ("view", "viewer"):
@@ -112,6 +114,8 @@ __all__ = [
     "generalized_gravity",
     "inverse_dynamics",
     "inverse_mass_matrix",
+    "inverse_kinematics",
+    "InverseKinematicsResult",
     "joint_reaction_forces",
     "kinetic_energy",
     "mass_matrix",
@@ -144,4 +148,5 @@ __all__ = [
     "point_velocity",
     "robots",
     "spatial",
+    "variational",
 ]

@@ -22,7 +22,7 @@ import numba
 import numpy as np
 from numba import njit, prange
 
-from .kernels import (aba, centroidal, configuration, constraints, coriolis, crba, derivatives, energy, integration,
+from .kernels import (aba, centroidal, configuration, constraints, coriolis, crba, derivatives, energy, ik, integration,
                       kinematics, kkt, rnea)
 
 # Each kernel's code in the parallel loop and its workspace size.
@@ -35,9 +35,10 @@ _CODES = {kernel: code for code, kernel in enumerate((
     configuration.chart_magnitude, configuration.normalize, kkt.constrained_accelerations,
     constraints.constraint_levels, integration.chart_derivative, derivatives.inverse_dynamics_derivatives,
     derivatives.forward_dynamics_derivatives, centroidal.center_of_mass, centroidal.centroidal_momentum,
-    centroidal.centroidal_map, centroidal.centroidal_map_time_variation))}
-#: The marker of each kernel for the batch loop: an array whose number of dimensions is the code plus one.
-_MARKERS = {kernel: np.zeros((1,) * (code + 1)) for kernel, code in _CODES.items()}
+    centroidal.centroidal_map, centroidal.centroidal_map_time_variation, ik.inverse_kinematics))}
+#: The marker of each kernel for the batch loop: a tuple whose length is the code plus one (a tuple's length
+#: is part of its type, with no bound such as an array's 32 or 64 dimensions).
+_MARKERS = {kernel: (0,) * (code + 1) for kernel, code in _CODES.items()}
 _WORKSPACE = {kernel: module.workspace_size for module in (rnea, crba, aba, coriolis, energy, kinematics, configuration,
                                                            derivatives, centroidal)
               for kernel in _CODES if getattr(kernel, "py_func", kernel).__module__ == module.__name__}
@@ -69,9 +70,9 @@ if os.environ.get("MULTIBODY_NUM_THREADS"):
 
 @njit(cache=True, error_model="numpy")
 def _kernel(marker, joints, reals, frames, x0, x1, x2, x3, out, ws):
-    # the kernel's code is the marker's number of dimensions, a constant of its type: each kernel's
-    # loop is a compiled specialization of its own, which holds that kernel only
-    code = marker.ndim
+    # the kernel's code is the marker's length, a constant of its type: each kernel's loop is a compiled
+    # specialization of its own, which holds that kernel only
+    code = len(marker)
     if code == 1:
         rnea.inverse_dynamics(joints, reals, frames, x0, x1, x2, x3, out, ws)
     elif code == 2:
@@ -132,6 +133,8 @@ def _kernel(marker, joints, reals, frames, x0, x1, x2, x3, out, ws):
         centroidal.centroidal_map(joints, reals, frames, x0, x1, x2, x3, out, ws)
     elif code == 30:
         centroidal.centroidal_map_time_variation(joints, reals, frames, x0, x1, x2, x3, out, ws)
+    elif code == 31:
+        ik.inverse_kinematics(joints, reals, frames, x0, x1, x2, x3, out, ws)
 
 
 @njit(cache=True, parallel=True, error_model="numpy")

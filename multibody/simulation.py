@@ -14,10 +14,12 @@ to ``t_final``, the output states at the requested times coming from its dense o
 on a curved configuration space it restarts in a new chart at the end of every step, with the
 step size it proposed next, measuring the error of ``δ`` against the configuration's size
 (:meth:`multibody.model.Model.chart_magnitude`), as for ``q`` itself. ``"RK4"`` is the classical fixed-step method with step ``dt``, one
-chart per step. With ``project=True``, a step's end state whose constraint residual exceeds
-``projection_tolerance`` is projected onto ``φ = 0`` and ``A v + b = 0`` and the integrator restarts
-from it; output states from the dense output that violate the constraints by more are projected
-too (the integration itself goes on from its own states). The multipliers, energies and residuals
+chart per step; it also integrates ``N`` trajectories in lockstep from ``q0 (N, nq)``, ``v0 (N, nv)``,
+each stage's derivatives of all of them in one compiled call (:func:`multibody.driver.evaluate`).
+With ``project=True``, a step's end state whose constraint residual exceeds ``projection_tolerance``
+is projected onto ``φ = 0`` and ``A v + b = 0`` and the integrator restarts from it; output states
+from the dense output that violate the constraints by more are projected too (the integration
+itself goes on from its own states). The multipliers, energies and residuals
 of all output states are computed afterwards, in one batched call when the system allows it; the
 residuals are those of the returned states.
 """
@@ -33,7 +35,8 @@ from dataclasses import MISSING, dataclass, field, fields, replace
 import numpy as np
 from scipy.integrate import BDF, DOP853, LSODA, RK23, RK45, Radau
 
-from .constrained import ConstrainedSystem, ConstraintError
+from .constrained import ConstrainedSystem, ConstraintError, ModelSystem
+from .constraints import CompiledRows
 from .spatial import matvec, transpose
 
 METHODS = {"RK45": RK45, "DOP853": DOP853, "Radau": Radau, "RK23": RK23, "BDF": BDF, "LSODA": LSODA}
@@ -45,16 +48,19 @@ LIMIT_MODES = ("warn", "error", "ignore")
 
 @dataclass
 class Trajectory:
-    """A simulated motion, one row per output time.
+    """A simulated motion, one row per output time; or ``N`` of them (``simulate`` from ``q0 (N, nq)``), whose
+    arrays then have a leading axis ``N`` (``t`` is shared).
 
     Attributes:
         t: ``(n,)`` times (s).
-        q: ``(n, nq)`` configurations; v: ``(n, nv)`` velocities.
-        lam: ``(n, m)`` constraint multipliers (sign convention ``M a + h = τ + Aᵀ λ``).
-        energy: ``(n,)`` mechanical energy (J; NaN when the system defines none).
-        residual: ``(n,)`` largest constraint violation ``max(|φ|, |A v + b|)``.
+        q: ``(n, nq)`` configurations; v: ``(n, nv)`` velocities (``(N, n, nq)``, ``(N, n, nv)``).
+        lam: ``(n, m)`` constraint multipliers (sign convention ``M a + h = τ + Aᵀ λ``; ``(N, n, m)``).
+        energy: ``(n,)`` mechanical energy (J; NaN when the system defines none; ``(N, n)``).
+        residual: ``(n,)`` largest constraint violation ``max(|φ|, |A v + b|)`` (``(N, n)``).
         row_names: names of the ``m`` constraint rows.
-        status: ``"completed"``, or the reason the simulation stopped early.
+        status: ``"completed"``, or the reason the simulation stopped early; for ``N`` trajectories a list of
+            ``N`` such strings. A trajectory of a batch that stopped early keeps its outputs up to the time its
+            status names (its last good state), and is NaN from the next output time on.
         projection_tolerance: the residual above which output states were projected back onto the
             constraints (``simulate``'s ``projection_tolerance``), ``None`` when they were not.
     """
@@ -70,7 +76,28 @@ class Trajectory:
     projection_tolerance: float | None = None
 
     def __len__(self):
+        """The number of output times ``n``."""
         return len(self.t)
+
+    @property
+    def batch_size(self):
+        """``N`` for ``N`` trajectories simulated together (``q (N, n, nq)``); ``None`` for one."""
+        return None if np.ndim(self.q) < 3 else int(np.shape(self.q)[0])
+
+    @property
+    def completed(self):
+        """Whether the simulation ran to its end: a bool, or ``(N,)`` bools for ``N`` trajectories."""
+        if self.batch_size is None:
+            return self.status == "completed"
+        return np.array([status == "completed" for status in self.status], dtype=bool)
+
+    def select(self, k):
+        """Trajectory ``k`` of ``N`` simulated together, as a trajectory of its own (arrays copied)."""
+        if self.batch_size is None:
+            raise ValueError("select(k) picks one of N trajectories simulated together; this is one trajectory")
+        return replace(self, q=self.q[k].copy(), v=self.v[k].copy(), lam=self.lam[k].copy(),
+                       energy=self.energy[k].copy(), residual=self.residual[k].copy(), status=self.status[k],
+                       row_names=list(self.row_names))
 
     def save(self, path):
         """Write the trajectory to a NumPy ``.npz`` archive at ``path`` (``.npz`` added when missing) and
@@ -160,20 +187,51 @@ class SimulationError(RuntimeError):
         self.trajectory = trajectory
 
 
-def _torque_function(tau, nv):
+def _torque_function(tau, nv, batch=None):
+    """``tau`` as a function ``(t, q, v) -> None or array``. For a batch of ``batch`` trajectories an array
+    may also have the shape ``(batch, nv)``, and a callable's results are checked to have one of the two
+    shapes."""
+    shapes = ((nv,),) if batch is None else ((nv,), (batch, nv))
     if tau is None:
         return lambda t, q, v: None
     if callable(tau):
-        return tau
+        if batch is None:
+            return tau
+
+        def checked(t, q, v):
+            value = tau(t, q, v)
+            if value is None:
+                return None
+            value = np.asarray(value, dtype=float)
+            if value.shape not in shapes:
+                raise ValueError(f"tau(t, q, v) must return joint forces of shape ({batch}, {nv}) for a batch q "
+                                 f"{q.shape}, v {v.shape} (or ({nv},), the same for every trajectory), got shape "
+                                 f"{value.shape}")
+            return value
+        return checked
     tau = np.asarray(tau, dtype=float)
-    if tau.shape != (nv,):
-        raise ValueError(f"tau must be None, an array of shape ({nv},) or a callable tau(t, q, v), got shape {tau.shape}")
+    if tau.shape not in shapes:
+        raise ValueError(f"tau must be None, an array of shape {' or '.join(map(str, shapes))} or a callable "
+                         f"tau(t, q, v), got shape {tau.shape}")
     return lambda t, q, v: tau
+
+
+def _batch_size(q, v, nq, nv):
+    """The number ``N`` of initial states in ``q (N, nq)``, ``v (N, nv)`` (one of them may be a single state,
+    ``(nq,)`` or ``(nv,)``, shared by all), or ``None`` for one state; ``ValueError`` for other shapes."""
+    if q.ndim == 1 and v.ndim == 1:
+        return None
+    sizes = {x.shape[0] for x in (q, v) if x.ndim == 2}
+    if q.ndim > 2 or v.ndim > 2 or q.shape[-1:] != (nq,) or v.shape[-1:] != (nv,) or len(sizes) > 1:
+        raise ValueError(f"q0 and v0 must have shapes ({nq},) and ({nv},) for one trajectory, or (N, {nq}) and "
+                         f"(N, {nv}) with the same N for a batch (one of them may be a single state, shared by "
+                         f"all), got {q.shape} and {v.shape}")
+    return sizes.pop()
 
 
 def simulate(system, q0, v0, t_final, *, dt=None, method="RK45", tau=None, rtol=1e-8, atol=1e-10,
              project=True, projection_tolerance=1e-12, t0=0.0, max_step=np.inf, joint_damping=False, limits="warn",
-             progress=None):
+             progress=None, rule=None, order=None):
     """Integrate the motion of a ``Model`` or ``ConstrainedSystem`` from ``(q0, v0)`` at ``t0`` to ``t_final``.
 
     Args:
@@ -182,10 +240,20 @@ def simulate(system, q0, v0, t_final, *, dt=None, method="RK45", tau=None, rtol=
             must have ``q̇ = v``).
         q0, v0: initial state ``(nq,)``, ``(nv,)``. An inconsistent state is projected onto the
             constraints with a warning giving the distance moved; if that fails, ``ConstraintError``.
+            ``q0 (N, nq)``, ``v0 (N, nv)`` (or one of them a single state, shared) integrate ``N`` trajectories
+            in lockstep with ``"RK4"``, each stage of all of them in one compiled call on all cores: a
+            ``Model``, or a ``ConstrainedSystem`` on one with built-in constraints (compiled rows); other
+            systems, and the adaptive methods, raise ``ValueError``. The trajectories equal those simulated
+            one at a time; one that fails (a non-finite state, a step without solution) stops and is marked
+            in ``Trajectory.status``, and the others go on (one ``RuntimeWarning`` says how many stopped).
         t_final: end time (s).
         dt: output interval (s), and the step of ``"RK4"``; default ``(t_final − t0) / 500``.
-        method: ``"RK45"``, ``"DOP853"``, ``"Radau"`` (or ``"RK23"``, ``"BDF"``, ``"LSODA"``), or ``"RK4"``.
-        tau: joint forces: ``None``, an array ``(nv,)``, or a callable ``tau(t, q, v) -> (nv,)``.
+        method: ``"RK45"``, ``"DOP853"``, ``"Radau"`` (or ``"RK23"``, ``"BDF"``, ``"LSODA"``), ``"RK4"``, or
+            ``"variational"``: the discrete Hamilton's principle with step ``dt``, constraints by discrete
+            multipliers (:func:`multibody.variational.simulate`, one state, vector-space configurations).
+        tau: joint forces: ``None``, an array ``(nv,)``, or a callable ``tau(t, q, v) -> (nv,)``. For ``N``
+            trajectories also an array ``(N, nv)``, and the callable takes the batch, ``q (N, nq)``, ``v (N, nv)
+            -> (N, nv)`` (a stopped trajectory's row holds its last state).
         rtol, atol: tolerances of the adaptive methods.
         project: keep the state on the constraints (default ``True``): after an integrator step whose
             end state violates them by more than ``projection_tolerance``, project it and restart there.
@@ -198,22 +266,34 @@ def simulate(system, q0, v0, t_final, *, dt=None, method="RK45", tau=None, rtol=
             one :class:`JointLimitWarning` per joint, naming it with the first time and value outside;
             ``"error"`` raises :class:`SimulationError` at the first output time outside, naming the
             joint, time and value, with the trajectory up to that time; ``"ignore"`` does nothing.
-            Systems without a ``Model`` (symbolic ones) have no limits.
+            Systems without a ``Model`` (symbolic ones) have no limits. For ``N`` trajectories, ``"warn"``
+            gives one warning per joint with the number of trajectories outside, and ``"error"`` stops each
+            trajectory outside at its first output time outside, as a failure does.
         progress: a progress bar over simulated time (``tqdm``, on standard error): ``None`` (default) shows
             one when the run is expected to take more than :data:`PROGRESS_AFTER` seconds, judged from the
             wall time of its first steps, and the output is a terminal or a notebook; ``True`` always;
             ``False`` never.
+        rule, order: ``method="variational"`` only: ``"midpoint"`` (default) or ``"trapezoidal"`` quadrature of the
+            action, and order 2 (default) or 4 (Yoshida's composition, systems without constraints).
     Returns:
-        :class:`Trajectory`.
+        :class:`Trajectory` (with a leading axis ``N`` for ``N`` trajectories).
     Raises:
-        SimulationError: the integration failed, or (``limits="error"``) a joint left its limits;
-            ``.trajectory`` holds the part computed so far.
+        SimulationError: the integration of one trajectory failed, or (``limits="error"``) a joint left its
+            limits; ``.trajectory`` holds the part computed so far.
     """
+    if method == "variational":  # the discrete Hamilton's principle, in its own module
+        from . import variational
+        options = {name: value for name, value in (("rule", rule), ("order", order)) if value is not None}
+        return variational.simulate(system, q0, v0, t_final, dt=dt, tau=tau, t0=t0, joint_damping=joint_damping,
+                                    limits=limits, progress=progress, **options)
+    if rule is not None or order is not None:
+        raise ValueError(f"rule and order are options of method='variational', not of method={method!r}")
     constrained = system if isinstance(system, ConstrainedSystem) else ConstrainedSystem(system)
     mechanical = constrained.system
     nq, nv = constrained.nq, constrained.nv
     if method not in ADAPTIVE_METHODS + FIXED_STEP_METHODS:
-        raise ValueError(f"method must be one of {ADAPTIVE_METHODS + FIXED_STEP_METHODS}, got {method!r}")
+        raise ValueError(f"method must be one of {ADAPTIVE_METHODS + FIXED_STEP_METHODS + ('variational',)}, "
+                         f"got {method!r}")
     if not t_final > t0:
         raise ValueError(f"t_final ({t_final}) must be after t0 ({t0})")
     dt = (t_final - t0) / 500.0 if dt is None else float(dt)
@@ -224,16 +304,23 @@ def simulate(system, q0, v0, t_final, *, dt=None, method="RK45", tau=None, rtol=
     if limits not in LIMIT_MODES:
         raise ValueError(f"limits must be one of {LIMIT_MODES}, got {limits!r}")
     model = getattr(mechanical, "model", None)  # limits and damping belong to a Model
+    q, v = np.array(q0, dtype=float), np.array(v0, dtype=float)
+    batch = _batch_size(q, v, nq, nv)
+    if batch is not None:
+        _check_batchable(constrained, method, q.shape, v.shape)
     if joint_damping:
         if model is None:
             raise ValueError(f"joint_damping=True needs a system built on a Model (model.damping); "
                              f"{type(mechanical).__name__} has none: give the damping as tau(t, q, v) instead")
         if np.any(model.damping):
-            tau = _with_joint_damping(_torque_function(tau, nv), model.damping)
-    torque = _torque_function(tau, nv)
+            tau = _with_joint_damping(_torque_function(tau, nv, batch), model.damping)
+    torque = _torque_function(tau, nv, batch)
     charts = _Charts(mechanical)
+    if batch is not None:
+        return _simulate_batch(constrained, charts, np.broadcast_to(q, (batch, nq)), np.broadcast_to(v, (batch, nv)),
+                               _output_times(t0, t_final, dt), torque, callable(tau), project=project,
+                               projection_tolerance=projection_tolerance, limits=limits, progress=progress)
 
-    q, v = np.array(q0, dtype=float), np.array(v0, dtype=float)
     if q.shape != (nq,) or v.shape != (nv,):
         raise ValueError(f"q0 and v0 must have shapes ({nq},) and ({nv},), got {q.shape} and {v.shape}")
     q_projected, v_projected = constrained.project(q, v, t0)
@@ -248,15 +335,10 @@ def simulate(system, q0, v0, t_final, *, dt=None, method="RK45", tau=None, rtol=
 
     # The integrator's state is y = [δ, w] in the chart around a configuration q_c: q = chart(q_c, δ),
     # w the aligned velocity (see Model.chart). A new chart starts from each step's end state.
-    def unchart(q_chart, y):
-        """``(q, T(q), v)`` of chart states ``y = [δ, w] (..., 2 nv)``: ``q = chart(q_c, δ)``, ``v = Tᵀ w``."""
-        q_t = charts.chart(q_chart, y[..., :nv])
-        T = charts.velocity_alignment(q_t)
-        w = y[..., nv:]
-        return q_t, T, (w if T is None else matvec(transpose(T), w))
+    unchart, to_chart, from_chart = charts.unchart, charts.to_chart, charts.from_chart
 
     # With a compiled step, each evaluation is one compiled call (after the joint forces, when they
-    # depend on the state); the NumPy composition below is the fallback that raises the right error.
+    # depend on the state); the NumPy composition is the fallback that raises the right error.
     compiled = constrained._compiled_motion is not None
     constant_tau = None if tau is None or callable(tau) else torque(t0, None, None)
 
@@ -271,21 +353,7 @@ def simulate(system, q0, v0, t_final, *, dt=None, method="RK45", tau=None, rtol=
             y_dot = constrained._chart_derivative(q_chart, y, tau_t)
             if y_dot is not None:
                 return y_dot
-        q_t, T, v_t = unchart(q_chart, y)
-        a, _ = constrained.forward_dynamics(q_t, v_t, torque(t, q_t, v_t), t)
-        # ẇ = T (a + κ(v))
-        w_dot = a if T is None else T @ (a + charts.velocity_coupling(v_t))
-        return np.concatenate([charts.chart_rate(y[:nv], y[nv:]), w_dot])
-
-    def to_chart(state):
-        """``y = [0, w]`` of a state ``[q, v]`` in the chart around its own ``q``."""
-        T = charts.velocity_alignment(state[:nq])
-        return np.concatenate([np.zeros(nv), state[nq:] if T is None else matvec(T, state[nq:])])
-
-    def from_chart(q_chart, y):
-        """States ``[q, v] (..., nq + nv)`` of chart states ``y (..., 2 nv)``."""
-        q_t, _, v_t = unchart(q_chart, y)
-        return np.concatenate([q_t, v_t], axis=-1)
+        return _numpy_chart_derivative(constrained, charts, t, q_chart, y, torque)
 
     def settle(t, state):
         """``state`` projected onto the constraints when, with ``project``, its residual exceeds the
@@ -298,8 +366,7 @@ def simulate(system, q0, v0, t_final, *, dt=None, method="RK45", tau=None, rtol=
         return state, False
 
     tolerance = projection_tolerance if project else None
-    n_intervals = int(np.ceil((t_final - t0) / dt - 1e-9))
-    times = np.minimum(t0 + dt * np.arange(n_intervals + 1), t_final)
+    times = _output_times(t0, t_final, dt)
     states = np.empty((len(times), nq + nv))
     states[0] = np.concatenate([q, v])
     done = 0  # output states filled so far
@@ -383,6 +450,12 @@ def simulate(system, q0, v0, t_final, *, dt=None, method="RK45", tau=None, rtol=
     if model is not None and limits != "ignore":
         _report_limits(mechanical, trajectory, limits)
     return trajectory
+
+
+def _output_times(t0, t_final, dt):
+    """Output times ``t0, t0 + dt, ...`` up to and including ``t_final`` (s): the last interval may be shorter."""
+    n_intervals = int(np.ceil((t_final - t0) / dt - 1e-9))
+    return np.minimum(t0 + dt * np.arange(n_intervals + 1), t_final)
 
 
 def _with_joint_damping(torque, damping):
@@ -471,6 +544,7 @@ class _Charts:
     magnitudes ``|q|``."""
 
     def __init__(self, system):
+        self.nq, self.nv = system.nq, system.nv
         self.curved = hasattr(system, "chart") and not getattr(system, "vector_space", False)
         if not hasattr(system, "chart") and system.nq != system.nv:
             raise ValueError(f"{type(system).__name__} has nq = {system.nq} != nv = {system.nv} but no chart maps: "
@@ -483,6 +557,39 @@ class _Charts:
         else:
             self.chart, self.chart_rate = (lambda q0, delta: q0 + delta), (lambda delta, w: w)
             self.velocity_alignment, self.chart_magnitude = (lambda q: None), np.abs
+
+    def unchart(self, q_chart, y):
+        """``(q, T(q), v)`` of chart states ``y = [δ, w] (..., 2 nv)``: ``q = chart(q_c, δ)``, ``v = Tᵀ w``."""
+        nv = self.nv
+        q = self.chart(q_chart, y[..., :nv])
+        T = self.velocity_alignment(q)
+        w = y[..., nv:]
+        return q, T, (w if T is None else matvec(transpose(T), w))
+
+    def to_chart(self, state):
+        """``y = [0, w] (..., 2 nv)`` of states ``[q, v] (..., nq + nv)`` in the chart around their own ``q``."""
+        nq = self.nq
+        T = self.velocity_alignment(state[..., :nq])
+        w = state[..., nq:] if T is None else matvec(T, state[..., nq:])
+        return np.concatenate([np.zeros_like(w), w], axis=-1)
+
+    def from_chart(self, q_chart, y):
+        """States ``[q, v] (..., nq + nv)`` of chart states ``y (..., 2 nv)``."""
+        q, _, v = self.unchart(q_chart, y)
+        return np.concatenate([q, v], axis=-1)
+
+
+def _numpy_chart_derivative(constrained, charts, t, q_chart, y, torque):
+    """``ẏ (2 nv,)`` of one chart state ``y`` around ``q_chart`` at ``t`` (s) by the NumPy composition of
+    :meth:`ConstrainedSystem.forward_dynamics` and the chart maps, with joint forces ``torque(t, q, v)``: the
+    path that gives the answer, or the error that explains why, where the compiled step does not apply or
+    did not solve."""
+    nv = charts.nv
+    q_t, T, v_t = charts.unchart(q_chart, y)
+    a, _ = constrained.forward_dynamics(q_t, v_t, torque(t, q_t, v_t), t)
+    # ẇ = T (a + κ(v))
+    w_dot = a if T is None else T @ (a + charts.velocity_coupling(v_t))
+    return np.concatenate([charts.chart_rate(y[:nv], y[nv:]), w_dot])
 
 
 #: Wall time (s) above which a run shows a progress bar with ``simulate(..., progress=None)``.
@@ -610,3 +717,280 @@ def _trajectory(constrained, times, states, torque, status, projection_tolerance
         status=status,
         projection_tolerance=projection_tolerance,
     )
+
+
+# ============================================================================= many trajectories in lockstep
+
+#: The failures that stop one trajectory (the others of a batch go on).
+_FAILURES = (SimulationError, ConstraintError, np.linalg.LinAlgError, ValueError, FloatingPointError)
+
+#: Output states whose multipliers, energies and residuals are computed in one call (bounds the memory of
+#: the constrained step's outputs, a few dozen floats per state).
+_OUTPUT_BLOCK = 1 << 16
+
+
+def _check_batchable(constrained, method, q_shape, v_shape):
+    """``ValueError`` unless ``constrained`` can integrate a batch of initial states in lockstep with ``method``."""
+    if method not in FIXED_STEP_METHODS:
+        raise ValueError(f"a batch of initial states (q0 {q_shape}, v0 {v_shape}) is integrated in lockstep, which "
+                         f"needs a fixed-step method {FIXED_STEP_METHODS}; {method!r} chooses its own steps for each "
+                         "trajectory: pass method='RK4' with a step dt, or simulate the states one at a time")
+    if constrained.batched and constrained._compiled_motion is not None:
+        return
+    mechanical = constrained.system
+    if not isinstance(mechanical, ModelSystem):
+        why = (f"its mechanical system, a {type(mechanical).__name__}, is evaluated in Python one state at a time "
+               "(batches run the compiled kernels of a Model)")
+    else:
+        python = [c.name for c in constrained.constraints
+                  if not isinstance(c, CompiledRows) or c.moving or not getattr(c, "batched", False)]
+        why = (f"its constraints {python} are evaluated in Python one state at a time (user constraints, moving "
+               "surfaces); batches need built-in constraints with compiled rows") if python else \
+            "its constrained step is not compiled"
+    raise ValueError(f"simulate cannot integrate a batch of initial states (q0 {q_shape}) for this system: {why}; "
+                     "simulate the states one at a time")
+
+
+def _by_state(f, arrays, shape):
+    """``f(*arrays)`` on a batch of states (``arrays`` with a common leading axis of ``n``, ``f`` giving
+    ``(n,) + shape``), and ``{index: message}`` of the states it fails on. Where the batch call raises, ``f``
+    runs on each state alone, and the states it fails on get NaN."""
+    try:
+        return f(*arrays), {}
+    except _FAILURES:
+        pass
+    n = len(arrays[0])
+    out, errors = np.full((n,) + shape, np.nan), {}
+    for i in range(n):
+        try:
+            out[i] = f(*(x[i : i + 1] for x in arrays))[0]
+        except _FAILURES as error:
+            errors[i] = str(error)
+    return out, errors
+
+
+def _simulate_batch(constrained, charts, q0, v0, times, torque, state_dependent, *, project, projection_tolerance,
+                    limits, progress):
+    """:func:`simulate` from ``N`` initial states ``q0 (N, nq)``, ``v0 (N, nv)`` at the output ``times (n,)`` (s):
+    the trajectories in lockstep, one classical RK4 step per output interval, each stage's chart derivatives
+    of all of them in one compiled call on all cores (:meth:`ConstrainedSystem._chart_derivatives`).
+
+    A trajectory that fails (a non-finite state, a constrained step without solution, a projection that does not
+    converge) stops: its status says when and why, its outputs from the next output time on are NaN, and the
+    others go on. ``torque(t, q (N, nq), v (N, nv))`` sees every trajectory, a stopped one at its last state
+    (one that never started, with a non-finite initial state or one that cannot be projected, at rest in the
+    neutral configuration).
+    """
+    mechanical = constrained.system
+    nq, nv, m = constrained.nq, constrained.nv, constrained.num_rows
+    count, n, t0 = len(q0), len(times), times[0]
+    status = ["completed"] * count
+    stop = np.full(count, n)  # each trajectory's outputs [stop:] are NaN
+
+    def fail(r, k, reason):
+        """Trajectory ``r`` stops at output index ``k`` (its last good state ``last[r]``, at ``times[k − 1]``)."""
+        stop[r] = k
+        grown = _grown(mechanical, last[r : r + 1], nq, v_start[r]) if k else None
+        status[r] = f"simulation stopped at t = {times[max(k - 1, 0)]:.6g} s: {grown or reason}"
+
+    last = np.concatenate([q0, v0], axis=-1)  # each trajectory's latest good state
+    finite = np.isfinite(last).all(axis=-1)
+    errors = {int(r): "the initial state is not finite" for r in np.flatnonzero(~finite)}
+    start = np.flatnonzero(finite)
+    projected, more = _by_state(lambda q, v: np.concatenate(constrained.project(q, v, t0), axis=-1),
+                                (q0[start], v0[start]), (nq + nv,))
+    errors.update({int(start[i]): message for i, message in more.items()})
+    moved = np.abs(projected - last[start]).max(axis=-1, initial=0.0)
+    moved[list(more)] = 0.0
+    if m and moved.max(initial=0.0) > 1e-10:
+        j = int(np.argmax(moved))
+        warnings.warn(f"the initial states of {int(np.sum(moved > 1e-10))} of {count} trajectories violated the "
+                      f"constraints; projected onto them (moved by up to {moved[j]:.3g}, in trajectory {start[j]})",
+                      UserWarning, stacklevel=3)
+    last[start] = projected
+    good = np.ones(count, dtype=bool)
+    good[list(errors)] = False
+    # A trajectory that never started stands at rest in the neutral configuration, for the joint forces only.
+    last[~good] = np.concatenate([mechanical.model.neutral(), np.zeros(nv)])
+    v_start = last[:, nq:].copy()
+    for r, message in errors.items():
+        fail(r, 0, message)
+    q_out, v_out = np.full((count, n, nq), np.nan), np.full((count, n, nv), np.nan)
+    q_out[good, 0], v_out[good, 0] = last[good, :nq], last[good, nq:]
+
+    constant = None if state_dependent else torque(t0, None, None)
+
+    def derivative(t, y, q_chart, rows, failed):
+        """``ẏ (N, 2 nv)`` of the chart states ``y (N, 2 nv)`` around ``q_chart (N, nq)``: of the trajectories
+        ``rows`` (indices) by one compiled call, zero for the others. A state the compiled step did not solve
+        takes the NumPy path, as :func:`simulate` does for one trajectory; where that raises, ``failed[row]``
+        gets the message."""
+        tau = constant
+        if state_dependent:
+            q_t, _, v_t = charts.unchart(q_chart, y)
+            tau = torque(t, q_t, v_t)
+        whole = rows.size == count
+        q_rows, y_rows = (q_chart, y) if whole else (q_chart[rows], y[rows])
+        tau_rows = tau if tau is None or tau.ndim == 1 or whole else tau[rows]
+        y_dot, solved = constrained._chart_derivatives(q_rows, y_rows, tau_rows)
+        for j in np.flatnonzero(~solved):
+            r = rows[j]
+            tau_r = tau if tau is None or tau.ndim == 1 else tau[r]
+            if r in failed or not (np.isfinite(y_rows[j]).all() and (tau_r is None or np.isfinite(tau_r).all())):
+                continue  # its rates stay NaN, and the end of the step stops it
+            try:
+                y_dot[j] = _numpy_chart_derivative(constrained, charts, t, q_rows[j], y_rows[j], lambda *_: tau_r)
+            except _FAILURES as error:
+                failed[r] = str(error)
+        if whole:
+            return y_dot
+        full = np.zeros_like(y)
+        full[rows] = y_dot
+        return full
+
+    bar = _Progress(progress, t0, times[-1])
+    try:
+        for k in range(1, n):
+            rows = np.flatnonzero(stop == n)
+            if not rows.size:
+                break
+            q_chart = np.ascontiguousarray(last[:, :nq])
+            failed = {}
+            y = _rk4_step(lambda t, y: derivative(t, y, q_chart, rows, failed), times[k - 1], charts.to_chart(last),
+                          times[k] - times[k - 1])
+            end = charts.from_chart(q_chart[rows], y[rows])
+            reasons = {rows[j]: f"the state became non-finite at t = {times[k]:.6g} s"
+                       for j in np.flatnonzero(~np.isfinite(end).all(axis=-1))}
+            reasons.update(failed)
+            if project and m:
+                # the states whose residual exceeds the tolerance, projected onto the constraints
+                fine = ~np.isin(rows, list(reasons))
+                residual, errors = _by_state(lambda q, v: constrained.residual(q, v, times[k]),
+                                             (end[fine, :nq], end[fine, nq:]), ())
+                off = ~(residual <= projection_tolerance)
+                off[list(errors)] = False
+                at = np.flatnonzero(fine)
+                settled, more = _by_state(lambda q, v: np.concatenate(constrained.project(q, v, times[k]), axis=-1),
+                                          (end[at[off], :nq], end[at[off], nq:]), (nq + nv,))
+                end[at[off]] = settled
+                errors.update({int(np.flatnonzero(off)[i]): message for i, message in more.items()})
+                reasons.update({rows[at[i]]: message for i, message in errors.items()})
+            ok = ~np.isin(rows, list(reasons))
+            last[rows[ok]] = end[ok]
+            q_out[rows[ok], k], v_out[rows[ok], k] = end[ok, :nq], end[ok, nq:]
+            for r, reason in reasons.items():
+                fail(r, k, reason)
+            bar.update(times[k])
+    finally:
+        bar.close()
+    trajectory = _batch_trajectory(constrained, times, q_out, v_out, stop, last, torque, state_dependent, status,
+                                   projection_tolerance if project else None)
+    model = getattr(mechanical, "model", None)
+    if model is not None and limits != "ignore":
+        trajectory = _report_batch_limits(mechanical, trajectory, limits)
+    stopped = np.flatnonzero(~trajectory.completed)
+    if stopped.size:
+        j = int(stopped[0])
+        warnings.warn(f"{stopped.size} of {count} trajectories stopped early (trajectory.completed is False for them, "
+                      f"trajectory.status says why; their outputs after it are NaN); trajectory {j}: "
+                      f"{trajectory.status[j]}", RuntimeWarning, stacklevel=3)
+    return trajectory
+
+
+def _batch_trajectory(constrained, times, q, v, stop, last, torque, state_dependent, status, projection_tolerance):
+    """The :class:`Trajectory` of ``N`` trajectories' output states ``q (N, n, nq)``, ``v (N, n, nv)`` (updated in
+    place) at ``times (n,)``, each valid before its ``stop``: :func:`_trajectory` for each, the multipliers,
+    energies and residuals of all valid states in a few batched calls (NaN elsewhere). ``last (N, nq + nv)``:
+    each trajectory's last good state, which the joint forces ``torque`` see in place of a stopped one's NaN."""
+    nq, nv, m = constrained.nq, constrained.nv, constrained.num_rows
+    count, n = q.shape[:2]
+    valid = np.arange(n) < stop[:, None]
+    lam, energy, residual = np.full((count, n, m), np.nan), np.full((count, n), np.nan), np.full((count, n), np.nan)
+    block = max(1, _OUTPUT_BLOCK // max(count, 1))
+    for a in range(0, n, block):
+        b = min(n, a + block)
+        at = valid[:, a:b]
+        if not at.any():
+            continue
+        q_s, v_s = q[:, a:b][at], v[:, a:b][at]
+        t_s = np.broadcast_to(times[a:b], at.shape)[at]
+        energy[:, a:b][at] = constrained.energy(q_s, v_s)
+        if not m:
+            residual[:, a:b][at] = 0.0
+            continue
+        r_s, _ = _by_state(constrained.residual, (q_s, v_s, t_s), ())
+        if projection_tolerance is not None:
+            # as _trajectory does for one trajectory: states left above the tolerance are projected
+            off = np.flatnonzero(r_s > projection_tolerance)
+            if off.size:
+                settled, _ = _by_state(lambda q_, v_, t_: np.concatenate(constrained.project(q_, v_, t_), axis=-1),
+                                       (q_s[off], v_s[off], t_s[off]), (nq + nv,))
+                q_s[off], v_s[off] = settled[:, :nq], settled[:, nq:]
+                r_s[off], _ = _by_state(constrained.residual, (q_s[off], v_s[off], t_s[off]), ())
+                q[:, a:b][at], v[:, a:b][at] = q_s, v_s
+        residual[:, a:b][at] = r_s
+        if state_dependent:
+            tau = np.stack([_as_rows(torque(times[k], np.where(valid[:, k, None], q[:, k], last[:, :nq]),
+                                            np.where(valid[:, k, None], v[:, k], last[:, nq:])), count, nv)
+                            for k in range(a, b)], axis=1)
+        else:
+            tau = torque(times[0], None, None)
+            tau = tau if tau is None or tau.ndim == 1 else np.broadcast_to(tau[:, None], at.shape + (nv,))
+        if tau is None or tau.ndim == 1:
+            lam_s, _ = _by_state(lambda q_, v_, t_: constrained.solve(q_, v_, tau, t_).lam, (q_s, v_s, t_s), (m,))
+        else:
+            lam_s, _ = _by_state(lambda q_, v_, t_, tau_: constrained.solve(q_, v_, tau_, t_).lam,
+                                 (q_s, v_s, t_s, tau[at]), (m,))
+        lam[:, a:b][at] = lam_s
+    return Trajectory(t=np.array(times, dtype=float), q=q, v=v, lam=lam, energy=energy, residual=residual,
+                      row_names=list(constrained.row_names), status=list(status),
+                      projection_tolerance=projection_tolerance)
+
+
+def _as_rows(tau, count, nv):
+    """Joint forces ``None``, ``(nv,)`` or ``(count, nv)`` as ``(count, nv)``."""
+    return np.zeros((count, nv)) if tau is None else np.broadcast_to(tau, (count, nv))
+
+
+def _report_batch_limits(system, trajectory, mode):
+    """:func:`_report_limits` for a batch of trajectories ``q (N, n, nq)``. ``"warn"``: one
+    :class:`JointLimitWarning` per joint, with the number of trajectories that left its limits and the first
+    time and value. ``"error"``: each trajectory that left a joint's limits stops at its first output time
+    outside, as a failed trajectory does (its status names joint, time and value; its outputs after it are
+    NaN); returns the trajectory so marked."""
+    model = system.model
+    q = trajectory.q
+    outside = (q < model.lower) | (q > model.upper)  # (NaN compares False: stopped trajectories stay inside)
+    for start, stop in model._unit_norm_slices:
+        outside[..., start:stop] = False
+    if not outside.any():
+        return trajectory
+    count, n = q.shape[:2]
+
+    def describe(j, k, c):
+        return (f"{_coordinate(system, c, False)} left its limits [{model.lower[c]:.6g}, {model.upper[c]:.6g}] "
+                f"at t = {trajectory.t[k]:.6g} s: q = {q[j, k, c]:.6g}")
+
+    if mode == "warn":
+        for joint, start in zip(model.joints, model.idx_q):
+            columns = outside[..., start : start + joint.nq]
+            left = columns.any(axis=(1, 2))
+            if not left.any():
+                continue
+            times = np.where(left, np.argmax(columns.any(axis=2), axis=1), n)
+            j = int(np.argmin(times))
+            k = int(times[j])
+            c = start + int(np.argmax(columns[j, k]))
+            warnings.warn(f"{describe(j, k, c)} in trajectory {j} ({int(left.sum())} of {count} trajectories left "
+                          "them); joint limits are reported, not enforced (limits='ignore' silences this)",
+                          JointLimitWarning, stacklevel=4)
+        return trajectory
+    status = list(trajectory.status)
+    arrays = {name: getattr(trajectory, name).copy() for name in ("q", "v", "lam", "energy", "residual")}
+    for j in np.flatnonzero(outside.any(axis=(1, 2))):
+        k = int(np.argmax(outside[j].any(axis=1)))
+        c = int(np.argmax(outside[j, k]))
+        status[j] = describe(j, k, c) + " (limits='error')"
+        for value in arrays.values():
+            value[j, k + 1 :] = np.nan
+    return replace(trajectory, status=status, **arrays)

@@ -16,6 +16,8 @@ See ``docs/theory.md`` for the derivation, step by step.
 
 from __future__ import annotations
 
+from functools import cached_property
+
 import numpy as np
 import sympy as sp
 from sympy.core.function import AppliedUndef
@@ -234,6 +236,8 @@ class LagrangianSystem:
             sp.lambdify([q_symbols, v_symbols], h, "numpy"),
             sp.lambdify([q_symbols, v_symbols], energy, "numpy"),
             [str(q_k.func.__name__) for q_k in self.q],
+            lagrangian=(q_symbols, v_symbols, plain(self.L.subs(substitution)),
+                        plain(sp.Matrix(self.forces).subs(substitution))),
         )
 
     def holonomic(self, phi, name=None, **values):
@@ -296,13 +300,18 @@ class NumericLagrangian:
     """A Lagrangian system with numbers: the mechanical-system interface of ``ConstrainedSystem``.
 
     ``q`` are the generalized coordinates and ``v = q̇`` their rates; ``mass_matrix(q) (n, n)``,
-    ``bias_forces(q, v) (n,)`` (so that ``M q̈ + h = τ``), ``energy(q, v) = T + U``.
+    ``bias_forces(q, v) (n,)`` (so that ``M q̈ + h = τ``), ``energy(q, v) = T + U``; for the variational
+    integrator also ``lagrangian_gradient``, ``lagrangian_hessian``, ``momentum_jacobian`` and
+    ``generalized_forces`` (derived from ``L`` on first use).
     """
 
-    def __init__(self, n, mass_matrix, bias_forces, energy, names):
+    def __init__(self, n, mass_matrix, bias_forces, energy, names, lagrangian=None):
         self.nq = self.nv = n
         self._M, self._h, self._E = mass_matrix, bias_forces, energy
         self.coordinate_names = names
+        # (q symbols, v symbols, L(q, v), Q(q, v)) for the variational integrator's derivatives, which
+        # are derived and compiled on first use only (most simulations never ask for them)
+        self._lagrangian = lagrangian
 
     def mass_matrix(self, q):
         return np.asarray(self._M(np.asarray(q, dtype=float)), dtype=float).reshape(self.nv, self.nv)
@@ -315,6 +324,41 @@ class NumericLagrangian:
 
     def integrate(self, q, v, dt=1.0):
         return np.asarray(q, dtype=float) + np.asarray(v, dtype=float) * dt
+
+    # The Lagrangian's own derivatives, which the variational integrator (multibody/variational.py)
+    # needs: its discrete Euler–Lagrange equations are written in ∂L/∂q, not in the bias forces h.
+
+    @cached_property
+    def _derivatives(self):
+        """Compiled ``∂L/∂q``, ``∂²L/∂q²``, ``∂(M v)/∂q`` and ``Q`` of the symbolic Lagrangian."""
+        if self._lagrangian is None:
+            raise AttributeError("this NumericLagrangian was built without its Lagrangian "
+                                 "(use LagrangianSystem.numeric())")
+        q, v, L, Q = self._lagrangian
+        gradient = sp.Matrix([L]).jacobian(q)
+        M = sp.Matrix([[L.diff(a).diff(b) for b in v] for a in v])
+        return (sp.lambdify([q, v], gradient, "numpy"), sp.lambdify([q, v], gradient.T.jacobian(q), "numpy"),
+                sp.lambdify([q, v], (M * sp.Matrix(v)).jacobian(q), "numpy"), sp.lambdify([q, v], Q, "numpy"))
+
+    def _evaluate(self, k, q, v, shape):
+        return np.asarray(self._derivatives[k](np.asarray(q, dtype=float), np.asarray(v, dtype=float)),
+                          dtype=float).reshape(shape)
+
+    def lagrangian_gradient(self, q, v):
+        """``∂L/∂q (n,)`` at ``(q, v = q̇)``: ``½ vᵀ (∂M/∂q) v − ∂U/∂q``."""
+        return self._evaluate(0, q, v, (self.nv,))
+
+    def lagrangian_hessian(self, q, v):
+        """``∂²L/∂q² (n, n)`` at ``(q, v)``."""
+        return self._evaluate(1, q, v, (self.nv, self.nv))
+
+    def momentum_jacobian(self, q, v):
+        """``∂(M(q) v)/∂q (n, n)`` at fixed ``v``: row i, column k holds ``∂(M v)ᵢ/∂q_k``."""
+        return self._evaluate(2, q, v, (self.nv, self.nv))
+
+    def generalized_forces(self, q, v):
+        """The generalized forces ``Q(q, v) (n,)`` of the forces without a potential (zero when none)."""
+        return self._evaluate(3, q, v, (self.nv,))
 
     def configuration_rate(self, q, v):
         return np.asarray(v, dtype=float)

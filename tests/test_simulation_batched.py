@@ -49,10 +49,11 @@ def test_batched_solve_residual_and_project_equal_single_calls(disc):
         assert np.abs(batch.lam[k] - single.lam).max() <= 1e-10 * max(1.0, np.abs(single.lam).max())
         assert batch.rank[k] == single.rank == 3
         assert residual[k] == pytest.approx(cs.residual(q[k], v[k]), rel=1e-12, abs=1e-15)
-        # The batch iterates until its slowest state has |φ| ≤ 1e-12, so a state may take one more
-        # Gauss–Newton step than alone: the two agree to a few times that tolerance.
+        # Each state of the batch stops at its own tolerance, taking the Gauss–Newton steps it takes alone:
+        # the two differ by rounding only (the batch's linear algebra runs through numpy.linalg).
         q_k, v_k = cs.project(q[k], v[k])
-        assert np.abs(q_p[k] - q_k).max() <= 1e-11 and np.abs(v_p[k] - v_k).max() <= 1e-11
+        assert np.abs(q_p[k] - q_k).max() <= 1e-14
+        assert np.abs(v_p[k] - v_k).max() <= 1e-14 * max(1.0, np.abs(v_k).max())
     assert cs.residual(q_p, v_p).max() <= 1e-12
 
 

@@ -11,7 +11,8 @@ of λ of :class:`multibody.ConstrainedSystem`):
 :mod:`multibody.kernels.constraints`. ``M = L Lᵀ`` by Cholesky; ``G = B Bᵀ`` with ``B = A L⁻ᵀ``, whose
 rows one-sided Jacobi rotations make orthogonal, ``B = V diag(σ) Pᵀ``, so that
 ``λ = V diag(σ²)⁺ Vᵀ rhs`` drops the directions with ``σ ≤ rank tolerance · max σ`` without squaring
-the condition number, as :meth:`multibody.ConstrainedSystem.solve` does with LAPACK's SVD.
+the condition number. :meth:`multibody.ConstrainedSystem.solve`'s NumPy path uses the same rotations
+(:func:`orthogonalize_stack`), so both paths give the same multipliers near singular configurations.
 """
 
 from __future__ import annotations
@@ -38,7 +39,7 @@ def output_columns(nv, m):
 def workspace_size(nj, nv, nframes, m):
     """Floats of workspace of one step with ``nframes`` constraint frames and ``m`` rows."""
     passes = max(crba.workspace_size(nj, nv), rnea.workspace_size(nj, nv), kinematics.workspace_size(nj, nv))
-    return nv * nv + 2 * nv + nframes * kinematics.motion_columns(nv) + 3 * m * nv + m * m + 6 * m + passes
+    return nv * nv + 2 * nv + nframes * kinematics.motion_columns(nv) + 3 * m * nv + m * m + 7 * m + passes
 
 
 @njit(cache=True, error_model="numpy")
@@ -137,6 +138,14 @@ def orthogonalize_rows(B, U, sigma, m):
 
 
 @njit(cache=True, error_model="numpy")
+def orthogonalize_stack(B, U, sigma):
+    """:func:`orthogonalize_rows` of each matrix of a stack ``B (k, m, n)``, into ``U (k, m, m)`` and
+    ``sigma (k, m)``."""
+    for state in range(B.shape[0]):
+        orthogonalize_rows(B[state], U[state], sigma[state], B.shape[1])
+
+
+@njit(cache=True, error_model="numpy")
 def constrained_accelerations(joints, reals, frames, q, v, tau, program, out, ws):
     """One constrained step into ``out[0]`` (layout :func:`output_columns`): ``a`` (m/s², rad/s²), ``λ``,
     ``A``, ``γ``, the rank of ``A`` and a status (``SOLVED``, ``NOT_POSITIVE_DEFINITE``, ``INCONSISTENT``
@@ -180,6 +189,8 @@ def constrained_accelerations(joints, reals, frames, q, v, tau, program, out, ws
     scale = ws[start : start + m]
     start += m
     coefficients = ws[start : start + m]
+    start += m
+    magnitudes = ws[start : start + m]
     start += m
     passes = ws[start:]
     row = out[0]
@@ -233,18 +244,23 @@ def constrained_accelerations(joints, reals, frames, q, v, tau, program, out, ws
     rank = 0
     for j in range(m):
         coefficients[j] = 0.0
+        magnitudes[j] = 0.0
         if sigma[j] > rank_tolerance * sigma_max:
             rank += 1
             for i in range(m):
                 coefficients[j] += V[i, j] * rhs[i]
+                magnitudes[j] += abs(V[i, j] * rhs[i])
             for i in range(m):
                 lam[i] += V[i, j] * coefficients[j] / (sigma[j] * sigma[j])
-    # the part of rhs in the dropped directions cannot be met, judged against the terms that make it
+    # the part of rhs in the dropped directions cannot be met, judged against the terms that make it: the
+    # row's own (scale) and those of the part met, Σ_j |V_ij| Σ_k |V_kj rhs_k|, whose rounding leaks
+    # into every row that V mixes (a row of small rhs beside one of 1e12 at a fast joint)
     for i in range(m):
-        met = 0.0
+        met, terms = 0.0, 0.0
         for j in range(m):
             met += V[i, j] * coefficients[j]
-        if abs(rhs[i] - met) > 1e-8 * scale[i]:
+            terms += abs(V[i, j]) * magnitudes[j]
+        if abs(rhs[i] - met) > 1e-8 * max(scale[i], terms):
             row[status_column] = INCONSISTENT
     # a = a_free + M⁻¹ Aᵀ λ
     for c in range(nv):

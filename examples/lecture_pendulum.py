@@ -1,8 +1,8 @@
 """The lecture note's simple pendulum, built in Python, against its Lagrangian.
 
-The seed writes T = ½ m l² θ̇² and U = m g l (1 − cos θ), so Lagrange's equation gives
+The lecture note writes T = ½ m l² θ̇² and U = m g l (1 − cos θ), so Lagrange's equation gives
 M = m l² and g(θ) = ∂U/∂θ = m g l sin θ. Here the same numbers come out of the recursive engine.
-Run: python examples/seed_pendulum.py
+Run: python examples/lecture_pendulum.py
 """
 
 import numpy as np

@@ -9,7 +9,7 @@ slipping makes the contact point's velocity vanish:
 two Pfaffian constraints A(q) q̇ = 0 on the five coordinates, handled by Lagrange multipliers.
 The same ball as a URDF free body with the engine's RollingSphere gives the same motion, and both
 roll downhill at 5/7 g sin α.
-Run: python examples/seed_rolling_sphere.py
+Run: python examples/lecture_rolling_sphere.py
 """
 
 import numpy as np

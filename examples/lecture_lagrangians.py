@@ -6,7 +6,7 @@
    conserved; the radial equation is m r̈ − m r θ̇² = −k/r²; a Kepler orbit closes after
    2π √(a³ m / k).
 4. The bead on a helical wire in its one coordinate s.
-Run: python examples/seed_lagrangians.py
+Run: python examples/lecture_lagrangians.py
 """
 
 import numpy as np

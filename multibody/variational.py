@@ -1,0 +1,656 @@
+"""Variational integrators: the discrete Hamilton's principle, ``simulate(..., method="variational")``.
+
+Instead of discretising the equations of motion, discretise the action (J. E. Marsden and M. West,
+*Discrete mechanics and variational integrators*, Acta Numerica 10 (2001) 357–514):
+a *discrete Lagrangian* approximates the action over one step of size ``h``,
+
+    L_d(q_k, q_{k+1}) ≈ ∫_{t_k}^{t_k+h} L(q, q̇) dt,
+
+and the discrete path ``q_0 … q_N`` that makes ``Σ_k L_d(q_k, q_{k+1})`` stationary satisfies the
+discrete Euler–Lagrange equations ``D2 L_d(q_{k−1}, q_k) + D1 L_d(q_k, q_{k+1}) = 0`` (``Dᵢ``: the
+derivative with respect to the i-th argument). With the discrete Legendre transforms they read, in
+*position–momentum form*, with the discrete Lagrange–d'Alembert forces ``f_k^±`` (the virtual work
+of the forces over a step, lumped on its two ends):
+
+    p_k     = −D1 L_d(q_k, q_{k+1}) − f_k⁻        (solved for q_{k+1}: Newton's method)
+    p_{k+1} =  D2 L_d(q_k, q_{k+1}) + f_k⁺.
+
+The map ``(q_k, p_k) → (q_{k+1}, p_{k+1})`` is symplectic when ``f = 0``; a momentum whose
+coordinate does not appear in ``L`` is conserved exactly (the discrete Noether theorem), and the
+energy error stays bounded over exponentially long times instead of drifting (backward error
+analysis: Hairer, Lubich and Wanner, *Geometric Numerical Integration*, 2nd ed. 2006, Chapter IX).
+
+Here ``L = ½ vᵀ M(q) v − U(q)`` with ``v = q̇``, so
+
+    ∂L/∂v = M(q) v,        ∂L/∂q = C(q, v)ᵀ v − g(q)
+
+(``C`` the Christoffel-consistent Coriolis matrix, ``Ṁ = C + Cᵀ`` and ``Cᵀ v = ½ vᵀ (∂M/∂q) v``;
+``g = ∂U/∂q``). Two quadrature rules of order 2 give ``L_d`` (``ξ = (q_{k+1} − q_k)/h``):
+
+* ``rule="midpoint"``: ``L_d = h L(q̄, ξ)``, ``q̄ = (q_k + q_{k+1})/2``:
+
+      −D1 L_d = M(q̄) ξ − (h/2) ∂L/∂q(q̄, ξ),       D2 L_d = M(q̄) ξ + (h/2) ∂L/∂q(q̄, ξ),
+      f_k⁻ = f_k⁺ = (h/2) τ(t_k + h/2, q̄, ξ);
+
+* ``rule="trapezoidal"``: ``L_d = (h/2) [L(q_k, ξ) + L(q_{k+1}, ξ)]`` (Störmer–Verlet for separable ``L``):
+
+      −D1 L_d = ½ (M(q_k) + M(q_{k+1})) ξ − (h/2) ∂L/∂q(q_k, ξ),
+       D2 L_d = ½ (M(q_k) + M(q_{k+1})) ξ + (h/2) ∂L/∂q(q_{k+1}, ξ),
+      f_k⁻ = (h/2) τ(t_k, q_k, ξ),     f_k⁺ = (h/2) τ(t_{k+1}, q_{k+1}, ξ).
+
+Both are symmetric, so Yoshida's triple jump ``Φ_{w₁h} ∘ Φ_{w₀h} ∘ Φ_{w₁h}``, ``w₁ = 1/(2 − 2^{1/3})``,
+``w₀ = −2^{1/3} w₁`` (H. Yoshida, Phys. Lett. A 150 (1990) 262; Hairer, Lubich and Wanner §II.4)
+raises the order to 4 (``order=4``, systems without constraints).
+
+**Constraints.** Constraint forces act at the nodes, along ``A(q_k)ᵀ``, as discrete multipliers
+(Marsden and West; RATTLE, Hairer, Lubich and Wanner §VII.1): the node's impulse is split into
+``A(q_k)ᵀ μ_k⁺``, which ends the step into ``q_k`` so that the output velocity
+``v_k = M(q_k)⁻¹ p_k`` satisfies ``A(q_k, t_k) v_k + b = 0``, and ``A(q_k)ᵀ μ_k⁻``, which starts the
+next step (a term ``− A(q_k)ᵀ μ_k⁻`` in the first equation, ``+ A(q_{k+1})ᵀ μ_{k+1}⁺`` in the second).
+``μ_k⁻`` is found with ``q_{k+1}`` in the Newton iteration, from one condition per row:
+
+* holonomic rows ``φ(q, t) = 0``: ``φ(q_{k+1}, t_{k+1}) = 0`` (RATTLE);
+* nonholonomic rows ``A(q, t) v + b = 0``: the discrete constraint with the distribution at the midpoint,
+  ``A(q̄, t_k + h/2) ξ + b = 0``, so that the configurations follow the discrete Lagrange–d'Alembert
+  principle with constraint forces in the annihilator at the nodes (J. Cortés and S. Martínez,
+  Nonlinearity 14 (2001) 1365) and a discrete constraint symmetric in ``q_k``, ``q_{k+1}`` (R. McLachlan
+  and M. Perlmutter, J. Nonlinear Sci. 16 (2006) 283, discuss these choices).
+
+Splitting the node's impulse this way changes no configuration; it only defines ``p_k``, so that the
+output velocities lie on the constraints and no projection is needed (a split into equal halves
+would leave ``p`` a period-two oscillation of size ``O(h)``). The reported multipliers are forces
+(N, N·m, per row): the node's impulse over the time it stands for,
+``λ_k = 2 (μ_k⁺ + μ_k⁻) / (h_{k−1} + h_k)``, a second-order approximation of the continuous
+``λ(t_k)``; the two ends, which meet one step only, are extrapolated from their two nearest inner nodes.
+
+**Newton's method.** The unknown of a step is the increment ``Δ = q_{k+1} − q_k`` (not ``q_{k+1}``,
+whose difference ``q_{k+1} − q_k`` would lose the digits of a large angle). The Jacobian of
+``−D1 L_d − f⁻`` with respect to ``Δ`` is, for the midpoint rule,
+
+    J = M(q̄)/h + ½ (K − Kᵀ) − (h/4) ∂²L/∂q² − ∂f⁻/∂Δ,      K = ∂(M(q) ξ)/∂q at q̄,
+
+and for the trapezoidal rule ``J = (M(q_k) + M(q_{k+1}))/(2h) + ½ K(q_{k+1}) − ½ K(q_k)ᵀ − ∂f⁻/∂Δ``.
+For a :class:`~multibody.model.Model`, ``K = ∂τ/∂q|_{v=0, a=ξ} − ∂g/∂q`` from the analytical
+derivatives (:func:`multibody.inverse_dynamics_derivatives`, :func:`multibody.gravity_derivatives`),
+and ``∂²L/∂q²`` is taken as ``−∂g/∂q``: the term ``½ ξᵀ (∂²M/∂q²) ξ`` is left out, a relative error
+of order ``h² |ξ|²`` that makes the iteration converge linearly with that ratio (a quasi-Newton
+method); symbolic systems give their exact Hessians. ``∂f⁻/∂Δ`` of a callable ``τ`` is taken by
+forward differences. The Jacobian is formed once per step, at the predictor, and formed anew when an
+iteration reduces the residual less than tenfold. The iteration stops when the residual of the first
+equation is at most ``tolerance`` (default ``1e-12``) times the size of its momentum terms, and the
+holonomic rows at most ``tolerance · max(1, |q_{k+1}|)``; otherwise :class:`SimulationError`.
+
+Limitations: the configurations must form a vector space with ``q̇ = v`` (revolute, continuous,
+prismatic and translation joints; ``model.is_vector_space``); the Lie-group variant for free-flyer,
+spherical and planar joints (Lee, Leok and McClamroch) is not available.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+
+import numpy as np
+
+from . import linalg
+from .constrained import ConstrainedSystem, ConstraintError, ModelSystem
+from .kernels import coriolis, crba, rnea
+from .kernels import derivatives as derivative_kernels
+
+RULES = ("midpoint", "trapezoidal")
+ORDERS = (2, 4)
+
+#: Yoshida's triple jump (Phys. Lett. A 150 (1990) 262): the weights of the three
+#: sub-steps ``w₁ h, w₀ h, w₁ h`` of the fourth-order composition of a symmetric second-order step.
+YOSHIDA_W1 = 1.0 / (2.0 - 2.0 ** (1.0 / 3.0))
+YOSHIDA_W0 = -(2.0 ** (1.0 / 3.0)) * YOSHIDA_W1
+
+_EMPTY = np.zeros(0)  # an unused kernel input (zero velocity, acceleration, no external forces)
+
+#: Relative size of the forward-difference step of ``∂τ/∂Δ`` (about √ε).
+_FORCE_DIFFERENCE_STEP = 1.5e-8
+
+
+# ============================================================================= the Lagrangian's terms
+
+class _ModelLagrangian:
+    """``M``, ``∂L/∂q`` and the Newton-Jacobian terms of a :class:`~multibody.model.Model` with ``q̇ = v``.
+
+    The compiled kernels are called directly, one state each, with workspaces allocated once: the
+    Newton iteration calls them a few times per step with float arrays it made itself, for which
+    the public functions' checks and batch handling would cost more than the algorithms.
+    """
+
+    def __init__(self, model):
+        self.model = model
+        self.nv = model.nv
+        tree = model.tree
+        self._tree = (tree.joints, tree.reals, tree.bodies)
+        nj, nv = tree.joints.shape[0], tree.nv
+        self._workspaces = {kernel: np.empty(module.workspace_size(nj, nv)) for kernel, module in (
+            (crba.mass_matrix, crba), (coriolis.coriolis_matrix, coriolis), (rnea.inverse_dynamics, rnea),
+            (derivative_kernels.inverse_dynamics_derivatives, derivative_kernels))}
+
+    def _run(self, kernel, shape, q, v=_EMPTY, a=_EMPTY):
+        out = np.empty(shape)
+        kernel(*self._tree, np.ascontiguousarray(q, dtype=float), v, a, _EMPTY, out, self._workspaces[kernel])
+        return out
+
+    def mass_matrix(self, q):
+        # CRBA (RBDA Table 6.2): multibody.mass_matrix
+        return self._run(crba.mass_matrix, (self.nv, self.nv), q)
+
+    def gradient(self, q, v):
+        v = np.ascontiguousarray(v, dtype=float)
+        C = self._run(coriolis.coriolis_matrix, (self.nv, self.nv), q, v)
+        g = self._run(rnea.inverse_dynamics, (1, self.nv), q)[0]
+        # ∂L/∂q = C(q, v)ᵀ v − g(q)   (C Christoffel-consistent: Cᵀ v = ½ vᵀ (∂M/∂q) v)
+        return C.T @ v - g
+
+    def jacobian_terms(self, q, v):
+        """``(K, H)``: ``K = ∂(M(q) v)/∂q`` and ``H ≈ ∂²L/∂q²``, both ``(nv, nv)``.
+
+        RNEA with zero velocity and acceleration ``v`` is ``M(q) v + g(q)``, so its ``q``-derivative
+        (:func:`multibody.inverse_dynamics_derivatives`) less ``∂g/∂q`` (:func:`multibody.gravity_derivatives`)
+        is ``K``. ``H = −∂g/∂q`` leaves out ``½ vᵀ (∂²M/∂q²) v`` (no analytical second derivatives of
+        ``M``), a quasi-Newton approximation.
+        """
+        nv = self.nv
+        kernel = derivative_kernels.inverse_dynamics_derivatives
+        dg_dq = self._run(kernel, (nv, nv), q)
+        dtau = self._run(kernel, (2 * nv, nv), q, np.zeros(nv), np.ascontiguousarray(v, dtype=float))
+        return dtau[:nv] - dg_dq, -dg_dq
+
+    def forces(self, q, v):
+        return None
+
+
+class _SystemLagrangian:
+    """The same terms of a system that provides them (``LagrangianSystem.numeric()``): ``mass_matrix(q)``,
+    ``lagrangian_gradient(q, v)``, and optionally ``momentum_jacobian(q, v)``, ``lagrangian_hessian(q, v)``
+    (exact Newton terms) and ``generalized_forces(q, v)`` (forces without a potential, ``Q``)."""
+
+    def __init__(self, system):
+        self.system = system
+        self.nv = system.nv
+        self.has_forces = hasattr(system, "generalized_forces") and _has_nonzero_forces(system)
+
+    def mass_matrix(self, q):
+        return np.asarray(self.system.mass_matrix(q), dtype=float).reshape(self.nv, self.nv)
+
+    def gradient(self, q, v):
+        return np.asarray(self.system.lagrangian_gradient(q, v), dtype=float).reshape(self.nv)
+
+    def jacobian_terms(self, q, v):
+        zero = np.zeros((self.nv, self.nv))
+        K = self.system.momentum_jacobian(q, v) if hasattr(self.system, "momentum_jacobian") else zero
+        H = self.system.lagrangian_hessian(q, v) if hasattr(self.system, "lagrangian_hessian") else zero
+        return np.asarray(K, dtype=float), np.asarray(H, dtype=float)
+
+    def forces(self, q, v):
+        return self.system.generalized_forces(q, v) if self.has_forces else None
+
+
+def _has_nonzero_forces(system):
+    """Whether a system's generalized forces ``Q`` may be non-zero: ``False`` only for a symbolic system whose
+    ``Q`` are zero expressions (which saves their evaluation at every Newton iteration)."""
+    lagrangian = getattr(system, "_lagrangian", None)
+    if lagrangian is None:
+        return True
+    return any(entry != 0 for entry in lagrangian[3])
+
+
+def _lagrangian_of(mechanical):
+    """The terms of ``L`` that the discrete equations need, or ``ValueError`` explaining what is missing."""
+    if isinstance(mechanical, ModelSystem):
+        model = mechanical.model
+        if not model.is_vector_space:
+            curved = [f"{name!r} ({joint.kind})" for name, joint in zip(model.joint_names, model.joints)
+                      if not joint.vector_space]
+            raise ValueError(
+                "method='variational' is not available for this model: it needs configurations in a vector space "
+                "with q̇ = v (revolute, continuous, prismatic and translation joints), and joint(s) "
+                f"{', '.join(curved)} move on a Lie group; the Lie-group variational integrator (Lee, Leok and "
+                "McClamroch) is not implemented. Use method='RK4' or an adaptive method such as 'DOP853'.")
+        return _ModelLagrangian(model)
+    if hasattr(mechanical, "chart") and not getattr(mechanical, "vector_space", False):
+        raise ValueError(f"method='variational' needs configurations in a vector space with q̇ = v; "
+                         f"{type(mechanical).__name__} has chart maps (a curved configuration space), for which "
+                         "the Lie-group variational integrator is not implemented")
+    if mechanical.nq != mechanical.nv:
+        raise ValueError(f"method='variational' needs q̇ = v, but {type(mechanical).__name__} has nq = {mechanical.nq} "
+                         f"!= nv = {mechanical.nv}")
+    # (a NumericLagrangian made by hand, without its Lagrangian, has the methods but cannot answer them)
+    if getattr(mechanical, "_lagrangian", True) is None or not hasattr(mechanical, "lagrangian_gradient"):
+        raise ValueError(
+            f"method='variational' needs the Lagrangian's gradient ∂L/∂q, which {type(mechanical).__name__} does not "
+            "provide: use a Model, LagrangianSystem.numeric(), or a system with lagrangian_gradient(q, v) (and "
+            "optionally momentum_jacobian(q, v), lagrangian_hessian(q, v), generalized_forces(q, v))")
+    return _SystemLagrangian(mechanical)
+
+
+# ============================================================================= one step
+
+class _Rows:
+    """The constraint rows of a :class:`ConstrainedSystem`, split into holonomic (``H``: ``φ(q, t) = 0``,
+    RATTLE-type) and nonholonomic (``N``: ``A v + b = 0`` only, midpoint distribution)."""
+
+    def __init__(self, constrained):
+        self.constrained = constrained
+        self.m = constrained.num_rows
+        self.holonomic = np.asarray(constrained._position_mask, dtype=bool)
+        self.nonholonomic = ~self.holonomic
+        self.any_holonomic = bool(self.holonomic.any())
+        self.any_nonholonomic = bool(self.nonholonomic.any())
+
+    def levels(self, q, t):
+        """``(φ (m,), A (m, nv), b (m,))`` at ``(q, t)``."""
+        return self.constrained._position_and_velocity_levels(q, t)
+
+
+def _norm(x):
+    """``max |xᵢ|`` of a short vector (NaN when it holds one); a Python loop is quicker than NumPy's
+    reductions for the few coordinates of a step."""
+    values = x.tolist()
+    return max(map(abs, values), default=0.0) if math.isfinite(sum(values)) else math.nan
+
+
+def _step(lagrangian, rows, rule, force, t, h, q0, p0, levels0, guess, tolerance, max_iterations):
+    """One step ``(q_k, p_k) → (q_{k+1}, p_{k+1})`` of size ``h`` (s, may be negative in a composition).
+
+    Args:
+        lagrangian: :class:`_ModelLagrangian` or :class:`_SystemLagrangian`.
+        rows: :class:`_Rows` or ``None`` (no constraints).
+        force: ``force(t, q, v) -> (nv,)`` or ``None``: joint forces plus the system's own ``Q``.
+        q0, p0: ``(nv,)`` configuration and momentum ``p = M v`` (kg m/s, kg m²/s per coordinate).
+        levels0: ``(φ, A, b)`` of the rows at ``(q0, t)`` (``None`` without rows).
+        guess: predicted increment ``Δ = q_{k+1} − q_k`` ``(nv,)``.
+    Returns:
+        ``(q1, p1, v1, Δ, μ⁻ (m,), μ⁺ (m,), levels1, iterations)``: the impulses ``μ`` (N s per row)
+        that act at the start and at the end of the step.
+    Raises:
+        _NotConverged: the Newton iteration did not meet the tolerance.
+    """
+    nv = q0.shape[0]
+    m = 0 if rows is None else rows.m
+    H_rows = rows.holonomic if m else None
+    N_rows = rows.nonholonomic if m else None
+    # every row's impulse at the start acts along A(q_k)ᵀ: constraint forces at the nodes
+    B = levels0[1] if m else None
+
+    if rule == "trapezoidal":
+        M0 = lagrangian.mass_matrix(q0)
+
+    def evaluate(delta):
+        """The first discrete equation's terms at ``Δ``: ``(start, scale, state)``, ``start = −D1 L_d − f⁻``."""
+        xi = delta / h
+        if rule == "midpoint":
+            q_mid = q0 + 0.5 * delta
+            M = lagrangian.mass_matrix(q_mid)
+            Lq = lagrangian.gradient(q_mid, xi)
+            f = None if force is None else force(t + 0.5 * h, q_mid, xi)
+            M_xi = M @ xi
+            # −D1 L_d − f⁻ = M(q̄) ξ − (h/2) (∂L/∂q(q̄, ξ) + τ̄)
+            pull = Lq if f is None else Lq + f
+            start = M_xi - 0.5 * h * pull
+            scale = max(_norm(M_xi), 0.5 * abs(h) * _norm(Lq), 0.0 if f is None else 0.5 * abs(h) * _norm(f))
+            return start, scale, (q_mid, xi, M, pull)
+        q1 = q0 + delta
+        M1 = lagrangian.mass_matrix(q1)
+        Lq0 = lagrangian.gradient(q0, xi)
+        f0 = None if force is None else force(t, q0, xi)
+        M_xi = 0.5 * (M0 + M1) @ xi
+        # −D1 L_d − f⁻ = ½ (M(q_k) + M(q_{k+1})) ξ − (h/2) (∂L/∂q(q_k, ξ) + τ(t_k, q_k, ξ))
+        pull = Lq0 if f0 is None else Lq0 + f0
+        start = M_xi - 0.5 * h * pull
+        scale = max(_norm(M_xi), 0.5 * abs(h) * _norm(Lq0), 0.0 if f0 is None else 0.5 * abs(h) * _norm(f0))
+        return start, scale, (q1, xi, M1, pull)
+
+    def start_force(delta):
+        """``f⁻ (nv,)`` of the step at ``Δ`` (for its forward differences)."""
+        xi = delta / h
+        if rule == "midpoint":
+            return 0.5 * h * np.asarray(force(t + 0.5 * h, q0 + 0.5 * delta, xi), dtype=float)
+        return 0.5 * h * np.asarray(force(t, q0, xi), dtype=float)
+
+    def jacobian(delta, state):
+        """``∂(−D1 L_d − f⁻)/∂Δ (nv, nv)``, see the module docstring."""
+        xi = delta / h
+        if rule == "midpoint":
+            q_mid, _, M, _ = state
+            K, H = lagrangian.jacobian_terms(q_mid, xi)
+            J = M / h + 0.5 * (K - K.T) - 0.25 * h * H
+        else:
+            q1, _, M1, _ = state
+            K1, _ = lagrangian.jacobian_terms(q1, xi)
+            K0, _ = lagrangian.jacobian_terms(q0, xi)
+            J = 0.5 * (M0 + M1) / h + 0.5 * K1 - 0.5 * K0.T
+        if force is not None:
+            # forward differences of f⁻ along each coordinate of Δ
+            base = start_force(delta)
+            step = _FORCE_DIFFERENCE_STEP * max(_norm(delta), abs(h) * 1e-8, 1e-300)
+            for j in range(nv):
+                shifted = delta.copy()
+                shifted[j] += step
+                J[:, j] -= (start_force(shifted) - base) / step
+        return J
+
+    def constraint_terms(delta):
+        """Rows of the step's constraints at ``Δ``: ``(c, C, scales, levels1)`` with the residuals
+        ``c (m,)``, their linearisation ``C (m, nv)`` in ``Δ``, the rows' scales and the levels at
+        ``q_{k+1}``. The scales: ``max(1, |q_{k+1}|)`` for ``φ`` (its units are those of ``q``), the size
+        of the terms of ``A ξ + b`` for the nonholonomic rows."""
+        q1 = q0 + delta
+        levels1 = rows.levels(q1, t + h)
+        c, C, scales = np.empty(m), np.empty((m, nv)), np.empty(m)
+        if rows.any_holonomic:
+            # φ(q_{k+1}, t_{k+1}) = 0
+            c[H_rows] = levels1[0][H_rows]
+            C[H_rows] = levels1[1][H_rows]
+            scales[H_rows] = max(1.0, _norm(q1))
+        if rows.any_nonholonomic:
+            # A(q̄, t̄) ξ + b(q̄, t̄) = 0: the discrete constraint with the distribution at the midpoint
+            _, A_mid, b_mid = rows.levels(q0 + 0.5 * delta, t + 0.5 * h)
+            A_N, b_N = A_mid[N_rows], b_mid[N_rows]
+            xi = delta / h
+            c[N_rows] = A_N @ xi + b_N
+            C[N_rows] = A_N / h
+            scales[N_rows] = np.maximum(np.maximum(np.abs(A_N) @ np.abs(xi), np.abs(b_N)), 1e-300)
+        return c, C, scales, levels1
+
+    delta = np.array(guess, dtype=float)
+    mu = np.zeros(m)
+    previous = np.inf
+    J_inverse, fresh = None, False  # fresh: J_inverse is this step's analytical one (Broyden-updated since)
+    delta_before = F_before = None  # the previous iterate and its −D1 L_d − f⁻ − p_k, for Broyden's update
+    for iteration in range(1, max_iterations + 1):
+        start, scale, state = evaluate(delta)
+        residual = start - p0
+        if m:
+            c, C, row_scales, levels1 = constraint_terms(delta)
+            impulse = B.T @ mu
+            residual = residual - impulse
+            scale = max(scale, _norm(impulse))
+        scale = max(scale, _norm(p0), 1e-300)
+        error = _norm(residual) / scale
+        if m:
+            row_error = float(np.max(np.abs(c) / row_scales, initial=0.0))
+            error = max(error, row_error)
+        if not math.isfinite(error):
+            raise _NotConverged(error, iteration, "the residual is not finite")
+        if error <= tolerance:
+            break
+        F = start - p0
+        if J_inverse is None or (error > 0.1 * previous and not fresh):
+            J_inverse = linalg.solve(jacobian(delta, state), np.eye(nv))
+            fresh = True
+        elif delta_before is not None:
+            # Broyden's update of J⁻¹ from the last step s and the change y of −D1 L_d − f⁻ (Dennis and
+            # Schnabel, Numerical Methods for Unconstrained Optimization, 1983, Chapter 8, inverted by
+            # Sherman–Morrison): it supplies the second derivatives the analytical J leaves out
+            s_step, y = delta - delta_before, F - F_before
+            Ji_y = J_inverse @ y
+            denominator = s_step @ Ji_y
+            if denominator != 0.0:
+                J_inverse = J_inverse + np.outer(s_step - Ji_y, s_step @ J_inverse) / denominator
+        previous, delta_before, F_before = error, delta, F
+        if m:
+            # J δ − Bᵀ μ_new = −(start − p_k),  C δ = −c:  the Schur complement gives μ_new (minimum norm
+            # when rows are redundant), then δ.
+            Ji_F = J_inverse @ F
+            Ji_Bt = J_inverse @ B.T
+            schur = C @ Ji_Bt
+            mu = np.linalg.lstsq(schur, C @ Ji_F - c, rcond=1e-10)[0]
+            delta = delta - Ji_F + Ji_Bt @ mu
+        else:
+            delta = delta - J_inverse @ residual
+    else:
+        raise _NotConverged(error, max_iterations, None)
+
+    # p_{k+1} = p_k + (D1 L_d + D2 L_d) + f⁻ + f⁺ + impulses: the momentum balance of the step, which keeps a
+    # cyclic momentum exactly whatever the Newton residual left
+    q1 = q0 + delta
+    if rule == "midpoint":
+        _, xi, _, pull = state
+        change = h * pull  # D1 L_d + D2 L_d + f⁻ + f⁺ = h (∂L/∂q(q̄, ξ) + τ̄)
+        M1 = lagrangian.mass_matrix(q1)
+    else:
+        _, xi, M1, pull = state
+        Lq1 = lagrangian.gradient(q1, xi)
+        f1 = None if force is None else force(t + h, q1, xi)
+        # (h/2) (∂L/∂q(q_k, ξ) + ∂L/∂q(q_{k+1}, ξ) + τ_k + τ_{k+1})
+        change = 0.5 * h * (pull + Lq1 + (0.0 if f1 is None else f1))
+    p1 = p0 + change
+    if m:
+        p1 = p1 + B.T @ mu  # the impulses A(q_k)ᵀ μ⁻ at the start
+    else:
+        levels1, mu = None, np.zeros(0)
+    v1 = linalg.solve(M1, p1[:, None])[:, 0]
+    mu_plus = np.zeros(m)
+    if m:
+        # p_{k+1} += A(q_{k+1})ᵀ μ⁺ with A v_{k+1} + b = 0 at t_{k+1}: the M-orthogonal projection of the
+        # velocity (levels1: the rows at the converged q_{k+1}, from the last iteration)
+        A1, b1 = levels1[1], levels1[2]
+        M_inv_At = linalg.solve(M1, np.ascontiguousarray(A1.T))
+        mu_plus = np.linalg.lstsq(A1 @ M_inv_At, -(A1 @ v1 + b1), rcond=1e-10)[0]
+        p1 = p1 + A1.T @ mu_plus
+        v1 = v1 + M_inv_At @ mu_plus
+    return q1, p1, v1, delta, mu, mu_plus, levels1, iteration
+
+
+class _NotConverged(Exception):
+    def __init__(self, error, iterations, reason):
+        super().__init__(reason or "")
+        self.error, self.iterations, self.reason = error, iterations, reason
+
+
+# ============================================================================= simulate
+
+def simulate(system, q0, v0, t_final, *, dt=None, tau=None, rule="midpoint", order=2, t0=0.0, joint_damping=False,
+             limits="warn", progress=None, tolerance=1e-12, max_iterations=25):
+    """Integrate from ``(q0, v0)`` at ``t0`` to ``t_final`` with a variational integrator of step ``dt``.
+
+    ``mb.simulate(system, q0, v0, t_final, method="variational", dt=h, ...)`` calls this function; the
+    module docstring gives the equations.
+
+    Args:
+        system: a :class:`~multibody.model.Model` whose joints form a vector space with ``q̇ = v``
+            (revolute, continuous, prismatic, translation), a :class:`ConstrainedSystem` on one, or a
+            ``LagrangianSystem.numeric()`` system (with or without constraints).
+        q0, v0: initial state ``(nq,)``, ``(nv,)``; an inconsistent one is projected onto the
+            constraints with a warning, as ``mb.simulate`` does.
+        t_final: end time (s).
+        dt: the step ``h`` (s), also the output interval (every step is returned); the last step is
+            shortened to end at ``t_final``. Default ``(t_final − t0) / 500``. With ``order=4`` one
+            step is three sub-steps ``w₁ h, w₀ h, w₁ h``.
+        tau: joint forces ``None``, ``(nv,)`` or ``tau(t, q, v) -> (nv,)`` (N, N·m), entering through
+            the discrete Lagrange–d'Alembert principle (``f_k^±`` of the module docstring).
+        rule: ``"midpoint"`` or ``"trapezoidal"`` quadrature of the action (both order 2).
+        order: 2, or 4 by Yoshida's triple jump (systems without constraints).
+        t0: start time (s).
+        joint_damping, limits, progress: as :func:`multibody.simulate`.
+        tolerance: Newton's tolerance, relative to the momentum terms of the discrete equations
+            (``φ``: times ``max(1, |q|)``).
+        max_iterations: Newton iterations allowed per step.
+
+    Returns:
+        :class:`~multibody.simulation.Trajectory`: ``t (n,)``, ``q (n, nq)``, ``v = M(q)⁻¹ p (n, nv)``,
+        ``lam (n, m)`` the discrete multipliers as forces (module docstring), ``energy`` ``T + U`` (J)
+        at ``(q_k, v_k)``, ``residual`` ``max(|φ|, |A v + b|)``.
+
+    Discrete energy and work. With the midpoint rule, ``M(q̄) ξ = (p_k + p_{k+1})/2`` and
+    ``p_{k+1} − p_k = h (∂L/∂q(q̄, ξ) + τ̄)``. For a constant ``M`` (a pendulum, particles) that makes
+
+        T_{k+1} − T_k + ∇U(q̄_k)·(q_{k+1} − q_k) = W_k,       W_k = τ̄_k·(q_{k+1} − q_k),
+
+    exactly: the discrete energy ``E_k = T_k + U^d_k``, with ``U^d_{k+1} = U^d_k + ∇U(q̄_k)·(q_{k+1} − q_k)``
+    the midpoint quadrature of the potential along the path (``|U^d_k − U(q_k)| = O(h²)``, ``U^d_0 =
+    U(q_0)``), changes by exactly the discrete work ``W_k`` of the forces ``τ̄_k = τ(t_k + h/2, q̄_k, ξ_k)``
+    (``W_k = (f_k⁻ + f_k⁺)·ξ_k``) up to the Newton tolerance.
+
+    Raises:
+        ValueError: a curved configuration space (free-flyer, spherical, planar joints), a system
+            without ``∂L/∂q``, ``order=4`` with constraints, or invalid arguments.
+        SimulationError: a step whose Newton iteration did not converge (it names the time and the
+            residual); ``.trajectory`` holds the states before it.
+    """
+    from .simulation import SimulationError, _Progress, _report_limits, _torque_function, _with_joint_damping
+
+    if rule not in RULES:
+        raise ValueError(f"rule must be one of {RULES}, got {rule!r}")
+    if order not in ORDERS:
+        raise ValueError(f"order must be one of {ORDERS} (4: Yoshida's composition of the order-2 step), got {order!r}")
+    constrained = system if isinstance(system, ConstrainedSystem) else ConstrainedSystem(system)
+    mechanical = constrained.system
+    lagrangian = _lagrangian_of(mechanical)
+    nq, nv, m = constrained.nq, constrained.nv, constrained.num_rows
+    if order == 4 and m:
+        raise ValueError("order=4 (Yoshida's composition) is for systems without constraints; "
+                         f"this system has {m} constraint rows: use order=2")
+    if not t_final > t0:
+        raise ValueError(f"t_final ({t_final}) must be after t0 ({t0})")
+    dt = (t_final - t0) / 500.0 if dt is None else float(dt)
+    if not dt > 0.0:
+        raise ValueError(f"dt must be positive, got {dt}")
+    if progress not in (None, True, False):
+        raise ValueError(f"progress must be None (a bar for long runs), True or False, got {progress!r}")
+    if limits not in ("warn", "error", "ignore"):
+        raise ValueError(f"limits must be one of ('warn', 'error', 'ignore'), got {limits!r}")
+    if not 0.0 < tolerance < 1.0:
+        raise ValueError(f"tolerance must be in (0, 1), got {tolerance}")
+    model = getattr(mechanical, "model", None)
+    if joint_damping:
+        if model is None:
+            raise ValueError(f"joint_damping=True needs a system built on a Model (model.damping); "
+                             f"{type(mechanical).__name__} has none: give the damping as tau(t, q, v) instead")
+        if np.any(model.damping):
+            tau = _with_joint_damping(_torque_function(tau, nv), model.damping)
+    force = _total_force(tau, nv, lagrangian, _torque_function)
+
+    q, v = np.array(q0, dtype=float), np.array(v0, dtype=float)
+    if q.shape != (nq,) or v.shape != (nv,):
+        raise ValueError(f"q0 and v0 must have shapes ({nq},) and ({nv},), got {q.shape} and {v.shape} "
+                         "(method='variational' integrates one state at a time)")
+    if m:
+        q_projected, v_projected = constrained.project(q, v, t0)
+        moved = max(_norm(q_projected - q), _norm(v_projected - v))
+        if moved > 1e-10:
+            warnings.warn(f"initial state violated the constraints; projected onto them (moved by {moved:.3g})",
+                          UserWarning, stacklevel=3)
+        q, v = q_projected, v_projected
+
+    n_intervals = int(np.ceil((t_final - t0) / dt - 1e-9))
+    times = np.minimum(t0 + dt * np.arange(n_intervals + 1), t_final)
+    qs, vs = np.empty((len(times), nq)), np.empty((len(times), nv))
+    mu_start, mu_end = np.zeros((len(times), m)), np.zeros((len(times), m))  # impulses at each node
+    qs[0], vs[0] = q, v
+    rows = _Rows(constrained) if m else None
+    levels = rows.levels(q, t0) if m else None
+    p = lagrangian.mass_matrix(q) @ v
+    weights = (YOSHIDA_W1, YOSHIDA_W0, YOSHIDA_W1) if order == 4 else (1.0,)
+    last_delta, last_velocity, last_h = None, v, None
+    done = 1
+    bar = _Progress(progress, t0, t_final)
+    try:
+        for k in range(1, len(times)):
+            step = times[k] - times[k - 1]
+            t = times[k - 1]
+            for weight in weights:
+                h = weight * step
+                guess = _predict(h, v, last_velocity, last_h)
+                try:
+                    q, p, v_new, last_delta, start, end, levels, _ = _step(
+                        lagrangian, rows, rule, force, t, h, q, p, levels, guess, tolerance, max_iterations)
+                except _NotConverged as failure:
+                    raise SimulationError(_failure_message(failure, t, h, tolerance), None) from None
+                except (np.linalg.LinAlgError, ConstraintError, FloatingPointError) as error:
+                    raise SimulationError(f"variational step failed at t = {t:.6g} s (h = {h:.3g} s): {error}",
+                                          None) from error
+                last_velocity, last_h, v = v, h, v_new
+                t = t + h
+            if m:
+                mu_start[k - 1] += start
+                mu_end[k] = end
+            qs[k], vs[k] = q, v
+            done = k + 1
+            bar.update(times[k])
+    except SimulationError as error:
+        message = f"simulation stopped at t = {times[done - 1]:.6g} s: {error}"
+        partial = _trajectory(constrained, times[:done], qs[:done], vs[:done], mu_start[:done], mu_end[:done], message)
+        raise SimulationError(message, partial) from None
+    finally:
+        bar.close()
+    trajectory = _trajectory(constrained, times, qs, vs, mu_start, mu_end, "completed")
+    if model is not None and limits != "ignore":
+        _report_limits(mechanical, trajectory, limits)
+    return trajectory
+
+
+def _total_force(tau, nv, lagrangian, torque_function):
+    """``force(t, q, v) -> (nv,)``: the joint forces ``τ`` plus the system's own forces ``Q`` (symbolic
+    forces without a potential), or ``None`` when both are absent."""
+    torque = None if tau is None else torque_function(tau, nv)
+    has_forces = isinstance(lagrangian, _SystemLagrangian) and lagrangian.has_forces
+    if torque is None and not has_forces:
+        return None
+
+    def force(t, q, v):
+        total = np.zeros(nv)
+        if torque is not None:
+            applied = torque(t, q, v)
+            if applied is not None:
+                total = total + np.asarray(applied, dtype=float).reshape(nv)
+        if has_forces:
+            total = total + np.asarray(lagrangian.forces(q, v), dtype=float).reshape(nv)
+        return total
+
+    return force
+
+
+def _predict(h, v, v_before, h_before):
+    """Predicted increment ``Δ ≈ h v + h²/2 a`` with ``a`` the last step's ``(v − v_before)/h_before``:
+    within ``O(h³)`` of the solution."""
+    if h_before is None:
+        return h * v
+    return h * v + 0.5 * h * h * (v - v_before) / h_before
+
+
+def _failure_message(failure, t, h, tolerance):
+    if failure.reason:
+        return f"variational step at t = {t:.6g} s (h = {h:.3g} s) failed: {failure.reason}"
+    return (f"Newton's method of the variational step at t = {t:.6g} s (h = {h:.3g} s) did not converge: relative "
+            f"residual {failure.error:.3g} > tolerance {tolerance:.3g} after {failure.iterations} iterations; take a "
+            "smaller step dt")
+
+
+def _trajectory(constrained, times, q, v, mu_start, mu_end, status):
+    """The :class:`~multibody.simulation.Trajectory` of the states, with the node impulses turned into
+    forces ``λ_k = 2 (μ_k⁺ + μ_k⁻) / (h_{k−1} + h_k)`` (extrapolated from the two nearest inner nodes at
+    the two ends)."""
+    from .simulation import Trajectory
+
+    n, m = len(times), constrained.num_rows
+    steps = np.diff(times)
+    # the time each node's impulse stands for: half of each adjacent step
+    span = np.zeros(n)
+    span[:-1] += 0.5 * steps
+    span[1:] += 0.5 * steps
+    span = np.where(span > 0.0, span, np.inf)
+    lam = (mu_start + mu_end) / span[:, None] if m else np.zeros((n, 0))
+    if m and n >= 4:
+        # An end node meets one step only, and its one-sided impulse is a first-order approximation of the
+        # force there; the two ends are extrapolated linearly from their two nearest inner nodes instead,
+        # whose two-sided averages are second order.
+        for node, (a, b) in ((0, (1, 2)), (n - 1, (n - 2, n - 3))):
+            weight = (times[node] - times[a]) / (times[b] - times[a])
+            lam[node] = lam[a] + weight * (lam[b] - lam[a])
+    if constrained.batched and n:
+        energy = np.broadcast_to(constrained.energy(q, v), (n,)).astype(float)
+        residual = constrained.residual(q, v, times) if m else np.zeros(n)
+    else:
+        energy = np.array([constrained.energy(q_k, v_k) for q_k, v_k in zip(q, v)], dtype=float).reshape(n)
+        residual = (np.array([constrained.residual(q_k, v_k, t) for q_k, v_k, t in zip(q, v, times)], dtype=float)
+                    if m else np.zeros(n))
+    return Trajectory(t=np.array(times, dtype=float), q=q.copy(), v=v.copy(), lam=np.asarray(lam, dtype=float),
+                      energy=energy, residual=np.asarray(residual, dtype=float).reshape(n),
+                      row_names=list(constrained.row_names), status=status, projection_tolerance=None)
