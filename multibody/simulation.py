@@ -99,6 +99,45 @@ class Trajectory:
                        energy=self.energy[k].copy(), residual=self.residual[k].copy(), status=self.status[k],
                        row_names=list(self.row_names))
 
+    def momentum(self, system, kind="generalized"):
+        """Momenta along the trajectory: ``kind="generalized"`` gives ``p = ∂L/∂q̇ = M(q) v`` at every output
+        time, ``(n, nv)`` (``(N, n, nv)``), whose entries of cyclic coordinates are conserved (the lecture
+        note's ``p_θ = m r² θ̇`` of a central force); ``kind="spatial"`` gives the total spatial momentum of
+        the moving bodies, ``[linear (kg m/s); angular about the world origin (kg m²/s)]`` in world axes,
+        ``(n, 6)``, conserved for a free system (no gravity, no external forces or constraints).
+
+        ``system``: the :class:`~multibody.model.Model`, :class:`~multibody.constrained.ConstrainedSystem` or
+        mechanical system the trajectory was simulated with (``"spatial"`` needs a model). Rows after a
+        batched trajectory stopped are NaN, as its states.
+        """
+        from . import dynamics, robotics
+        from .constrained import as_system
+
+        mechanical = system.system if isinstance(system, ConstrainedSystem) else as_system(system)
+        model = getattr(mechanical, "model", None)
+        q, v = np.asarray(self.q), np.asarray(self.v)
+        stopped = ~(np.isfinite(q).all(axis=-1) & np.isfinite(v).all(axis=-1))
+        if model is not None:
+            # the rows after a batched trajectory stopped: any valid configuration, the results masked below
+            q = np.where(stopped[..., None], model.neutral(), q)
+        if kind == "generalized":
+            if model is not None:
+                # p = M(q) v, every output time in one batched call
+                return np.where(stopped[..., None], np.nan, matvec(dynamics.mass_matrix(model, q), v))
+            return np.stack([mechanical.mass_matrix(q_k) @ v_k for q_k, v_k in
+                             zip(q.reshape(-1, q.shape[-1]), v.reshape(-1, v.shape[-1]))]).reshape(v.shape)
+        if kind == "spatial":
+            if model is None:
+                raise ValueError("the spatial momentum needs a Model (bodies in space); this system is "
+                                 f"{type(mechanical).__name__}")
+            # h_O = [l; k_G + c × l] from the centroidal momentum h_G = [l; k_G] about the centre of mass c
+            h_G = robotics.centroidal_momentum(model, q, np.where(stopped[..., None], 0.0, v))
+            c = robotics.center_of_mass(model, q)
+            linear = h_G[..., :3]
+            momentum = np.concatenate([linear, h_G[..., 3:] + np.cross(c, linear)], axis=-1)
+            return np.where(stopped[..., None], np.nan, momentum)
+        raise ValueError(f"kind must be 'generalized' or 'spatial', got {kind!r}")
+
     def save(self, path):
         """Write the trajectory to a NumPy ``.npz`` archive at ``path`` (``.npz`` added when missing) and
         return the path written. Every array keeps its shape and dtype; names and the status are stored
