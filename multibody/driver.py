@@ -28,7 +28,7 @@ from .kernels import (aba, centroidal, configuration, constraints, coriolis, crb
 # Each kernel's code in the parallel loop and its workspace size.
 _CODES = {kernel: code for code, kernel in enumerate((
     rnea.inverse_dynamics, rnea.joint_reaction_forces, crba.mass_matrix, aba.forward_dynamics,
-    aba.inverse_mass_matrix, coriolis.coriolis_matrix, energy.kinetic_energy, energy.potential_energy,
+    crba.inverse_mass_matrix, coriolis.coriolis_matrix, energy.kinetic_energy, energy.potential_energy,
     kinematics.frame_placements, kinematics.frame_jacobian, kinematics.frame_jacobian_time_variation,
     kinematics.frame_motions, configuration.integrate, configuration.difference, configuration.configuration_rate,
     configuration.chart, configuration.chart_rate, configuration.velocity_alignment, configuration.velocity_coupling,
@@ -82,7 +82,7 @@ def _kernel(marker, joints, reals, frames, x0, x1, x2, x3, out, ws):
     elif code == 4:
         aba.forward_dynamics(joints, reals, frames, x0, x1, x2, x3, out, ws)
     elif code == 5:
-        aba.inverse_mass_matrix(joints, reals, frames, x0, x1, x2, x3, out, ws)
+        crba.inverse_mass_matrix(joints, reals, frames, x0, x1, x2, x3, out, ws)
     elif code == 6:
         coriolis.coriolis_matrix(joints, reals, frames, x0, x1, x2, x3, out, ws)
     elif code == 7:

@@ -23,7 +23,7 @@ import math
 
 import numpy as np
 
-from . import driver, spatial
+from . import driver, gpu, spatial
 from .kernels import aba, coriolis, crba, energy, rnea
 from .kinematics import _frame_arguments, frame_motions, joint_world_poses
 
@@ -60,6 +60,20 @@ def _check(model, q, v=_ABSENT, a=_ABSENT, tau=_ABSENT, f_ext=None):
     return q, v, a, tau, f_ext, batch
 
 
+def _on_device(q):
+    """Whether ``q`` is a CUDA array, which sends the call to :mod:`multibody.gpu`."""
+    return type(q) is not np.ndarray and gpu.is_device_array(q)
+
+
+def _on_gpu(model, kernel, inputs, out_shape, template):
+    """``kernel`` on the GPU: ``inputs`` ``(name, array or None, trailing size)`` -> a device array
+    ``batch + out_shape`` (of ``template``'s library)."""
+    arrays, batch = gpu.check(inputs)
+    out = gpu.evaluate_device(kernel, gpu.device_tree(model), arrays, out_shape if len(out_shape) == 2
+                              else (1,) + out_shape, batch)
+    return gpu.like(out.reshape(batch + out_shape), template)
+
+
 def _vector(model, kernel, inputs, batch):
     """A kernel whose per-state output is one vector ``(nv,)``: ``-> batch + (nv,)``."""
     return driver.evaluate(kernel, model.tree, inputs, (1, model.nv), batch)[..., 0, :]
@@ -72,8 +86,11 @@ def inverse_dynamics(model, q, v, a, f_ext=None):
 
     RBDA Table 5.1 (:func:`multibody.kernels.rnea.inverse_dynamics`). Shapes: ``q (..., nq)``,
     ``v, a (..., nv)``, ``f_ext (..., njoints, 6)`` (see module docstring) -> ``τ (..., nv)`` (N or N m
-    per coordinate). Pinocchio counterpart: ``rnea``.
+    per coordinate). Pinocchio counterpart: ``rnea``. CUDA arrays in, CUDA arrays out (:mod:`multibody.gpu`).
     """
+    if _on_device(q):
+        return _on_gpu(model, rnea.inverse_dynamics, (("q", q, model.nq), ("v", v, model.nv), ("a", a, model.nv),
+                                                      ("f_ext", f_ext, (model.njoints, 6))), (model.nv,), q)
     q, v, a, _, f_ext, batch = _check(model, q, v, a, f_ext=f_ext)
     return _vector(model, rnea.inverse_dynamics, (q, v, a, f_ext), batch)
 
@@ -96,6 +113,8 @@ def generalized_gravity(model, q):
 
     Pinocchio counterpart: ``computeGeneralizedGravity``.
     """
+    if _on_device(q):
+        return _on_gpu(model, rnea.inverse_dynamics, (("q", q, model.nq),), (model.nv,), q)
     q = model.check_configuration(q)
     return _vector(model, rnea.inverse_dynamics, (q,), q.shape[:-1])
 
@@ -105,6 +124,8 @@ def bias_forces(model, q, v):
 
     Pinocchio counterpart: ``nonLinearEffects``.
     """
+    if _on_device(q):
+        return _on_gpu(model, rnea.inverse_dynamics, (("q", q, model.nq), ("v", v, model.nv)), (model.nv,), q)
     q, v, *_, batch = _check(model, q, v)
     return _vector(model, rnea.inverse_dynamics, (q, v), batch)
 
@@ -122,6 +143,8 @@ def mass_matrix(model, q, method="crba"):
     """
     if method not in ("crba", "lagrangian"):
         raise ValueError(f"method must be 'crba' or 'lagrangian', got {method!r}")
+    if method == "crba" and _on_device(q):
+        return _on_gpu(model, crba.mass_matrix, (("q", q, model.nq),), (model.nv, model.nv), q)
     q = model.check_configuration(q)
     if method == "crba":
         return driver.evaluate(crba.mass_matrix, model.tree, (q,), (model.nv, model.nv), q.shape[:-1])
@@ -251,8 +274,11 @@ def forward_dynamics(model, q, v, tau, f_ext=None):
     RBDA Table 7.1 (:func:`multibody.kernels.aba.forward_dynamics`). Shapes: ``q (..., nq)``,
     ``v, tau (..., nv)``, ``f_ext (..., njoints, 6)`` -> ``a (..., nv)``. A joint that moves no
     inertia makes ``M`` singular and raises ``numpy.linalg.LinAlgError`` naming it. Pinocchio
-    counterpart: ``aba``.
+    counterpart: ``aba``. On CUDA arrays (:mod:`multibody.gpu`) a singular ``M`` gives NaN rather than the error.
     """
+    if _on_device(q):
+        return _on_gpu(model, aba.forward_dynamics, (("q", q, model.nq), ("v", v, model.nv), ("tau", tau, model.nv),
+                                                     ("f_ext", f_ext, (model.njoints, 6))), (model.nv,), q)
     q, v, _, tau, f_ext, batch = _check(model, q, v, tau=tau, f_ext=f_ext)
     return articulated_body_accelerations(model, q, v, tau, f_ext, batch)
 
@@ -265,11 +291,13 @@ def articulated_body_accelerations(model, q, v, tau, f_ext, batch):
 
 
 def inverse_mass_matrix(model, q):
-    """``M(q)⁻¹`` by the Articulated Body Algorithm (:func:`multibody.kernels.aba.inverse_mass_matrix`):
-    ``(..., nq) -> (..., nv, nv)``. Pinocchio counterpart: ``computeMinverse``.
+    """``M(q)⁻¹`` from CRBA's ``M`` and its sparse ``Lᵀ L`` factorization
+    (:func:`multibody.kernels.crba.inverse_mass_matrix`): ``(..., nq) -> (..., nv, nv)``. A joint that
+    moves no inertia makes ``M`` singular and raises ``numpy.linalg.LinAlgError`` naming it. Pinocchio
+    counterpart: ``computeMinverse``.
     """
     q = model.check_configuration(q)
-    result = driver.evaluate(aba.inverse_mass_matrix, model.tree, (q,), (model.nv, model.nv), q.shape[:-1])
+    result = driver.evaluate(crba.inverse_mass_matrix, model.tree, (q,), (model.nv, model.nv), q.shape[:-1])
     return _require_nonsingular(model, (q,), result)
 
 

@@ -110,7 +110,7 @@ class Case:
         return self.call(aba.forward_dynamics, aba.workspace_size, (1, self.nv), self.q[k], v, tau, f_ext)[0]
 
     def inverse_mass_matrix(self, k):
-        return self.call(aba.inverse_mass_matrix, aba.workspace_size, (self.nv, self.nv), self.q[k])
+        return self.call(crba.inverse_mass_matrix, crba.workspace_size, (self.nv, self.nv), self.q[k])
 
     def inverse_dynamics(self, k, a, f_ext=EMPTY):
         out = np.empty((1, self.nv))
@@ -274,8 +274,8 @@ def test_massless_joint_gives_non_finite_values_without_raising(joint):
                          np.empty(aba.workspace_size(nj, nv)))
     assert not np.all(np.isfinite(a))
     Minv = np.zeros((nv, nv))
-    aba.inverse_mass_matrix(tree.joints, tree.reals, tree.bodies, q, EMPTY, EMPTY, EMPTY, Minv,
-                            np.empty(aba.workspace_size(nj, nv)))
+    crba.inverse_mass_matrix(tree.joints, tree.reals, tree.bodies, q, EMPTY, EMPTY, EMPTY, Minv,
+                             np.empty(crba.workspace_size(nj, nv)))
     assert not np.all(np.isfinite(Minv))
     # CRBA has nothing to invert: M is finite, with a zero block for the massless joint
     M = np.empty((nv, nv))
@@ -292,8 +292,8 @@ def test_model_without_moving_joints():
     a, M, Minv = np.empty((1, 0)), np.empty((0, 0)), np.empty((0, 0))
     aba.forward_dynamics(tree.joints, tree.reals, tree.bodies, np.zeros(0), EMPTY, EMPTY, EMPTY, a,
                          np.empty(aba.workspace_size(0, 0)))
-    aba.inverse_mass_matrix(tree.joints, tree.reals, tree.bodies, np.zeros(0), EMPTY, EMPTY, EMPTY, Minv,
-                            np.empty(aba.workspace_size(0, 0)))
+    crba.inverse_mass_matrix(tree.joints, tree.reals, tree.bodies, np.zeros(0), EMPTY, EMPTY, EMPTY, Minv,
+                             np.empty(crba.workspace_size(0, 0)))
     crba.mass_matrix(tree.joints, tree.reals, tree.bodies, np.zeros(0), EMPTY, EMPTY, EMPTY, M,
                      np.empty(crba.workspace_size(0, 0)))
 
@@ -316,8 +316,8 @@ _PLAIN_PYTHON = textwrap.dedent("""
     M, Minv, a = np.empty((nv, nv)), np.empty((nv, nv)), np.empty((1, nv))
     crba.mass_matrix(tree.joints, tree.reals, tree.bodies, q, E, E, E, M, np.empty(crba.workspace_size(nj, nv)))
     aba.forward_dynamics(tree.joints, tree.reals, tree.bodies, q, v, tau, f, a, np.empty(aba.workspace_size(nj, nv)))
-    aba.inverse_mass_matrix(tree.joints, tree.reals, tree.bodies, q, E, E, E, Minv,
-                            np.empty(aba.workspace_size(nj, nv)))
+    crba.inverse_mass_matrix(tree.joints, tree.reals, tree.bodies, q, E, E, E, Minv,
+                             np.empty(crba.workspace_size(nj, nv)))
     # a joint that moves no inertia: NaN, no ZeroDivisionError from plain Python either
     import multibody as mb
     from multibody import joints as jt

@@ -1,10 +1,8 @@
-"""Articulated Body Algorithm: forward dynamics and the inverse of the joint-space inertia matrix.
+"""Articulated Body Algorithm: forward dynamics.
 
 R. Featherstone, *Rigid Body Dynamics Algorithms* (RBDA), Springer 2008, Table 7.1, in joint
 coordinates: each body's velocity, articulated inertia ``I^A`` and bias force ``p^A`` are expressed
 in its own joint frame and moved to the parent's with the joint's pose, as Pinocchio's ``aba`` does.
-``M⁻¹`` follows J. Carpentier, *Analytical inverse of the joint space inertia matrix*, 2018
-(Pinocchio's ``computeMinverse``).
 
 Articulated inertias are 6×6 matrices acting on motions to give forces (linear rows and columns
 first), kept as ``(nj, 6, 6)``. A joint's ``U = I^A S`` and ``U D⁻¹`` are kept by columns
@@ -30,11 +28,10 @@ ZERO6 = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 
 
 def workspace_size(nj, nv):
-    """Floats of workspace one state needs, for either kernel: per joint its pose in its parent (12),
-    articulated inertia (36), ``U D⁻¹`` (36) and five 6-vectors (velocity, bias acceleration, bias
-    force, acceleration, ``D⁻¹ u``); per coordinate a force column (6) and the joint it is expressed
-    in (1); three 6×6 scratch blocks (``U``, ``D`` and its factor, ``D⁻¹``)."""
-    return 114 * nj + 7 * nv + 108
+    """Floats of workspace one state needs: per joint its pose in its parent (12), articulated inertia
+    (36), ``U D⁻¹`` (36) and five 6-vectors (velocity, bias acceleration, bias force, acceleration,
+    ``D⁻¹ u``); three 6×6 scratch blocks (``U``, ``D`` and its factor, ``D⁻¹``)."""
+    return 114 * nj + 108
 
 
 # ----------------------------------------------------------------------------- 6×6 helpers
@@ -341,103 +338,3 @@ def forward_dynamics(joints, reals, frames, q, v, tau, f_ext, out, ws):
             a_i = add6(a_i, scale6(qdd[iv + k], kinds.subspace_column(kind, axis, k)))
         store_row(acc, i, 0, a_i)
     nan_unless_finite(q, v, tau, f_ext, out)
-
-
-@njit(cache=True, error_model="numpy")
-def inverse_mass_matrix(joints, reals, frames, q, x1, x2, x3, out, ws):
-    """``M(q)⁻¹`` into ``out (nv, nv)``: full and symmetric (1/kg, 1/(kg m²), ...).
-
-    J. Carpentier, *Analytical inverse of the joint space inertia matrix*, 2018 (Pinocchio's
-    ``computeMinverse``), in joint coordinates. Column ``c`` of ``M⁻¹`` is ABA's acceleration for
-    ``τ = e_c`` with ``v = 0`` and no gravity (RBDA Table 7.1); all columns share the articulated
-    inertias. The backward pass carries the bias forces of all columns at once: ``F_c = p^A_c`` of
-    the joint whose subtree holds coordinate c (zero elsewhere), expressed in that joint's frame, so
-    that joint i's rows are ``M⁻¹_ic = −D_i⁻¹ S_iᵀ F_c`` for its descendants' coordinates and
-    ``D_i⁻¹`` for its own. The forward pass adds the accelerations of the ancestors, column by column
-    over the upper triangle (coordinates ``c ≥`` the joint's first), which the lower one mirrors.
-
-    ``q (nq,)``; ``frames``, ``x1``, ``x2``, ``x3`` are unused. Coordinates are numbered in joint
-    order (``IV`` increases with the joint index), as :mod:`multibody.tree` lays them out. A joint
-    that moves no inertia leaves NaN.
-    """
-    nj = joints.shape[0]
-    n = out.shape[0]
-    pose = ws[: 12 * nj].reshape((nj, 12))
-    articulated = ws[12 * nj : 48 * nj].reshape((nj, 6, 6))
-    U_D_inv = ws[48 * nj : 84 * nj].reshape((nj, 6, 6))
-    acc = ws[84 * nj : 90 * nj].reshape((nj, 6))
-    F = ws[114 * nj : 114 * nj + 6 * n].reshape((n, 6))
-    # the joint in whose frame column c of F is expressed: the subtree of i holds exactly the
-    # coordinates with owner i once all of i's descendants have been processed
-    owner = ws[114 * nj + 6 * n : 114 * nj + 7 * n]
-    scratch = ws[114 * nj + 7 * n : 114 * nj + 7 * n + 108].reshape((3, 6, 6))
-    U, D, D_inv = scratch[0], scratch[1], scratch[2]
-    for r in range(n):
-        for c in range(n):
-            out[r, c] = 0.0
-    for i in range(nj):
-        R, p = joint_pose(joints, reals, q, i)
-        store_row(pose, i, 0, R)
-        store_row(pose, i, 9, p)
-        # I^A_i = I_i
-        rigid_to_matrix(row10(reals, i, INERTIA), articulated, i)
-        for k in range(joints[i, IV], joints[i, IV] + joints[i, NV]):
-            # p^A_i = 0 for a unit force on joint i's own coordinates
-            store_row(F, k, 0, ZERO6)
-            owner[k] = i
-    for i in range(nj - 1, -1, -1):
-        parent, kind, iv, nv = joints[i, PARENT], joints[i, KIND], joints[i, IV], joints[i, NV]
-        axis = row3(reals, i, AXIS)
-        # U_i = I^A_i S_i ;  D_i = S_iᵀ U_i ;  I^a_i = I^A_i − U_i D_i⁻¹ U_iᵀ (in place)
-        factor_joint(kind, axis, nv, articulated, i, U, D, D_inv, U_D_inv)
-        # M⁻¹_ii = D_i⁻¹   (u_i = e for the joint's own coordinates, p^A_i = 0)
-        for m in range(nv):
-            for k in range(nv):
-                out[iv + m, iv + k] = D_inv[m, k]
-        R, p = row9(pose, i, 0), row3(pose, i, 9)
-        for c in range(iv, n):
-            # (a subtree's coordinates follow its root's)
-            if owner[c] != i:
-                continue
-            F_c = row6(F, c, 0)
-            if c < iv or c >= iv + nv:
-                # M⁻¹_ic = D_i⁻¹ u_i = −D_i⁻¹ S_iᵀ F_c
-                y = subspace_transpose_times(kind, axis, nv, F_c)
-                for m in range(nv):
-                    x = 0.0
-                    for k in range(nv):
-                        x -= D_inv[m, k] * y[k]
-                    out[iv + m, c] = x
-            if parent >= 0:
-                # p^a_c = F_c + U_i M⁻¹_ic   (I^a_i c_i = 0: no velocity)
-                for m in range(nv):
-                    F_c = add6(F_c, scale6(out[iv + m, c], (U[m, 0], U[m, 1], U[m, 2], U[m, 3], U[m, 4], U[m, 5])))
-                # F_c = λ(i)X*_i p^a_c
-                store_row(F, c, 0, force_to_parent(R, p, F_c))
-                owner[c] = parent
-        if parent >= 0:
-            # I^A_λ(i) += λ(i)X*_i I^a_i ⁱX_λ(i)
-            articulated_to_parent(R, p, articulated, i, parent)
-    for j in range(n):
-        for i in range(nj):
-            iv = joints[i, IV]
-            if iv > j:
-                break
-            parent, kind, nv = joints[i, PARENT], joints[i, KIND], joints[i, NV]
-            if parent >= 0:
-                # a'_i = ⁱX_λ a_λ   (a₀ = 0: no gravity)
-                a_i = motion_to_child(row9(pose, i, 0), row3(pose, i, 9), row6(acc, parent, 0))
-                for k in range(nv):
-                    # M⁻¹_ij = M⁻¹_ij − (U_i D_i⁻¹)ᵀ a'_i
-                    out[iv + k, j] -= dot6(column(U_D_inv, i, k), a_i)
-            else:
-                a_i = ZERO6
-            axis = row3(reals, i, AXIS)
-            for k in range(nv):
-                # a_i = a'_i + S_i M⁻¹_ij
-                a_i = add6(a_i, scale6(out[iv + k, j], kinds.subspace_column(kind, axis, k)))
-            store_row(acc, i, 0, a_i)
-    for r in range(n):
-        for c in range(r):
-            out[r, c] = out[c, r]
-    nan_unless_finite(q, x1, x2, x3, out)

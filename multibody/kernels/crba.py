@@ -7,6 +7,7 @@ to the parent's with the joint's pose, as Pinocchio's ``crba`` does.
 
 from __future__ import annotations
 
+import numpy as np
 from numba import njit
 
 from ..tree import AXIS, INERTIA, IV, KIND, NV, PARENT
@@ -18,8 +19,8 @@ from .spatial import (add10, dot6, force_to_parent, inertia_times, inertia_to_pa
 
 def workspace_size(nj, nv):
     """Floats of workspace one state needs: per joint its pose in its parent (12) and its composite
-    inertia (10)."""
-    return 22 * nj
+    inertia (10); for :func:`inverse_mass_matrix` the factor of ``M`` too."""
+    return 22 * nj + nv * nv
 
 
 @njit(cache=True, error_model="numpy")
@@ -144,3 +145,37 @@ def solve_ltl(L, parent, X):
         pivot = L[k, k]
         for c in range(columns):
             X[k, c] /= pivot
+
+
+@njit(cache=True, error_model="numpy")
+def inverse_mass_matrix(joints, reals, frames, q, x1, x2, x3, out, ws):
+    """``M(q)⁻¹`` into ``out (nv, nv)``: full and symmetric (1/kg, 1/(kg m²), ...).
+
+    CRBA's ``M`` (RBDA Table 6.2), factored as ``M = Lᵀ L`` with the tree's sparsity
+    (:func:`factor_ltl`, RBDA Table 6.3), then ``M⁻¹ = L⁻¹ L⁻ᵀ`` by :func:`solve_ltl` on the identity,
+    mirrored so that it is exactly symmetric. ``M`` not positive definite (a joint that moves no
+    inertia) leaves NaN. ``q (nq,)``; ``frames``, ``x1``, ``x2``, ``x3`` are unused. Pinocchio:
+    ``computeMinverse``.
+    """
+    n, nj = out.shape[0], joints.shape[0]
+    M = ws[22 * nj : 22 * nj + n * n].reshape((n, n))
+    parent = np.empty(n, np.int64)
+    coordinate_parents(joints, parent)
+    mass_matrix(joints, reals, frames, q, x1, x2, x3, M, ws)
+    factored = factor_ltl(M, parent)
+    for r in range(n):
+        for c in range(n):
+            out[r, c] = 1.0 if r == c else 0.0
+    if not factored:
+        for r in range(n):
+            for c in range(n):
+                out[r, c] = np.nan
+        return
+    solve_ltl(M, parent, out)
+    for r in range(n):
+        for c in range(r):
+            # the two triangles agree to rounding; their mean is exactly symmetric
+            mean = 0.5 * (out[r, c] + out[c, r])
+            out[r, c] = mean
+            out[c, r] = mean
+    nan_unless_finite(q, x1, x2, x3, out)
