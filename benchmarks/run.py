@@ -308,6 +308,32 @@ def dask_line(chunk=100_000, chunks=4, budget=1.0):
     return f"Dask, 2 local worker processes, {chunks} chunks of {chunk} Panda states: " + "; ".join(parts)
 
 
+def gpu_line(n=1_000_000, budget=1.0):
+    """The benchmark line of the GPU (:mod:`multibody.gpu`): Panda RNEA, CRBA and ABA in states per second on ``n``
+    states already on the device (synchronised; the first, compiling call not timed), or that there is none."""
+    try:
+        from numba import cuda
+    except ImportError:
+        return "GPU: numba.cuda not installed (pip install 'multibody[gpu]')"
+    if not cuda.is_available():
+        return "GPU: not present"
+    model = mb.load_urdf(os.path.join(example_robot_data(), ROBOTS["panda"][0]))
+    rng = np.random.default_rng(4)
+    q = cuda.to_device(model.random_configuration(rng, (n,)))
+    v, x = (cuda.to_device(rng.standard_normal((n, model.nv))) for _ in range(2))
+    parts = []
+    for name, fn, arrays in (("RNEA", mb.inverse_dynamics, (q, v, x)), ("CRBA", mb.mass_matrix, (q,)),
+                             ("ABA", mb.forward_dynamics, (q, v, x))):
+        fn(model, *arrays)
+        cuda.synchronize()
+
+        def run():
+            fn(model, *arrays)
+            cuda.synchronize()
+        parts.append(f"{name} {n / best_time(run, budget):.3g} states/s")
+    return f"GPU ({cuda.get_current_device().name}), Panda at batch {n:.0e}: " + "; ".join(parts)
+
+
 def markdown(rows, sizes):
     largest = max(sizes)
     header = ["robot", "algorithm", "nv", "single µs"] + [f"N={n} µs/state" for n in sizes] + \
@@ -362,6 +388,7 @@ def main(argv=None):
         inverse_kinematics_line(16 if args.quick else 1000, 2 if args.quick else 20),
         batched_rk4_line(64 if args.quick else 4096, 0.005 if args.quick else 1.0),
         dask_line(1000 if args.quick else 100_000, 2 if args.quick else 4, 0.01 if args.quick else 1.0),
+        gpu_line(1000 if args.quick else 1_000_000, 0.01 if args.quick else 1.0),
         f"threads: {mb.get_num_threads()}",
         "roboticstoolbox rne_python (µs): " + ", ".join(
             f"{k}: {'not installed / no model' if t is None else f'{t:.0f}'}" for k, t in rne.items()),
