@@ -9,15 +9,21 @@ slipping makes the contact point's velocity vanish:
 two Pfaffian constraints A(q) q̇ = 0 on the five coordinates, handled by Lagrange multipliers.
 The same ball as a URDF free body with the engine's RollingSphere gives the same motion, and both
 roll downhill at 5/7 g sin α.
-Run: python examples/lecture_rolling_sphere.py
+Writes lecture_rolling_sphere.png (the centre's path, both models) to the output folder.
+Run: python examples/lecture_rolling_sphere.py [output_folder]
 """
 
+import os
+import sys
+
 import numpy as np
+from matplotlib.figure import Figure
 import sympy as sp
 from sympy.physics.mechanics import dynamicsymbols
 
 import multibody as mb
 
+out = sys.argv[1] if len(sys.argv) > 1 else "output"
 x, y, psi, theta, phi = q = dynamicsymbols("x y psi theta phi")
 m, r, g, alpha = sp.symbols("m r g alpha", positive=True)
 t = dynamicsymbols._t
@@ -72,3 +78,17 @@ body = mb.simulate(engine, q_free, v_free, duration, dt=0.02, method="DOP853", r
 centre_in_plane = (body.q[:, :3] @ plane)[:, :2]
 print(f"free body + RollingSphere: centre differs from the five-coordinate model by "
       f"{np.abs(centre_in_plane - five.q[:, :2]).max():.1e} m")
+
+figure = Figure(figsize=(6.0, 4.0), layout="constrained")
+axes = figure.subplots()
+axes.plot(five.q[:, 1], five.q[:, 0], label="five coordinates (LagrangianSystem.pfaffian)")
+axes.plot(centre_in_plane[:, 1], centre_in_plane[:, 0], "--", label="free body + mb.RollingSphere")
+axes.invert_yaxis()
+axes.set_xlabel("y, across the slope (m)")
+axes.set_ylabel("x, down the slope (m)")
+axes.set_title(f"centre of the rolling ball, {duration:g} s on a slope of {values['alpha']} rad")
+axes.legend(fontsize=8)
+os.makedirs(out, exist_ok=True)
+path = os.path.join(out, "lecture_rolling_sphere.png")
+figure.savefig(path, dpi=100)
+print("wrote", path)

@@ -8,13 +8,19 @@ vertical (ω = n × ẋ / r, the rolling constraint solved for ω). After the lo
     θ = 2π √(1 + (R/r)²)   (mod 2π)
 
 about a tilted axis. We integrate the orientation on SO(3) with the model's own exponential map.
-Run: python examples/rolling_ball_holonomy.py
+Writes rolling_ball_holonomy.png (the rotation angle along the loop) to the output folder.
+Run: python examples/rolling_ball_holonomy.py [output_folder]
 """
 
+import os
+import sys
+
 import numpy as np
+from matplotlib.figure import Figure
 
 import multibody as mb
 
+out = sys.argv[1] if len(sys.argv) > 1 else "output"
 r, R, steps = 0.1, 0.25, 20000          # ball radius, loop radius (m), integration steps
 ball = mb.load_urdf(mb.robots.path("ball"), floating_base=True)
 normal = np.array([0.0, 0.0, 1.0])
@@ -34,10 +40,14 @@ def body_velocity(q, t):
 q = ball.neutral()
 q[:3] = [R, 0.0, r]
 dt = period / steps
+times, angles = [0.0], [0.0]               # the ball's rotation angle from its start, along the loop
 for k in range(steps):  # midpoint rule on the configuration manifold
     t = k * dt
     q_half = ball.integrate(q, body_velocity(q, t), dt / 2)
     q = ball.integrate(q, body_velocity(q_half, t + dt / 2), dt)
+    if (k + 1) % 100 == 0:
+        times.append(t + dt)
+        angles.append(np.linalg.norm(mb.spatial.so3_log(mb.spatial.quat_to_rotation(q[3:]))))
 
 rotation = mb.spatial.quat_to_rotation(q[3:])
 turned = np.linalg.norm(mb.spatial.so3_log(rotation))
@@ -47,3 +57,16 @@ rolling = mb.ConstrainedSystem(ball, [mb.RollingSphere("ball", r)])
 print(f"centre back at the start: |Δx| = {np.linalg.norm(q[:3] - [R, 0.0, r]):.2e} m")
 print(f"orientation turned by {turned:.9f} rad; the closed form gives {expected:.9f} rad")
 print(f"rolling constraint residual along the way (end state): {rolling.residual(q, body_velocity(q, period)):.2e}")
+
+figure = Figure(figsize=(6.0, 3.6), layout="constrained")
+axes = figure.subplots()
+axes.plot(times, angles, label="rotation angle from the start (in [0, π])")
+axes.axhline(expected, color="k", linestyle="--", label="closed form after one loop")
+axes.set_xlabel("t (s)")
+axes.set_ylabel("angle (rad)")
+axes.set_title(f"ball r = {r} m rolled once around a circle R = {R} m")
+axes.legend(fontsize=8)
+os.makedirs(out, exist_ok=True)
+path = os.path.join(out, "rolling_ball_holonomy.png")
+figure.savefig(path, dpi=100)
+print("wrote", path)
