@@ -333,15 +333,7 @@ def simulate(system, q0, v0, t_final, *, dt=None, method="RK45", tau=None, rtol=
     if method not in ADAPTIVE_METHODS + FIXED_STEP_METHODS:
         raise ValueError(f"method must be one of {ADAPTIVE_METHODS + FIXED_STEP_METHODS + ('variational',)}, "
                          f"got {method!r}")
-    if not t_final > t0:
-        raise ValueError(f"t_final ({t_final}) must be after t0 ({t0})")
-    dt = (t_final - t0) / 500.0 if dt is None else float(dt)
-    if not dt > 0.0:
-        raise ValueError(f"dt must be positive, got {dt}")
-    if progress not in (None, True, False):
-        raise ValueError(f"progress must be None (a bar for long runs), True or False, got {progress!r}")
-    if limits not in LIMIT_MODES:
-        raise ValueError(f"limits must be one of {LIMIT_MODES}, got {limits!r}")
+    dt = _checked_timing(t0, t_final, dt, progress, limits)
     model = getattr(mechanical, "model", None)  # limits and damping belong to a Model
     q, v = np.array(q0, dtype=float), np.array(v0, dtype=float)
     batch = _batch_size(q, v, nq, nv)
@@ -694,6 +686,21 @@ def _in_notebook():
     ipython = sys.modules.get("IPython")
     shell = ipython.get_ipython() if ipython is not None and hasattr(ipython, "get_ipython") else None
     return shell is not None and hasattr(shell, "kernel")
+
+
+def _checked_timing(t0, t_final, dt, progress, limits):
+    """The output step ``dt`` (s; default a 500th of the run) after checking the options every method
+    shares; ``ValueError`` names the bad one."""
+    if not t_final > t0:
+        raise ValueError(f"t_final ({t_final}) must be after t0 ({t0})")
+    dt = (t_final - t0) / 500.0 if dt is None else float(dt)
+    if not dt > 0.0:
+        raise ValueError(f"dt must be positive, got {dt}")
+    if progress not in (None, True, False):
+        raise ValueError(f"progress must be None (a bar for long runs), True or False, got {progress!r}")
+    if limits not in LIMIT_MODES:
+        raise ValueError(f"limits must be one of {LIMIT_MODES}, got {limits!r}")
+    return dt
 
 
 def _rk4_step(derivative, t, y, h):

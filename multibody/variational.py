@@ -494,7 +494,8 @@ def simulate(system, q0, v0, t_final, *, dt=None, tau=None, rule="midpoint", ord
         SimulationError: a step whose Newton iteration did not converge (it names the time and the
             residual); ``.trajectory`` holds the states before it.
     """
-    from .simulation import SimulationError, _Progress, _report_limits, _torque_function, _with_joint_damping
+    from .simulation import (SimulationError, _checked_timing, _Progress, _report_limits, _torque_function,
+                             _with_joint_damping)
 
     if rule not in RULES:
         raise ValueError(f"rule must be one of {RULES}, got {rule!r}")
@@ -507,15 +508,7 @@ def simulate(system, q0, v0, t_final, *, dt=None, tau=None, rule="midpoint", ord
     if order == 4 and m:
         raise ValueError("order=4 (Yoshida's composition) is for systems without constraints; "
                          f"this system has {m} constraint rows: use order=2")
-    if not t_final > t0:
-        raise ValueError(f"t_final ({t_final}) must be after t0 ({t0})")
-    dt = (t_final - t0) / 500.0 if dt is None else float(dt)
-    if not dt > 0.0:
-        raise ValueError(f"dt must be positive, got {dt}")
-    if progress not in (None, True, False):
-        raise ValueError(f"progress must be None (a bar for long runs), True or False, got {progress!r}")
-    if limits not in ("warn", "error", "ignore"):
-        raise ValueError(f"limits must be one of ('warn', 'error', 'ignore'), got {limits!r}")
+    dt = _checked_timing(t0, t_final, dt, progress, limits)
     if not 0.0 < tolerance < 1.0:
         raise ValueError(f"tolerance must be in (0, 1), got {tolerance}")
     model = getattr(mechanical, "model", None)

@@ -45,11 +45,10 @@ from numba import njit
 
 from ..tree import IQ, IV, KIND, NQ, NV, PARENT
 from . import joints as kinds
-from .kinematics import frame_joint, frame_pose, jacobian_columns, reference_point, world_position
-from .placement import joint_pose
+from .kinematics import frame_joint, frame_pose, jacobian_columns, joint_placements, world_position
 from .kkt import cholesky, cholesky_solve
-from .spatial import (IDENTITY, add3, compose, compose_rotations, dot3, load3, load9, nan_unless_finite, rotate,
-                      rotate_back, store, sub3)
+from .spatial import (IDENTITY, add3, compose_rotations, dot3, load3, load9, nan_unless_finite, rotate, rotate_back,
+                      sub3)
 
 #: Entries of the options vector (module docstring); the frame kinds start at ``KINDS``.
 TOL, MAX_ITERATIONS, DAMPING, POSTURE_WEIGHT, RESTARTS, STEP_TOL, WINDOW, PROGRESS, CANDIDATES, KINDS = range(10)
@@ -171,35 +170,12 @@ def mark_supports(joints, frames, needed):
 
 
 @njit(cache=True, error_model="numpy")
-def placements(joints, reals, q, needed, ws):
-    """World poses of the joints marked in ``needed`` (:func:`multibody.kernels.kinematics.joint_placements`,
-    the others skipped: parents come before children, so a needed joint's parent is computed first),
-    returned as ``pose (nj + 1, 12)``."""
-    nj = joints.shape[0]
-    pose = ws[: 12 * (nj + 1)].reshape((nj + 1, 12))
-    origin = reference_point(joints, reals, q, pose)
-    for i in range(nj):
-        if needed[i] == 0.0:
-            continue
-        parent = joints[i, PARENT]
-        R, p = joint_pose(joints, reals, q, i)
-        if parent >= 0:
-            # X_Wi = X_Wλ X_λ(i),i
-            R, p = compose(load9(pose[parent], 0), load3(pose[parent], 9), R, p)
-        else:
-            p = sub3(p, origin)
-        store(pose[i], 0, R)
-        store(pose[i], 9, p)
-    return pose
-
-
-@njit(cache=True, error_model="numpy")
 def errors(joints, reals, frames, targets, options, q, pose_ws, e):
     """The stacked error ``e (m,)`` of the targets at ``q`` (module docstring), leaving the joint poses in
     ``pose_ws`` (its first ``12 (nj + 1)`` entries; the next ``nj`` mark the joints needed, see
     :func:`mark_supports`) for :func:`error_jacobian`. Returns ``‖e‖²``."""
     nj = joints.shape[0]
-    pose = placements(joints, reals, q, pose_ws[12 * (nj + 1) : 13 * nj + 12], pose_ws)
+    pose = joint_placements(joints, reals, q, pose_ws, pose_ws[12 * (nj + 1) : 13 * nj + 12])
     r = 0
     for k in range(frames.shape[0]):
         R_WF, p_OF = frame_pose(pose, frames, k)

@@ -63,18 +63,23 @@ def workspace_size(nj, nv):
 
 
 @njit(cache=True, error_model="numpy")
-def joint_placements(joints, reals, q, ws):
+def joint_placements(joints, reals, q, ws, needed=None):
     """World pose ``X_Wi = (R_Wi, p_Oi)`` of every joint frame into ``ws[:12 (nj + 1)]``, returned as
     ``pose (nj + 1, 12)`` (``R_Wi`` row-major, then ``p_Oi`` in m): RBDA §4.1, ``X_Wi = X_Wλ(i) X_T X_J(q_i)``.
 
     Positions are taken from the reference point O, the first joint's origin, whose world position
     ``p_WO`` is row ``nj``'s (at column 9): coordinates far from the world origin would cost the lever
     arms ``x − p_i`` of the Jacobians their digits.
+
+    ``needed (nj,)``: when given, only the joints marked non-zero are placed (the support paths of the
+    frames a caller reads; parents come before children, so a marked joint's parent is placed first).
     """
     nj = joints.shape[0]
     pose = ws[: 12 * (nj + 1)].reshape((nj + 1, 12))
     origin = reference_point(joints, reals, q, pose)
     for i in range(nj):
+        if needed is not None and needed[i] == 0.0:
+            continue
         parent = joints[i, PARENT]
         R, p = joint_pose(joints, reals, q, i)
         if parent >= 0:
