@@ -18,7 +18,7 @@ from numba import njit
 from ..tree import AXIS, INERTIA, IV, KIND, NV, PARENT
 from . import joints as kinds
 from .placement import joint_pose
-from .spatial import (add6, compose, cross, dot3, dot6, inertia_times, inertia_to_parent, load10, load3, load6,
+from .spatial import (add6, compose, cross, dot6, inertia_rate, inertia_times, inertia_to_parent, load10, load3, load6,
                       load9, motion_cross, motion_to_parent, nan_unless_finite, store, sub3)
 
 ZERO6 = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
@@ -42,24 +42,13 @@ def body_factor(I, V):
     and ``(I V)×̄* = [[0, −[a]×], [−[a]×, −[n]×]]`` with ``I V = (a, n)``, ``n = h × v + Ī ω``; so
     ``E = ½ (D − [n]×)``.
     """
-    h = (I[1], I[2], I[3])
-    inertia = (I[4], I[5], I[6], I[7], I[8], I[9])
-    v, w = (V[0], V[1], V[2]), (V[3], V[4], V[5])
     # a = m v + ω × h ;  n = h × v + Ī ω
     IV = inertia_times(I, V)
     a, n = (IV[0], IV[1], IV[2]), (IV[3], IV[4], IV[5])
-    # columns of P = [ω]× Ī
-    P0 = cross(w, (inertia[0], inertia[1], inertia[2]))
-    P1 = cross(w, (inertia[1], inertia[3], inertia[4]))
-    P2 = cross(w, (inertia[2], inertia[4], inertia[5]))
-    # ½ D = (v·h) 1 − ½ (h vᵀ + v hᵀ) + ½ (P + Pᵀ)   (symmetric)
-    vh = dot3(v, h)
-    d00 = vh - h[0] * v[0] + P0[0]
-    d11 = vh - h[1] * v[1] + P1[1]
-    d22 = vh - h[2] * v[2] + P2[2]
-    d01 = 0.5 * (P1[0] + P0[1] - h[0] * v[1] - v[0] * h[1])
-    d02 = 0.5 * (P2[0] + P0[2] - h[0] * v[2] - v[0] * h[2])
-    d12 = 0.5 * (P2[1] + P1[2] - h[1] * v[2] - v[1] * h[2])
+    # D is the rotational block of the inertia's rate V ×* I − I V× (spatial.inertia_rate)
+    rate = inertia_rate(I, V)
+    d00, d01, d02, d11, d12, d22 = (0.5 * rate[4], 0.5 * rate[5], 0.5 * rate[6], 0.5 * rate[7], 0.5 * rate[8],
+                                    0.5 * rate[9])
     # E = ½ D − ½ [n]×
     E = (d00, d01 + 0.5 * n[2], d02 - 0.5 * n[1],
          d01 - 0.5 * n[2], d11, d12 + 0.5 * n[0],
