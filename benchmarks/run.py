@@ -52,6 +52,13 @@ def example_robot_data():
     return None
 
 
+def load(path, floating_base=False):
+    """An example-robot-data robot with its ``package://`` meshes resolved (from the folder that holds
+    example-robot-data's share directory), so that loading it warns of nothing."""
+    share = os.path.dirname(os.path.dirname(example_robot_data()))
+    return mb.load_urdf(path, floating_base=floating_base, package_dirs=[share])
+
+
 def best_time(fn, budget=0.3, min_runs=3):
     """Wall time (s) of one ``fn()``: the fastest of repeated samples filling about ``budget`` seconds.
 
@@ -122,7 +129,7 @@ def benchmark_robot(name, sizes, budget, rng):
     relative, floating, body = ROBOTS[name]
     root = example_robot_data()
     path = os.path.join(root, relative)
-    model = mb.load_urdf(path, floating_base=floating)
+    model = load(path, floating)
     rows = []
     try:
         import pinocchio as pin
@@ -164,7 +171,7 @@ def benchmark_robot(name, sizes, budget, rng):
 
 def crba_peak_memory(n, rng):
     """Peak memory (MB) traced by Python while computing the batched CRBA of the Panda for n states."""
-    model = mb.load_urdf(os.path.join(example_robot_data(), ROBOTS["panda"][0]))
+    model = load(os.path.join(example_robot_data(), ROBOTS["panda"][0]))
     q = model.random_configuration(rng, (n,))
     tracemalloc.start()
     mb.mass_matrix(model, q)
@@ -209,7 +216,7 @@ def panda_pd_loop(duration=3.0, rate=1000.0):
     simulated for ``duration`` s by fixed-step RK4 at ``rate`` Hz: by ``mb.simulate`` and by the same
     loop written on Pinocchio's ``aba``, and the largest difference of their final states."""
     path = os.path.join(example_robot_data(), ROBOTS["panda"][0])
-    model = mb.load_urdf(path)
+    model = load(path)
     q_ref = model.neutral() + 0.3
     gains = (50.0, 2.0)  # stiff and damped enough to track, within RK4's stability at 1 kHz for the fingers' small masses
 
@@ -250,7 +257,7 @@ def inverse_kinematics_line(n=1000, poses=20):
     """The benchmark line of ``mb.inverse_kinematics`` on Panda hand poses, the forward kinematics of random
     configurations within the joint limits, solved to 1e-10 from the default start: the median over
     ``poses`` poses of one pose's time, and the time per pose of a batch of ``n``."""
-    model = mb.load_urdf(os.path.join(example_robot_data(), ROBOTS["panda"][0]))
+    model = load(os.path.join(example_robot_data(), ROBOTS["panda"][0]))
     frame = "panda_hand_tcp"
     targets = mb.frame_placement(model, model.random_configuration(np.random.default_rng(1), (n,)), frame)
     single = np.median([best_time(lambda X=X: mb.inverse_kinematics(model, {frame: X}), 0.05) for X in targets[:poses]])
@@ -268,7 +275,7 @@ def batched_rk4_line(n=4096, duration=1.0, rate=1000.0, budget=0.5):
     rng = np.random.default_rng(2)
     parts = []
     for name in ("double_pendulum", "panda"):
-        model = mb.load_urdf(os.path.join(example_robot_data(), ROBOTS[name][0]))
+        model = load(os.path.join(example_robot_data(), ROBOTS[name][0]))
         q0, v0 = model.random_configuration(rng, (n,)), 0.1 * rng.standard_normal((n, model.nv))
         tau = np.zeros(model.nv)
         per_state = best_time(lambda: mb.forward_dynamics(model, q0, v0, tau), budget) / n
@@ -290,7 +297,7 @@ def dask_line(chunk=100_000, chunks=4, budget=1.0):
         import distributed
     except ImportError:
         return "Dask: not installed (pip install 'multibody[dask]')"
-    model = mb.load_urdf(os.path.join(example_robot_data(), ROBOTS["panda"][0]))
+    model = load(os.path.join(example_robot_data(), ROBOTS["panda"][0]))
     rng = np.random.default_rng(3)
     n = chunk * chunks
     q = model.random_configuration(rng, (n,))
@@ -317,7 +324,7 @@ def gpu_line(n=1_000_000, budget=1.0):
         return "GPU: numba.cuda not installed (pip install 'multibody[gpu]')"
     if not cuda.is_available():
         return "GPU: not present"
-    model = mb.load_urdf(os.path.join(example_robot_data(), ROBOTS["panda"][0]))
+    model = load(os.path.join(example_robot_data(), ROBOTS["panda"][0]))
     rng = np.random.default_rng(4)
     q = cuda.to_device(model.random_configuration(rng, (n,)))
     v, x = (cuda.to_device(rng.standard_normal((n, model.nv))) for _ in range(2))
