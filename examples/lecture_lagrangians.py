@@ -10,15 +10,14 @@ Writes lecture_kepler.png (the orbit, and m r² θ̇ along it) to the output fol
 Run: python examples/lecture_lagrangians.py [output_folder]
 """
 
-import os
 import sys
 
 import numpy as np
-from matplotlib.figure import Figure
 import sympy as sp
 from sympy.physics.mechanics import dynamicsymbols
 
 import multibody as mb
+from multibody.plotting import new_figure, save_figure
 
 out = sys.argv[1] if len(sys.argv) > 1 else "output"
 m, g, l, k = sp.symbols("m g l k", positive=True)
@@ -62,7 +61,7 @@ bead = mb.LagrangianSystem([s], sp.Rational(1, 2) * m * (R**2 + c**2) * s.diff()
 print("  ", bead.equations()[0], "  →  s̈ =", sp.solve(bead.equations()[0], s.diff(dynamicsymbols._t, 2))[0])
 
 # The figure: the Kepler orbit of part 3 in the plane, and its angular momentum (m = k = 1, SI units).
-figure = Figure(figsize=(9.0, 4.0), layout="constrained")
+figure = new_figure((9.0, 4.0))
 left, right = figure.subplots(1, 2)
 left.plot(orbit.q[:, 0] * np.cos(orbit.q[:, 1]), orbit.q[:, 0] * np.sin(orbit.q[:, 1]))
 left.plot([0.0], [0.0], "k*", label="centre of force")
@@ -76,7 +75,5 @@ right.plot(orbit.t, angular_momentum - angular_momentum[0])
 right.set_xlabel("t (s)")
 right.set_ylabel("m r² θ̇ − its initial value (kg·m²/s)")
 right.set_title("θ is cyclic: its momentum is conserved")
-os.makedirs(out, exist_ok=True)
-path = os.path.join(out, "lecture_kepler.png")
-figure.savefig(path, dpi=100)
+path = save_figure(figure, out, "lecture_kepler", dpi=100)
 print("wrote", path)

@@ -6,13 +6,12 @@ Writes lecture_pendulum.png (M and g against θ, engine and closed form) to the 
 Run: python examples/lecture_pendulum.py [output_folder]
 """
 
-import os
 import sys
 
 import numpy as np
-from matplotlib.figure import Figure
 
 import multibody as mb
+from multibody.plotting import new_figure, save_figure
 
 out = sys.argv[1] if len(sys.argv) > 1 else "output"
 m, l, g = 2.0, 0.75, 9.81  # kg, m, m/s²
@@ -37,7 +36,7 @@ for row in zip(theta[:, 0], M - m * l**2, gravity - m * g * l * np.sin(theta[:, 
 
 # The figure: the engine's g(θ) and M(θ) (dots) on the closed forms (lines), over a finer batch.
 fine = np.linspace(-np.pi, np.pi, 41)[:, None]
-figure = Figure(figsize=(9.0, 3.6), layout="constrained")
+figure = new_figure((9.0, 3.6))
 left, right = figure.subplots(1, 2)
 left.plot(fine[:, 0], m * g * l * np.sin(fine[:, 0]), "k", label="m g l sin θ")
 left.plot(fine[:, 0], mb.generalized_gravity(pendulum, fine)[:, 0], "o", markersize=4, label="mb.generalized_gravity")
@@ -50,7 +49,5 @@ right.set_xlabel("θ (rad)")
 right.set_ylabel("M(θ) (kg·m²)")
 right.legend(fontsize=8)
 figure.suptitle(f"simple pendulum, m = {m} kg, l = {l} m")
-os.makedirs(out, exist_ok=True)
-path = os.path.join(out, "lecture_pendulum.png")
-figure.savefig(path, dpi=100)
+path = save_figure(figure, out, "lecture_pendulum", dpi=100)
 print("wrote", path)

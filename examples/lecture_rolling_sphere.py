@@ -13,15 +13,14 @@ Writes lecture_rolling_sphere.png (the centre's path, both models) to the output
 Run: python examples/lecture_rolling_sphere.py [output_folder]
 """
 
-import os
 import sys
 
 import numpy as np
-from matplotlib.figure import Figure
 import sympy as sp
 from sympy.physics.mechanics import dynamicsymbols
 
 import multibody as mb
+from multibody.plotting import new_figure, save_figure
 
 out = sys.argv[1] if len(sys.argv) > 1 else "output"
 x, y, psi, theta, phi = q = dynamicsymbols("x y psi theta phi")
@@ -79,7 +78,7 @@ centre_in_plane = (body.q[:, :3] @ plane)[:, :2]
 print(f"free body + RollingSphere: centre differs from the five-coordinate model by "
       f"{np.abs(centre_in_plane - five.q[:, :2]).max():.1e} m")
 
-figure = Figure(figsize=(6.0, 4.0), layout="constrained")
+figure = new_figure((6.0, 4.0))
 axes = figure.subplots()
 axes.plot(five.q[:, 1], five.q[:, 0], label="five coordinates (LagrangianSystem.pfaffian)")
 axes.plot(centre_in_plane[:, 1], centre_in_plane[:, 0], "--", label="free body + mb.RollingSphere")
@@ -88,7 +87,5 @@ axes.set_xlabel("y, across the slope (m)")
 axes.set_ylabel("x, down the slope (m)")
 axes.set_title(f"centre of the rolling ball, {duration:g} s on a slope of {values['alpha']} rad")
 axes.legend(fontsize=8)
-os.makedirs(out, exist_ok=True)
-path = os.path.join(out, "lecture_rolling_sphere.png")
-figure.savefig(path, dpi=100)
+path = save_figure(figure, out, "lecture_rolling_sphere", dpi=100)
 print("wrote", path)

@@ -19,15 +19,14 @@ Run: python examples/long_run_energy.py [output_folder] [steps]   (default: outp
 
 from __future__ import annotations
 
-import os
 import sys
 import time
 
 import numpy as np
-from matplotlib.figure import Figure
 
 import multibody as mb
 from multibody.demos import four_bar_setup
+from multibody.plotting import new_figure, save_figure
 
 METHODS = {
     "RK4": dict(method="RK4"),
@@ -55,9 +54,8 @@ def run(system, q0, v0, step, steps, options):
 
 
 def main(out, steps):
-    os.makedirs(out, exist_ok=True)
     panels = mechanisms()
-    figure = Figure(figsize=(6 * len(panels), 4.5), layout="constrained")
+    figure = new_figure((6 * len(panels), 4.5))
     axes = figure.subplots(1, len(panels), squeeze=False)[0]
     for axis, (title, system, q0, v0, step) in zip(axes, panels):
         for name, options in METHODS.items():
@@ -72,8 +70,7 @@ def main(out, steps):
         axis.set_ylabel("|E(t) − E(0)| (J)")
         axis.set_title(f"{title}: {steps} steps of {step} s")
         axis.legend(loc="lower right")
-    path = os.path.join(out, "long_run_energy.png")
-    figure.savefig(path, dpi=120)
+    path = save_figure(figure, out, "long_run_energy", dpi=120)
     print("wrote", path)
     return path
 

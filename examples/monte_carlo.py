@@ -17,14 +17,13 @@ density, and each ball's difference from its own closed form.
 Run: python examples/monte_carlo.py [output_folder]
 """
 
-import os
 import sys
 import time
 
 import numpy as np
-from matplotlib.figure import Figure
 
 import multibody as mb
+from multibody.plotting import new_figure, save_figure
 
 out = sys.argv[1] if len(sys.argv) > 1 else "output"
 N, alpha, radius, g = 10_000, 0.2, 0.1, 9.81  # balls, tilt (rad), radius (m), gravity (m/s²)
@@ -66,7 +65,7 @@ print(f"mean displacement {s.mean():.4f} m, standard deviation {s.std():.4f} m (
       f"{mean:.4f} m and {deviation:.4f} m; a sliding block's mean {0.5 * g * np.sin(alpha) * t_final**2:.4f} m)")
 print(f"largest difference of a ball from its own closed form u t + ½ a t²: {error.max():.1e} m")
 
-figure = Figure(figsize=(10.0, 4.0), layout="constrained")
+figure = new_figure((10.0, 4.0))
 left, right = figure.subplots(1, 2)
 left.hist(s, bins=80, density=True, alpha=0.6, label=f"{N} simulated balls")
 x = np.linspace(s.min(), s.max(), 400)
@@ -84,7 +83,5 @@ right.set_xscale("log")
 right.set_xlabel(f"|simulated − closed form| (m; zeros drawn at {floor:.0e} m)")
 right.set_ylabel("balls (count)")
 right.set_title("each ball against its closed form")
-os.makedirs(out, exist_ok=True)
-path = os.path.join(out, "monte_carlo.png")
-figure.savefig(path, dpi=110)
+path = save_figure(figure, out, "monte_carlo", dpi=110)
 print("wrote", path)

@@ -22,14 +22,13 @@ angles against their reference, and the centre of mass (``mb.center_of_mass``), 
 Run: python examples/panda_reach.py [output_folder]
 """
 
-import os
 import sys
 import time
 
 import numpy as np
 
 import multibody as mb
-from multibody.plotting import new_figure
+from multibody.plotting import new_figure, save_figure
 
 out = sys.argv[1] if len(sys.argv) > 1 else "output"
 start_wall = time.perf_counter()
@@ -98,7 +97,6 @@ print(f"wall time: simulation of {t_final:g} s at 1 kHz {sim_wall:.2f} s, whole 
 
 # ----------------------------------------------------------------------------- figures
 
-os.makedirs(out, exist_ok=True)
 paths = []
 
 figure = new_figure()
@@ -112,8 +110,7 @@ for ax in (ax_position, ax_orientation):
     ax.axvline(T_move, color="0.6", linestyle=":", linewidth=1.0)
     ax.grid(True, which="both", alpha=0.3)
 ax_position.set_title("Panda reach: hand pose error to the goal (dotted: end of the reference motion)")
-paths.append(os.path.join(out, "panda_reach_error.png"))
-figure.savefig(paths[-1], dpi=110)
+paths.append(save_figure(figure, out, "panda_reach_error"))
 
 figure = new_figure(figsize=(7.0, 4.5))
 ax = figure.subplots()
@@ -125,8 +122,7 @@ ax.set_ylabel("joint angle (rad)")
 ax.set_title("Arm joints (solid) and their minimum-jerk reference (dashed)")
 ax.legend(fontsize="small", loc="upper left", bbox_to_anchor=(1.0, 1.0))
 ax.grid(True, alpha=0.3)
-paths.append(os.path.join(out, "panda_reach_joints.png"))
-figure.savefig(paths[-1], dpi=110)
+paths.append(save_figure(figure, out, "panda_reach_joints"))
 
 figure = new_figure()
 ax = figure.subplots()
@@ -137,8 +133,7 @@ ax.set_ylabel("centre of mass, world (m)")
 ax.set_title("Centre of mass of the moving links")
 ax.legend()
 ax.grid(True, alpha=0.3)
-paths.append(os.path.join(out, "panda_reach_com.png"))
-figure.savefig(paths[-1], dpi=110)
+paths.append(save_figure(figure, out, "panda_reach_com"))
 
 for path in paths:
     print("wrote", path)

@@ -12,13 +12,12 @@ Writes rolling_ball_holonomy.png (the rotation angle along the loop) to the outp
 Run: python examples/rolling_ball_holonomy.py [output_folder]
 """
 
-import os
 import sys
 
 import numpy as np
-from matplotlib.figure import Figure
 
 import multibody as mb
+from multibody.plotting import new_figure, save_figure
 
 out = sys.argv[1] if len(sys.argv) > 1 else "output"
 r, R, steps = 0.1, 0.25, 20000          # ball radius, loop radius (m), integration steps
@@ -58,7 +57,7 @@ print(f"centre back at the start: |Δx| = {np.linalg.norm(q[:3] - [R, 0.0, r]):.
 print(f"orientation turned by {turned:.9f} rad; the closed form gives {expected:.9f} rad")
 print(f"rolling constraint residual along the way (end state): {rolling.residual(q, body_velocity(q, period)):.2e}")
 
-figure = Figure(figsize=(6.0, 3.6), layout="constrained")
+figure = new_figure((6.0, 3.6))
 axes = figure.subplots()
 axes.plot(times, angles, label="rotation angle from the start (in [0, π])")
 axes.axhline(expected, color="k", linestyle="--", label="closed form after one loop")
@@ -66,7 +65,5 @@ axes.set_xlabel("t (s)")
 axes.set_ylabel("angle (rad)")
 axes.set_title(f"ball r = {r} m rolled once around a circle R = {R} m")
 axes.legend(fontsize=8)
-os.makedirs(out, exist_ok=True)
-path = os.path.join(out, "rolling_ball_holonomy.png")
-figure.savefig(path, dpi=100)
+path = save_figure(figure, out, "rolling_ball_holonomy", dpi=100)
 print("wrote", path)

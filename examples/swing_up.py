@@ -13,14 +13,13 @@ Run: python examples/swing_up.py [output_folder]
 
 from __future__ import annotations
 
-import os
 import sys
 import time
 
 import numpy as np
-from matplotlib.figure import Figure
 
 import multibody as mb
+from multibody.plotting import new_figure, save_figure
 
 
 def rollout(model, x0, controls, dt):
@@ -126,7 +125,7 @@ def swing_up(out):
     print(f"double pendulum swing-up: {len(costs) - 1} iterations, {1e3 * elapsed / max(len(costs) - 1, 1):.1f} ms "
           f"per iteration; final state error {np.abs(states[-1] - x_goal).max():.2e} (rad, rad/s)")
     times = dt * np.arange(steps + 1)
-    figure = Figure(figsize=(10, 4), layout="constrained")
+    figure = new_figure((10, 4))
     angles, torques = figure.subplots(1, 2)
     angles.plot(times, states[:, 0], label="shoulder")
     angles.plot(times, states[:, 1], label="elbow")
@@ -137,9 +136,7 @@ def swing_up(out):
     torques.step(times[:-1], controls[:, 1], where="post", label="elbow")
     torques.set(xlabel="time (s)", ylabel="joint torque (N·m)", title="Optimal torques (zero-order hold)")
     torques.legend()
-    path = os.path.join(out, "swing_up_motion.png")
-    figure.savefig(path, dpi=120)
-    return costs, path
+    return costs, save_figure(figure, out, "swing_up_motion", dpi=120)
 
 
 def panda_reach(out):
@@ -174,27 +171,23 @@ def panda_reach(out):
     print(f"Panda reach: {len(costs) - 1} iterations, {1e3 * elapsed / max(len(costs) - 1, 1):.1f} ms per iteration; "
           f"final hand distance to the target {1e3 * distance[-1]:.3f} mm, final speed "
           f"{np.abs(states[-1, nv:]).max():.2e} rad/s")
-    figure = Figure(figsize=(6, 4), layout="constrained")
+    figure = new_figure((6, 4))
     axes = figure.subplots()
     axes.semilogy(dt * np.arange(steps + 1), np.maximum(distance, 1e-9))
     axes.set(xlabel="time (s)", ylabel="hand distance to the target (m)", title="Panda reach by iLQR")
-    path = os.path.join(out, "swing_up_panda_reach.png")
-    figure.savefig(path, dpi=120)
-    return costs, path
+    return costs, save_figure(figure, out, "swing_up_panda_reach", dpi=120)
 
 
 def main(out):
-    os.makedirs(out, exist_ok=True)
     pendulum_costs, pendulum_path = swing_up(out)
     panda_costs, panda_path = panda_reach(out)
-    figure = Figure(figsize=(6, 4), layout="constrained")
+    figure = new_figure((6, 4))
     axes = figure.subplots()
     axes.semilogy(pendulum_costs, "o-", ms=3, label="double pendulum swing-up")
     axes.semilogy(panda_costs, "s-", ms=3, label="Panda reach")
     axes.set(xlabel="iLQR iteration", ylabel="total cost (dimensionless)", title="Cost against iteration")
     axes.legend()
-    cost_path = os.path.join(out, "swing_up_cost.png")
-    figure.savefig(cost_path, dpi=120)
+    cost_path = save_figure(figure, out, "swing_up_cost", dpi=120)
     for path in (cost_path, pendulum_path, panda_path):
         print("wrote", path)
 

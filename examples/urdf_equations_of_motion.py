@@ -7,13 +7,12 @@ Run: python examples/urdf_equations_of_motion.py [output_folder] [path/to/robot.
 (an argument ending in .urdf is the robot, any other the output folder)
 """
 
-import os
 import sys
 
 import numpy as np
-from matplotlib.figure import Figure
 
 import multibody as mb
+from multibody.plotting import new_figure, save_figure
 
 arguments = [argument for argument in sys.argv[1:] if not argument.startswith("--")]
 urdfs = [argument for argument in arguments if argument.lower().endswith(".urdf")]
@@ -48,7 +47,7 @@ print("max |Ṁ − (C + Cᵀ)| (fin. diff.):", skew_error.max())
 
 # The figure: each identity's largest error in each of the n states, on a log scale (units of a
 # revolute joint; a prismatic coordinate reads N, m/s² and kg/s).
-figure = Figure(figsize=(10.0, 3.4), layout="constrained")
+figure = new_figure((10.0, 3.4))
 floor = 1e-18  # exact zeros drawn here
 panels = [(equation_error, "|M a + C v + g − τ|∞ (N·m)"), (aba_error, "|ABA(RNEA(a)) − a|∞ (rad/s²)"),
           (skew_error, "|Ṁ − (C + Cᵀ)|∞ (kg·m²/s)")]
@@ -58,7 +57,5 @@ for axes, (error, label) in zip(figure.subplots(1, 3), panels):
     axes.set_ylabel(label)
 axes.set_title(f"finite differences, step {eps:g} s", fontsize=9)
 figure.suptitle(f"{model.name}: identities of the equations of motion at {n} random states")
-os.makedirs(out, exist_ok=True)
-path = os.path.join(out, "urdf_equations_of_motion.png")
-figure.savefig(path, dpi=100)
+path = save_figure(figure, out, "urdf_equations_of_motion", dpi=100)
 print("wrote", path)

@@ -425,6 +425,12 @@ class ConstrainedSystem:
         sigma, U = np.take_along_axis(sigma, order, axis=-1), np.take_along_axis(U, order[:, None, :], axis=-1)
         return sigma.reshape(batch + (m,)), U.reshape(batch + (m, m))
 
+    def _kept_directions(self, sigma):
+        """The one rank decision: ``(keep, 1/σ² on the kept directions, 0 elsewhere)`` for the singular values
+        ``σ (..., k)`` of ``A L⁻ᵀ``, largest first; a direction counts when ``σ > rank_tolerance · σ_max``."""
+        keep = sigma > self.rank_tolerance * sigma[..., :1]
+        return keep, np.divide(1.0, sigma**2, out=np.zeros_like(sigma), where=keep)
+
     def _minimum_norm(self, A, L, rhs):
         """Minimum-norm ``λ = G⁺ rhs`` with ``G = A M⁻¹ Aᵀ``, the rank, the part of ``rhs`` that no ``λ``
         meets, and the size of the terms of the part met, ``Σ_j |U_ij| Σ_k |U_kj rhs_k|`` over the directions
@@ -432,8 +438,7 @@ class ConstrainedSystem:
         terms (..., m))``. One rank decision: a direction counts when its singular value in the metric of
         ``M`` exceeds ``rank_tolerance`` times the largest, the rule of :meth:`rank`."""
         sigma, U = self._metric_singular_values(A, L)
-        keep = sigma > self.rank_tolerance * sigma[..., :1]
-        inverse = np.divide(1.0, sigma**2, out=np.zeros_like(sigma), where=keep)
+        keep, inverse = self._kept_directions(sigma)
         coefficients = matvec(np.swapaxes(U, -1, -2), rhs)
         lam = matvec(U, inverse * coefficients)
         residual = rhs - matvec(U, np.where(keep, coefficients, 0.0))
@@ -584,8 +589,7 @@ class ConstrainedSystem:
         """``G⁺ (..., m, m)`` of ``G = A M⁻¹ Aᵀ`` from the singular values of ``A L⁻ᵀ``, with the rank rule
         of :meth:`_minimum_norm`."""
         sigma, U = self._metric_singular_values(A, L)
-        keep = sigma > self.rank_tolerance * sigma[..., :1]
-        inverse = np.divide(1.0, sigma**2, out=np.zeros_like(sigma), where=keep)
+        inverse = self._kept_directions(sigma)[1]
         return (U * inverse[..., None, :]) @ np.swapaxes(U, -1, -2)
 
     def _torque_derivatives(self, q, v, a):
@@ -638,7 +642,7 @@ class ConstrainedSystem:
         if not self.num_rows:
             return 0
         sigma, _ = self._metric_singular_values(self.jacobian(q, t), self._factor(q))
-        return int(np.sum(sigma > self.rank_tolerance * sigma[0])) if sigma.size and sigma[0] > 0 else 0
+        return int(self._kept_directions(sigma)[0].sum()) if sigma.size and sigma[0] > 0 else 0
 
     # ------------------------------------------------------------------ projection onto the constraints
 

@@ -61,7 +61,14 @@ class DemoResult:
     view_options: dict = field(default_factory=dict)
 
 
+def _conservation(trajectory):
+    """The summary lines every demo reports: relative energy drift and largest constraint residual."""
+    return {"energy drift (relative)": float(np.ptp(trajectory.energy) / abs(trajectory.energy).max()),
+            "largest constraint residual": float(trajectory.residual.max())}
+
+
 # ----------------------------------------------------------------------------- the mechanisms
+
 
 def rolling_ball_setup(tilt=0.15, radius=0.1, velocity=(-1.0, 1.0)):
     """The ball (``robots/ball.urdf``: 1 kg, ``radius`` m, free body) rolling without slipping on the plane
@@ -183,8 +190,7 @@ def rolling_ball(out_dir, duration=2.6):
     frames, delay, turn = animation_frames(trajectory.t, trajectory.q[:, 3:7])
     summary = {
         "downhill motion vs 5/7 g sin α (m)": float(np.abs(plane_xy[:, 0] - expected).max()),
-        "energy drift (relative)": float(np.ptp(trajectory.energy) / abs(trajectory.energy).max()),
-        "largest constraint residual": float(trajectory.residual.max()),
+        **_conservation(trajectory),
         "friction / normal force (max)": float(np.abs(np.linalg.norm(trajectory.lam[:, :2], axis=1)
                                                       / trajectory.lam[:, 2]).max()),
         "largest turn of the ball between animation frames (rad)": turn,
@@ -346,8 +352,7 @@ def bead_on_wire(out_dir, duration=3.0):
     trajectory = simulate(setup.system, setup.q0, setup.v0, duration, dt=0.01, method="DOP853",
                           rtol=1e-11, atol=1e-12)
     summary = {
-        "energy drift (relative)": float(np.ptp(trajectory.energy) / abs(trajectory.energy).max()),
-        "largest constraint residual": float(trajectory.residual.max()),
+        **_conservation(trajectory),
         "largest wire force (N)": float(np.linalg.norm(trajectory.lam, axis=1).max()),
     }
     paths = plot_trajectory(trajectory, out_dir, "bead_on_wire", setup.system, coordinate_labels=["x", "y", "z"],
@@ -367,8 +372,7 @@ def four_bar(out_dir, duration=4.0):
     trajectory = simulate(setup.system, setup.q0, setup.v0, duration, dt=0.01, method="DOP853",
                           rtol=1e-10, atol=1e-12)
     summary = {
-        "energy drift (relative)": float(np.ptp(trajectory.energy) / abs(trajectory.energy).max()),
-        "largest constraint residual": float(trajectory.residual.max()),
+        **_conservation(trajectory),
         "largest pin force (N)": float(np.linalg.norm(trajectory.lam, axis=1).max()),
     }
     paths = plot_trajectory(trajectory, out_dir, "four_bar", setup.system,
@@ -389,8 +393,7 @@ def rolling_coin(out_dir, duration=2.0):
                           rtol=1e-11, atol=1e-13)
     (contact,) = setup.constraints
     summary = {
-        "energy drift (relative)": float(np.ptp(trajectory.energy) / abs(trajectory.energy).max()),
-        "largest constraint residual": float(trajectory.residual.max()),
+        **_conservation(trajectory),
         "friction / normal force (max)": float(np.abs(np.linalg.norm(trajectory.lam[:, :2], axis=1)
                                                       / trajectory.lam[:, 2]).max()),
     }

@@ -179,7 +179,7 @@ def simulate_many(system, q0, v0, t_final, *, chunks=None, client=None, **kw):
         whole batch; one ``RuntimeWarning`` when some trajectories stopped early (``trajectory.status``).
     """
     from .constrained import ConstrainedSystem
-    from .simulation import _batch_size, _check_batchable
+    from .simulation import _batch_size, _check_batchable, _warn_if_stopped
 
     constrained = system if isinstance(system, ConstrainedSystem) else ConstrainedSystem(system)
     q0, v0 = np.asarray(q0, dtype=float), np.asarray(v0, dtype=float)
@@ -207,10 +207,5 @@ def simulate_many(system, q0, v0, t_final, *, chunks=None, client=None, **kw):
 
     with _connected(client) as connected:
         trajectory = _concatenate(_map_chunks(connected, run, constrained, arrays, chunks))
-    stopped = np.flatnonzero(~trajectory.completed)
-    if stopped.size:
-        j = int(stopped[0])
-        warnings.warn(f"{stopped.size} of {n} trajectories stopped early (trajectory.completed is False for them, "
-                      f"trajectory.status says why; their outputs after it are NaN); trajectory {j}: "
-                      f"{trajectory.status[j]}", RuntimeWarning, stacklevel=2)
+    _warn_if_stopped(trajectory, stacklevel=3)
     return trajectory

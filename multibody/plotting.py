@@ -58,6 +58,14 @@ def new_figure(figsize=(7.0, 4.0)):
     return Figure(figsize=figsize, layout="constrained")
 
 
+def save_figure(figure, out_dir, name, dpi=110):
+    """Write ``figure`` to ``<out_dir>/<name>.png`` (the folder created when missing) and return the path."""
+    os.makedirs(out_dir, exist_ok=True)
+    path = os.path.join(out_dir, f"{name}.png")
+    figure.savefig(path, dpi=dpi)
+    return path
+
+
 def pyplot():
     """``matplotlib.pyplot``, for callers that want its state machine, with the backend the user
     chose (or matplotlib's default); this module's own figures do not use it."""
@@ -363,18 +371,11 @@ def plot_trajectory(trajectory, out_dir, name, system=None, *, coordinate_labels
     figures = trajectory_figures(trajectory, system, coordinate_labels=coordinate_labels,
                                  coordinate_units=coordinate_units, multiplier_labels=multiplier_labels,
                                  multiplier_units=multiplier_units, tolerance=tolerance)
-    os.makedirs(out_dir, exist_ok=True)
-    paths = []
-    for suffix, figure in figures.items():
-        path = os.path.join(out_dir, f"{name}_{suffix}.png")
-        figure.savefig(path, dpi=dpi)
-        paths.append(path)
-    return paths
+    return [save_figure(figure, out_dir, f"{name}_{suffix}", dpi) for suffix, figure in figures.items()]
 
 
 def plot_path(xy, out_dir, name, title, labels=("x (m)", "y (m)"), dpi=110):
     """Write ``<name>_path.png``: a path ``xy (n, 2)`` seen from above, equal axes. Returns the file path."""
-    os.makedirs(out_dir, exist_ok=True)
     figure = new_figure((6.0, 5.0))
     ax = figure.subplots()
     ax.plot(xy[:, 0], xy[:, 1])
@@ -382,6 +383,4 @@ def plot_path(xy, out_dir, name, title, labels=("x (m)", "y (m)"), dpi=110):
     ax.set_xlabel(labels[0])
     ax.set_ylabel(labels[1])
     ax.set_title(title)
-    path = os.path.join(out_dir, f"{name}_path.png")
-    figure.savefig(path, dpi=dpi)
-    return path
+    return save_figure(figure, out_dir, f"{name}_path", dpi)

@@ -934,13 +934,18 @@ def _simulate_batch(constrained, charts, q0, v0, times, torque, state_dependent,
     model = getattr(mechanical, "model", None)
     if model is not None and limits != "ignore":
         trajectory = _report_batch_limits(mechanical, trajectory, limits)
+    _warn_if_stopped(trajectory, stacklevel=4)
+    return trajectory
+
+
+def _warn_if_stopped(trajectory, stacklevel):
+    """One ``RuntimeWarning`` naming how many of a batch's trajectories stopped early, and why the first did."""
     stopped = np.flatnonzero(~trajectory.completed)
     if stopped.size:
         j = int(stopped[0])
-        warnings.warn(f"{stopped.size} of {count} trajectories stopped early (trajectory.completed is False for them, "
-                      f"trajectory.status says why; their outputs after it are NaN); trajectory {j}: "
-                      f"{trajectory.status[j]}", RuntimeWarning, stacklevel=3)
-    return trajectory
+        warnings.warn(f"{stopped.size} of {trajectory.batch_size} trajectories stopped early (trajectory.completed is "
+                      f"False for them, trajectory.status says why; their outputs after it are NaN); trajectory {j}: "
+                      f"{trajectory.status[j]}", RuntimeWarning, stacklevel=stacklevel)
 
 
 def _batch_trajectory(constrained, times, q, v, stop, last, torque, state_dependent, status, projection_tolerance):
