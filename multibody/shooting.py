@@ -90,7 +90,7 @@ class _Step:
     def glue(self, q, v, accelerations, dt):
         """Stage states ``[(q_i, v_i)]`` for ``i = 1..4`` and the end ``(q⁺, v⁺)`` (module docstring), with
         ``accelerations(i, q_i, v_i)`` the acceleration of stage i; arrays carry leading axes."""
-        charts, nv = self.charts, self.nv
+        charts = self.charts
 
         def aligned(q_, x):  # T(q) x, or x without alignment
             T = charts.velocity_alignment(q_)

@@ -19,7 +19,6 @@ from __future__ import annotations
 import functools
 
 import numpy as np
-import pytest
 import sympy as sp
 from scipy.integrate import solve_ivp
 
