@@ -289,7 +289,7 @@ def simulate(system, q0, v0, t_final, *, dt=None, method="RK45", tau=None, rtol=
         dt: output interval (s), and the step of ``"RK4"``; default ``(t_final − t0) / 500``.
         method: ``"RK45"``, ``"DOP853"``, ``"Radau"`` (or ``"RK23"``, ``"BDF"``, ``"LSODA"``), ``"RK4"``, or
             ``"variational"``: the discrete Hamilton's principle with step ``dt``, constraints by discrete
-            multipliers (:func:`multibody.variational.simulate`, one state, vector-space configurations).
+            multipliers (:func:`multibody.variational.simulate`, one state; Lie-group joints included).
         tau: joint forces: ``None``, an array ``(nv,)``, or a callable ``tau(t, q, v) -> (nv,)``. For ``N``
             trajectories also an array ``(N, nv)``, and the callable takes the batch, ``q (N, nq)``, ``v (N, nv)
             -> (N, nv)`` (a stopped trajectory's row holds its last state).

@@ -63,13 +63,36 @@ would leave ``p`` a period-two oscillation of size ``O(h)``). The reported multi
 ``λ_k = 2 (μ_k⁺ + μ_k⁻) / (h_{k−1} + h_k)``, a second-order approximation of the continuous
 ``λ(t_k)``; the two ends, which meet one step only, are extrapolated from their two nearest inner nodes.
 
-**Newton's method.** The unknown of a step is the increment ``Δ = q_{k+1} − q_k`` (not ``q_{k+1}``,
-whose difference ``q_{k+1} − q_k`` would lose the digits of a large angle). The Jacobian of
-``−D1 L_d − f⁻`` with respect to ``Δ`` is, for the midpoint rule,
+**Lie-group joints.** Free-flyer, spherical and planar joints move on SE(3), SO(3) and SE(2), with
+``q ⊕ x = q exp(x)`` (:meth:`multibody.Model.integrate`) and joint velocities in the moving frame. The
+step is ``q_{k+1} = q_k ⊕ Δ``, the discrete Lagrangian ``L_d = h L(q_k ⊕ Δ/2, Δ/h)`` with
+``Δ = log(q_k⁻¹ q_{k+1})`` (the exponential's straight path has the constant joint velocity ``ξ = Δ/h``),
+and variations are left-trivialised, ``q → q exp(ε η)`` (N. Bou-Rabee and J. E. Marsden,
+*Hamilton–Pontryagin integrators on Lie groups*, Found. Comput. Math. 9 (2009) 197; T. Lee, M. Leok and
+N. H. McClamroch, *Lie group variational integrators for the full body problem*, Comput. Methods Appl.
+Mech. Engrg. 196 (2007) 2907). Varying ``q_k`` changes ``Δ`` by ``−J_l(Δ)⁻¹ η`` and the midpoint by
+``Ad_exp(−Δ/2) η + ½ J_r(Δ/2) δΔ``; varying ``q_{k+1}`` changes ``Δ`` by ``J_r(Δ)⁻¹ η``
+(:class:`_LieGroupChart` gives ``Ad``, ``J_l`` and ``J_r(x) = J_l(−x)``). With ``Π̄ = ∂L/∂q(q̄, ξ) + τ̄``,
+the identities ``J_l(x) = Ad_exp(x) J_r(x)`` and ``½ J_r(Δ/2) − Ad_exp(Δ/2) J_r(Δ) = −½ J_l(Δ/2)`` turn the
+discrete Legendre transforms into
 
-    J = M(q̄)/h + ½ (K − Kᵀ) − (h/4) ∂²L/∂q² − ∂f⁻/∂Δ,      K = ∂(M(q) ξ)/∂q at q̄,
+    J_l(Δ)ᵀ p_k = M(q̄) ξ − (h/2) J_l(Δ/2)ᵀ Π̄,        p_{k+1} = Ad_exp(Δ)ᵀ p_k + h Ad_exp(Δ/2)ᵀ Π̄
 
-and for the trapezoidal rule ``J = (M(q_k) + M(q_{k+1}))/(2h) + ½ K(q_{k+1}) − ½ K(q_k)ᵀ − ∂f⁻/∂Δ``.
+(midpoint), and ``J_l(Δ)ᵀ (p_k + (h/2) Π_k) = ½ (M(q_k) + M(q_{k+1})) ξ``,
+``p_{k+1} = Ad_exp(Δ)ᵀ (p_k + (h/2) Π_k) + (h/2) Π_{k+1}`` (trapezoidal); on the commutative joints
+``Ad = J_l = 1`` and they are the equations above. Here ``∂L/∂q`` is left-trivialised,
+``d/dε L(q exp(ε η), v) = (C(q, v)ᵀ v − g(q) − ad_vᵀ M(q) v)·η`` (from ``Ṁ = C + Cᵀ``, which the
+Coriolis matrix keeps on every joint kind). The second equation is the momentum balance: a free
+system's spatial momentum ``Ad*`` of ``p`` is carried exactly from step to step.
+
+**Newton's method.** The unknown of a step is the increment ``Δ`` (not ``q_{k+1}``, whose difference
+``q_{k+1} − q_k`` would lose the digits of a large angle). The Jacobian of ``−D1 L_d − f⁻`` with respect
+to ``Δ`` is, for the midpoint rule, to first order in ``Δ``,
+
+    J = M(q̄)/h + ½ (K − S) − (h/4) ∂²L/∂q² − ∂f⁻/∂Δ,      K = ∂(M(q) ξ)/∂q,  S = ∂(C(q, ξ)ᵀ ξ)/∂ξ at q̄
+
+(``S = Kᵀ`` on a vector space; the terms in ``ad`` cancel to first order), and for the trapezoidal rule
+``J = (M(q_k) + M(q_{k+1}))/(2h) + ½ K(q_{k+1}) − ½ S(q_k) − ∂f⁻/∂Δ``.
 For a :class:`~multibody.model.Model`, ``K = ∂τ/∂q|_{v=0, a=ξ} − ∂g/∂q`` from the analytical
 derivatives (:func:`multibody.inverse_dynamics_derivatives`, :func:`multibody.gravity_derivatives`),
 and ``∂²L/∂q²`` is taken as ``−∂g/∂q``: the term ``½ ξᵀ (∂²M/∂q²) ξ`` is left out, a relative error
@@ -80,9 +103,8 @@ iteration reduces the residual less than tenfold. The iteration stops when the r
 equation is at most ``tolerance`` (default ``1e-12``) times the size of its momentum terms, and the
 holonomic rows at most ``tolerance · max(1, |q_{k+1}|)``; otherwise :class:`SimulationError`.
 
-Limitations: the configurations must form a vector space with ``q̇ = v`` (revolute, continuous,
-prismatic and translation joints; ``model.is_vector_space``); the Lie-group variant for free-flyer,
-spherical and planar joints (Lee, Leok and McClamroch) is not available.
+Limitations: a system other than a :class:`~multibody.model.Model` needs configurations in a vector
+space with ``q̇ = v``; ``order=4`` is for systems without constraints.
 """
 
 from __future__ import annotations
@@ -94,7 +116,7 @@ import numpy as np
 
 from . import linalg
 from .constrained import ConstrainedSystem, ConstraintError, ModelSystem
-from .kernels import coriolis, crba, rnea
+from .kernels import configuration, coriolis, crba, rnea
 from .kernels import derivatives as derivative_kernels
 
 RULES = ("midpoint", "trapezoidal")
@@ -124,6 +146,8 @@ class _ModelLagrangian:
     def __init__(self, model):
         self.model = model
         self.nv = model.nv
+        #: the chart of the Lie-group joints, ``None`` when the configurations form a vector space
+        self.chart = None if model.is_vector_space else _LieGroupChart(model)
         tree = model.tree
         self._tree = (tree.joints, tree.reals, tree.bodies)
         nj, nv = tree.joints.shape[0], tree.nv
@@ -140,26 +164,38 @@ class _ModelLagrangian:
         # CRBA (RBDA Table 6.2): multibody.mass_matrix
         return self._run(crba.mass_matrix, (self.nv, self.nv), q)
 
-    def gradient(self, q, v):
+    def gradient(self, q, v, M=None):
+        """``∂L/∂q (nv,)`` at ``(q, v)``, left-trivialised on Lie-group joints (``M``: ``M(q)`` if known)."""
         v = np.ascontiguousarray(v, dtype=float)
         C = self._run(coriolis.coriolis_matrix, (self.nv, self.nv), q, v)
         g = self._run(rnea.inverse_dynamics, (1, self.nv), q)[0]
         # ∂L/∂q = C(q, v)ᵀ v − g(q)   (C Christoffel-consistent: Cᵀ v = ½ vᵀ (∂M/∂q) v)
-        return C.T @ v - g
+        gradient = C.T @ v - g
+        if self.chart is not None:
+            # d/dε L(q ⊕ εη, v) = (Cᵀ v − g − ad_vᵀ M v)·η   (module docstring, "Lie-group joints")
+            gradient -= self.chart.coadjoint(v, (self.mass_matrix(q) if M is None else M) @ v)
+        return gradient
 
     def jacobian_terms(self, q, v):
-        """``(K, H)``: ``K = ∂(M(q) v)/∂q`` and ``H ≈ ∂²L/∂q²``, both ``(nv, nv)``.
+        """``(K, H, S)``: ``K = ∂(M(q) v)/∂q``, ``H ≈ ∂²L/∂q²`` and ``S = ∂(C(q, v)ᵀ v)/∂v``, all ``(nv, nv)``.
 
         RNEA with zero velocity and acceleration ``v`` is ``M(q) v + g(q)``, so its ``q``-derivative
         (:func:`multibody.inverse_dynamics_derivatives`) less ``∂g/∂q`` (:func:`multibody.gravity_derivatives`)
         is ``K``. ``H = −∂g/∂q`` leaves out ``½ vᵀ (∂²M/∂q²) v`` (no analytical second derivatives of
-        ``M``), a quasi-Newton approximation.
+        ``M``), a quasi-Newton approximation. ``S = Kᵀ`` on a vector space (``Cᵀ v = ½ Kᵀ v``); on Lie-group
+        joints, from ``Ṁ = C + Cᵀ`` and ``Ṁ v = K v``, ``S = C + Cᵀ + K − ∂(C v)/∂v``, the last term the
+        velocity derivative of RNEA at zero acceleration.
         """
         nv = self.nv
         kernel = derivative_kernels.inverse_dynamics_derivatives
+        v = np.ascontiguousarray(v, dtype=float)
         dg_dq = self._run(kernel, (nv, nv), q)
-        dtau = self._run(kernel, (2 * nv, nv), q, np.zeros(nv), np.ascontiguousarray(v, dtype=float))
-        return dtau[:nv] - dg_dq, -dg_dq
+        K = self._run(kernel, (2 * nv, nv), q, np.zeros(nv), v)[:nv] - dg_dq
+        if self.chart is None:
+            return K, -dg_dq, K.T
+        C = self._run(coriolis.coriolis_matrix, (nv, nv), q, v)
+        dCv_dv = self._run(kernel, (2 * nv, nv), q, v, np.zeros(nv))[nv:]
+        return K, -dg_dq, C + C.T + K - dCv_dv
 
     def forces(self, q, v):
         return None
@@ -173,19 +209,21 @@ class _SystemLagrangian:
     def __init__(self, system):
         self.system = system
         self.nv = system.nv
+        self.chart = None
         self.has_forces = hasattr(system, "generalized_forces") and _has_nonzero_forces(system)
 
     def mass_matrix(self, q):
         return np.asarray(self.system.mass_matrix(q), dtype=float).reshape(self.nv, self.nv)
 
-    def gradient(self, q, v):
+    def gradient(self, q, v, M=None):
         return np.asarray(self.system.lagrangian_gradient(q, v), dtype=float).reshape(self.nv)
 
     def jacobian_terms(self, q, v):
         zero = np.zeros((self.nv, self.nv))
         K = self.system.momentum_jacobian(q, v) if hasattr(self.system, "momentum_jacobian") else zero
         H = self.system.lagrangian_hessian(q, v) if hasattr(self.system, "lagrangian_hessian") else zero
-        return np.asarray(K, dtype=float), np.asarray(H, dtype=float)
+        K = np.asarray(K, dtype=float)
+        return K, np.asarray(H, dtype=float), K.T
 
     def forces(self, q, v):
         return self.system.generalized_forces(q, v) if self.has_forces else None
@@ -203,20 +241,12 @@ def _has_nonzero_forces(system):
 def _lagrangian_of(mechanical):
     """The terms of ``L`` that the discrete equations need, or ``ValueError`` explaining what is missing."""
     if isinstance(mechanical, ModelSystem):
-        model = mechanical.model
-        if not model.is_vector_space:
-            curved = [f"{name!r} ({joint.kind})" for name, joint in zip(model.joint_names, model.joints)
-                      if not joint.vector_space]
-            raise ValueError(
-                "method='variational' is not available for this model: it needs configurations in a vector space "
-                "with q̇ = v (revolute, continuous, prismatic and translation joints), and joint(s) "
-                f"{', '.join(curved)} move on a Lie group; the Lie-group variational integrator (Lee, Leok and "
-                "McClamroch) is not implemented. Use method='RK4' or an adaptive method such as 'DOP853'.")
-        return _ModelLagrangian(model)
+        return _ModelLagrangian(mechanical.model)
     if hasattr(mechanical, "chart") and not getattr(mechanical, "vector_space", False):
         raise ValueError(f"method='variational' needs configurations in a vector space with q̇ = v; "
-                         f"{type(mechanical).__name__} has chart maps (a curved configuration space), for which "
-                         "the Lie-group variational integrator is not implemented")
+                         f"{type(mechanical).__name__} has chart maps (a curved configuration space): the Lie-group "
+                         "variational integrator is available for a Model's free-flyer, spherical and planar joints, "
+                         "whose group structure it knows, not for a system's own charts")
     if mechanical.nq != mechanical.nv:
         raise ValueError(f"method='variational' needs q̇ = v, but {type(mechanical).__name__} has nq = {mechanical.nq} "
                          f"!= nv = {mechanical.nv}")
@@ -227,6 +257,63 @@ def _lagrangian_of(mechanical):
             "provide: use a Model, LagrangianSystem.numeric(), or a system with lagrangian_gradient(q, v) (and "
             "optionally momentum_jacobian(q, v), lagrangian_hessian(q, v), generalized_forces(q, v))")
     return _SystemLagrangian(mechanical)
+
+
+# ============================================================================= Lie-group joints
+
+class _LieGroupChart:
+    """The group operations that the discrete equations of a model with Lie-group joints need.
+
+    ``q ⊕ x`` is :meth:`multibody.Model.integrate`: per joint ``X exp(x)`` on SO(3) (spherical), SE(3)
+    (free-flyer) or SE(2) (planar), ``q + x`` on the others, with ``x (nv,)`` in the joints' velocity
+    coordinates ``[v_lin, ω]`` (free-flyer), ``ω`` (spherical), ``[vx, vy, ω]`` (planar). Their Lie
+    algebras' adjoints are
+
+        SE(3): ad_(v,ω) = [[ω×, v×], [0, ω×]],   SO(3): ad_ω = ω×,   SE(2): ad_(u,ω) = [[ω E, −E u], [0, 0]]
+
+    (``E`` the quarter turn of the plane; ``ad = 0`` on the commutative joints), and the step needs
+    (J. Solà, J. Deray and D. Atchuthan, *A micro Lie theory for state estimation in robotics*, 2018,
+    eqs. 41–46; Hairer, Lubich and Wanner, *Geometric Numerical Integration*, §III.4):
+
+        Ad_exp(x) = exp(ad_x) = Σ_{j≥0} ad_x^j / j!,          J_l(x) = dexp_x = Σ_{j≥0} ad_x^j / (j + 1)!,
+
+    ``Ad`` the adjoint of the group element ``exp(x)`` and ``J_l`` the left Jacobian of the exponential:
+    ``exp(x + δ) = exp(J_l(x) δ) exp(x)``; the right Jacobian is ``J_r(x) = J_l(−x)``, with
+    ``exp(x + δ) = exp(x) exp(J_r(x) δ)``.
+    """
+
+    def __init__(self, model):
+        tree = model.tree
+        self._tree = (tree.joints, tree.reals, tree.bodies)
+        self.nq, self.nv = tree.nq, tree.nv
+        self._workspace = np.empty(configuration.workspace_size(tree.njoints, tree.nv))
+
+    def advance(self, q, x):
+        """``q ⊕ x (nq,)``: :meth:`multibody.Model.integrate`, by its compiled kernel."""
+        out = np.empty((1, self.nq))
+        configuration.integrate(*self._tree, q, np.ascontiguousarray(x, dtype=float), _EMPTY, _EMPTY, out, _EMPTY)
+        return out[0]
+
+    def coadjoint(self, x, p):
+        """``ad_xᵀ p (nv,)``, zero on the commutative joints (:func:`multibody.kernels.configuration.coadjoint`)."""
+        out = np.empty((1, self.nv))
+        configuration.coadjoint(*self._tree, np.ascontiguousarray(x, dtype=float), np.ascontiguousarray(p, dtype=float),
+                                _EMPTY, _EMPTY, out, _EMPTY)
+        return out[0]
+
+    def exponential_terms(self, x):
+        """``(Ad_exp(x), J_l(x))``, both ``(nv, nv)`` (:func:`multibody.kernels.configuration.exponential_terms`)."""
+        out = np.empty((2 * self.nv, self.nv))
+        configuration.exponential_terms(*self._tree, np.ascontiguousarray(x, dtype=float), _EMPTY, _EMPTY, _EMPTY, out,
+                                        self._workspace)
+        return out[:self.nv], out[self.nv:]
+
+    @staticmethod
+    def doubled(terms):
+        """``(Ad_exp(2x), J_l(2x))`` from ``(Ad_exp(x), J_l(x))``: ``exp(2 ad_x) = exp(ad_x)²`` and
+        ``(e^{2Y} − 1)/(2Y) = ½ (e^Y + 1) (e^Y − 1)/Y``."""
+        Ad, J_l = terms
+        return Ad @ Ad, 0.5 * (Ad + np.eye(len(Ad))) @ J_l
 
 
 # ============================================================================= one step
@@ -246,6 +333,11 @@ class _Rows:
     def levels(self, q, t):
         """``(φ (m,), A (m, nv), b (m,))`` at ``(q, t)``."""
         return self.constrained._position_and_velocity_levels(q, t)
+
+
+def _add(q, delta):
+    """``q + Δ``: the step of configurations in a vector space."""
+    return q + delta
 
 
 def _norm(x):
@@ -271,8 +363,10 @@ def _step(lagrangian, rows, rule, force, t, h, q0, p0, levels0, guess, tolerance
     Raises:
         _NotConverged: the Newton iteration did not meet the tolerance.
     """
-    nv = q0.shape[0]
+    nv = p0.shape[0]
     m = 0 if rows is None else rows.m
+    chart = lagrangian.chart
+    advance = _add if chart is None else chart.advance
     H_rows = rows.holonomic if m else None
     N_rows = rows.nonholonomic if m else None
     # every row's impulse at the start acts along A(q_k)ᵀ: constraint forces at the nodes
@@ -285,46 +379,57 @@ def _step(lagrangian, rows, rule, force, t, h, q0, p0, levels0, guess, tolerance
         """The first discrete equation's terms at ``Δ``: ``(start, scale, state)``, ``start = −D1 L_d − f⁻``."""
         xi = delta / h
         if rule == "midpoint":
-            q_mid = q0 + 0.5 * delta
+            q_mid = advance(q0, 0.5 * delta)
             M = lagrangian.mass_matrix(q_mid)
-            Lq = lagrangian.gradient(q_mid, xi)
+            Lq = lagrangian.gradient(q_mid, xi, M)
             f = None if force is None else force(t + 0.5 * h, q_mid, xi)
             M_xi = M @ xi
-            # −D1 L_d − f⁻ = M(q̄) ξ − (h/2) (∂L/∂q(q̄, ξ) + τ̄)
             pull = Lq if f is None else Lq + f
-            start = M_xi - 0.5 * h * pull
+            if chart is None:
+                # −D1 L_d − f⁻ = M(q̄) ξ − (h/2) (∂L/∂q(q̄, ξ) + τ̄)
+                start, exponentials = M_xi - 0.5 * h * pull, None
+            else:
+                # −D1 L_d − f⁻ = J_l(Δ)⁻ᵀ (M(q̄) ξ − (h/2) J_l(Δ/2)ᵀ (∂L/∂q(q̄, ξ) + τ̄))
+                half = chart.exponential_terms(0.5 * delta)
+                exponentials = chart.doubled(half), half
+                start = linalg.solve(exponentials[0][1].T, (M_xi - 0.5 * h * (exponentials[1][1].T @ pull))[:, None])[:, 0]
             scale = max(_norm(M_xi), 0.5 * abs(h) * _norm(Lq), 0.0 if f is None else 0.5 * abs(h) * _norm(f))
-            return start, scale, (q_mid, xi, M, pull)
-        q1 = q0 + delta
+            return start, scale, (q_mid, xi, M, pull, exponentials)
+        q1 = advance(q0, delta)
         M1 = lagrangian.mass_matrix(q1)
-        Lq0 = lagrangian.gradient(q0, xi)
+        Lq0 = lagrangian.gradient(q0, xi, M0)
         f0 = None if force is None else force(t, q0, xi)
-        M_xi = 0.5 * (M0 + M1) @ xi
-        # −D1 L_d − f⁻ = ½ (M(q_k) + M(q_{k+1})) ξ − (h/2) (∂L/∂q(q_k, ξ) + τ(t_k, q_k, ξ))
         pull = Lq0 if f0 is None else Lq0 + f0
-        start = M_xi - 0.5 * h * pull
+        M_xi = 0.5 * (M0 + M1) @ xi
+        if chart is None:
+            # −D1 L_d − f⁻ = ½ (M(q_k) + M(q_{k+1})) ξ − (h/2) (∂L/∂q(q_k, ξ) + τ(t_k, q_k, ξ))
+            start, exponentials = M_xi - 0.5 * h * pull, None
+        else:
+            # −D1 L_d − f⁻ = J_l(Δ)⁻ᵀ ½ (M(q_k) + M(q_{k+1})) ξ − (h/2) (∂L/∂q(q_k, ξ) + τ(t_k, q_k, ξ))
+            exponentials = (chart.exponential_terms(delta),)
+            start = linalg.solve(exponentials[0][1].T, M_xi[:, None])[:, 0] - 0.5 * h * pull
         scale = max(_norm(M_xi), 0.5 * abs(h) * _norm(Lq0), 0.0 if f0 is None else 0.5 * abs(h) * _norm(f0))
-        return start, scale, (q1, xi, M1, pull)
+        return start, scale, (q1, xi, M1, pull, exponentials)
 
     def start_force(delta):
         """``f⁻ (nv,)`` of the step at ``Δ`` (for its forward differences)."""
         xi = delta / h
         if rule == "midpoint":
-            return 0.5 * h * np.asarray(force(t + 0.5 * h, q0 + 0.5 * delta, xi), dtype=float)
+            return 0.5 * h * np.asarray(force(t + 0.5 * h, advance(q0, 0.5 * delta), xi), dtype=float)
         return 0.5 * h * np.asarray(force(t, q0, xi), dtype=float)
 
     def jacobian(delta, state):
         """``∂(−D1 L_d − f⁻)/∂Δ (nv, nv)``, see the module docstring."""
         xi = delta / h
         if rule == "midpoint":
-            q_mid, _, M, _ = state
-            K, H = lagrangian.jacobian_terms(q_mid, xi)
-            J = M / h + 0.5 * (K - K.T) - 0.25 * h * H
+            q_mid, _, M, _, _ = state
+            K, H, S = lagrangian.jacobian_terms(q_mid, xi)
+            J = M / h + 0.5 * (K - S) - 0.25 * h * H
         else:
-            q1, _, M1, _ = state
-            K1, _ = lagrangian.jacobian_terms(q1, xi)
-            K0, _ = lagrangian.jacobian_terms(q0, xi)
-            J = 0.5 * (M0 + M1) / h + 0.5 * K1 - 0.5 * K0.T
+            q1, _, M1, _, _ = state
+            K1, _, _ = lagrangian.jacobian_terms(q1, xi)
+            _, _, S0 = lagrangian.jacobian_terms(q0, xi)
+            J = 0.5 * (M0 + M1) / h + 0.5 * (K1 - S0)
         if force is not None:
             # forward differences of f⁻ along each coordinate of Δ
             base = start_force(delta)
@@ -339,23 +444,28 @@ def _step(lagrangian, rows, rule, force, t, h, q0, p0, levels0, guess, tolerance
         """Rows of the step's constraints at ``Δ``: ``(c, C, scales, levels1)`` with the residuals
         ``c (m,)``, their linearisation ``C (m, nv)`` in ``Δ``, the rows' scales and the levels at
         ``q_{k+1}``. The scales: ``max(1, |q_{k+1}|)`` for ``φ`` (its units are those of ``q``), the size
-        of the terms of ``A ξ + b`` for the nonholonomic rows."""
-        q1 = q0 + delta
+        of the terms of ``A ξ + b`` and ``max|A_row| · max|ξ|`` for the nonholonomic rows."""
+        q1 = advance(q0, delta)
         levels1 = rows.levels(q1, t + h)
         c, C, scales = np.empty(m), np.empty((m, nv)), np.empty(m)
         if rows.any_holonomic:
             # φ(q_{k+1}, t_{k+1}) = 0
             c[H_rows] = levels1[0][H_rows]
-            C[H_rows] = levels1[1][H_rows]
+            # (∂(q_k ⊕ Δ)/∂Δ = J(Δ) in the tangent at q_{k+1})
+            C[H_rows] = (levels1[1][H_rows] if chart is None
+                         else levels1[1][H_rows] @ chart.exponential_terms(-delta)[1])
             scales[H_rows] = max(1.0, _norm(q1))
         if rows.any_nonholonomic:
             # A(q̄, t̄) ξ + b(q̄, t̄) = 0: the discrete constraint with the distribution at the midpoint
-            _, A_mid, b_mid = rows.levels(q0 + 0.5 * delta, t + 0.5 * h)
+            _, A_mid, b_mid = rows.levels(advance(q0, 0.5 * delta), t + 0.5 * h)
             A_N, b_N = A_mid[N_rows], b_mid[N_rows]
             xi = delta / h
             c[N_rows] = A_N @ xi + b_N
             C[N_rows] = A_N / h
-            scales[N_rows] = np.maximum(np.maximum(np.abs(A_N) @ np.abs(xi), np.abs(b_N)), 1e-300)
+            # (the largest entry of a row times the largest velocity as well: a row that reads one coordinate,
+            # such as a knife edge's sideways velocity in its body frame, is measured against the whole motion)
+            scales[N_rows] = np.maximum.reduce([np.abs(A_N) @ np.abs(xi), np.abs(A_N).max(axis=1, initial=0.0) * _norm(xi),
+                                                np.abs(b_N), np.full(len(b_N), 1e-300)])
         return c, C, scales, levels1
 
     delta = np.array(guess, dtype=float)
@@ -409,21 +519,28 @@ def _step(lagrangian, rows, rule, force, t, h, q0, p0, levels0, guess, tolerance
 
     # p_{k+1} = p_k + (D1 L_d + D2 L_d) + f⁻ + f⁺ + impulses: the momentum balance of the step, which keeps a
     # cyclic momentum exactly whatever the Newton residual left
-    q1 = q0 + delta
+    # p_{k+1} = p_k + (D1 L_d + D2 L_d) + f⁻ + f⁺ + impulses: the momentum balance of the step, which keeps a
+    # cyclic momentum exactly whatever the Newton residual left; on Lie-group joints
+    # p_{k+1} = Ad_exp(Δ)ᵀ p_k + h Ad_exp(Δ/2)ᵀ (∂L/∂q(q̄, ξ) + τ̄) (midpoint), which keeps a momentum map
+    q1 = advance(q0, delta)
+    _, xi, M_state, pull, exponentials = state
+    p_start = p0 + B.T @ mu if m else p0  # with the impulses A(q_k)ᵀ μ⁻ at the start
     if rule == "midpoint":
-        _, xi, _, pull = state
-        change = h * pull  # D1 L_d + D2 L_d + f⁻ + f⁺ = h (∂L/∂q(q̄, ξ) + τ̄)
         M1 = lagrangian.mass_matrix(q1)
+        if chart is None:
+            p1 = p_start + h * pull  # D1 L_d + D2 L_d + f⁻ + f⁺ = h (∂L/∂q(q̄, ξ) + τ̄)
+        else:
+            p1 = chart.exponential_terms(delta)[0].T @ p_start + h * (exponentials[1][0].T @ pull)
     else:
-        _, xi, M1, pull = state
-        Lq1 = lagrangian.gradient(q1, xi)
+        M1 = M_state
+        Lq1 = lagrangian.gradient(q1, xi, M1)
         f1 = None if force is None else force(t + h, q1, xi)
-        # (h/2) (∂L/∂q(q_k, ξ) + ∂L/∂q(q_{k+1}, ξ) + τ_k + τ_{k+1})
-        change = 0.5 * h * (pull + Lq1 + (0.0 if f1 is None else f1))
-    p1 = p0 + change
-    if m:
-        p1 = p1 + B.T @ mu  # the impulses A(q_k)ᵀ μ⁻ at the start
-    else:
+        pull1 = Lq1 if f1 is None else Lq1 + f1
+        # (h/2) (∂L/∂q(q_k, ξ) + ∂L/∂q(q_{k+1}, ξ) + τ_k + τ_{k+1}); on Lie-group joints
+        # p_{k+1} = Ad_exp(Δ)ᵀ (p_k + (h/2) (∂L/∂q(q_k, ξ) + τ_k)) + (h/2) (∂L/∂q(q_{k+1}, ξ) + τ_{k+1})
+        half_step = p_start + 0.5 * h * pull
+        p1 = (half_step if chart is None else exponentials[0][0].T @ half_step) + 0.5 * h * pull1
+    if not m:
         levels1, mu = None, np.zeros(0)
     v1 = linalg.solve(M1, p1[:, None])[:, 0]
     mu_plus = np.zeros(m)
@@ -454,8 +571,8 @@ def simulate(system, q0, v0, t_final, *, dt=None, tau=None, rule="midpoint", ord
     module docstring gives the equations.
 
     Args:
-        system: a :class:`~multibody.model.Model` whose joints form a vector space with ``q̇ = v``
-            (revolute, continuous, prismatic, translation), a :class:`ConstrainedSystem` on one, or a
+        system: a :class:`~multibody.model.Model` (any joints: free-flyer, spherical and planar joints
+            by the Lie-group form of the module docstring), a :class:`ConstrainedSystem` on one, or a
             ``LagrangianSystem.numeric()`` system (with or without constraints).
         q0, v0: initial state ``(nq,)``, ``(nv,)``; an inconsistent one is projected onto the
             constraints with a warning, as ``mb.simulate`` does.
@@ -489,8 +606,8 @@ def simulate(system, q0, v0, t_final, *, dt=None, tau=None, rule="midpoint", ord
     (``W_k = (f_k⁻ + f_k⁺)·ξ_k``) up to the Newton tolerance.
 
     Raises:
-        ValueError: a curved configuration space (free-flyer, spherical, planar joints), a system
-            without ``∂L/∂q``, ``order=4`` with constraints, or invalid arguments.
+        ValueError: a system with its own chart maps (not a Model), a system without ``∂L/∂q``,
+            ``order=4`` with constraints, or invalid arguments.
         SimulationError: a step whose Newton iteration did not converge (it names the time and the
             residual); ``.trajectory`` holds the states before it.
     """

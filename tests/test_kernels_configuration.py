@@ -477,5 +477,6 @@ def test_planar_small_angles_exact(theta):
     assert_close(call(cfg.difference, tree, q, ours, (1, 3))[0], v, 4e-16, "SE(2) log")
 
 
-def test_workspace_size_is_zero():
-    assert cfg.workspace_size(30, 40) == 0
+def test_workspace_size_is_the_exponential_terms_scratch():
+    """Three 6×6 matrices for ``exponential_terms``, whatever the tree's size; the other maps need none."""
+    assert cfg.workspace_size(30, 40) == cfg.workspace_size(1, 1) == 108

@@ -312,12 +312,23 @@ def test_nonholonomic_sleigh_midpoint_lagrange_dalembert():
 
 # ============================================================================= interface and refusals
 
-def test_free_flyer_is_refused_with_the_lie_group_limitation():
-    builder = mb.ModelBuilder("flyer")
-    builder.add_body("body", mb.joints.FreeFlyer(), inertia=mb.inertia.box(1.0, [0.1, 0.2, 0.3]))
-    model = builder.build()
-    with pytest.raises(ValueError, match="Lie-group variational integrator"):
-        mb.simulate(model, model.neutral(), np.zeros(6), 1.0, method="variational", dt=0.01)
+def test_a_system_with_its_own_charts_is_refused():
+    """A system with its own chart maps (a curved configuration space the integrator knows no group
+    structure of) is refused; a Model's free-flyer, spherical and planar joints are integrated
+    (``test_variational_lie_group.py``)."""
+    from constraint_helpers import CurveCoordinateSystem
+
+    class Curved(CurveCoordinateSystem):
+        vector_space = False
+
+        def chart(self, q0, delta):
+            return q0 + delta
+
+        def lagrangian_gradient(self, q, v):
+            return np.zeros(1)
+
+    with pytest.raises(ValueError, match="free-flyer, spherical and planar joints"):
+        mb.simulate(Curved(Helix(), 1.0), [0.0], [1.0], 1.0, method="variational", dt=0.01)
 
 
 def test_invalid_options_are_refused():

@@ -6,7 +6,7 @@ Every kernel has the uniform signature ``kernel(joints, reals, frames, x0, x1, x
 :mod:`multibody.driver` and loops over the joints; per joint it calls the map of the same name in
 :mod:`multibody.kernels.joints`, which dispatches on the joint's kind code (formulas and sources
 there) and writes that joint's block of ``out`` at the joint's offset (``IQ`` for ``q``-shaped
-results, ``IV`` for ``v``-shaped ones). None of the kernels needs a workspace.
+results, ``IV`` for ``v``-shaped ones). Only :func:`exponential_terms` needs a workspace.
 """
 
 from __future__ import annotations
@@ -19,8 +19,8 @@ from .spatial import nan_unless_finite
 
 
 def workspace_size(nj, nv):
-    """Floats of workspace one state needs: none."""
-    return 0
+    """Floats of workspace one state needs: three 6×6 scratch matrices (:func:`exponential_terms`)."""
+    return 3 * 36
 
 
 # ----------------------------------------------------------------------------- kernels
@@ -115,3 +115,114 @@ def normalize(joints, reals, frames, q, x1, x2, x3, out, ws):
     for i in range(joints.shape[0]):
         kinds.normalize(joints[i, KIND], joints[i, NV], q, joints[i, IQ], out[0])
     nan_unless_finite(q, x1, x2, x3, out)
+
+
+# ----------------------------------------------------------------------------- Lie-algebra terms of the joints
+
+@njit(cache=True, error_model="numpy")
+def _adjoint_block(kind, x, iv, Y):
+    """``ad_x`` of one Lie-group joint into ``Y[:n, :n]``; returns ``n`` (0 for the commutative joints).
+
+    SE(3) (free flyer, ``x = [v, ω]``): ``[[ω×, v×], [0, ω×]]``; SO(3) (spherical, ``x = ω``): ``ω×``;
+    SE(2) (planar, ``x = [ux, uy, ω]``): ``[[0, −ω, uy], [ω, 0, −ux], [0, 0, 0]]``."""
+    if kind == kinds.PLANAR:
+        ux, uy, w = x[iv], x[iv + 1], x[iv + 2]
+        Y[0, 0], Y[0, 1], Y[0, 2] = 0.0, -w, uy
+        Y[1, 0], Y[1, 1], Y[1, 2] = w, 0.0, -ux
+        Y[2, 0], Y[2, 1], Y[2, 2] = 0.0, 0.0, 0.0
+        return 3
+    if kind != kinds.SPHERICAL and kind != kinds.FREE_FLYER:
+        return 0
+    n = 6 if kind == kinds.FREE_FLYER else 3
+    for r in range(n):
+        for c in range(n):
+            Y[r, c] = 0.0
+    w = iv + 3 if kind == kinds.FREE_FLYER else iv
+    for b in range(0, n, 3):  # ω× on the diagonal blocks
+        Y[b, b + 1], Y[b, b + 2], Y[b + 1, b + 2] = -x[w + 2], x[w + 1], -x[w]
+        Y[b + 1, b], Y[b + 2, b], Y[b + 2, b + 1] = x[w + 2], -x[w + 1], x[w]
+    if kind == kinds.FREE_FLYER:  # v× in the upper right block
+        Y[0, 4], Y[0, 5], Y[1, 5] = -x[iv + 2], x[iv + 1], -x[iv]
+        Y[1, 3], Y[2, 3], Y[2, 4] = x[iv + 2], -x[iv + 1], x[iv]
+    return n
+
+
+@njit(cache=True, error_model="numpy")
+def exponential_terms(joints, reals, frames, x, x1, x2, x3, out, ws):
+    """``Ad_exp(x)`` into ``out[:nv] (nv, nv)`` and the left Jacobian ``J_l(x)`` into ``out[nv:]``, block
+    diagonal over the joints, for ``x (nv,)`` in the joints' velocity coordinates (Solà et al. 2018,
+    eqs. 41–46; Hairer, Lubich and Wanner, *Geometric Numerical Integration*, §III.4):
+
+        Ad_exp(x) = exp(ad_x) = Σ_{j≥0} ad_x^j / j!,        J_l(x) = Σ_{j≥0} ad_x^j / (j + 1)!,
+
+    ``exp(x + δ) = exp(J_l(x) δ) exp(x)``, summed until the bound ``r^j / j!`` of the terms (``r`` the
+    largest absolute row sum of ``ad_x``) falls below ``1e-17``; the identity on the commutative joints.
+    ``ws`` holds three 6×6 scratch matrices.
+    """
+    nv = x.shape[0]
+    for r in range(2 * nv):
+        for c in range(nv):
+            out[r, c] = 0.0
+    for r in range(nv):
+        out[r, r] = 1.0
+        out[nv + r, r] = 1.0
+    Y, term, product = ws[:36].reshape((6, 6)), ws[36:72].reshape((6, 6)), ws[72:108].reshape((6, 6))
+    for i in range(joints.shape[0]):
+        iv = joints[i, IV]
+        n = _adjoint_block(joints[i, KIND], x, iv, Y)
+        if n == 0:
+            continue
+        bound = 0.0
+        for r in range(n):
+            row = 0.0
+            for c in range(n):
+                row += abs(Y[r, c])
+            bound = max(bound, row)
+        for r in range(n):
+            for c in range(n):
+                term[r, c] = 1.0 if r == c else 0.0
+        j, factorial, size = 0, 1.0, 1.0
+        # Y^j / j! ≤ bound^j / j!
+        while size > 1e-17 and j < 80:
+            j += 1
+            size *= bound / j
+            factorial *= j
+            for r in range(n):
+                for c in range(n):
+                    total = 0.0
+                    for k in range(n):
+                        total += term[r, k] * Y[k, c]
+                    product[r, c] = total
+            for r in range(n):
+                for c in range(n):
+                    term[r, c] = product[r, c]
+                    out[iv + r, iv + c] += term[r, c] / factorial
+                    out[nv + iv + r, iv + c] += term[r, c] / (factorial * (j + 1))
+    nan_unless_finite(x, x1, x2, x3, out)
+
+
+@njit(cache=True, error_model="numpy")
+def coadjoint(joints, reals, frames, x, p, x2, x3, out, ws):
+    """``ad_xᵀ p (nv,)`` into ``out[0]``, zero on the commutative joints (see :func:`_adjoint_block`): for
+    SE(3) ``[f × ω, f × v + n × ω]`` with ``p = [f, n]``, for SO(3) ``p × ω``, for SE(2)
+    ``[ω p_y, −ω p_x, uy p_x − ux p_y]``."""
+    for r in range(x.shape[0]):
+        out[0, r] = 0.0
+    for i in range(joints.shape[0]):
+        kind, iv = joints[i, KIND], joints[i, IV]
+        if kind == kinds.PLANAR:
+            w = x[iv + 2]
+            out[0, iv], out[0, iv + 1] = w * p[iv + 1], -w * p[iv]
+            out[0, iv + 2] = x[iv + 1] * p[iv] - x[iv] * p[iv + 1]
+        elif kind == kinds.SPHERICAL or kind == kinds.FREE_FLYER:
+            w = iv + 3 if kind == kinds.FREE_FLYER else iv
+            wx, wy, wz = x[w], x[w + 1], x[w + 2]
+            for b in range(iv, iv + 6 if kind == kinds.FREE_FLYER else iv + 3, 3):  # p_b × ω
+                out[0, b] = p[b + 1] * wz - p[b + 2] * wy
+                out[0, b + 1] = p[b + 2] * wx - p[b] * wz
+                out[0, b + 2] = p[b] * wy - p[b + 1] * wx
+            if kind == kinds.FREE_FLYER:  # + f × v on the angular part
+                out[0, iv + 3] += p[iv + 1] * x[iv + 2] - p[iv + 2] * x[iv + 1]
+                out[0, iv + 4] += p[iv + 2] * x[iv] - p[iv] * x[iv + 2]
+                out[0, iv + 5] += p[iv] * x[iv + 1] - p[iv + 1] * x[iv]
+    nan_unless_finite(x, p, x2, x3, out)

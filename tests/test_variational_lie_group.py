@@ -1,0 +1,300 @@
+"""The variational integrator on Lie-group joints (free-flyer, spherical, planar): the group terms of the
+discrete equations against the configuration maps they come from, the left-trivialised ``∂L/∂q``
+against differences of ``L``, the observed order against DOP853, the exact spatial momentum of a free
+system, and the nonholonomic contacts of the lecture note (the rolling ball, the rolling disc, the
+Chaplygin sleigh on a planar joint) held without projection.
+
+The long runs take ``LONG_STEPS`` steps (10⁴; ``MULTIBODY_LONG_RUNS=1``: the issue's 10⁵), as in
+``test_variational.py``.
+"""
+
+from __future__ import annotations
+
+import functools
+import os
+
+import numpy as np
+import pytest
+
+import multibody as mb
+from multibody import demos, variational
+from multibody.kernels import configuration
+from multibody.spatial import pose_from_xyz_rpy
+
+LONG_STEPS = 100_000 if os.environ.get("MULTIBODY_LONG_RUNS") == "1" else 10_000
+
+
+# ============================================================================= systems
+
+def free_chain(gravity=(0.0, 0.0, 0.0)):
+    """A floating box carrying an arm (revolute) and a wrist (spherical): every kind of joint the
+    integrator's group terms distinguish, on a free system when ``gravity`` is zero."""
+    b = mb.ModelBuilder("free_chain", gravity=gravity)
+    b.add_body("base", mb.joints.FreeFlyer(), inertia=mb.inertia.box(2.0, [0.3, 0.2, 0.1]))
+    b.add_body("arm", mb.joints.Revolute([0.0, 1.0, 0.0]), parent="base", placement=pose_from_xyz_rpy([0.2, 0, 0]),
+               inertia=mb.inertia.box(1.0, [0.4, 0.05, 0.05], center=[0.2, 0, 0]))
+    b.add_body("wrist", mb.joints.Spherical(), parent="arm", placement=pose_from_xyz_rpy([0.4, 0, 0]),
+               inertia=mb.inertia.box(0.5, [0.1, 0.1, 0.2], center=[0.0, 0.05, 0.1]))
+    return b.build()
+
+
+def planar_chain():
+    """A planar base carrying a pendulum: SE(2) and a revolute joint, with gravity in the plane."""
+    b = mb.ModelBuilder("planar_chain", gravity=(0.0, -9.81, 0.0))
+    b.add_body("base", mb.joints.Planar(), inertia=mb.inertia.box(1.5, [0.3, 0.2, 0.1], center=[0.05, 0.02, 0.0]))
+    b.add_body("bob", mb.joints.Revolute([0.0, 0.0, 1.0]), parent="base", placement=pose_from_xyz_rpy([0.1, 0, 0]),
+               inertia=mb.inertia.box(0.7, [0.05, 0.5, 0.05], center=[0.0, -0.25, 0.0]))
+    return b.build()
+
+
+def heavy_top():
+    """A box on a spherical joint, its centre of mass 0.3 m up its body z axis, under gravity."""
+    b = mb.ModelBuilder("top")
+    b.add_body("top", mb.joints.Spherical(), inertia=mb.inertia.box(1.0, [0.2, 0.3, 0.05], center=[0.0, 0.0, 0.3]))
+    return b.build()
+
+
+def chaplygin_sleigh():
+    """The Chaplygin sleigh as a body on a planar joint (SE(2)): centre of mass ``a = 0.5`` m ahead of
+    the blade along the body x axis, the blade at the body origin (:class:`~multibody.rolling.KnifeEdge`)."""
+    b = mb.ModelBuilder("sleigh")
+    b.add_body("sleigh", mb.joints.Planar(), inertia=mb.Inertia(1.0, [0.5, 0.0, 0.0], np.diag([0.1, 0.1, 0.2])))
+    model = b.build()
+    system = mb.ConstrainedSystem(model, [mb.KnifeEdge("sleigh", direction=(1.0, 0.0, 0.0))])
+    heading = 0.3
+    q0 = np.array([0.0, 0.0, np.cos(heading), np.sin(heading)])
+    return system, q0, np.array([1.0, 0.0, 2.0])
+
+
+def _random_state(model, seed):
+    rng = np.random.default_rng(seed)
+    return model.random_configuration(rng), rng.standard_normal(model.nv)
+
+
+def _terms(model, x):
+    chart = variational._LieGroupChart(model)
+    return chart, *chart.exponential_terms(np.asarray(x, dtype=float))
+
+
+# ============================================================================= the group terms
+
+@pytest.mark.parametrize("make", [free_chain, planar_chain])
+def test_left_jacobian_and_adjoint_match_the_configuration_maps(make):
+    """``q ⊕ (x + ε δ) = (q ⊕ x) ⊕ (ε J_l(−x) δ)`` and ``q ⊕ (ε η) ⊕ x = (q ⊕ x) ⊕ (ε Ad_exp(−x) η)`` to
+    first order, checked by central differences of ``Model.integrate`` and ``Model.difference`` (to 1e-8)
+    at chart steps of up to 1.5 rad; their inverses hold to rounding."""
+    model = make()
+    rng = np.random.default_rng(3)
+    q = model.random_configuration(rng)
+    eps = 1e-6
+    for scale in (0.05, 1.5):
+        x = scale * rng.standard_normal(model.nv)
+        base = model.integrate(q, x)
+        _, Ad_minus, J_minus = _terms(model, -x)
+        _, Ad_plus, J_plus = _terms(model, x)
+        for k in range(model.nv):
+            e = np.eye(model.nv)[k]
+            moved = (model.difference(base, model.integrate(q, x + eps * e))
+                     - model.difference(base, model.integrate(q, x - eps * e))) / (2 * eps)
+            np.testing.assert_allclose(moved, J_minus[:, k], atol=1e-8)
+            turned = (model.difference(base, model.integrate(model.integrate(q, eps * e), x))
+                      - model.difference(base, model.integrate(model.integrate(q, -eps * e), x))) / (2 * eps)
+            np.testing.assert_allclose(turned, Ad_minus[:, k], atol=1e-8)
+        np.testing.assert_allclose(Ad_plus @ Ad_minus, np.eye(model.nv), atol=1e-13)
+        # J_l(x) = Ad_exp(x) J_l(−x): the left and right Jacobians
+        np.testing.assert_allclose(J_plus, Ad_plus @ J_minus, atol=1e-13)
+
+
+def test_coadjoint_is_the_transpose_of_the_adjoint_rate():
+    """``ad_xᵀ p`` from its kernel against ``(d/dε Ad_exp(ε x))ᵀ p`` at ``ε = 0`` (central differences)."""
+    for model in (free_chain(), planar_chain()):
+        rng = np.random.default_rng(5)
+        x, p = rng.standard_normal(model.nv), rng.standard_normal(model.nv)
+        chart, Ad_plus, _ = _terms(model, 1e-5 * x)
+        _, Ad_minus, _ = _terms(model, -1e-5 * x)
+        np.testing.assert_allclose(chart.coadjoint(x, p), ((Ad_plus - Ad_minus) / 2e-5).T @ p, atol=1e-9)
+
+
+def test_doubling_formulas():
+    model = free_chain()
+    chart, *half = _terms(model, 0.3 * np.random.default_rng(0).standard_normal(model.nv))
+    _, *full = _terms(model, 0.6 * np.random.default_rng(0).standard_normal(model.nv))
+    for doubled, direct in zip(chart.doubled(half), full):
+        np.testing.assert_allclose(doubled, direct, atol=1e-14)
+
+
+def test_the_commutative_joints_have_identity_terms():
+    model = mb.robots.load("double_pendulum")
+    chart = variational._LieGroupChart(model)
+    Ad, J_l = chart.exponential_terms(np.array([0.4, -2.0]))
+    np.testing.assert_array_equal(Ad, np.eye(2))
+    np.testing.assert_array_equal(J_l, np.eye(2))
+    np.testing.assert_array_equal(chart.coadjoint(np.array([0.4, -2.0]), np.array([1.0, 3.0])), np.zeros(2))
+    assert configuration.workspace_size(model.njoints, model.nv) >= 108  # the kernel's three 6×6 scratch matrices
+
+
+@pytest.mark.parametrize("make", [lambda: free_chain((0.0, 0.0, -9.81)), planar_chain, heavy_top])
+def test_left_trivialised_lagrangian_gradient(make):
+    """``d/dε L(q ⊕ ε η, v) = (Cᵀ v − g − ad_vᵀ M v)·η`` at fixed joint velocity ``v``, against central
+    differences of ``L = ½ vᵀ M(q) v − U(q)`` (to 1e-7 of the terms' size)."""
+    model = make()
+    q, v = _random_state(model, 7)
+    lagrangian = variational._ModelLagrangian(model)
+
+    def L(configuration_):
+        return 0.5 * v @ mb.mass_matrix(model, configuration_) @ v - mb.potential_energy(model, configuration_)
+
+    eps = 1e-6
+    differences = np.array([(L(model.integrate(q, eps * e)) - L(model.integrate(q, -eps * e))) / (2 * eps)
+                            for e in np.eye(model.nv)])
+    gradient = lagrangian.gradient(q, v)
+    np.testing.assert_allclose(gradient, differences, atol=1e-7 * max(1.0, np.abs(differences).max()))
+    np.testing.assert_allclose(lagrangian.gradient(q, v, mb.mass_matrix(model, q)), gradient, rtol=1e-14, atol=1e-14)
+
+
+# ============================================================================= order, momentum, energy
+
+ORDER_CASES = {
+    # name: (rule, order, step counts over 1 s)
+    "midpoint": ("midpoint", 2, (100, 200, 400)),
+    "trapezoidal": ("trapezoidal", 2, (100, 200, 400)),
+    "yoshida-midpoint": ("midpoint", 4, (200, 400, 800)),
+}
+
+
+@functools.lru_cache(maxsize=None)
+def _reference(name, t_final):
+    model = {"free_chain": lambda: free_chain((0.0, 0.0, -9.81)), "planar_chain": planar_chain,
+             "heavy_top": heavy_top}[name]()
+    q0, v0 = _random_state(model, 11)
+    end = mb.simulate(model, q0, v0, t_final, dt=t_final, method="DOP853", rtol=1e-13, atol=1e-14)
+    return model, q0, v0, end.q[-1], end.v[-1]
+
+
+@pytest.mark.parametrize("name", ["free_chain", "planar_chain", "heavy_top"])
+@pytest.mark.parametrize("case", list(ORDER_CASES))
+def test_observed_order_on_lie_groups(name, case):
+    """The final-state error ``max(|q ⊖ q_ref|, |v − v_ref|)`` after 1 s, for steps halved twice, falls as
+    ``h^order``: observed orders within 0.25 of 2 (midpoint, trapezoidal) and 4 (Yoshida)."""
+    rule, order, steps = ORDER_CASES[case]
+    model, q0, v0, q_ref, v_ref = _reference(name, 1.0)
+    errors = []
+    for n in steps:
+        run = mb.simulate(model, q0, v0, 1.0, method="variational", dt=1.0 / n, rule=rule, order=order)
+        assert run.status == "completed" and run.q.shape == (n + 1, model.nq)
+        errors.append(max(np.abs(model.difference(q_ref, run.q[-1])).max(), np.abs(run.v[-1] - v_ref).max()))
+    assert min(errors) > 1e-10
+    orders = np.log2(np.array(errors[:-1]) / np.array(errors[1:]))
+    assert np.all(np.abs(orders - order) < 0.25), f"{name} {case}: errors {errors}, observed orders {orders}"
+
+
+def _with_still_centre_of_mass(model, q, v):
+    """``v`` less the base velocity that moves the centre of mass: the free system then tumbles about a
+    fixed point, and its positions stay bounded (a drifting body's coordinates grow, and with them the
+    rounding of each step's position, which the angular momentum about the origin inherits)."""
+    one = mb.Trajectory(t=np.zeros(1), q=q[None], v=v[None], lam=np.zeros((1, 0)), energy=np.zeros(1),
+                        residual=np.zeros(1))
+    linear = one.momentum(model, "spatial")[0, :3]
+    R = mb.forward_kinematics(model, q)[0, :3, :3]
+    v = v.copy()
+    v[:3] -= R.T @ linear / model.total_mass  # a uniform translation of the whole system
+    return v
+
+
+@functools.lru_cache(maxsize=None)
+def _free_run(rule):
+    model = free_chain()
+    q0, v0 = _random_state(model, 0)
+    v0 = _with_still_centre_of_mass(model, q0, v0)
+    return model, mb.simulate(model, q0, v0, LONG_STEPS * 0.01, method="variational", dt=0.01, rule=rule)
+
+
+@pytest.mark.parametrize("rule", ["midpoint", "trapezoidal"])
+def test_spatial_momentum_of_a_free_system_is_conserved_exactly(rule):
+    """Without gravity the free chain's discrete Lagrangian is invariant under moving the whole system, so
+    its spatial momentum (``Trajectory.momentum(model, "spatial")``) is conserved by the discrete
+    equations, ``p_{k+1} = Ad_exp(Δ)ᵀ p_k + h Ad_exp(Δ/2)ᵀ ∂L/∂q``, to rounding: ≤ 1e-12 relative over
+    the long run, while the bodies tumble and the energy error stays ``O(h²)``."""
+    model, run = _free_run(rule)
+    assert run.status == "completed"
+    momentum = run.momentum(model, "spatial")
+    assert np.abs(momentum[0, :3]).max() < 1e-14 and np.abs(momentum[0, 3:]).max() > 0.1
+    drift = np.abs(momentum - momentum[0]).max() / np.abs(momentum[0]).max()
+    assert drift <= 1e-12, f"{rule}: spatial momentum drift {drift:.3g}"
+    assert np.ptp(run.q[:, 7]) > 3.0  # the arm swings through large angles
+
+
+def test_energy_of_a_free_system_is_bounded_without_drift():
+    """The free chain tumbles chaotically, and its energy error wanders within a band instead of following
+    a line: the mean error over each eighth of the long run stays below 0.2 of its amplitude (a drift
+    would move the means across the whole band; measured: 0.06)."""
+    _, run = _free_run("midpoint")
+    error = run.energy - run.energy[0]
+    amplitude = 0.5 * np.ptp(error)
+    means = [part.mean() for part in np.array_split(error, 8)]
+    assert 0.0 < amplitude and np.abs(means).max() < 0.2 * amplitude, (means, amplitude)
+
+
+# ============================================================================= contacts without projection
+
+def test_rolling_ball_holds_its_constraints_and_matches_the_closed_form():
+    """The lecture note's ball on the tilted plane (``demos.rolling_ball_setup``: a free body, two
+    rolling rows and the holonomic height row): every step keeps ``|φ|`` and ``|A v|`` below 1e-11 with
+    no projection, and the centre follows the closed form — constant acceleration ``(5/7) g sin α``
+    downhill — with errors falling as ``h²``; the contact force tends to ``(2/7) m g sin α`` uphill and
+    ``m g cos α`` normal to the plane."""
+    tilt = 0.15
+    setup = demos.rolling_ball_setup(tilt=tilt)
+    system, q0, v0 = setup.system, setup.q0, setup.v0
+    frame = system.constraints[0].frame
+    g = np.linalg.norm(system.system.model.gravity)
+    errors, friction_errors = [], []
+    for h in (0.01, 0.005):
+        run = mb.simulate(system, q0, v0, 1.0, method="variational", dt=h)
+        assert run.status == "completed"
+        phi = np.array([system.constraints[0].position(system.system, q) for q in run.q])
+        assert np.abs(phi).max() <= 1e-11
+        assert np.abs(run.residual).max() <= 1e-11
+        R0 = mb.forward_kinematics(system.system.model, q0)[0, :3, :3]
+        v_start = (frame.T @ R0 @ v0[:3])[:2]  # the centre's initial velocity in the plane (the body frame is at it)
+        exact = q0[:3] + (np.outer(run.t, v_start) + 0.5 * np.outer(run.t**2, [5 / 7 * g * np.sin(tilt), 0.0])) @ frame[:, :2].T
+        errors.append(np.abs(run.q[:, :3] - exact).max())
+        # friction along the plane (downhill, across) and the normal force, m = 1 kg
+        friction_errors.append(np.abs(run.lam - [-2 / 7 * g * np.sin(tilt), 0.0, g * np.cos(tilt)]).max())
+    assert abs(np.log2(errors[0] / errors[1]) - 2.0) < 0.2, errors
+    assert abs(np.log2(friction_errors[0] / friction_errors[1]) - 2.0) < 0.3, friction_errors
+    assert errors[1] < 3e-4 and friction_errors[1] < 1e-3  # measured at h = 5 ms: 1.9e-4 m, 5.8e-4 N
+
+
+def test_rolling_disc_energy_is_bounded():
+    """The coin of ``demos.rolling_coin_setup`` (a free body, rolling without slipping, spinning at
+    40 rad/s): over a run of ``LONG_STEPS / 2`` steps its rows hold to 1e-11 at every step and its
+    energy error has no trend (the fitted change over the second half is below 0.1 of its amplitude);
+    the amplitude is ``O(h²)``: a quarter when the step is halved (two 0.5 s runs)."""
+    setup = demos.rolling_coin_setup()
+    h = 0.002
+    run = mb.simulate(setup.system, setup.q0, setup.v0, LONG_STEPS // 2 * h, method="variational", dt=h)
+    assert run.status == "completed"
+    assert np.abs(run.residual).max() <= 1e-11
+    error = run.energy - run.energy[0]
+    amplitude = 0.5 * np.ptp(error)
+    half = len(run.t) // 2
+    slope = np.polyfit(run.t[half:] - run.t[half], error[half:], 1)[0]
+    assert abs(slope) * (run.t[-1] - run.t[half]) < 0.1 * amplitude, (slope, amplitude)
+    amplitudes = [np.ptp(mb.simulate(setup.system, setup.q0, setup.v0, 0.5, method="variational", dt=step).energy)
+                  for step in (0.004, 0.002)]
+    assert abs(np.log2(amplitudes[0] / amplitudes[1]) - 2.0) < 0.2, amplitudes
+
+
+def test_chaplygin_sleigh_on_a_planar_joint():
+    """The sleigh on SE(2) with a knife edge: the blade's row holds to 1e-11 at every step, the energy is
+    conserved to ``O(h²)`` (the blade does no work), and the heading rate decays while the sleigh settles
+    into straight motion along its body axis (the known qualitative behaviour)."""
+    system, q0, v0 = chaplygin_sleigh()
+    q0, v0 = system.project(q0, v0)
+    run = mb.simulate(system, q0, v0, 30.0, method="variational", dt=0.01)
+    assert run.status == "completed"
+    assert np.abs(run.residual).max() <= 1e-11
+    assert np.ptp(run.energy) < 1e-3 * run.energy[0]
+    assert abs(run.v[-1, 2]) < 1e-3 * abs(v0[2])  # the turning has stopped
+    assert abs(run.v[-1, 1]) < 1e-9 and run.v[-1, 0] > 0.5 * np.sqrt(2 * run.energy[0] / 1.0) * 0.9
