@@ -8,7 +8,7 @@ for one mechanism, with the wall time of each run in the legend:
 
 * the double pendulum (chaotic), step 0.01 s;
 * the rolling ball of ``multibody demo rolling-ball`` (a free body on SE(3), two rolling rows and the
-  height row), step 0.005 s, launched up the tilted plane and rolling down it ever faster. Its exact
+  height row), step 0.0005 s, launched up the tilted plane and rolling down it ever faster. Its exact
   motion is a parabola, which RK4 and DOP853 follow to rounding; the variational step moves the body
   along SE(3)'s exponential, a screw about the instantaneous axis through the contact point, whose
   error grows as ``(h ω)²`` with the spin ``ω``;
@@ -48,7 +48,7 @@ def mechanisms():
     # the linkage released with the crank spinning, so that it cycles through its range
     q0, v0 = four_bar.system.project(four_bar.q0, np.array([3.0, 0.0, 0.0]))
     return [("double pendulum", model, np.array([1.0, 1.0]), np.zeros(2), 0.01),
-            ("rolling ball", ball.system, ball.q0, ball.v0, 0.005),
+            ("rolling ball", ball.system, ball.q0, ball.v0, 0.0005),
             ("four-bar linkage", four_bar.system, q0, v0, 0.005)]
 
 
