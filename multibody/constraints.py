@@ -183,11 +183,10 @@ class CompiledRows(Constraint):
         model = _require_model(system, self)
         frames = self.body_frames
         m = self.rows(model)
-        program = constraint_program(model, [self], frames)
+        program, rows = self._program_on(model)
         q = model.check_configuration(q)
         v = None if v is None else model.check_velocity(v)
         batch = q.shape[:-1] if v is None else spatial.batch_shape(q.shape[:-1], v.shape[:-1])
-        rows = frame_rows(model, [kinematics._frame_arguments(model, *frame) for frame in frames])
         nv = model.nv
         out = driver.evaluate(compiled.constraint_levels, model.tree, (q, v, None, program),
                               (1, compiled.levels_columns(nv, m)), batch, rows,
@@ -196,6 +195,19 @@ class CompiledRows(Constraint):
             raise ValueError(f"{self.name}: {self.undefined}")
         gamma = out[..., m * nv : m * nv + m]
         return out[..., : m * nv].reshape(batch + (m, nv)), np.zeros(gamma.shape), gamma, out[..., m * nv + m : -1]
+
+    def _program_on(self, model):
+        """``(program, frame rows)`` of these rows on ``model`` (:func:`constraint_program`,
+        :func:`~multibody.tree.frame_rows`). Both depend on the model and the constraint's own parameters
+        only, so they are kept for the last model seen: an integrator evaluates the rows a few times per
+        step, and building them costs more than the compiled rows themselves."""
+        kept = self.__dict__.get("_kept_program")
+        if kept is None or kept[0] is not model:
+            frames = self.body_frames
+            kept = (model, constraint_program(model, [self], frames),
+                    frame_rows(model, [kinematics._frame_arguments(model, *frame) for frame in frames]))
+            self._kept_program = kept
+        return kept[1], kept[2]
 
     def position(self, system, q, t=0.0):
         return self._levels(system, q, None, t)[3]

@@ -64,10 +64,13 @@ def eigh(G):
 
 
 def lower_triangular_solve(L, rhs):
-    """``L⁻¹ rhs`` for lower-triangular ``L (..., n, n)`` (a Cholesky factor), ``rhs (..., n, k)``."""
+    """``L⁻¹ rhs`` for lower-triangular ``L (..., n, n)`` (a Cholesky factor), ``rhs (..., n, k)``.
+
+    One matrix goes through :func:`solve` (LU), not LAPACK's triangular ``dtrtrs``: OpenBLAS runs the
+    latter's ``trsm`` on its thread pool even for a 6×6 system, and on a machine whose cores are busy
+    (a batch running beside it) one call then waits milliseconds for its threads instead of taking two
+    microseconds; the LU of a triangular matrix costs no more at these sizes.
+    """
     if L.ndim != 2 or rhs.ndim != 2:
         return np.linalg.solve(L, rhs)
-    x, info = lapack.dtrtrs(L, rhs, lower=1)
-    if info != 0:
-        raise np.linalg.LinAlgError(f"LAPACK dtrtrs failed (info {info})")
-    return x
+    return solve(L, rhs)

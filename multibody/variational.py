@@ -334,6 +334,12 @@ class _Rows:
         """``(φ (m,), A (m, nv), b (m,))`` at ``(q, t)``."""
         return self.constrained._position_and_velocity_levels(q, t)
 
+    def independent(self, q, A):
+        """Whether the rows ``A (m, nv)`` at ``q`` are independent, by the system's one rank decision
+        (:meth:`ConstrainedSystem.rank`'s singular values of ``A`` in the metric of ``M(q)``)."""
+        sigma, _ = self.constrained._metric_singular_values(A, self.constrained._factor(q))
+        return bool(sigma.size) and sigma[0] > 0 and bool(self.constrained._kept_directions(sigma)[0].all())
+
 
 def _add(q, delta):
     """``q + Δ``: the step of configurations in a vector space."""
@@ -347,7 +353,7 @@ def _norm(x):
     return max(map(abs, values), default=0.0) if math.isfinite(sum(values)) else math.nan
 
 
-def _step(lagrangian, rows, rule, force, t, h, q0, p0, levels0, guess, tolerance, max_iterations):
+def _step(lagrangian, rows, rule, force, t, h, q0, p0, levels0, guess, tolerance, max_iterations, impulse_guess=None):
     """One step ``(q_k, p_k) → (q_{k+1}, p_{k+1})`` of size ``h`` (s, may be negative in a composition).
 
     Args:
@@ -357,6 +363,8 @@ def _step(lagrangian, rows, rule, force, t, h, q0, p0, levels0, guess, tolerance
         q0, p0: ``(nv,)`` configuration and momentum ``p = M v`` (kg m/s, kg m²/s per coordinate).
         levels0: ``(φ, A, b)`` of the rows at ``(q0, t)`` (``None`` without rows).
         guess: predicted increment ``Δ = q_{k+1} − q_k`` ``(nv,)``.
+        impulse_guess: predicted start impulses ``μ⁻ (m,)`` (the last step's, scaled to this step), or
+            ``None`` (zero).
     Returns:
         ``(q1, p1, v1, Δ, μ⁻ (m,), μ⁺ (m,), levels1, iterations)``: the impulses ``μ`` (N s per row)
         that act at the start and at the end of the step.
@@ -371,6 +379,10 @@ def _step(lagrangian, rows, rule, force, t, h, q0, p0, levels0, guess, tolerance
     N_rows = rows.nonholonomic if m else None
     # every row's impulse at the start acts along A(q_k)ᵀ: constraint forces at the nodes
     B = levels0[1] if m else None
+    # independent rows give their impulses by a direct solve; redundant ones the minimum-norm impulses
+    solve_rows = None
+    if m:
+        solve_rows = (_direct_solve if rows.independent(q0, B) else _least_squares)
 
     if rule == "trapezoidal":
         M0 = lagrangian.mass_matrix(q0)
@@ -469,7 +481,7 @@ def _step(lagrangian, rows, rule, force, t, h, q0, p0, levels0, guess, tolerance
         return c, C, scales, levels1
 
     delta = np.array(guess, dtype=float)
-    mu = np.zeros(m)
+    mu = np.zeros(m) if impulse_guess is None else np.array(impulse_guess, dtype=float)
     previous = np.inf
     J_inverse, fresh = None, False  # fresh: J_inverse is this step's analytical one (Broyden-updated since)
     delta_before = F_before = None  # the previous iterate and its −D1 L_d − f⁻ − p_k, for Broyden's update
@@ -510,7 +522,7 @@ def _step(lagrangian, rows, rule, force, t, h, q0, p0, levels0, guess, tolerance
             Ji_F = J_inverse @ F
             Ji_Bt = J_inverse @ B.T
             schur = C @ Ji_Bt
-            mu = np.linalg.lstsq(schur, C @ Ji_F - c, rcond=1e-10)[0]
+            mu = solve_rows(schur, C @ Ji_F - c)
             delta = delta - Ji_F + Ji_Bt @ mu
         else:
             delta = delta - J_inverse @ residual
@@ -549,10 +561,21 @@ def _step(lagrangian, rows, rule, force, t, h, q0, p0, levels0, guess, tolerance
         # velocity (levels1: the rows at the converged q_{k+1}, from the last iteration)
         A1, b1 = levels1[1], levels1[2]
         M_inv_At = linalg.solve(M1, np.ascontiguousarray(A1.T))
-        mu_plus = np.linalg.lstsq(A1 @ M_inv_At, -(A1 @ v1 + b1), rcond=1e-10)[0]
+        mu_plus = solve_rows(A1 @ M_inv_At, -(A1 @ v1 + b1))
         p1 = p1 + A1.T @ mu_plus
         v1 = v1 + M_inv_At @ mu_plus
     return q1, p1, v1, delta, mu, mu_plus, levels1, iteration
+
+
+def _direct_solve(G, rhs):
+    """``G⁻¹ rhs`` for the ``(m, m)`` matrix of independent rows."""
+    return linalg.solve(G, rhs[:, None])[:, 0]
+
+
+def _least_squares(G, rhs):
+    """The minimum-norm least-squares ``G⁺ rhs`` for redundant rows (singular values below ``1e-10`` of
+    the largest dropped)."""
+    return np.linalg.lstsq(G, rhs, rcond=1e-10)[0]
 
 
 class _NotConverged(Exception):
@@ -658,7 +681,7 @@ def simulate(system, q0, v0, t_final, *, dt=None, tau=None, rule="midpoint", ord
     levels = rows.levels(q, t0) if m else None
     p = lagrangian.mass_matrix(q) @ v
     weights = (YOSHIDA_W1, YOSHIDA_W0, YOSHIDA_W1) if order == 4 else (1.0,)
-    last_delta, last_velocity, last_h = None, v, None
+    last_delta, last_velocity, last_h, last_impulse = None, v, None, None
     done = 1
     bar = _Progress(progress, t0, t_final)
     try:
@@ -668,15 +691,18 @@ def simulate(system, q0, v0, t_final, *, dt=None, tau=None, rule="midpoint", ord
             for weight in weights:
                 h = weight * step
                 guess = _predict(h, v, last_velocity, last_h)
+                # the constraint impulses change little from step to step: the last one, per unit time
+                impulse_guess = None if last_impulse is None else last_impulse * (h / last_h)
                 try:
                     q, p, v_new, last_delta, start, end, levels, _ = _step(
-                        lagrangian, rows, rule, force, t, h, q, p, levels, guess, tolerance, max_iterations)
+                        lagrangian, rows, rule, force, t, h, q, p, levels, guess, tolerance, max_iterations,
+                        impulse_guess)
                 except _NotConverged as failure:
                     raise SimulationError(_failure_message(failure, t, h, tolerance), None) from None
                 except (np.linalg.LinAlgError, ConstraintError, FloatingPointError) as error:
                     raise SimulationError(f"variational step failed at t = {t:.6g} s (h = {h:.3g} s): {error}",
                                           None) from error
-                last_velocity, last_h, v = v, h, v_new
+                last_velocity, last_h, v, last_impulse = v, h, v_new, (start if m else None)
                 t = t + h
             if m:
                 mu_start[k - 1] += start
