@@ -11,10 +11,9 @@ results, ``IV`` for ``v``-shaped ones). None of the kernels needs a workspace.
 
 from __future__ import annotations
 
-from numba import njit
-
 from ..tree import IQ, IV, KIND, NV
 from . import joints as kinds
+from .jit import njit
 from .spatial import nan_unless_finite
 
 

@@ -12,9 +12,8 @@ One kernel call per evaluation, with the maps of :mod:`multibody.kernels.configu
 
 from __future__ import annotations
 
-from numba import njit
-
 from . import aba, configuration, kkt
+from .jit import njit
 from .spatial import nan_unless_finite
 
 
