@@ -35,9 +35,10 @@ _KERNELS = (
     kinematics.frame_motions, configuration.integrate, configuration.difference, configuration.configuration_rate,
     configuration.chart, configuration.chart_rate, configuration.velocity_alignment, configuration.velocity_coupling,
     configuration.chart_magnitude, configuration.normalize, kkt.constrained_accelerations,
-    constraints.constraint_levels, integration.chart_derivative, derivatives.inverse_dynamics_derivatives,
-    derivatives.forward_dynamics_derivatives, centroidal.center_of_mass, centroidal.centroidal_momentum,
-    centroidal.centroidal_map, centroidal.centroidal_map_time_variation, ik.inverse_kinematics)
+    constraints.constraint_levels, integration.chart_derivative, integration.constrained_chart_derivative,
+    derivatives.inverse_dynamics_derivatives, derivatives.forward_dynamics_derivatives, centroidal.center_of_mass,
+    centroidal.centroidal_momentum, centroidal.centroidal_map, centroidal.centroidal_map_time_variation,
+    ik.inverse_kinematics)
 _WORKSPACE = {kernel: module.workspace_size for module in (rnea, crba, aba, coriolis, energy, kinematics, configuration,
                                                            derivatives, centroidal)
               for kernel in _KERNELS if getattr(kernel, "py_func", kernel).__module__ == module.__name__}
