@@ -154,7 +154,7 @@ def cmd_demo(args):
     # the kernels a simulation with built-in constraints runs first
     if not compiled_before((integration.constrained_chart_derivative, kkt.constrained_accelerations,
                             constraints.constraint_levels)):
-        print("compiling multibody's kernels for this machine (first run only; a minute or two)", flush=True)
+        print("compiling multibody's kernels for this machine (first run only; about half a minute)", flush=True)
     result = DEMOS[args.name](args.out)
     for key, value in result.summary.items():
         print(f"  {key}: {value:.3e}")
