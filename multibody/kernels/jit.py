@@ -8,7 +8,7 @@ is no use to the compiled code: Numba prunes no branch on it, and LLVM folds the
 helper is inlined into its caller. So a call with constant arguments is typed by the constants'
 types (``int64``, ``bool``), as Numba's ``@overload`` functions are typed by default, and by the
 constants themselves only where the function does not compile for their types. The compiled
-arithmetic, and so every number, is the same; a first run compiles about a third fewer functions.
+arithmetic, and so every number, is the same; the rolling-ball demo's first run compiles 125 functions instead of 155.
 """
 
 from __future__ import annotations
