@@ -152,8 +152,9 @@ def cmd_demo(args):
 
     print(f"demo {args.name}: {DEMOS[args.name].__doc__.strip().splitlines()[0]}", flush=True)
     # the kernels a simulation with built-in constraints runs first
-    if not compiled_before((integration.chart_derivative, kkt.constrained_accelerations, constraints.constraint_levels)):
-        print("compiling multibody's kernels for this machine (first run only; a minute or two)", flush=True)
+    if not compiled_before((integration.constrained_chart_derivative, kkt.constrained_accelerations,
+                            constraints.constraint_levels)):
+        print("compiling multibody's kernels for this machine (first run only; about half a minute)", flush=True)
     result = DEMOS[args.name](args.out)
     for key, value in result.summary.items():
         print(f"  {key}: {value:.3e}")

@@ -249,28 +249,30 @@ class ConstrainedSystem:
 
     @cached_property
     def _compiled_motion(self):
-        """``(program, frame rows, workspace size)`` of the compiled chart derivative
-        (:mod:`multibody.kernels.integration`), or ``None`` when the step is not compiled."""
+        """``(kernel, program, frame rows, workspace size)`` of the compiled chart derivative
+        (:mod:`multibody.kernels.integration`: ``chart_derivative`` without constraints, its program ``None``,
+        else ``constrained_chart_derivative``), or ``None`` when the step is not compiled."""
         if not isinstance(self.system, ModelSystem):
             return None
         model = self.system.model
         if not self.num_rows:
-            program, frames = np.zeros(0), model.tree.bodies
+            kernel, program, frames = integration.chart_derivative, None, model.tree.bodies
             step_workspace, step_columns = aba.workspace_size(model.njoints, self.nv), self.nv
         elif self._compiled_step is not None:
+            kernel = integration.constrained_chart_derivative
             program, frames, step_workspace = self._compiled_step
             step_columns = kkt.output_columns(self.nv, self.num_rows)
         else:
             return None
-        return program, frames, integration.workspace_size(self.nq, self.nv, step_workspace, step_columns)
+        return kernel, program, frames, integration.workspace_size(self.nq, self.nv, step_workspace, step_columns)
 
     def _chart_derivative(self, q_chart, y, tau):
         """``ẏ (2 nv,)`` of the chart state ``y = [δ, w]`` around ``q_chart`` with constant joint forces
         ``tau`` (``None``: zero), by one compiled call; ``None`` where the compiled step does not apply or
         did not solve (the NumPy path then gives the answer or the error)."""
-        program, frames, workspace = self._compiled_motion
+        kernel, program, frames, workspace = self._compiled_motion
         nv = self.nv
-        row = driver.evaluate(integration.chart_derivative, self.system.model.tree, (q_chart, y, tau, program),
+        row = driver.evaluate(kernel, self.system.model.tree, (q_chart, y, tau, program),
                               (1, integration.output_columns(nv)), (), frames, workspace)[0]
         y_dot = row[: 2 * nv]
         if row[2 * nv] != kkt.SOLVED or not math.isfinite(sum(y_dot.tolist())):
@@ -282,7 +284,7 @@ class ConstrainedSystem:
         chart states ``y (n, 2 nv)`` around ``q_chart (n, nq)``, with joint forces ``tau`` ``(n, nv)``, ``(nv,)``
         (every state) or ``None`` (zero), and whether each state solved, ``(n,)``: where one did not, the
         NumPy path gives its answer or the error."""
-        program, frames, workspace = self._compiled_motion
+        kernel, program, frames, workspace = self._compiled_motion
         nv = self.nv
         if not self.num_rows and self.system.vector_space:
             # No constraints on a vector space: q = q_c + δ, T = 1 and κ = 0, so ẏ = [w, a(q, w, τ)] with the
@@ -291,7 +293,7 @@ class ConstrainedSystem:
                                 (1, nv), (len(y),))[:, 0]
             y_dot = np.concatenate([y[:, nv:], a], axis=1)
             return y_dot, np.isfinite(y_dot).all(axis=1)
-        rows = driver.evaluate(integration.chart_derivative, self.system.model.tree, (q_chart, y, tau, program),
+        rows = driver.evaluate(kernel, self.system.model.tree, (q_chart, y, tau, program),
                                (1, integration.output_columns(nv)), (len(y),), frames, workspace)[:, 0]
         y_dot = rows[:, : 2 * nv]
         return y_dot, (rows[:, 2 * nv] == kkt.SOLVED) & np.isfinite(y_dot).all(axis=1)

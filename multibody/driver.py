@@ -21,33 +21,33 @@ import os
 import numba
 import numpy as np
 from numba import njit, prange
+from numba.core.dispatcher import Dispatcher
+from numba.core.types.function_type import CompileResultWAP
 
 from .kernels import (aba, centroidal, configuration, constraints, coriolis, crba, derivatives, energy, ik, integration,
                       kinematics, kkt, rnea)
 
-# Each kernel's code in the parallel loop and its workspace size.
-_CODES = {kernel: code for code, kernel in enumerate((
+#: Every kernel the driver runs.
+_KERNELS = (
     rnea.inverse_dynamics, rnea.joint_reaction_forces, crba.mass_matrix, aba.forward_dynamics,
     crba.inverse_mass_matrix, coriolis.coriolis_matrix, energy.kinetic_energy, energy.potential_energy,
     kinematics.frame_placements, kinematics.frame_jacobian, kinematics.frame_jacobian_time_variation,
     kinematics.frame_motions, configuration.integrate, configuration.difference, configuration.configuration_rate,
     configuration.chart, configuration.chart_rate, configuration.velocity_alignment, configuration.velocity_coupling,
     configuration.chart_magnitude, configuration.normalize, kkt.constrained_accelerations,
-    constraints.constraint_levels, integration.chart_derivative, derivatives.inverse_dynamics_derivatives,
-    derivatives.forward_dynamics_derivatives, centroidal.center_of_mass, centroidal.centroidal_momentum,
-    centroidal.centroidal_map, centroidal.centroidal_map_time_variation, ik.inverse_kinematics))}
-#: The marker of each kernel for the batch loop: a tuple whose length is the code plus one (a tuple's length
-#: is part of its type, with no bound such as an array's 32 or 64 dimensions).
-_MARKERS = {kernel: (0,) * (code + 1) for kernel, code in _CODES.items()}
+    constraints.constraint_levels, integration.chart_derivative, integration.constrained_chart_derivative,
+    derivatives.inverse_dynamics_derivatives, derivatives.forward_dynamics_derivatives, centroidal.center_of_mass,
+    centroidal.centroidal_momentum, centroidal.centroidal_map, centroidal.centroidal_map_time_variation,
+    ik.inverse_kinematics)
 _WORKSPACE = {kernel: module.workspace_size for module in (rnea, crba, aba, coriolis, energy, kinematics, configuration,
                                                            derivatives, centroidal)
-              for kernel in _CODES if getattr(kernel, "py_func", kernel).__module__ == module.__name__}
+              for kernel in _KERNELS if getattr(kernel, "py_func", kernel).__module__ == module.__name__}
 
 
 def compiled_before(kernels=None) -> bool:
     """Whether this machine has the compiled code of ``kernels`` (default: every kernel) on disk
     already (Numba's cache index of each), so that a first run can say it is compiling."""
-    for kernel in _CODES if kernels is None else kernels:
+    for kernel in _KERNELS if kernels is None else kernels:
         cache_file = getattr(getattr(kernel, "_cache", None), "_cache_file", None)
         if cache_file is None or not os.path.isfile(cache_file._index_path):
             return False
@@ -68,84 +68,37 @@ if os.environ.get("MULTIBODY_NUM_THREADS"):
     set_num_threads(int(os.environ["MULTIBODY_NUM_THREADS"]))
 
 
-@njit(cache=True, error_model="numpy")
-def _kernel(marker, joints, reals, frames, x0, x1, x2, x3, out, ws):
-    # the kernel's code is the marker's length, a constant of its type: each kernel's loop is a compiled
-    # specialization of its own, which holds that kernel only
-    code = len(marker)
-    if code == 1:
-        rnea.inverse_dynamics(joints, reals, frames, x0, x1, x2, x3, out, ws)
-    elif code == 2:
-        rnea.joint_reaction_forces(joints, reals, frames, x0, x1, x2, x3, out, ws)
-    elif code == 3:
-        crba.mass_matrix(joints, reals, frames, x0, x1, x2, x3, out, ws)
-    elif code == 4:
-        aba.forward_dynamics(joints, reals, frames, x0, x1, x2, x3, out, ws)
-    elif code == 5:
-        crba.inverse_mass_matrix(joints, reals, frames, x0, x1, x2, x3, out, ws)
-    elif code == 6:
-        coriolis.coriolis_matrix(joints, reals, frames, x0, x1, x2, x3, out, ws)
-    elif code == 7:
-        energy.kinetic_energy(joints, reals, frames, x0, x1, x2, x3, out, ws)
-    elif code == 8:
-        energy.potential_energy(joints, reals, frames, x0, x1, x2, x3, out, ws)
-    elif code == 9:
-        kinematics.frame_placements(joints, reals, frames, x0, x1, x2, x3, out, ws)
-    elif code == 10:
-        kinematics.frame_jacobian(joints, reals, frames, x0, x1, x2, x3, out, ws)
-    elif code == 11:
-        kinematics.frame_jacobian_time_variation(joints, reals, frames, x0, x1, x2, x3, out, ws)
-    elif code == 12:
-        kinematics.frame_motions(joints, reals, frames, x0, x1, x2, x3, out, ws)
-    elif code == 13:
-        configuration.integrate(joints, reals, frames, x0, x1, x2, x3, out, ws)
-    elif code == 14:
-        configuration.difference(joints, reals, frames, x0, x1, x2, x3, out, ws)
-    elif code == 15:
-        configuration.configuration_rate(joints, reals, frames, x0, x1, x2, x3, out, ws)
-    elif code == 16:
-        configuration.chart(joints, reals, frames, x0, x1, x2, x3, out, ws)
-    elif code == 17:
-        configuration.chart_rate(joints, reals, frames, x0, x1, x2, x3, out, ws)
-    elif code == 18:
-        configuration.velocity_alignment(joints, reals, frames, x0, x1, x2, x3, out, ws)
-    elif code == 19:
-        configuration.velocity_coupling(joints, reals, frames, x0, x1, x2, x3, out, ws)
-    elif code == 20:
-        configuration.chart_magnitude(joints, reals, frames, x0, x1, x2, x3, out, ws)
-    elif code == 21:
-        configuration.normalize(joints, reals, frames, x0, x1, x2, x3, out, ws)
-    elif code == 22:
-        kkt.constrained_accelerations(joints, reals, frames, x0, x1, x2, x3, out, ws)
-    elif code == 23:
-        constraints.constraint_levels(joints, reals, frames, x0, x1, x2, x3, out, ws)
-    elif code == 24:
-        integration.chart_derivative(joints, reals, frames, x0, x1, x2, x3, out, ws)
-    elif code == 25:
-        derivatives.inverse_dynamics_derivatives(joints, reals, frames, x0, x1, x2, x3, out, ws)
-    elif code == 26:
-        derivatives.forward_dynamics_derivatives(joints, reals, frames, x0, x1, x2, x3, out, ws)
-    elif code == 27:
-        centroidal.center_of_mass(joints, reals, frames, x0, x1, x2, x3, out, ws)
-    elif code == 28:
-        centroidal.centroidal_momentum(joints, reals, frames, x0, x1, x2, x3, out, ws)
-    elif code == 29:
-        centroidal.centroidal_map(joints, reals, frames, x0, x1, x2, x3, out, ws)
-    elif code == 30:
-        centroidal.centroidal_map_time_variation(joints, reals, frames, x0, x1, x2, x3, out, ws)
-    elif code == 31:
-        ik.inverse_kinematics(joints, reals, frames, x0, x1, x2, x3, out, ws)
-
-
 @njit(cache=True, parallel=True, error_model="numpy")
-def _batch(marker, joints, reals, frames, X0, X1, X2, X3, OUT, workspace_size, shares):
+def _batch(kernel, joints, reals, frames, X0, X1, X2, X3, OUT, workspace_size, shares):
+    # `kernel` is a first-class function (see _loop_kernel): one compiled loop serves every kernel
     n = OUT.shape[0]
     for share in prange(shares):
         ws = np.empty(workspace_size)
         for s in range(share * n // shares, (share + 1) * n // shares):
             # an input of one row serves every state
-            _kernel(marker, joints, reals, frames, X0[s if X0.shape[0] > 1 else 0], X1[s if X1.shape[0] > 1 else 0],
-                    X2[s if X2.shape[0] > 1 else 0], X3[s if X3.shape[0] > 1 else 0], OUT[s], ws)
+            kernel(joints, reals, frames, X0[s if X0.shape[0] > 1 else 0], X1[s if X1.shape[0] > 1 else 0],
+                   X2[s if X2.shape[0] > 1 else 0], X3[s if X3.shape[0] > 1 else 0], OUT[s], ws)
+
+
+_LOOP_KERNELS = {}
+
+
+def _loop_kernel(kernel, joints, reals, frames, X0, X1, X2, X3, OUT, workspace):
+    """``kernel`` as :func:`_batch` takes it: its machine code for the loop's argument types (the same
+    code a single state runs), passed as a first-class function, a function pointer. The loop is then
+    compiled once for every kernel, and no kernel is compiled again into a loop of its own (a
+    specialization per kernel would compile the kernel's whole call tree twice more: the loop's
+    body and the loop). Under ``NUMBA_DISABLE_JIT=1``: the Python function."""
+    if not isinstance(kernel, Dispatcher):
+        return kernel
+    arrays = (joints, reals, frames, X0[0], X1[0], X2[0], X3[0], OUT[0], workspace)
+    key = (kernel,) + tuple((a.flags.c_contiguous, a.flags.writeable) for a in arrays)  # all float64 but joints
+    function = _LOOP_KERNELS.get(key)
+    if function is None:
+        types = tuple(numba.typeof(a) for a in arrays)
+        kernel.compile(types)
+        function = _LOOP_KERNELS[key] = CompileResultWAP(kernel.overloads[types])
+    return function
 
 
 #: Fewest states a batch gives each thread (the results do not depend on it).
@@ -172,7 +125,7 @@ def _rows(x, batch, n):
     if x is None:
         return _NO_ROWS
     x = x.reshape(1, -1) if math.prod(x.shape[:-1]) == 1 else np.broadcast_to(x, batch + x.shape[-1:]).reshape(n, -1)
-    return x if x.dtype is _FLOAT and x.flags.c_contiguous and x.flags.writeable else np.array(x, dtype=np.float64)
+    return x if x.dtype is _FLOAT and x.flags.c_contiguous and x.flags.writeable else np.array(x, np.float64, order="C")
 
 
 def evaluate(kernel, tree, inputs, out_shape, batch=(), frames=None, workspace=None):
@@ -205,8 +158,9 @@ def evaluate(kernel, tree, inputs, out_shape, batch=(), frames=None, workspace=N
         if shares < threads:
             numba.set_num_threads(shares)
         try:
-            _batch(_MARKERS[kernel], tree.joints, tree.reals, frames, _rows(x0, batch, n), _rows(x1, batch, n),
-                   _rows(x2, batch, n), _rows(x3, batch, n), out, workspace.size, shares)
+            rows = (_rows(x0, batch, n), _rows(x1, batch, n), _rows(x2, batch, n), _rows(x3, batch, n))
+            _batch(_loop_kernel(kernel, tree.joints, tree.reals, frames, *rows, out, workspace), tree.joints,
+                   tree.reals, frames, *rows, out, workspace.size, shares)
         finally:
             if shares < threads:
                 numba.set_num_threads(threads)

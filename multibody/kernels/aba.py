@@ -15,10 +15,9 @@ from __future__ import annotations
 
 import math
 
-from numba import njit
-
 from ..tree import AXIS, GRAVITY, INERTIA, IV, KIND, NV, PARENT
 from . import joints as kinds
+from .jit import njit
 from .placement import joint_pose
 from .spatial import (add6, compose_rotations, cross, dot6, force_cross, force_to_parent, inertia_times,
                       motion_cross, motion_to_child, nan_unless_finite, row10, row3, row6, row9, scale6, store_row,

@@ -20,10 +20,9 @@ from __future__ import annotations
 
 import math
 
-from numba import njit
-
 from ..tree import AXIS, INERTIA, IV, KIND, NV, PARENT
 from . import joints as kinds
+from .jit import njit
 from .kinematics import joint_motions, joint_placements, world_position
 from .spatial import (IDENTITY, add3, add6, cross, force_to_child, force_to_parent, inertia_rate, inertia_times,
                       inertia_to_parent, load3, load6, load9, load10, motion_cross, motion_to_parent, nan_unless_finite,

@@ -17,9 +17,8 @@ from __future__ import annotations
 
 import math
 
-from numba import njit
-
 from . import kinematics
+from .jit import njit
 from .kinematics import MOTION_JACOBIAN, MOTION_POSITION, MOTION_ROTATION
 from .spatial import add3, cross, dot3, load3, load9, nan_unless_finite, rotate, scale3, sub3
 

@@ -13,10 +13,9 @@ bodies from swamping their rotational inertias (``docs/conventions.md``).
 
 from __future__ import annotations
 
-from numba import njit
-
 from ..tree import AXIS, INERTIA, IV, KIND, NV, PARENT
 from . import joints as kinds
+from .jit import njit
 from .placement import joint_pose
 from .spatial import (add6, compose, cross, dot6, inertia_rate, inertia_times, inertia_to_parent, load10, load3, load6,
                       load9, motion_cross, motion_to_parent, nan_unless_finite, store, sub3)

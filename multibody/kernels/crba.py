@@ -8,10 +8,10 @@ to the parent's with the joint's pose, as Pinocchio's ``crba`` does.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
 
 from ..tree import AXIS, INERTIA, IV, KIND, NV, PARENT
 from . import joints as kinds
+from .jit import njit
 from .placement import joint_pose
 from .spatial import (add10, dot6, force_to_parent, inertia_times, inertia_to_parent, nan_unless_finite, row10, row3,
                       row9, store_row)

@@ -35,11 +35,11 @@ joint, so every entry costs O(1) after one forward and one backward pass:
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
 
 from ..tree import AXIS, GRAVITY, INERTIA, IV, KIND, NV, PARENT
 from . import aba, crba, rnea
 from . import joints as kinds
+from .jit import njit
 from .kinematics import joint_placements
 from .spatial import (add6, add10, dot6, force_cross, force_to_parent, inertia_rate, inertia_times, inertia_to_parent,
                       motion_cross, motion_to_parent, nan_unless_finite, row3, row6, row9, row10, store_row, sub6)

@@ -9,10 +9,9 @@ forward pass in joint coordinates; the potential energy ``U = −Σ mᵢ gᵀ c�
 
 from __future__ import annotations
 
-from numba import njit
-
 from ..tree import AXIS, GRAVITY, INERTIA, IV, KIND, NV, PARENT
 from . import joints as kinds
+from .jit import njit
 from .placement import joint_pose
 from .kinematics import joint_placements, world_position
 from .spatial import (add3, add6, dot3, dot6, inertia_times, load3, load6, load9, load10, motion_to_child,

@@ -41,10 +41,9 @@ from __future__ import annotations
 
 import math
 
-from numba import njit
-
 from ..tree import IQ, IV, KIND, NQ, NV, PARENT
 from . import joints as kinds
+from .jit import njit
 from .kinematics import frame_joint, frame_pose, jacobian_columns, joint_placements, world_position
 from .kkt import cholesky, cholesky_solve
 from .spatial import (IDENTITY, add3, compose_rotations, dot3, load3, load9, nan_unless_finite, rotate, rotate_back,

@@ -20,8 +20,7 @@ from __future__ import annotations
 
 import math
 
-from numba import njit
-
+from .jit import njit
 from .spatial import IDENTITY, add3, compose_rotations, cross, dot3, load3, rotate, rotate_back, scale3, store, sub3
 
 REVOLUTE = 0

@@ -32,10 +32,9 @@ Each time variation is the time derivative of the Jacobian in the same reference
 
 from __future__ import annotations
 
-from numba import njit
-
 from ..tree import AXIS, FRAME_JOINT, FRAME_POSITION, FRAME_ROTATION, IV, KIND, NV, PARENT
 from . import joints as kinds
+from .jit import njit
 from .placement import joint_pose
 from .spatial import (add3, add6, compose, cross, load3, load6, load9, motion_cross, motion_to_child,
                       nan_unless_finite, rotate, rotate_back, scale3, store, sub3)

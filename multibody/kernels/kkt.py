@@ -19,10 +19,9 @@ from __future__ import annotations
 
 import math
 
-from numba import njit
-
 from . import crba, kinematics, rnea
 from .constraints import constraint_rows
+from .jit import njit
 from .spatial import nan_unless_finite
 
 #: Status of a step: solved; ``M`` not positive definite; constraints that no acceleration meets;

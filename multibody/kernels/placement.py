@@ -2,10 +2,9 @@
 
 from __future__ import annotations
 
-from numba import njit
-
 from ..tree import AXIS, IQ, KIND, POSITION, ROTATION
 from . import joints as kinds
+from .jit import njit
 from .spatial import compose, row3, row9
 
 

@@ -7,10 +7,9 @@ Gravity is a fictitious acceleration of the world, ``a₀ = [−g; 0]`` (RBDA §
 
 from __future__ import annotations
 
-from numba import njit
-
 from ..tree import AXIS, GRAVITY, INERTIA, IV, KIND, NV, PARENT
 from . import joints as kinds
+from .jit import njit
 from .placement import joint_pose
 from .spatial import (add6, force_cross, force_to_parent, inertia_times, load10, load3, load6, load9, motion_cross,
                       motion_to_child, nan_unless_finite, store, sub6)
