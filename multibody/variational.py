@@ -63,8 +63,13 @@ would leave ``p`` a period-two oscillation of size ``O(h)``). The reported multi
 ``λ_k = 2 (μ_k⁺ + μ_k⁻) / (h_{k−1} + h_k)``, a second-order approximation of the continuous
 ``λ(t_k)``; the two ends, which meet one step only, are extrapolated from their two nearest inner nodes.
 
-**Lie-group joints.** Free-flyer, spherical and planar joints move on SE(3), SO(3) and SE(2), with
-``q ⊕ x = q exp(x)`` (:meth:`multibody.Model.integrate`) and joint velocities in the moving frame. The
+**Lie-group joints.** Spherical and planar joints move on SO(3) and SE(2), with ``q ⊕ x = q exp(x)``
+(:meth:`multibody.Model.integrate`) and joint velocities in the moving frame; a free flyer moves on
+SO(3) × R³, its position by ``x_lin`` in the parent frame and its rotation by ``R exp(ω)``, with the group
+velocity ``w = (ṗ, ω)`` and the joint velocity ``v = T(q) w``, ``T = diag(Rᵀ, 1)`` (:class:`_GroupLagrangian`
+gives ``L`` in ``w``). The exponential of SE(3) would move a spinning body along a screw, a path that
+neither a body in free flight nor a rolling one follows: its error grows with ``(h ω)²``, while on
+SO(3) × R³ a thrown body's centre keeps its parabola and the rolling ball its closed form to rounding. The
 step is ``q_{k+1} = q_k ⊕ Δ``, the discrete Lagrangian ``L_d = h L(q_k ⊕ Δ/2, Δ/h)`` with
 ``Δ = log(q_k⁻¹ q_{k+1})`` (the exponential's straight path has the constant joint velocity ``ξ = Δ/h``),
 and variations are left-trivialised, ``q → q exp(ε η)`` (N. Bou-Rabee and J. E. Marsden,
@@ -82,8 +87,9 @@ discrete Legendre transforms into
 ``p_{k+1} = Ad_exp(Δ)ᵀ (p_k + (h/2) Π_k) + (h/2) Π_{k+1}`` (trapezoidal); on the commutative joints
 ``Ad = J_l = 1`` and they are the equations above. Here ``∂L/∂q`` is left-trivialised,
 ``d/dε L(q exp(ε η), v) = (C(q, v)ᵀ v − g(q) − ad_vᵀ M(q) v)·η`` (from ``Ṁ = C + Cᵀ``, which the
-Coriolis matrix keeps on every joint kind). The second equation is the momentum balance: a free
-system's spatial momentum ``Ad*`` of ``p`` is carried exactly from step to step.
+Coriolis matrix keeps on every joint kind), plus ``(0, p_lin × v_lin)`` on a free flyer in ``w``. The
+discrete Lagrangian is invariant under moving the whole system, so a free system's spatial momentum is
+conserved by the discrete equations (to their residual and rounding: 1e-12 relative over 10⁵ steps).
 
 **Newton's method.** The unknown of a step is the increment ``Δ`` (not ``q_{k+1}``, whose difference
 ``q_{k+1} − q_k`` would lose the digits of a large angle). The Jacobian of ``−D1 L_d − f⁻`` with respect
@@ -116,7 +122,9 @@ import numpy as np
 
 from . import linalg
 from .constrained import ConstrainedSystem, ConstraintError, ModelSystem
+from .tree import IQ, IV, KIND
 from .kernels import configuration, coriolis, crba, rnea
+from .kernels import joints as kinds
 from .kernels import derivatives as derivative_kernels
 
 RULES = ("midpoint", "trapezoidal")
@@ -264,10 +272,12 @@ def _lagrangian_of(mechanical):
 class _LieGroupChart:
     """The group operations that the discrete equations of a model with Lie-group joints need.
 
-    ``q ⊕ x`` is :meth:`multibody.Model.integrate`: per joint ``X exp(x)`` on SO(3) (spherical), SE(3)
-    (free-flyer) or SE(2) (planar), ``q + x`` on the others, with ``x (nv,)`` in the joints' velocity
-    coordinates ``[v_lin, ω]`` (free-flyer), ``ω`` (spherical), ``[vx, vy, ω]`` (planar). Their Lie
-    algebras' adjoints are
+    The integrator's group: SO(3) for a spherical joint and SE(2) for a planar one, stepped by
+    :meth:`multibody.Model.integrate` (``X exp(x)``), and SO(3) × R³ for a free flyer (:meth:`advance`);
+    ``q + x`` on the other joints; ``x (nv,)`` in the velocity coordinates ``ω`` (spherical),
+    ``[vx, vy, ω]`` (planar), ``[ṗ, ω]`` (free flyer, ``ṗ`` in the parent frame: :meth:`alignment`).
+    The model's own SE(3) exponential of a free flyer (``[v_lin, ω]`` in the body frame) gives
+    ``ad_xᵀ p`` of its Lagrangian (:meth:`coadjoint`). The Lie algebras' adjoints are
 
         SE(3): ad_(v,ω) = [[ω×, v×], [0, ω×]],   SO(3): ad_ω = ω×,   SE(2): ad_(u,ω) = [[ω E, −E u], [0, 0]]
 
@@ -287,12 +297,51 @@ class _LieGroupChart:
         self._tree = (tree.joints, tree.reals, tree.bodies)
         self.nq, self.nv = tree.nq, tree.nv
         self._workspace = np.empty(configuration.workspace_size(tree.njoints, tree.nv))
+        #: each free flyer's ``(iq, iv)``: its position and linear velocity offsets
+        self._free_flyers = [(int(row[IQ]), int(row[IV])) for row in tree.joints if row[KIND] == kinds.FREE_FLYER]
+        # the integrator's group: a free flyer moves on SO(3) × R³, its rotation block at iv + 3 (a spherical
+        # joint's) and its translation commutative
+        group = tree.joints.copy()
+        for row in group:
+            if row[KIND] == kinds.FREE_FLYER:
+                row[KIND], row[IV] = kinds.SPHERICAL, row[IV] + 3
+        self._group = (group, tree.reals, tree.bodies)
 
     def advance(self, q, x):
-        """``q ⊕ x (nq,)``: :meth:`multibody.Model.integrate`, by its compiled kernel."""
+        """``q ⊕ x (nq,)`` on the integrator's group: :meth:`multibody.Model.integrate` (its compiled
+        kernel), but a free flyer's position moves by ``x_lin`` in the parent frame (SO(3) × R³; its
+        rotation ``R exp(ω)`` does not depend on the linear part)."""
+        x = np.array(x, dtype=float)
         out = np.empty((1, self.nq))
-        configuration.integrate(*self._tree, q, np.ascontiguousarray(x, dtype=float), _EMPTY, _EMPTY, out, _EMPTY)
-        return out[0]
+        configuration.integrate(*self._tree, q, x, _EMPTY, _EMPTY, out, _EMPTY)
+        moved = out[0]
+        for iq, iv in self._free_flyers:
+            moved[iq:iq + 3] = q[iq:iq + 3] + x[iv:iv + 3]  # (the rotation is Model.integrate's, R exp(ω))
+        return moved
+
+    def alignment(self, q):
+        """``T(q) (nv, nv)`` with the joint velocities ``v = T w`` of the group velocities ``w``: ``Rᵀ`` on a
+        free flyer's linear velocity (the group's is in the parent frame), the identity elsewhere; ``None``
+        without free flyers."""
+        if not self._free_flyers:
+            return None
+        # the compiled velocity_alignment holds each free flyer's R (parent from body) on its diagonal
+        aligned = np.empty((self.nv, self.nv))
+        configuration.velocity_alignment(*self._tree, np.ascontiguousarray(q, dtype=float), _EMPTY, _EMPTY, _EMPTY,
+                                         aligned, _EMPTY)
+        T = np.eye(self.nv)
+        for _, iv in self._free_flyers:
+            T[iv:iv + 3, iv:iv + 3] = aligned[iv:iv + 3, iv:iv + 3].T
+        return T
+
+    def translation_term(self, v, p):
+        """``(0, p_lin × v_lin)`` on each free flyer, zero elsewhere ``(nv,)``: the part of the group's
+        left-trivialised ``∂L/∂q`` that comes from turning the body under a fixed parent-frame velocity."""
+        out = np.zeros(self.nv)
+        for _, iv in self._free_flyers:
+            (px, py, pz), (vx, vy, vz) = p[iv:iv + 3], v[iv:iv + 3]
+            out[iv + 3:iv + 6] = (py * vz - pz * vy, pz * vx - px * vz, px * vy - py * vx)
+        return out
 
     def coadjoint(self, x, p):
         """``ad_xᵀ p (nv,)``, zero on the commutative joints (:func:`multibody.kernels.configuration.coadjoint`)."""
@@ -304,7 +353,7 @@ class _LieGroupChart:
     def exponential_terms(self, x):
         """``(Ad_exp(x), J_l(x))``, both ``(nv, nv)`` (:func:`multibody.kernels.configuration.exponential_terms`)."""
         out = np.empty((2 * self.nv, self.nv))
-        configuration.exponential_terms(*self._tree, np.ascontiguousarray(x, dtype=float), _EMPTY, _EMPTY, _EMPTY, out,
+        configuration.exponential_terms(*self._group, np.ascontiguousarray(x, dtype=float), _EMPTY, _EMPTY, _EMPTY, out,
                                         self._workspace)
         return out[:self.nv], out[self.nv:]
 
@@ -314,6 +363,61 @@ class _LieGroupChart:
         ``(e^{2Y} − 1)/(2Y) = ½ (e^Y + 1) (e^Y − 1)/Y``."""
         Ad, J_l = terms
         return Ad @ Ad, 0.5 * (Ad + np.eye(len(Ad))) @ J_l
+
+
+class _GroupLagrangian:
+    """The Lagrangian's terms in the integrator's group velocities ``w``, with ``v = T(q) w``
+    (:meth:`_LieGroupChart.alignment`: a free flyer's linear velocity in the parent frame):
+
+        M_G = Tᵀ M T,      ∂L/∂q|_G = Tᵀ ∂L/∂q(q, T w) + (0, p_lin × v_lin)  (p = M v, on each free flyer),
+
+    the second from ``L_G(q, w) = L(q, T(q) w)``: turning a free flyer by ``exp(ε η)`` at a fixed
+    parent-frame velocity turns its body-frame velocity by ``−ε η × v_lin``."""
+
+    def __init__(self, lagrangian):
+        self.inner, self.chart, self.nv = lagrangian, lagrangian.chart, lagrangian.nv
+
+    def mass_matrix(self, q):
+        T = self.chart.alignment(q)
+        return T.T @ self.inner.mass_matrix(q) @ T
+
+    def gradient(self, q, w, M=None):
+        T = self.chart.alignment(q)
+        v = T @ w
+        M = self.inner.mass_matrix(q) if M is None else T @ M @ T.T
+        return T.T @ self.inner.gradient(q, v, M) + self.chart.translation_term(v, M @ v)
+
+    def jacobian_terms(self, q, w):
+        T = self.chart.alignment(q)
+        return tuple(T.T @ term @ T for term in self.inner.jacobian_terms(q, T @ w))
+
+
+class _GroupRows:
+    """Constraint rows in the group velocities: ``A T(q)`` (see :class:`_GroupLagrangian`)."""
+
+    def __init__(self, rows, chart):
+        self.inner, self.chart = rows, chart
+        self.m, self.holonomic, self.nonholonomic = rows.m, rows.holonomic, rows.nonholonomic
+        self.any_holonomic, self.any_nonholonomic = rows.any_holonomic, rows.any_nonholonomic
+
+    def levels(self, q, t):
+        phi, A, b = self.inner.levels(q, t)
+        return phi, A @ self.chart.alignment(q), b
+
+    def independent(self, q, A):
+        return self.inner.independent(q, A @ self.chart.alignment(q).T)
+
+
+def _group_force(force, chart):
+    """``τ_G(t, q, w) = T(q)ᵀ τ(t, q, T(q) w)``: the forces' virtual work in the group velocities."""
+    if force is None:
+        return None
+
+    def group_force(t, q, w):
+        T = chart.alignment(q)
+        return T.T @ np.asarray(force(t, q, T @ w), dtype=float)
+
+    return group_force
 
 
 # ============================================================================= one step
@@ -661,6 +765,7 @@ def simulate(system, q0, v0, t_final, *, dt=None, tau=None, rule="midpoint", ord
     force = _total_force(tau, nv, lagrangian, _torque_function)
 
     q, v = np.array(q0, dtype=float), np.array(v0, dtype=float)
+    chart = lagrangian.chart
     if q.shape != (nq,) or v.shape != (nv,):
         raise ValueError(f"q0 and v0 must have shapes ({nq},) and ({nv},), got {q.shape} and {v.shape} "
                          "(method='variational' integrates one state at a time)")
@@ -678,6 +783,12 @@ def simulate(system, q0, v0, t_final, *, dt=None, tau=None, rule="midpoint", ord
     mu_start, mu_end = np.zeros((len(times), m)), np.zeros((len(times), m))  # impulses at each node
     qs[0], vs[0] = q, v
     rows = _Rows(constrained) if m else None
+    # free flyers step on SO(3) × R³, in their group velocities w = T(q)ᵀ v (_GroupLagrangian)
+    aligned = chart is not None and chart.alignment(q) is not None
+    if aligned:
+        lagrangian, force = _GroupLagrangian(lagrangian), _group_force(force, chart)
+        rows = None if rows is None else _GroupRows(rows, chart)
+        v = chart.alignment(q).T @ v
     levels = rows.levels(q, t0) if m else None
     p = lagrangian.mass_matrix(q) @ v
     weights = (YOSHIDA_W1, YOSHIDA_W0, YOSHIDA_W1) if order == 4 else (1.0,)
@@ -707,7 +818,7 @@ def simulate(system, q0, v0, t_final, *, dt=None, tau=None, rule="midpoint", ord
             if m:
                 mu_start[k - 1] += start
                 mu_end[k] = end
-            qs[k], vs[k] = q, v
+            qs[k], vs[k] = q, (chart.alignment(q) @ v if aligned else v)
             done = k + 1
             bar.update(times[k])
     except SimulationError as error:
