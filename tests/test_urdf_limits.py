@@ -22,18 +22,13 @@ import pytest
 import multibody as mb
 from multibody import joints as jt
 from multibody.simulation import JointLimitWarning
+from multibody.robots import EXAMPLE_ROBOTS
 from multibody.urdf import UNBOUNDED_LIMIT, URDFError
 
 from conftest import erd_urdf
 
-# The robots the issue names, and their bases as example_robot_data loads them.
-ROBOTS = {
-    "panda": ("panda_description/urdf/panda.urdf", False),
-    "ur5": ("ur_description/urdf/ur5_robot.urdf", False),
-    "solo12": ("solo_description/robots/solo12.urdf", True),
-    "talos": ("talos_data/robots/talos_reduced.urdf", True),
-    "double_pendulum_continuous": ("double_pendulum_description/urdf/double_pendulum_continuous.urdf", False),
-}
+# The robots the issue names: (URDF path, floating base) as mb.robots ships them.
+ROBOTS = {name: EXAMPLE_ROBOTS[name] for name in ("panda", "ur5", "solo12", "talos", "double_pendulum_continuous")}
 DBL_MAX = np.finfo(float).max
 
 
