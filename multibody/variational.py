@@ -300,13 +300,6 @@ class _LieGroupChart:
         self._workspace = np.empty(configuration.workspace_size(tree.njoints, tree.nv))
         #: each free flyer's ``(iq, iv)``: its position and linear velocity offsets
         self._free_flyers = [(int(row[IQ]), int(row[IV])) for row in tree.joints if row[KIND] == kinds.FREE_FLYER]
-        # the integrator's group: a free flyer moves on SO(3) × R³, its rotation block at iv + 3 (a spherical
-        # joint's) and its translation commutative
-        group = tree.joints.copy()
-        for row in group:
-            if row[KIND] == kinds.FREE_FLYER:
-                row[KIND], row[IV] = kinds.SPHERICAL, row[IV] + 3
-        self._group = (group, tree.reals, tree.bodies)
 
     def advance(self, q, x):
         """``q ⊕ x (nq,)`` on the integrator's group: :meth:`multibody.Model.integrate` (its compiled
@@ -354,16 +347,10 @@ class _LieGroupChart:
     def exponential_terms(self, x):
         """``(Ad_exp(x), J_l(x))``, both ``(nv, nv)`` (:func:`multibody.kernels.configuration.exponential_terms`)."""
         out = np.empty((2 * self.nv, self.nv))
-        configuration.exponential_terms(*self._group, np.ascontiguousarray(x, dtype=float), _EMPTY, _EMPTY, _EMPTY, out,
+        configuration.exponential_terms(*self._tree, np.ascontiguousarray(x, dtype=float), _EMPTY, _EMPTY, _EMPTY, out,
                                         self._workspace)
         return out[:self.nv], out[self.nv:]
 
-    @staticmethod
-    def doubled(terms):
-        """``(Ad_exp(2x), J_l(2x))`` from ``(Ad_exp(x), J_l(x))``: ``exp(2 ad_x) = exp(ad_x)²`` and
-        ``(e^{2Y} − 1)/(2Y) = ½ (e^Y + 1) (e^Y − 1)/Y``."""
-        Ad, J_l = terms
-        return Ad @ Ad, 0.5 * (Ad + np.eye(len(Ad))) @ J_l
 
 
 class _GroupLagrangian:
@@ -507,8 +494,7 @@ def _step(lagrangian, rows, rule, force, t, h, q0, p0, levels0, guess, tolerance
                 start, exponentials = M_xi - 0.5 * h * pull, None
             else:
                 # −D1 L_d − f⁻ = J_l(Δ)⁻ᵀ (M(q̄) ξ − (h/2) J_l(Δ/2)ᵀ (∂L/∂q(q̄, ξ) + τ̄))
-                half = chart.exponential_terms(0.5 * delta)
-                exponentials = chart.doubled(half), half
+                exponentials = chart.exponential_terms(delta), chart.exponential_terms(0.5 * delta)
                 start = linalg.solve(exponentials[0][1].T, (M_xi - 0.5 * h * (exponentials[1][1].T @ pull))[:, None])[:, 0]
             scale = max(_norm(M_xi), 0.5 * abs(h) * _norm(Lq), 0.0 if f is None else 0.5 * abs(h) * _norm(f))
             return start, scale, (q_mid, xi, M, pull, exponentials)
@@ -647,7 +633,7 @@ def _step(lagrangian, rows, rule, force, t, h, q0, p0, levels0, guess, tolerance
         if chart is None:
             p1 = p_start + h * pull  # D1 L_d + D2 L_d + f⁻ + f⁺ = h (∂L/∂q(q̄, ξ) + τ̄)
         else:
-            p1 = chart.exponential_terms(delta)[0].T @ p_start + h * (exponentials[1][0].T @ pull)
+            p1 = exponentials[0][0].T @ p_start + h * (exponentials[1][0].T @ pull)
     else:
         M1 = M_state
         Lq1 = lagrangian.gradient(q1, xi, M1)

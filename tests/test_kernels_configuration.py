@@ -478,5 +478,5 @@ def test_planar_small_angles_exact(theta):
 
 
 def test_workspace_size_is_the_exponential_terms_scratch():
-    """Three 6×6 matrices for ``exponential_terms``, whatever the tree's size; the other maps need none."""
-    assert cfg.workspace_size(30, 40) == cfg.workspace_size(1, 1) == 108
+    """Three 3×3 matrices for ``exponential_terms``, whatever the tree's size; the other maps need none."""
+    assert cfg.workspace_size(30, 40) == cfg.workspace_size(1, 1) == 27

@@ -18,8 +18,8 @@ from .spatial import nan_unless_finite
 
 
 def workspace_size(nj, nv):
-    """Floats of workspace one state needs: three 6×6 scratch matrices (:func:`exponential_terms`)."""
-    return 3 * 36
+    """Floats of workspace one state needs: three 3×3 scratch matrices (:func:`exponential_terms`)."""
+    return 3 * 9
 
 
 # ----------------------------------------------------------------------------- kernels
@@ -120,43 +120,40 @@ def normalize(joints, reals, frames, q, x1, x2, x3, out, ws):
 
 @njit(cache=True, error_model="numpy")
 def _adjoint_block(kind, x, iv, Y):
-    """``ad_x`` of one Lie-group joint into ``Y[:n, :n]``; returns ``n`` (0 for the commutative joints).
+    """``ad_x`` of one joint's rotation group into ``Y[:3, :3]``; returns the offset of its block in ``v``,
+    or −1 for a commutative joint.
 
-    SE(3) (free flyer, ``x = [v, ω]``): ``[[ω×, v×], [0, ω×]]``; SO(3) (spherical, ``x = ω``): ``ω×``;
-    SE(2) (planar, ``x = [ux, uy, ω]``): ``[[0, −ω, uy], [ω, 0, −ux], [0, 0, 0]]``."""
+    SO(3) (spherical ``x = ω``, and a free flyer's rotation ``x[iv + 3:iv + 6]``): ``ω×``; SE(2) (planar,
+    ``x = [ux, uy, ω]``): ``[[0, −ω, uy], [ω, 0, −ux], [0, 0, 0]]``."""
     if kind == kinds.PLANAR:
         ux, uy, w = x[iv], x[iv + 1], x[iv + 2]
         Y[0, 0], Y[0, 1], Y[0, 2] = 0.0, -w, uy
         Y[1, 0], Y[1, 1], Y[1, 2] = w, 0.0, -ux
         Y[2, 0], Y[2, 1], Y[2, 2] = 0.0, 0.0, 0.0
-        return 3
-    if kind != kinds.SPHERICAL and kind != kinds.FREE_FLYER:
-        return 0
-    n = 6 if kind == kinds.FREE_FLYER else 3
-    for r in range(n):
-        for c in range(n):
-            Y[r, c] = 0.0
-    w = iv + 3 if kind == kinds.FREE_FLYER else iv
-    for b in range(0, n, 3):  # ω× on the diagonal blocks
-        Y[b, b + 1], Y[b, b + 2], Y[b + 1, b + 2] = -x[w + 2], x[w + 1], -x[w]
-        Y[b + 1, b], Y[b + 2, b], Y[b + 2, b + 1] = x[w + 2], -x[w + 1], x[w]
-    if kind == kinds.FREE_FLYER:  # v× in the upper right block
-        Y[0, 4], Y[0, 5], Y[1, 5] = -x[iv + 2], x[iv + 1], -x[iv]
-        Y[1, 3], Y[2, 3], Y[2, 4] = x[iv + 2], -x[iv + 1], x[iv]
-    return n
+        return iv
+    if kind == kinds.FREE_FLYER:
+        iv += 3
+    elif kind != kinds.SPHERICAL:
+        return -1
+    Y[0, 0], Y[0, 1], Y[0, 2] = 0.0, -x[iv + 2], x[iv + 1]
+    Y[1, 0], Y[1, 1], Y[1, 2] = x[iv + 2], 0.0, -x[iv]
+    Y[2, 0], Y[2, 1], Y[2, 2] = -x[iv + 1], x[iv], 0.0
+    return iv
 
 
 @njit(cache=True, error_model="numpy")
 def exponential_terms(joints, reals, frames, x, x1, x2, x3, out, ws):
     """``Ad_exp(x)`` into ``out[:nv] (nv, nv)`` and the left Jacobian ``J_l(x)`` into ``out[nv:]``, block
-    diagonal over the joints, for ``x (nv,)`` in the joints' velocity coordinates (Solà et al. 2018,
-    eqs. 41–46; Hairer, Lubich and Wanner, *Geometric Numerical Integration*, §III.4):
+    diagonal over the joints, for ``x (nv,)`` in the velocity coordinates of the variational integrator's
+    group (Solà et al. 2018, eqs. 41–46; Hairer, Lubich and Wanner, *Geometric Numerical Integration*,
+    §III.4): SO(3) for a spherical joint, SE(2) for a planar one, and SO(3) × R³ for a free flyer (its
+    translation commutes; ``multibody.variational``), so that
 
         Ad_exp(x) = exp(ad_x) = Σ_{j≥0} ad_x^j / j!,        J_l(x) = Σ_{j≥0} ad_x^j / (j + 1)!,
 
     ``exp(x + δ) = exp(J_l(x) δ) exp(x)``, summed until the bound ``r^j / j!`` of the terms (``r`` the
-    largest absolute row sum of ``ad_x``) falls below ``1e-17``; the identity on the commutative joints.
-    ``ws`` holds three 6×6 scratch matrices.
+    largest absolute row sum of ``ad_x``) falls below ``1e-17``; the identity on the commutative joints
+    and translations. ``ws`` holds three 3×3 scratch matrices.
     """
     nv = x.shape[0]
     for r in range(2 * nv):
@@ -165,20 +162,16 @@ def exponential_terms(joints, reals, frames, x, x1, x2, x3, out, ws):
     for r in range(nv):
         out[r, r] = 1.0
         out[nv + r, r] = 1.0
-    Y, term, product = ws[:36].reshape((6, 6)), ws[36:72].reshape((6, 6)), ws[72:108].reshape((6, 6))
+    Y, term, product = ws[:9].reshape((3, 3)), ws[9:18].reshape((3, 3)), ws[18:27].reshape((3, 3))
     for i in range(joints.shape[0]):
-        iv = joints[i, IV]
-        n = _adjoint_block(joints[i, KIND], x, iv, Y)
-        if n == 0:
+        iv = _adjoint_block(joints[i, KIND], x, joints[i, IV], Y)
+        if iv < 0:
             continue
         bound = 0.0
-        for r in range(n):
-            row = 0.0
-            for c in range(n):
-                row += abs(Y[r, c])
-            bound = max(bound, row)
-        for r in range(n):
-            for c in range(n):
+        for r in range(3):
+            bound = max(bound, abs(Y[r, 0]) + abs(Y[r, 1]) + abs(Y[r, 2]))
+        for r in range(3):
+            for c in range(3):
                 term[r, c] = 1.0 if r == c else 0.0
         j, factorial, size = 0, 1.0, 1.0
         # Y^j / j! ≤ bound^j / j!
@@ -186,14 +179,11 @@ def exponential_terms(joints, reals, frames, x, x1, x2, x3, out, ws):
             j += 1
             size *= bound / j
             factorial *= j
-            for r in range(n):
-                for c in range(n):
-                    total = 0.0
-                    for k in range(n):
-                        total += term[r, k] * Y[k, c]
-                    product[r, c] = total
-            for r in range(n):
-                for c in range(n):
+            for r in range(3):
+                for c in range(3):
+                    product[r, c] = term[r, 0] * Y[0, c] + term[r, 1] * Y[1, c] + term[r, 2] * Y[2, c]
+            for r in range(3):
+                for c in range(3):
                     term[r, c] = product[r, c]
                     out[iv + r, iv + c] += term[r, c] / factorial
                     out[nv + iv + r, iv + c] += term[r, c] / (factorial * (j + 1))
@@ -202,7 +192,8 @@ def exponential_terms(joints, reals, frames, x, x1, x2, x3, out, ws):
 
 @njit(cache=True, error_model="numpy")
 def coadjoint(joints, reals, frames, x, p, x2, x3, out, ws):
-    """``ad_xᵀ p (nv,)`` into ``out[0]``, zero on the commutative joints (see :func:`_adjoint_block`): for
+    """``ad_xᵀ p (nv,)`` into ``out[0]`` for the joints' own velocities (a free flyer's ``[v, ω]`` in its
+    body frame, on SE(3): ``ad_(v,ω) = [[ω×, v×], [0, ω×]]``), zero on the commutative joints: for
     SE(3) ``[f × ω, f × v + n × ω]`` with ``p = [f, n]``, for SO(3) ``p × ω``, for SE(2)
     ``[ω p_y, −ω p_x, uy p_x − ux p_y]``."""
     for r in range(x.shape[0]):
