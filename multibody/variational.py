@@ -452,14 +452,15 @@ def _step(lagrangian, rows, rule, force, t, h, q0, p0, levels0, guess, tolerance
         lagrangian: :class:`_ModelLagrangian` or :class:`_SystemLagrangian`.
         rows: :class:`_Rows` or ``None`` (no constraints).
         force: ``force(t, q, v) -> (nv,)`` or ``None``: joint forces plus the system's own ``Q``.
-        q0, p0: ``(nv,)`` configuration and momentum ``p = M v`` (kg m/s, kg m²/s per coordinate).
+        q0, p0: configuration ``(nq,)`` and momentum ``p = M v`` ``(nv,)`` (kg m/s, kg m²/s per coordinate),
+            in the velocities of ``lagrangian`` (a free flyer's group velocities under :class:`_GroupLagrangian`).
         levels0: ``(φ, A, b)`` of the rows at ``(q0, t)`` (``None`` without rows).
-        guess: predicted increment ``Δ = q_{k+1} − q_k`` ``(nv,)``.
+        guess: predicted increment ``Δ`` ``(nv,)``, ``q_{k+1} = q_k ⊕ Δ``.
         impulse_guess: predicted start impulses ``μ⁻ (m,)`` (the last step's, scaled to this step), or
             ``None`` (zero).
     Returns:
-        ``(q1, p1, v1, Δ, μ⁻ (m,), μ⁺ (m,), levels1, iterations)``: the impulses ``μ`` (N s per row)
-        that act at the start and at the end of the step.
+        ``(q1, p1, v1, μ⁻ (m,), μ⁺ (m,), levels1)``: the impulses ``μ`` (N s per row) that act at the
+        start and at the end of the step.
     Raises:
         _NotConverged: the Newton iteration did not meet the tolerance.
     """
@@ -655,7 +656,7 @@ def _step(lagrangian, rows, rule, force, t, h, q0, p0, levels0, guess, tolerance
         mu_plus = solve_rows(A1 @ M_inv_At, -(A1 @ v1 + b1))
         p1 = p1 + A1.T @ mu_plus
         v1 = v1 + M_inv_At @ mu_plus
-    return q1, p1, v1, delta, mu, mu_plus, levels1, iteration
+    return q1, p1, v1, mu, mu_plus, levels1
 
 
 def _direct_solve(G, rhs):
@@ -781,7 +782,7 @@ def simulate(system, q0, v0, t_final, *, dt=None, tau=None, rule="midpoint", ord
     levels = rows.levels(q, t0) if m else None
     p = lagrangian.mass_matrix(q) @ v
     weights = (YOSHIDA_W1, YOSHIDA_W0, YOSHIDA_W1) if order == 4 else (1.0,)
-    last_delta, last_velocity, last_h, last_impulse = None, v, None, None
+    last_velocity, last_h, last_impulse = v, None, None
     done = 1
     bar = _Progress(progress, t0, t_final)
     try:
@@ -794,7 +795,7 @@ def simulate(system, q0, v0, t_final, *, dt=None, tau=None, rule="midpoint", ord
                 # the constraint impulses change little from step to step: the last one, per unit time
                 impulse_guess = None if last_impulse is None else last_impulse * (h / last_h)
                 try:
-                    q, p, v_new, last_delta, start, end, levels, _ = _step(
+                    q, p, v_new, start, end, levels = _step(
                         lagrangian, rows, rule, force, t, h, q, p, levels, guess, tolerance, max_iterations,
                         impulse_guess)
                 except _NotConverged as failure:
