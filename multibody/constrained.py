@@ -266,14 +266,31 @@ class ConstrainedSystem:
             return None
         return kernel, program, frames, integration.workspace_size(self.nq, self.nv, step_workspace, step_columns)
 
-    def _chart_derivative(self, q_chart, y, tau):
+    @cached_property
+    def _by_aba_alone(self):
+        """Whether the chart derivative is ABA alone: no constraints on a vector space, where
+        ``q = q_c + δ``, ``T = 1`` and ``κ = 0``, so that ``ẏ = [w, a(q, w, τ)]`` with the arithmetic of
+        the chart derivative, without its maps (a third of its cost)."""
+        return not self.num_rows and self.system.vector_space
+
+    def _chart_derivative(self, q_chart, y, tau, q=None):
         """``ẏ (2 nv,)`` of the chart state ``y = [δ, w]`` around ``q_chart`` with constant joint forces
         ``tau`` (``None``: zero), by one compiled call; ``None`` where the compiled step does not apply or
-        did not solve (the NumPy path then gives the answer or the error)."""
+        did not solve (the NumPy path then gives the answer or the error). ``q``: the configuration
+        ``chart(q_chart, δ)``, where the caller has it already."""
         kernel, program, frames, workspace = self._compiled_motion
-        nv = self.nv
-        row = driver.evaluate(kernel, self.system.model.tree, (q_chart, y, tau, program),
-                              (1, integration.output_columns(nv)), (), frames, workspace)[0]
+        nv, tree = self.nv, self.system.model.tree
+        y = driver.contiguous(y)
+        tau = driver.NO_INPUT if tau is None else driver.contiguous(tau)
+        if self._by_aba_alone:
+            # as in _chart_derivatives: ẏ = [w, a(q_c + δ, w, τ)]
+            w = y[nv:]
+            q = q_chart + y[:nv] if q is None else driver.contiguous(q)
+            a = driver.evaluate_one(aba.forward_dynamics, tree, (1, nv), q, w, tau)[0]
+            return np.concatenate((w, a)) if math.isfinite(sum(a.tolist())) else None
+        row = driver.evaluate_one(kernel, tree, (1, integration.output_columns(nv)), driver.contiguous(q_chart), y,
+                                  tau, driver.NO_INPUT if program is None else program, frames=frames,
+                                  workspace=workspace)[0]
         y_dot = row[: 2 * nv]
         if row[2 * nv] != kkt.SOLVED or not math.isfinite(sum(y_dot.tolist())):
             return None
@@ -286,9 +303,7 @@ class ConstrainedSystem:
         NumPy path gives its answer or the error."""
         kernel, program, frames, workspace = self._compiled_motion
         nv = self.nv
-        if not self.num_rows and self.system.vector_space:
-            # No constraints on a vector space: q = q_c + δ, T = 1 and κ = 0, so ẏ = [w, a(q, w, τ)] with the
-            # arithmetic of the chart derivative, by ABA alone (without its maps, a third of its cost).
+        if self._by_aba_alone:
             a = driver.evaluate(aba.forward_dynamics, self.system.model.tree, (q_chart + y[:, :nv], y[:, nv:], tau),
                                 (1, nv), (len(y),))[:, 0]
             y_dot = np.concatenate([y[:, nv:], a], axis=1)
@@ -298,7 +313,7 @@ class ConstrainedSystem:
         y_dot = rows[:, : 2 * nv]
         return y_dot, (rows[:, 2 * nv] == kkt.SOLVED) & np.isfinite(y_dot).all(axis=1)
 
-    @property
+    @cached_property
     def num_rows(self) -> int:
         """Total number of constraint rows ``m``."""
         return int(sum(self._rows))
@@ -468,6 +483,8 @@ class ConstrainedSystem:
 
     def _tau(self, tau, batch=()):
         """``tau`` as a float array ``(nv,)`` or ``batch + (nv,)``, or ``ValueError``."""
+        if type(tau) is np.ndarray and tau.dtype == np.float64 and tau.shape == (self.nv,):
+            return tau
         tau = np.asarray(tau, dtype=float)
         if tau.shape[-1:] != (self.nv,) or tau.ndim > len(batch) + 1:
             raise ValueError(f"tau must have shape ({self.nv},), got {tau.shape}")
@@ -475,8 +492,7 @@ class ConstrainedSystem:
 
     def _check_state(self, q, v):
         model = self.model
-        if model is not None and model._is_one_valid_state(q, model.nq, model._unit_norm_slices) \
-                and model._is_one_valid_state(v, model.nv):
+        if model is not None and model._is_one_state(q, v):
             return q, v
         q, v = np.asarray(q, dtype=float), np.asarray(v, dtype=float)
         if q.shape[-1:] != (self.nq,) or v.shape[-1:] != (self.nv,) or q.shape[:-1] != v.shape[:-1]:

@@ -104,16 +104,17 @@ def _loop_kernel(kernel, joints, reals, frames, X0, X1, X2, X3, OUT, workspace):
 #: Fewest states a batch gives each thread (the results do not depend on it).
 STATES_PER_THREAD = 256
 
-_NONE = np.zeros(0)
+#: The input of a kernel's unused argument.
+NO_INPUT = np.zeros(0)
 _NO_ROWS = np.zeros((1, 0))
 _UNUSED = (None, None, None, None)
 _FLOAT = np.dtype(np.float64)
 
 
-def _contiguous(x):
+def contiguous(x):
     """``x`` as a C-contiguous float64 array (``None``: of length 0): one compiled signature serves every caller."""
     if x is None:
-        return _NONE
+        return NO_INPUT
     if x.dtype is _FLOAT and x.flags.c_contiguous:
         return x
     return np.ascontiguousarray(x, dtype=np.float64)
@@ -128,6 +129,25 @@ def _rows(x, batch, n):
     return x if x.dtype is _FLOAT and x.flags.c_contiguous and x.flags.writeable else np.array(x, np.float64, order="C")
 
 
+def evaluate_one(kernel, tree, out_shape, x0=NO_INPUT, x1=NO_INPUT, x2=NO_INPUT, x3=NO_INPUT, frames=None, workspace=None):
+    """``kernel`` on one state whose inputs ``x0 … x3`` are C-contiguous float64 vectors already (a
+    length-0 vector for an unused one): ``-> out_shape``. The path of a single call, which has no
+    batch to broadcast and so costs little more than the kernel; :func:`evaluate` takes anything else.
+    ``frames`` and ``workspace`` as :func:`evaluate`."""
+    out = np.empty(out_shape)
+    kernel(tree.joints, tree.reals, tree.bodies if frames is None else frames, x0, x1, x2, x3, out,
+           np.empty(_WORKSPACE[kernel](tree.joints.shape[0], tree.nv) if workspace is None else workspace))
+    return out
+
+
+def vouches(out) -> bool:
+    """Whether a kernel's output ``out`` shows that its inputs were finite: its first entry is finite
+    (every kernel fills its whole output with NaN when an input is not:
+    :func:`~multibody.kernels.spatial.nan_unless_finite`), or it has none. A single call checks its
+    inputs' shapes and leaves their entries to this one look."""
+    return out.size == 0 or math.isfinite(out.item(0))
+
+
 def evaluate(kernel, tree, inputs, out_shape, batch=(), frames=None, workspace=None):
     """Run ``kernel`` on every state of ``batch``: ``-> batch + out_shape``.
 
@@ -138,14 +158,11 @@ def evaluate(kernel, tree, inputs, out_shape, batch=(), frames=None, workspace=N
     with a non-finite input gets an output of NaN (every kernel ends with
     :func:`~multibody.kernels.spatial.nan_unless_finite`).
     """
+    if not batch:
+        return evaluate_one(kernel, tree, out_shape, *map(contiguous, inputs), frames=frames, workspace=workspace)
     frames = tree.bodies if frames is None else frames
     workspace = np.empty(_WORKSPACE[kernel](tree.joints.shape[0], tree.nv) if workspace is None else workspace)
     x0, x1, x2, x3 = inputs + _UNUSED[len(inputs):]
-    if not batch:
-        out = np.empty(out_shape)
-        kernel(tree.joints, tree.reals, frames, _contiguous(x0), _contiguous(x1), _contiguous(x2), _contiguous(x3), out,
-               workspace)
-        return out
     n = math.prod(batch)
     out = np.empty((n,) + tuple(out_shape))
     if n == 1:  # one state with batch axes: the kernel directly, as for no batch axes

@@ -24,21 +24,21 @@ import math
 import numpy as np
 
 from . import driver, gpu, spatial
+from .driver import NO_INPUT
 from .kernels import aba, coriolis, crba, energy, rnea
 from .kinematics import _frame_arguments, frame_motions, joint_world_poses
+from .model import NOT_GIVEN
 
 
 # ============================================================================= shared pieces
 
-_ABSENT = object()  # the default of an argument a function does not take (``None`` itself is refused)
+_ABSENT = NOT_GIVEN  # the default of an argument a function does not take (``None`` itself is refused)
 
 
 def _check(model, q, v=_ABSENT, a=_ABSENT, tau=_ABSENT, f_ext=None):
     """Validated float arrays and their common batch shape (``f_ext`` flattened to ``(..., 6 nj)``);
     the arguments a function does not take come back as ``None``."""
-    one = model._is_one_valid_state
-    if f_ext is None and one(q, model.nq, model._unit_norm_slices) and (v is _ABSENT or one(v, model.nv)) \
-            and (a is _ABSENT or one(a, model.nv)) and (tau is _ABSENT or one(tau, model.nv)):
+    if f_ext is None and model._is_one_state(q, v, tau if a is _ABSENT else a):
         return q, None if v is _ABSENT else v, None if a is _ABSENT else a, None if tau is _ABSENT else tau, None, ()
     q = model.check_configuration(q)
     v = None if v is _ABSENT else model.check_velocity(v, "v")
@@ -58,6 +58,20 @@ def _check(model, q, v=_ABSENT, a=_ABSENT, tau=_ABSENT, f_ext=None):
         raise ValueError("the leading (batch) axes of " + ", ".join(f"{name} {shape}" for name, shape in shapes.items())
                          + " do not broadcast") from None
     return q, v, a, tau, f_ext, batch
+
+
+def _single(model, kernel, out_shape, q, v=_ABSENT, w=_ABSENT):
+    """``kernel``'s output ``out_shape`` for one state when ``q`` and the velocities ``v``, ``w`` given are
+    exactly that, C-contiguous float64 vectors of sizes ``nq`` and ``nv`` (``Model._is_one_state``), and
+    its output is finite; ``None`` otherwise, for the general path (conversion, broadcasting, the full
+    checks and their warnings).
+
+    The single call's path, which leaves the entries to :func:`multibody.driver.vouches`."""
+    if not model._is_one_state(q, v, w, finite=False):
+        return None
+    out = driver.evaluate_one(kernel, model.tree, out_shape, q, NO_INPUT if v is _ABSENT else v,
+                              NO_INPUT if w is _ABSENT else w)
+    return out if driver.vouches(out) else None
 
 
 def _on_device(q):
@@ -88,6 +102,8 @@ def inverse_dynamics(model, q, v, a, f_ext=None):
     ``v, a (..., nv)``, ``f_ext (..., njoints, 6)`` (see module docstring) -> ``τ (..., nv)`` (N or N m
     per coordinate). Pinocchio counterpart: ``rnea``. CUDA arrays in, CUDA arrays out (:mod:`multibody.gpu`).
     """
+    if f_ext is None and (tau := _single(model, rnea.inverse_dynamics, (1, model.nv), q, v, a)) is not None:
+        return tau[0]
     if _on_device(q):
         return _on_gpu(model, rnea.inverse_dynamics, (("q", q, model.nq), ("v", v, model.nv), ("a", a, model.nv),
                                                       ("f_ext", f_ext, (model.njoints, 6))), (model.nv,), q)
@@ -113,6 +129,8 @@ def generalized_gravity(model, q):
 
     Pinocchio counterpart: ``computeGeneralizedGravity``.
     """
+    if (g := _single(model, rnea.inverse_dynamics, (1, model.nv), q)) is not None:
+        return g[0]
     if _on_device(q):
         return _on_gpu(model, rnea.inverse_dynamics, (("q", q, model.nq),), (model.nv,), q)
     q = model.check_configuration(q)
@@ -124,6 +142,8 @@ def bias_forces(model, q, v):
 
     Pinocchio counterpart: ``nonLinearEffects``.
     """
+    if (h := _single(model, rnea.inverse_dynamics, (1, model.nv), q, v)) is not None:
+        return h[0]
     if _on_device(q):
         return _on_gpu(model, rnea.inverse_dynamics, (("q", q, model.nq), ("v", v, model.nv)), (model.nv,), q)
     q, v, *_, batch = _check(model, q, v)
@@ -143,6 +163,8 @@ def mass_matrix(model, q, method="crba"):
     """
     if method not in ("crba", "lagrangian"):
         raise ValueError(f"method must be 'crba' or 'lagrangian', got {method!r}")
+    if method == "crba" and (M := _single(model, crba.mass_matrix, (model.nv, model.nv), q)) is not None:
+        return M
     if method == "crba" and _on_device(q):
         return _on_gpu(model, crba.mass_matrix, (("q", q, model.nq),), (model.nv, model.nv), q)
     q = model.check_configuration(q)
@@ -209,6 +231,8 @@ def coriolis_matrix(model, q, v, method="recursive"):
     """
     if method not in ("recursive", "lagrangian"):
         raise ValueError(f"method must be 'recursive' or 'lagrangian', got {method!r}")
+    if method == "recursive" and (C := _single(model, coriolis.coriolis_matrix, (model.nv, model.nv), q, v)) is not None:
+        return C
     q, v, *_, batch = _check(model, q, v)
     if method == "recursive":
         return driver.evaluate(coriolis.coriolis_matrix, model.tree, (q, v), (model.nv, model.nv), batch)
@@ -276,6 +300,8 @@ def forward_dynamics(model, q, v, tau, f_ext=None):
     inertia makes ``M`` singular and raises ``numpy.linalg.LinAlgError`` naming it. Pinocchio
     counterpart: ``aba``. On CUDA arrays (:mod:`multibody.gpu`) a singular ``M`` gives NaN rather than the error.
     """
+    if f_ext is None and (a := _single(model, aba.forward_dynamics, (1, model.nv), q, v, tau)) is not None:
+        return _require_nonsingular(model, (q, v, tau), a)[0]
     if _on_device(q):
         return _on_gpu(model, aba.forward_dynamics, (("q", q, model.nq), ("v", v, model.nv), ("tau", tau, model.nv),
                                                      ("f_ext", f_ext, (model.njoints, 6))), (model.nv,), q)
@@ -308,6 +334,8 @@ def kinetic_energy(model, q, v):
 
     Pinocchio counterpart: ``computeKineticEnergy``.
     """
+    if (T := _single(model, energy.kinetic_energy, (1, 1), q, v)) is not None:
+        return T[0, 0]
     q, v, *_, batch = _check(model, q, v)
     return driver.evaluate(energy.kinetic_energy, model.tree, (q, v), (1, 1), batch)[..., 0, 0]
 
@@ -318,5 +346,7 @@ def potential_energy(model, q):
     Bodies fixed to the world are not counted (their energy is constant), as in Pinocchio's
     ``computePotentialEnergy``. ``(..., nq) -> (...)``.
     """
+    if (U := _single(model, energy.potential_energy, (1, 1), q)) is not None:
+        return U[0, 0]
     q = model.check_configuration(q)
     return driver.evaluate(energy.potential_energy, model.tree, (q,), (1, 1), q.shape[:-1])[..., 0, 0]

@@ -72,8 +72,7 @@ def _point(point):
 
 def _body_frame(model, body):
     """The frame row ``(1, 13)`` of a body given by name or index."""
-    b = model.body_index(body)
-    return model.tree.bodies[b : b + 1]
+    return model._body_frames[model.body_index(body)]
 
 
 #: The kernels' code of each ``reference`` (module docstring), as the one-entry vector they read
@@ -110,6 +109,11 @@ def jacobian(model, q, body, point=None, reference="local_world_aligned"):
     With the default ``reference="local_world_aligned"``, ``[ẋ; ω] = J v`` in world axes.
     Pinocchio counterpart: ``getFrameJacobian`` with ``LOCAL_WORLD_ALIGNED``, ``WORLD`` or ``LOCAL``.
     """
+    if point is None and model._is_one_state(q, finite=False):
+        J = driver.evaluate_one(kernels.frame_jacobian, model.tree, (6, model.nv), q, driver.NO_INPUT,
+                                _reference(reference), frames=_body_frame(model, body))
+        if driver.vouches(J):
+            return J
     q, rows, point = model.check_configuration(q), _body_frame(model, body), _point(point)
     batch = q.shape[:-1] if point is None else spatial.batch_shape(q.shape[:-1], point.shape[:-1])
     return driver.evaluate(kernels.frame_jacobian, model.tree, (q, point, _reference(reference)), (6, model.nv),

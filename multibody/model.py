@@ -26,6 +26,8 @@ STANDARD_GRAVITY = (0.0, 0.0, -9.81)
 #: Largest input whose finiteness check sums a Python list rather than reducing in NumPy
 _PYTHON_SUM_SIZE = 64
 _FLOAT = np.dtype(np.float64)
+#: An argument of :meth:`Model._is_one_state` that is not there (``None`` is a value it refuses).
+NOT_GIVEN = object()
 
 
 @dataclass(frozen=True, eq=False)
@@ -232,14 +234,18 @@ class Model:
 
     def body_index(self, body) -> int:
         """Index of a body given by name or index; ``ValueError`` names the valid choices."""
+        if isinstance(body, str) and (index := self._body_indices.get(body)) is not None:
+            return index
         if isinstance(body, (int, np.integer)):
             if not -self.nbodies <= body < self.nbodies:
                 raise ValueError(f"body index {body} out of range for {self.nbodies} bodies")
             return int(body) % self.nbodies
-        try:
-            return self.body_names.index(body)
-        except ValueError:
-            raise ValueError(f"unknown body {body!r}; bodies are {list(self.body_names)}") from None
+        raise ValueError(f"unknown body {body!r}; bodies are {list(self.body_names)}")
+
+    @cached_property
+    def _body_indices(self):
+        """``{name: index}`` of the bodies."""
+        return {name: index for index, name in enumerate(self.body_names)}
 
     def joint_index(self, joint) -> int:
         """Index of a moving joint given by name or index."""
@@ -257,6 +263,11 @@ class Model:
         """The model flattened into the arrays the compiled kernels read (:mod:`multibody.tree`)."""
         from .tree import compile_tree
         return compile_tree(self)
+
+    @cached_property
+    def _body_frames(self):
+        """Each body's frame row ``(1, 13)`` of :attr:`tree`, the frame a kernel is asked about."""
+        return tuple(self.tree.bodies[b : b + 1] for b in range(self.nbodies))
 
     # ------------------------------------------------------------------ mass properties
 
@@ -419,21 +430,47 @@ class Model:
             warnings.warn(f"{name} contains NaN or infinite values; results will contain NaN", RuntimeWarning, stacklevel=3)
         return x
 
-    def _is_one_valid_state(self, x, size, unit_norm_slices=()):
-        """Whether ``x`` is one state that the checks below would pass unchanged: a C-contiguous float64
-        array of shape ``(size,)`` with finite entries, and ``(start, stop)`` blocks of unit norm within
-        tolerance. Plain Python on the state's few numbers, a fraction of the checks' cost; ``False``
-        sends the caller to the full checks, which convert, warn and raise."""
-        if not (type(x) is np.ndarray and x.dtype is _FLOAT and x.shape == (size,) and x.flags.c_contiguous):
-            return False
-        values = x.tolist()
-        if not math.isfinite(sum(values)):
-            return False
-        lower, upper = jt.UNIT_SQUARED_NORMS
-        for start, stop in unit_norm_slices:
-            if not lower <= sum([c * c for c in values[start:stop]]) <= upper:
+    def _is_one_state(self, q, v=NOT_GIVEN, w=NOT_GIVEN, finite=True):
+        """Whether ``q`` and the velocities ``v``, ``w`` (each :data:`NOT_GIVEN` when not there) make
+        one state that the checks below would pass unchanged: C-contiguous float64 arrays of shapes
+        ``(nq,)`` and ``(nv,)`` with finite entries (not looked at with ``finite=False``), and ``q``'s
+        unit-norm blocks of unit norm within tolerance. Plain Python on the state's few numbers, a
+        fraction of the checks' cost; ``False`` sends the caller to the full checks, which convert,
+        warn and raise."""
+        total = 0.0
+        if q is not NOT_GIVEN:
+            if not (type(q) is np.ndarray and q.dtype is _FLOAT and q.shape == self._configuration_shape
+                    and q.flags.c_contiguous):
                 return False
-        return True
+            slices = self._unit_norm_slices
+            if slices or finite:
+                values = q.tolist()
+                lower, upper = jt.UNIT_SQUARED_NORMS
+                for start, stop in slices:
+                    if not lower <= sum([c * c for c in values[start:stop]]) <= upper:
+                        return False
+                total = sum(values)
+        shape = self._velocity_shape
+        if v is not NOT_GIVEN:
+            if not (type(v) is np.ndarray and v.dtype is _FLOAT and v.shape == shape and v.flags.c_contiguous):
+                return False
+            if finite:
+                total += sum(v.tolist())
+        if w is not NOT_GIVEN:
+            if not (type(w) is np.ndarray and w.dtype is _FLOAT and w.shape == shape and w.flags.c_contiguous):
+                return False
+            if finite:
+                total += sum(w.tolist())
+        # One non-finite entry makes the sum non-finite (and so may an overflow, which the full checks pass).
+        return not finite or math.isfinite(total)
+
+    @cached_property
+    def _configuration_shape(self):
+        return (self.nq,)
+
+    @cached_property
+    def _velocity_shape(self):
+        return (self.nv,)
 
     def check_configuration(self, q, name="q") -> np.ndarray:
         """``q`` as a float array of shape ``(..., nq)``, or ``ValueError``.
@@ -441,7 +478,7 @@ class Model:
         Quaternions must have unit norm within :data:`multibody.joints.UNIT_NORM_TOLERANCE`
         (they are then used as normalised). Non-finite values warn and propagate as NaN.
         """
-        if self._is_one_valid_state(q, self.nq, self._unit_norm_slices):
+        if self._is_one_state(q):
             return q
         q = self._as_float_array(q, name)
         self._require_last_axis(q, self.nq, name)
@@ -463,7 +500,7 @@ class Model:
 
     def check_velocity(self, v, name="v") -> np.ndarray:
         """``v`` as a float array of shape ``(..., nv)``, or ``ValueError``."""
-        if self._is_one_valid_state(v, self.nv):
+        if self._is_one_state(NOT_GIVEN, v):
             return v
         v = self._as_float_array(v, name)
         self._require_last_axis(v, self.nv, name)

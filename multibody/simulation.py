@@ -380,8 +380,8 @@ def simulate(system, q0, v0, t_final, *, dt=None, method="RK45", tau=None, rtol=
                 tau_t = torque(t, q_t, v_t)
                 tau_t = None if tau_t is None else constrained._tau(tau_t)
             else:
-                tau_t = constant_tau
-            y_dot = constrained._chart_derivative(q_chart, y, tau_t)
+                q_t, tau_t = None, constant_tau
+            y_dot = constrained._chart_derivative(q_chart, y, tau_t, q_t)
             if y_dot is not None:
                 return y_dot
         return _numpy_chart_derivative(constrained, charts, t, q_chart, y, torque)
@@ -389,7 +389,7 @@ def simulate(system, q0, v0, t_final, *, dt=None, method="RK45", tau=None, rtol=
     def settle(t, state):
         """``state`` projected onto the constraints when, with ``project``, its residual exceeds the
         tolerance. Returns the state and whether it was projected."""
-        if not np.all(np.isfinite(state)):
+        if not np.isfinite(state).all():
             raise SimulationError(f"the state became non-finite at t = {t:.6g} s", None)
         q_t, v_t = state[:nq], state[nq:]
         if project and constrained.num_rows and constrained.residual(q_t, v_t, t) > projection_tolerance:
@@ -407,13 +407,14 @@ def simulate(system, q0, v0, t_final, *, dt=None, method="RK45", tau=None, rtol=
         constrained.solve(q, v, torque(t0, q, v), t0)  # the initial state has a KKT solution
         done = 1
         if method == "RK4":
+            instants = times.tolist()  # Python floats: the stages' time arithmetic is scalar
             for k in range(1, len(times)):
                 q_chart = states[k - 1, :nq]
-                y = _rk4_step(lambda t, y: derivative(t, y, q_chart), times[k - 1], to_chart(states[k - 1]),
-                              times[k] - times[k - 1])
-                states[k] = settle(times[k], from_chart(q_chart, y))[0]
+                y = _rk4_step(lambda t, y: derivative(t, y, q_chart), instants[k - 1], to_chart(states[k - 1]),
+                              instants[k] - instants[k - 1])
+                states[k] = settle(instants[k], from_chart(q_chart, y))[0]
                 done = k + 1
-                bar.update(times[k])
+                bar.update(instants[k])
         else:
             solver_class = METHODS[method]
 
@@ -600,12 +601,22 @@ class _Charts:
     def to_chart(self, state):
         """``y = [0, w] (..., 2 nv)`` of states ``[q, v] (..., nq + nv)`` in the chart around their own ``q``."""
         nq = self.nq
+        if not self.curved:
+            # w = v
+            y = state.copy()
+            y[..., :nq] = 0.0
+            return y
         T = self.velocity_alignment(state[..., :nq])
         w = state[..., nq:] if T is None else matvec(T, state[..., nq:])
         return np.concatenate([np.zeros_like(w), w], axis=-1)
 
     def from_chart(self, q_chart, y):
         """States ``[q, v] (..., nq + nv)`` of chart states ``y (..., 2 nv)``."""
+        if not self.curved and np.shape(q_chart)[:-1] == y.shape[:-1]:
+            # q = q_c + δ, v = w
+            state = y.copy()
+            state[..., : self.nq] += q_chart
+            return state
         q, _, v = self.unchart(q_chart, y)
         return np.concatenate([q, v], axis=-1)
 
@@ -743,8 +754,13 @@ def _trajectory(constrained, times, states, torque, status, projection_tolerance
             q[k], v[k] = constrained.project(q[k], v[k], times[k])
         if off.size:
             residual[off] = residuals(off)
-    taus = [torque(t, q_k, v_k) for t, q_k, v_k in zip(times, q, v)]
-    if batched:
+    # The joint forces enter only the multipliers: without constraint rows there are none to solve for.
+    taus = [torque(t, q_k, v_k) for t, q_k, v_k in zip(times, q, v)] if m else None
+    if not m:
+        lam = np.zeros((n, 0))
+        energy = np.broadcast_to(constrained.energy(q, v), (n,)) if batched else [constrained.energy(q_k, v_k)
+                                                                                  for q_k, v_k in zip(q, v)]
+    elif batched:
         tau = None if all(tau_k is None for tau_k in taus) else np.stack(
             [np.zeros(nv) if tau_k is None else np.asarray(tau_k, dtype=float) for tau_k in taus])
         lam = constrained.solve(q, v, tau, times).lam

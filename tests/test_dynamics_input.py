@@ -269,6 +269,44 @@ def test_non_finite_velocity_like_inputs_warn_and_propagate(name, arg, value):
     assert np.all(np.isfinite(out[0]))
 
 
+SINGLE_STATE_ARGS = [pytest.param(fn, arg, id=f"{fn}-{arg}") for fn, (_, _, args) in FUNCTIONS.items()
+                     for arg in args if arg != "f_ext" and "[" not in fn]
+
+
+@pytest.mark.filterwarnings("ignore:invalid value encountered:RuntimeWarning")
+@pytest.mark.parametrize("value", [np.nan, np.inf], ids=["nan", "inf"])
+@pytest.mark.parametrize("name, arg", SINGLE_STATE_ARGS)
+def test_non_finite_entry_of_one_state_warns_and_propagates(name, arg, value):
+    """One state, as a single call passes it (C-contiguous float64 vectors of the right sizes), with a
+    non-finite entry outside the quaternions: the single call's path, which leaves the entries to the
+    kernel's output, warns as the full checks do and returns the kernel's NaN."""
+    model = FUNCTIONS[name][0]()
+    key = "a" if arg == "tau" else arg
+    x = valid_inputs(model)[key].copy()
+    x[0] = value  # the free flyer's x position in q
+    with pytest.warns(RuntimeWarning, match=f"{arg} contains NaN or infinite"):
+        out = call(name, **{arg: x})
+    assert np.isnan(out).any() or np.isinf(out).any()
+
+
+@pytest.mark.parametrize("reference", ["world", "local", "local_world_aligned"])
+def test_non_finite_configuration_of_one_jacobian_warns_and_propagates(reference):
+    model = tree()
+    q = valid_inputs(model)["q"]
+    q[0] = np.nan
+    with pytest.warns(RuntimeWarning, match="q contains NaN or infinite"):
+        J = mb.jacobian(model, q, model.body_names[-1], reference=reference)
+    assert np.isnan(J).all()
+
+
+def test_body_names_of_numpy_strings_are_found():
+    model = tree()
+    assert model.body_index(np.str_(model.body_names[2])) == 2
+    assert model.body_index(2) == 2 and model.body_index(-1) == model.nbodies - 1
+    with pytest.raises(ValueError, match="unknown body"):
+        model.body_index("no such body")
+
+
 # ============================================================================= f_ext, methods
 
 @pytest.mark.parametrize("name", ["inverse_dynamics", "forward_dynamics"])
