@@ -5,7 +5,8 @@ batches of N states (on every thread, and for the largest N on one thread too), 
 per call from Python, and their ratios; then the peak memory of a large batched CRBA, one
 constrained-dynamics step of the rolling ball and the wall time of simulating it for 10 s with
 1 kHz output (adaptive DOP853 with dense output, and fixed-step RK4), and a Panda under a PD
-controller simulated for 3 s by RK4 at 1 kHz, next to the same loop written on Pinocchio; 4096
+controller simulated for 3 s by RK4 at 1 kHz, next to the same loop written on Pinocchio; one constrained
+evaluation of a closed chain of 40 parallelograms near its singular flat configuration; 4096
 double-pendulum and Panda trajectories by batched RK4 for 1 s at 1 kHz, against batched forward dynamics;
 and, with Dask installed, the overhead of chunks of 1e5 states on two local worker processes.
 The table is printed and saved as JSON and Markdown.
@@ -275,6 +276,22 @@ def inverse_kinematics_line(n=1000, poses=20):
             f"{batch / n * 1e6:.1f} µs/pose ({converged} of {n} converged)")
 
 
+def closed_chain_line(cells=40, budget=0.5):
+    """The benchmark line of one constrained evaluation of a large closed chain: the ``cells`` parallelograms
+    of the singular-passage tests (``tests/test_singular_chains.py``: ``2 cells + 1`` bars, ``2 cells``
+    planar closure rows), moving 1e-6 rad from their flat configuration, where the rows are nearly
+    dependent; ``ConstrainedSystem.forward_dynamics`` is one compiled call (CRBA, RNEA, the rows, the
+    Cholesky factor of ``M`` and the one-sided Jacobi SVD of ``A L⁻ᵀ``)."""
+    sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "tests"))
+    from test_singular_chains import crank_state, parallelogram_chain, planar_closures
+    model = parallelogram_chain(cells)
+    system = mb.ConstrainedSystem(model, planar_closures(cells))
+    q, v = crank_state(cells, 1e-6, 3.0)
+    step = best_time(lambda: system.forward_dynamics(q, v), budget)
+    return (f"closed chain of {cells} parallelograms ({model.nv} bars, {system.num_rows} rows), 1e-6 rad from flat: "
+            f"one constrained evaluation {step * 1e3:.2f} ms")
+
+
 def batched_rk4_line(n=4096, duration=1.0, rate=1000.0, budget=0.5):
     """The benchmark line of batched RK4: ``n`` double-pendulum and Panda trajectories (random configurations,
     small random velocities, no joint forces) for ``duration`` s at ``rate`` Hz by one ``mb.simulate`` call
@@ -403,6 +420,7 @@ def main(argv=None):
         f"(ratio {pd.get('ratio', float('nan')):.2f}; final states differ by "
         f"{pd.get('final_state_difference', float('nan')):.1e})",
         inverse_kinematics_line(16 if args.quick else 1000, 2 if args.quick else 20),
+        closed_chain_line(4 if args.quick else 40, 0.01 if args.quick else args.budget),
         batched_rk4_line(64 if args.quick else 4096, 0.005 if args.quick else 1.0),
         dask_line(1000 if args.quick else 100_000, 2 if args.quick else 4, 0.01 if args.quick else 1.0),
         gpu_line(1000 if args.quick else 1_000_000, 0.01 if args.quick else 1.0),

@@ -19,4 +19,6 @@ def test_benchmark_script_smoke(tmp_path):
     assert all(row["single_us"] > 0 and row["pinocchio_us"] > 0 for row in results["rows"])
     assert results["rolling_ball"]["max_residual"] < 1e-9
     assert results["rolling_ball"]["variational_step_us"] > 0 and results["rolling_ball"]["rk4_step_us"] > 0
-    assert (tmp_path / "results.md").read_text().startswith("| robot |")
+    report = (tmp_path / "results.md").read_text()
+    assert report.startswith("| robot |")
+    assert "closed chain of 4 parallelograms (9 bars, 8 rows)" in report
