@@ -191,7 +191,7 @@ class CompiledRows(Constraint):
         out = driver.evaluate(compiled.constraint_levels, model.tree, (q, v, None, program),
                               (1, compiled.levels_columns(nv, m)), batch, rows,
                               compiled.workspace_size(model.njoints, nv, len(frames)))[..., 0, :]
-        if np.any(out[..., -1] == compiled.UNDEFINED):
+        if (out[..., -1] == compiled.UNDEFINED).any():
             raise ValueError(f"{self.name}: {self.undefined}")
         gamma = out[..., m * nv : m * nv + m]
         return out[..., : m * nv].reshape(batch + (m, nv)), np.zeros(gamma.shape), gamma, out[..., m * nv + m : -1]

@@ -300,6 +300,9 @@ class _LieGroupChart:
         self._workspace = np.empty(configuration.workspace_size(tree.njoints, tree.nv))
         #: each free flyer's ``(iq, iv)``: its position and linear velocity offsets
         self._free_flyers = [(int(row[IQ]), int(row[IV])) for row in tree.joints if row[KIND] == kinds.FREE_FLYER]
+        #: ``T(q)`` of the configurations of the step under way, by their bytes: a Newton iteration asks for
+        #: the same few configurations' several times (mass matrix, gradient, rows)
+        self._alignments = {}
 
     def advance(self, q, x):
         """``q ⊕ x (nq,)`` on the integrator's group: :meth:`multibody.Model.integrate` (its compiled
@@ -319,13 +322,21 @@ class _LieGroupChart:
         without free flyers."""
         if not self._free_flyers:
             return None
+        q = np.ascontiguousarray(q, dtype=float)
+        key = q.tobytes()
+        T = self._alignments.get(key)
+        if T is not None:
+            return T
         # the compiled velocity_alignment holds each free flyer's R (parent from body) on its diagonal
         aligned = np.empty((self.nv, self.nv))
-        configuration.velocity_alignment(*self._tree, np.ascontiguousarray(q, dtype=float), _EMPTY, _EMPTY, _EMPTY,
-                                         aligned, _EMPTY)
+        configuration.velocity_alignment(*self._tree, q, _EMPTY, _EMPTY, _EMPTY, aligned, _EMPTY)
         T = np.eye(self.nv)
         for _, iv in self._free_flyers:
             T[iv:iv + 3, iv:iv + 3] = aligned[iv:iv + 3, iv:iv + 3].T
+        T.setflags(write=False)
+        if len(self._alignments) >= 8:
+            self._alignments.clear()
+        self._alignments[key] = T
         return T
 
     def translation_term(self, v, p):
@@ -459,8 +470,8 @@ def _step(lagrangian, rows, rule, force, t, h, q0, p0, levels0, guess, tolerance
         impulse_guess: predicted start impulses ``μ⁻ (m,)`` (the last step's, scaled to this step), or
             ``None`` (zero).
     Returns:
-        ``(q1, p1, v1, μ⁻ (m,), μ⁺ (m,), levels1)``: the impulses ``μ`` (N s per row) that act at the
-        start and at the end of the step.
+        ``(q1, p1, v1, μ⁻ (m,), μ⁺ (m,), levels1, Δ)``: the impulses ``μ`` (N s per row) that act at the
+        start and at the end of the step, and the step's increment ``Δ (nv,)``, ``q1 = q0 ⊕ Δ``.
     Raises:
         _NotConverged: the Newton iteration did not meet the tolerance.
     """
@@ -544,15 +555,17 @@ def _step(lagrangian, rows, rule, force, t, h, q0, p0, levels0, guess, tolerance
                 J[:, j] -= (start_force(shifted) - base) / step
         return J
 
-    def constraint_terms(delta):
-        """Rows of the step's constraints at ``Δ``: ``(c, C, scales, levels1)`` with the residuals
-        ``c (m,)``, their linearisation ``C (m, nv)`` in ``Δ``, the rows' scales and the levels at
-        ``q_{k+1}``. The scales: ``max(1, |q_{k+1}|)`` for ``φ`` (its units are those of ``q``), the size
+    def constraint_terms(delta, state):
+        """Rows of the step's constraints at ``Δ`` (``state``: :func:`evaluate`'s at ``Δ``): ``(c, C, scales,
+        levels1)`` with the residuals ``c (m,)``, their linearisation ``C (m, nv)`` in ``Δ``, the rows' scales
+        and the levels at ``q_{k+1}`` (``None`` without holonomic rows, which alone need them while
+        iterating). The scales: ``max(1, |q_{k+1}|)`` for ``φ`` (its units are those of ``q``), the size
         of the terms of ``A ξ + b`` and ``max|A_row| · max|ξ|`` for the nonholonomic rows."""
-        q1 = advance(q0, delta)
-        levels1 = rows.levels(q1, t + h)
+        levels1 = None
         c, C, scales = np.empty(m), np.empty((m, nv)), np.empty(m)
         if rows.any_holonomic:
+            q1 = state[0] if rule != "midpoint" else advance(q0, delta)
+            levels1 = rows.levels(q1, t + h)
             # φ(q_{k+1}, t_{k+1}) = 0
             c[H_rows] = levels1[0][H_rows]
             # (∂(q_k ⊕ Δ)/∂Δ = J(Δ) in the tangent at q_{k+1})
@@ -561,7 +574,8 @@ def _step(lagrangian, rows, rule, force, t, h, q0, p0, levels0, guess, tolerance
             scales[H_rows] = max(1.0, _norm(q1))
         if rows.any_nonholonomic:
             # A(q̄, t̄) ξ + b(q̄, t̄) = 0: the discrete constraint with the distribution at the midpoint
-            _, A_mid, b_mid = rows.levels(advance(q0, 0.5 * delta), t + 0.5 * h)
+            q_mid = state[0] if rule == "midpoint" else advance(q0, 0.5 * delta)
+            _, A_mid, b_mid = rows.levels(q_mid, t + 0.5 * h)
             A_N, b_N = A_mid[N_rows], b_mid[N_rows]
             xi = delta / h
             c[N_rows] = A_N @ xi + b_N
@@ -581,7 +595,7 @@ def _step(lagrangian, rows, rule, force, t, h, q0, p0, levels0, guess, tolerance
         start, scale, state = evaluate(delta)
         residual = start - p0
         if m:
-            c, C, row_scales, levels1 = constraint_terms(delta)
+            c, C, row_scales, levels1 = constraint_terms(delta, state)
             impulse = B.T @ mu
             residual = residual - impulse
             scale = max(scale, _norm(impulse))
@@ -646,6 +660,8 @@ def _step(lagrangian, rows, rule, force, t, h, q0, p0, levels0, guess, tolerance
         p1 = (half_step if chart is None else exponentials[0][0].T @ half_step) + 0.5 * h * pull1
     if not m:
         levels1, mu = None, np.zeros(0)
+    elif levels1 is None:
+        levels1 = rows.levels(q1, t + h)
     v1 = linalg.solve(M1, p1[:, None])[:, 0]
     mu_plus = np.zeros(m)
     if m:
@@ -656,7 +672,7 @@ def _step(lagrangian, rows, rule, force, t, h, q0, p0, levels0, guess, tolerance
         mu_plus = solve_rows(A1 @ M_inv_At, -(A1 @ v1 + b1))
         p1 = p1 + A1.T @ mu_plus
         v1 = v1 + M_inv_At @ mu_plus
-    return q1, p1, v1, mu, mu_plus, levels1
+    return q1, p1, v1, mu, mu_plus, levels1, delta
 
 
 def _direct_solve(G, rhs):
@@ -783,6 +799,7 @@ def simulate(system, q0, v0, t_final, *, dt=None, tau=None, rule="midpoint", ord
     p = lagrangian.mass_matrix(q) @ v
     weights = (YOSHIDA_W1, YOSHIDA_W0, YOSHIDA_W1) if order == 4 else (1.0,)
     last_velocity, last_h, last_impulse = v, None, None
+    increments = []  # the last three steps' (h, Δ), newest first
     done = 1
     bar = _Progress(progress, t0, t_final)
     try:
@@ -791,11 +808,11 @@ def simulate(system, q0, v0, t_final, *, dt=None, tau=None, rule="midpoint", ord
             t = times[k - 1]
             for weight in weights:
                 h = weight * step
-                guess = _predict(h, v, last_velocity, last_h)
+                guess = _predict(h, v, last_velocity, last_h, increments)
                 # the constraint impulses change little from step to step: the last one, per unit time
                 impulse_guess = None if last_impulse is None else last_impulse * (h / last_h)
                 try:
-                    q, p, v_new, start, end, levels = _step(
+                    q, p, v_new, start, end, levels, delta = _step(
                         lagrangian, rows, rule, force, t, h, q, p, levels, guess, tolerance, max_iterations,
                         impulse_guess)
                 except _NotConverged as failure:
@@ -804,6 +821,7 @@ def simulate(system, q0, v0, t_final, *, dt=None, tau=None, rule="midpoint", ord
                     raise SimulationError(f"variational step failed at t = {t:.6g} s (h = {h:.3g} s): {error}",
                                           None) from error
                 last_velocity, last_h, v, last_impulse = v, h, v_new, (start if m else None)
+                increments = [(h, delta)] + increments[:2]
                 t = t + h
             if m:
                 mu_start[k - 1] += start
@@ -844,9 +862,19 @@ def _total_force(tau, nv, lagrangian, torque_function):
     return force
 
 
-def _predict(h, v, v_before, h_before):
-    """Predicted increment ``Δ ≈ h v + h²/2 a`` with ``a`` the last step's ``(v − v_before)/h_before``:
-    within ``O(h³)`` of the solution."""
+def _predict(h, v, v_before, h_before, increments=()):
+    """Predicted increment ``Δ (nv,)`` of a step of size ``h`` from the node velocity ``v``.
+
+    After three steps of this size (``increments``: the last steps' ``(h, Δ)``, newest first), the
+    quadratic extrapolation ``Δ_k ≈ 3 Δ_{k−1} − 3 Δ_{k−2} + Δ_{k−3}``: the increments sample one smooth
+    function of time (``h`` times the discrete velocity at each step's midpoint), so this is within
+    ``O(h⁴)`` of the solution, and the first Newton step of a smooth motion usually meets the tolerance.
+    Otherwise ``Δ ≈ h v + h²/2 a`` with ``a`` the last step's ``(v − v_before)/h_before``: within
+    ``O(h³)``. (Mixing the node velocity with the increments would not do better: they sample two
+    functions that differ by ``O(h²)``.)"""
+    if len(increments) == 3 and all(abs(h_k - h) <= 1e-9 * abs(h) for h_k, _ in increments):
+        (_, newest), (_, middle), (_, oldest) = increments
+        return 3.0 * (newest - middle) + oldest
     if h_before is None:
         return h * v
     return h * v + 0.5 * h * h * (v - v_before) / h_before
