@@ -438,6 +438,9 @@ class ConstrainedSystem:
         B = np.ascontiguousarray(np.swapaxes(B_T, -1, -2).reshape((-1, m, B_T.shape[-2])))
         U, sigma = np.empty((len(B), m, m)), np.empty((len(B), m))
         kkt.orthogonalize_stack(B, U, sigma)
+        if not batch:  # (plain indexing: take_along_axis costs ten times the rest for one small state)
+            order = np.argsort(-sigma[0], kind="stable")
+            return sigma[0][order], U[0][:, order]
         order = np.argsort(-sigma, axis=-1, kind="stable")
         sigma, U = np.take_along_axis(sigma, order, axis=-1), np.take_along_axis(U, order[:, None, :], axis=-1)
         return sigma.reshape(batch + (m,)), U.reshape(batch + (m, m))
