@@ -281,9 +281,10 @@ def closed_chain_line(cells=40, budget=0.5):
     of the singular-passage tests (``tests/test_singular_chains.py``: ``2 cells + 1`` bars, ``2 cells``
     planar closure rows), moving 1e-6 rad from their flat configuration, where the rows are nearly
     dependent; ``ConstrainedSystem.forward_dynamics`` is one compiled call (CRBA, RNEA, the rows, the
-    Cholesky factor of ``M`` and the one-sided Jacobi SVD of ``A L⁻ᵀ``)."""
+    Cholesky factor of ``M`` and the one-sided Jacobi SVD of ``A L⁻ᵀ``). The mechanism is built by the
+    tests' helpers (``tests/constraint_helpers.py``, which need no test runner)."""
     sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "tests"))
-    from test_singular_chains import crank_state, parallelogram_chain, planar_closures
+    from constraint_helpers import crank_state, parallelogram_chain, planar_closures
     model = parallelogram_chain(cells)
     system = mb.ConstrainedSystem(model, planar_closures(cells))
     q, v = crank_state(cells, 1e-6, 3.0)

@@ -201,3 +201,37 @@ def null_space(A, rtol=1e-10):
     _, sigma, Vt = np.linalg.svd(A)
     rank = int(np.sum(sigma > rtol * max(sigma.max(initial=0.0), 1e-300)))
     return Vt[rank:].T
+
+
+# ----------------------------------------------------------------------------- chains of parallelograms
+# (tests/test_singular_chains.py; benchmarks/run.py times one evaluation of the 40-cell chain)
+
+Y = (0.0, 1.0, 0.0)
+LENGTH, MASS, THICKNESS = 1.0, 1.0, 0.05
+
+
+def parallelogram_chain(cells):
+    """The chain of ``cells`` parallelograms; joints ``V0 … VN`` (cranks), then ``H1 … HN`` (bars)."""
+    bar = mb.inertia.box(MASS, [LENGTH, THICKNESS, THICKNESS], center=[LENGTH / 2, 0.0, 0.0])
+    builder = mb.ModelBuilder(f"{cells} parallelograms")
+    for k in range(cells + 1):
+        builder.add_body(f"V{k}", mb.joints.Revolute(Y), placement=pose_from_xyz_rpy([k * LENGTH, 0, 0]), inertia=bar)
+    for k in range(1, cells + 1):
+        builder.add_body(f"H{k}", mb.joints.Revolute(Y), parent=f"V{k - 1}",
+                         placement=pose_from_xyz_rpy([LENGTH, 0, 0]), inertia=bar)
+    return builder.build()
+
+
+def planar_closures(cells):
+    """The planar loop closures ``Hk`` tip ↔ ``Vk`` tip; frame A's x and y are the world's x and z while
+    ``Hk`` is horizontal."""
+    tip = pose_from_xyz_rpy([LENGTH, 0, 0])
+    plane = pose_from_xyz_rpy([LENGTH, 0, 0], [np.pi / 2, 0, 0])
+    return [mb.LoopClosure(f"H{k}", f"V{k}", frame_a=plane, frame_b=tip, kind="planar") for k in range(1, cells + 1)]
+
+
+def crank_state(cells, phi, phi_rate=0.0):
+    """``(q, v)`` of the parallelogram motion at crank angle ``φ`` and rate ``φ̇``."""
+    q = np.concatenate([np.full(cells + 1, -phi), np.full(cells, phi)])
+    v = np.concatenate([np.full(cells + 1, -phi_rate), np.full(cells, phi_rate)])
+    return q, v

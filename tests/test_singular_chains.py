@@ -23,33 +23,9 @@ import pytest
 from scipy.integrate import solve_ivp
 
 import multibody as mb
-from multibody.spatial import pose_from_xyz_rpy
 
-from constraint_helpers import assert_close
-
-Y = (0.0, 1.0, 0.0)
-LENGTH, MASS, THICKNESS = 1.0, 1.0, 0.05
-G = 9.81
-
-
-def parallelogram_chain(cells):
-    """The chain of ``cells`` parallelograms; joints ``V0 … VN`` (cranks), then ``H1 … HN`` (bars)."""
-    bar = mb.inertia.box(MASS, [LENGTH, THICKNESS, THICKNESS], center=[LENGTH / 2, 0.0, 0.0])
-    builder = mb.ModelBuilder(f"{cells} parallelograms")
-    for k in range(cells + 1):
-        builder.add_body(f"V{k}", mb.joints.Revolute(Y), placement=pose_from_xyz_rpy([k * LENGTH, 0, 0]), inertia=bar)
-    for k in range(1, cells + 1):
-        builder.add_body(f"H{k}", mb.joints.Revolute(Y), parent=f"V{k - 1}",
-                         placement=pose_from_xyz_rpy([LENGTH, 0, 0]), inertia=bar)
-    return builder.build()
-
-
-def planar_closures(cells):
-    """The planar loop closures ``Hk`` tip ↔ ``Vk`` tip; frame A's x and y are the world's x and z while
-    ``Hk`` is horizontal."""
-    tip = pose_from_xyz_rpy([LENGTH, 0, 0])
-    plane = pose_from_xyz_rpy([LENGTH, 0, 0], [np.pi / 2, 0, 0])
-    return [mb.LoopClosure(f"H{k}", f"V{k}", frame_a=plane, frame_b=tip, kind="planar") for k in range(1, cells + 1)]
+from constraint_helpers import (G, LENGTH, MASS, THICKNESS, assert_close, crank_state, parallelogram_chain,
+                                planar_closures)
 
 
 def world_closure(cells):
@@ -93,13 +69,6 @@ def world_closure(cells):
         return LENGTH * np.array(rows)
 
     return mb.Holonomic(phi, jacobian, "world closures", gamma=gamma)
-
-
-def crank_state(cells, phi, phi_rate=0.0):
-    """``(q, v)`` of the parallelogram motion at crank angle ``φ`` and rate ``φ̇``."""
-    q = np.concatenate([np.full(cells + 1, -phi), np.full(cells, phi)])
-    v = np.concatenate([np.full(cells + 1, -phi_rate), np.full(cells, phi_rate)])
-    return q, v
 
 
 # ----------------------------------------------------------------------------- two parallelograms at rest
