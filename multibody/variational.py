@@ -300,8 +300,8 @@ class _LieGroupChart:
         self._workspace = np.empty(configuration.workspace_size(tree.njoints, tree.nv))
         #: each free flyer's ``(iq, iv)``: its position and linear velocity offsets
         self._free_flyers = [(int(row[IQ]), int(row[IV])) for row in tree.joints if row[KIND] == kinds.FREE_FLYER]
-        #: ``T(q)`` of the configurations of the step under way, by their bytes: a Newton iteration asks for
-        #: the same few configurations' several times (mass matrix, gradient, rows)
+        #: ``T(q)`` of the step's configurations, keyed by their bytes: a Newton iteration asks for the
+        #: alignment of the same few configurations several times (mass matrix, gradient, rows)
         self._alignments = {}
 
     def advance(self, q, x):
