@@ -181,16 +181,21 @@ class CompiledRows(Constraint):
     def _levels(self, system, q, v, t):
         """``(A (..., m, nv), b (..., m), γ (..., m), φ (..., m))`` at ``(q, v, t)`` (``v`` ``None``: zero)."""
         model = _require_model(system, self)
-        frames = self.body_frames
-        m = self.rows(model)
+        m, nv = self.rows(model), model.nv
         program, rows = self._program_on(model)
-        q = model.check_configuration(q)
-        v = None if v is None else model.check_velocity(v)
-        batch = q.shape[:-1] if v is None else spatial.batch_shape(q.shape[:-1], v.shape[:-1])
-        nv = model.nv
-        out = driver.evaluate(compiled.constraint_levels, model.tree, (q, v, None, program),
-                              (1, compiled.levels_columns(nv, m)), batch, rows,
-                              compiled.workspace_size(model.njoints, nv, len(frames)))[..., 0, :]
+        columns, workspace = compiled.levels_columns(nv, m), compiled.workspace_size(model.njoints, nv, len(rows))
+        if model._is_one_state(q) if v is None else model._is_one_state(q, v):
+            # one state, as an integrator asks for it: the kernel directly, and plain indexing
+            batch = ()
+            out = driver.evaluate_one(compiled.constraint_levels, model.tree, (1, columns), q,
+                                      driver.NO_INPUT if v is None else v, driver.NO_INPUT, program, frames=rows,
+                                      workspace=workspace)[0]
+        else:
+            q = model.check_configuration(q)
+            v = None if v is None else model.check_velocity(v)
+            batch = q.shape[:-1] if v is None else spatial.batch_shape(q.shape[:-1], v.shape[:-1])
+            out = driver.evaluate(compiled.constraint_levels, model.tree, (q, v, None, program), (1, columns), batch,
+                                  rows, workspace)[..., 0, :]
         if (out[..., -1] == compiled.UNDEFINED).any():
             raise ValueError(f"{self.name}: {self.undefined}")
         gamma = out[..., m * nv : m * nv + m]

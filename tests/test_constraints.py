@@ -849,3 +849,28 @@ def test_point_on_curve_outside_parameter_range():
     cs = mb.ConstrainedSystem(model, [mb.PointOnCurve("bead", helix.r, s_range=(0.0, 2.0), samples=201)])
     with pytest.raises(ValueError, match="outside s_range"):
         cs.forward_dynamics(helix.r(3.0), np.zeros(3))
+
+
+def test_compiled_rows_of_one_state_equal_those_of_a_batch():
+    """The built-in rows of one state (the kernel called directly) equal those of the same state in a batch,
+    with and without a velocity; a non-finite configuration warns, as the full checks do."""
+    ball = mb.load_urdf(mb.robots.path("ball"), floating_base=True)
+    rolling = mb.RollingSphere("ball", 0.1, plane_normal=(np.sin(0.1), 0.0, np.cos(0.1)))
+    system = ModelSystem(ball)
+    rng = np.random.default_rng(4)
+    q = ball.random_configuration(rng, (3,))
+    v = rng.standard_normal((3, ball.nv))
+    batch = rolling._levels(system, q, v, 0.0)
+    for k in range(3):
+        one = rolling._levels(system, q[k], v[k], 0.0)
+        for single, batched in zip(one, batch):
+            assert single.shape == batched[k].shape
+            np.testing.assert_array_equal(single, batched[k])
+        without_velocity = rolling._levels(system, q[k], None, 0.0)
+        np.testing.assert_array_equal(without_velocity[0], batch[0][k])
+        np.testing.assert_array_equal(without_velocity[3], batch[3][k])
+    q_bad = q[0].copy()
+    q_bad[0] = np.nan
+    with pytest.warns(RuntimeWarning, match="NaN"):
+        A, _, _, _ = rolling._levels(system, q_bad, None, 0.0)
+    assert np.isnan(A).all()
