@@ -582,8 +582,9 @@ def _step(lagrangian, rows, rule, force, t, h, q0, p0, levels0, guess, tolerance
             C[N_rows] = A_N / h
             # (the largest entry of a row times the largest velocity as well: a row that reads one coordinate,
             # such as a knife edge's sideways velocity in its body frame, is measured against the whole motion)
-            scales[N_rows] = np.maximum.reduce([np.abs(A_N) @ np.abs(xi), np.abs(A_N).max(axis=1, initial=0.0) * _norm(xi),
-                                                np.abs(b_N), np.full(len(b_N), 1e-300)])
+            magnitudes = np.abs(A_N)
+            scales[N_rows] = np.maximum(np.maximum(magnitudes @ np.abs(xi), magnitudes.max(axis=1, initial=0.0) * _norm(xi)),
+                                        np.maximum(np.abs(b_N), 1e-300))
         return c, C, scales, levels1
 
     delta = np.array(guess, dtype=float)
