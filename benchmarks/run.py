@@ -283,7 +283,9 @@ def closed_chain_line(cells=40, budget=0.5):
     dependent; ``ConstrainedSystem.forward_dynamics`` is one compiled call (CRBA, RNEA, the rows, the
     Cholesky factor of ``M`` and the one-sided Jacobi SVD of ``A L⁻ᵀ``). The mechanism is built by the
     tests' helpers (``tests/constraint_helpers.py``, which need no test runner)."""
-    sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "tests"))
+    tests = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "tests")
+    if tests not in sys.path:
+        sys.path.insert(0, tests)
     from constraint_helpers import crank_state, parallelogram_chain, planar_closures
     model = parallelogram_chain(cells)
     system = mb.ConstrainedSystem(model, planar_closures(cells))

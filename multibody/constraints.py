@@ -184,18 +184,11 @@ class CompiledRows(Constraint):
         m, nv = self.rows(model), model.nv
         program, rows = self._program_on(model)
         columns, workspace = compiled.levels_columns(nv, m), compiled.workspace_size(model.njoints, nv, len(rows))
-        if model._is_one_state(q) if v is None else model._is_one_state(q, v):
-            # one state, as an integrator asks for it: the kernel directly, and plain indexing
-            batch = ()
-            out = driver.evaluate_one(compiled.constraint_levels, model.tree, (1, columns), q,
-                                      driver.NO_INPUT if v is None else v, driver.NO_INPUT, program, frames=rows,
-                                      workspace=workspace)[0]
-        else:
-            q = model.check_configuration(q)
-            v = None if v is None else model.check_velocity(v)
-            batch = q.shape[:-1] if v is None else spatial.batch_shape(q.shape[:-1], v.shape[:-1])
-            out = driver.evaluate(compiled.constraint_levels, model.tree, (q, v, None, program), (1, columns), batch,
-                                  rows, workspace)[..., 0, :]
+        q = model.check_configuration(q)
+        v = None if v is None else model.check_velocity(v)
+        batch = q.shape[:-1] if v is None else spatial.batch_shape(q.shape[:-1], v.shape[:-1])
+        out = driver.evaluate(compiled.constraint_levels, model.tree, (q, v, None, program), (1, columns), batch, rows,
+                              workspace)[..., 0, :]
         if (out[..., -1] == compiled.UNDEFINED).any():
             raise ValueError(f"{self.name}: {self.undefined}")
         gamma = out[..., m * nv : m * nv + m]

@@ -32,18 +32,16 @@ from .model import NOT_GIVEN
 
 # ============================================================================= shared pieces
 
-_ABSENT = NOT_GIVEN  # the default of an argument a function does not take (``None`` itself is refused)
-
-
-def _check(model, q, v=_ABSENT, a=_ABSENT, tau=_ABSENT, f_ext=None):
+def _check(model, q, v=NOT_GIVEN, a=NOT_GIVEN, tau=NOT_GIVEN, f_ext=None):
     """Validated float arrays and their common batch shape (``f_ext`` flattened to ``(..., 6 nj)``);
     the arguments a function does not take come back as ``None``."""
-    if f_ext is None and model._is_one_state(q, v, tau if a is _ABSENT else a):
-        return q, None if v is _ABSENT else v, None if a is _ABSENT else a, None if tau is _ABSENT else tau, None, ()
+    if f_ext is None and model._is_one_state(q, v, tau if a is NOT_GIVEN else a):
+        given = [None if x is NOT_GIVEN else x for x in (v, a, tau)]
+        return q, *given, None, ()
     q = model.check_configuration(q)
-    v = None if v is _ABSENT else model.check_velocity(v, "v")
-    a = None if a is _ABSENT else model.check_velocity(a, "a")
-    tau = None if tau is _ABSENT else model.check_velocity(tau, "tau")
+    v = None if v is NOT_GIVEN else model.check_velocity(v, "v")
+    a = None if a is NOT_GIVEN else model.check_velocity(a, "a")
+    tau = None if tau is NOT_GIVEN else model.check_velocity(tau, "tau")
     shapes = {name: x.shape[:-1] for name, x in (("q", q), ("v", v), ("a", a), ("tau", tau)) if x is not None}
     if f_ext is not None:
         f_ext = model._as_float_array(f_ext, "f_ext")
@@ -60,7 +58,7 @@ def _check(model, q, v=_ABSENT, a=_ABSENT, tau=_ABSENT, f_ext=None):
     return q, v, a, tau, f_ext, batch
 
 
-def _single(model, kernel, out_shape, q, v=_ABSENT, w=_ABSENT):
+def _single(model, kernel, out_shape, q, v=NOT_GIVEN, w=NOT_GIVEN):
     """``kernel``'s output ``out_shape`` for one state when ``q`` and the velocities ``v``, ``w`` given are
     exactly that, C-contiguous float64 vectors of sizes ``nq`` and ``nv`` (``Model._is_one_state``), and
     its output is finite; ``None`` otherwise, for the general path (conversion, broadcasting, the full
@@ -69,8 +67,8 @@ def _single(model, kernel, out_shape, q, v=_ABSENT, w=_ABSENT):
     The single call's path, which leaves the entries to :func:`multibody.driver.vouches`."""
     if not model._is_one_state(q, v, w, finite=False):
         return None
-    out = driver.evaluate_one(kernel, model.tree, out_shape, q, NO_INPUT if v is _ABSENT else v,
-                              NO_INPUT if w is _ABSENT else w)
+    out = driver.evaluate_one(kernel, model.tree, out_shape, q, NO_INPUT if v is NOT_GIVEN else v,
+                              NO_INPUT if w is NOT_GIVEN else w)
     return out if driver.vouches(out) else None
 
 

@@ -26,7 +26,8 @@ STANDARD_GRAVITY = (0.0, 0.0, -9.81)
 #: Largest input whose finiteness check sums a Python list rather than reducing in NumPy
 _PYTHON_SUM_SIZE = 64
 _FLOAT = np.dtype(np.float64)
-#: An argument of :meth:`Model._is_one_state` that is not there (``None`` is a value it refuses).
+#: An argument that is not there (``Model._is_one_state``, the dynamics functions' checks): ``None`` is a value,
+#: which the checks refuse.
 NOT_GIVEN = object()
 
 
@@ -451,16 +452,13 @@ class Model:
                         return False
                 total = sum(values)
         shape = self._velocity_shape
-        if v is not NOT_GIVEN:
-            if not (type(v) is np.ndarray and v.dtype is _FLOAT and v.shape == shape and v.flags.c_contiguous):
+        for x in (v, w):
+            if x is NOT_GIVEN:
+                continue
+            if not (type(x) is np.ndarray and x.dtype is _FLOAT and x.shape == shape and x.flags.c_contiguous):
                 return False
             if finite:
-                total += sum(v.tolist())
-        if w is not NOT_GIVEN:
-            if not (type(w) is np.ndarray and w.dtype is _FLOAT and w.shape == shape and w.flags.c_contiguous):
-                return False
-            if finite:
-                total += sum(w.tolist())
+                total += sum(x.tolist())
         # One non-finite entry makes the sum non-finite (and so may an overflow, which the full checks pass).
         return not finite or math.isfinite(total)
 

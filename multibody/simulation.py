@@ -758,16 +758,14 @@ def _trajectory(constrained, times, states, torque, status, projection_tolerance
     taus = [torque(t, q_k, v_k) for t, q_k, v_k in zip(times, q, v)] if m else None
     if not m:
         lam = np.zeros((n, 0))
-        energy = np.broadcast_to(constrained.energy(q, v), (n,)) if batched else [constrained.energy(q_k, v_k)
-                                                                                  for q_k, v_k in zip(q, v)]
     elif batched:
         tau = None if all(tau_k is None for tau_k in taus) else np.stack(
             [np.zeros(nv) if tau_k is None else np.asarray(tau_k, dtype=float) for tau_k in taus])
         lam = constrained.solve(q, v, tau, times).lam
-        energy = np.broadcast_to(constrained.energy(q, v), (n,))
     else:
         lam = [constrained.solve(q_k, v_k, tau_k, t).lam for t, q_k, v_k, tau_k in zip(times, q, v, taus)]
-        energy = [constrained.energy(q_k, v_k) for q_k, v_k in zip(q, v)]
+    energy = (np.broadcast_to(constrained.energy(q, v), (n,)) if batched
+              else [constrained.energy(q_k, v_k) for q_k, v_k in zip(q, v)])
     return Trajectory(
         t=np.array(times, dtype=float),
         q=q,

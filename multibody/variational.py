@@ -363,7 +363,6 @@ class _LieGroupChart:
         return out[:self.nv], out[self.nv:]
 
 
-
 class _GroupLagrangian:
     """The Lagrangian's terms in the integrator's group velocities ``w``, with ``v = T(q) w``
     (:meth:`_LieGroupChart.alignment`: a free flyer's linear velocity in the parent frame):
@@ -636,8 +635,6 @@ def _step(lagrangian, rows, rule, force, t, h, q0, p0, levels0, guess, tolerance
     else:
         raise _NotConverged(error, max_iterations, None)
 
-    # p_{k+1} = p_k + (D1 L_d + D2 L_d) + f⁻ + f⁺ + impulses: the momentum balance of the step, which keeps a
-    # cyclic momentum exactly whatever the Newton residual left
     # p_{k+1} = p_k + (D1 L_d + D2 L_d) + f⁻ + f⁺ + impulses: the momentum balance of the step, which keeps a
     # cyclic momentum exactly whatever the Newton residual left; on Lie-group joints
     # p_{k+1} = Ad_exp(Δ)ᵀ p_k + h Ad_exp(Δ/2)ᵀ (∂L/∂q(q̄, ξ) + τ̄) (midpoint), which keeps a momentum map

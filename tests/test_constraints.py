@@ -852,7 +852,7 @@ def test_point_on_curve_outside_parameter_range():
 
 
 def test_compiled_rows_of_one_state_equal_those_of_a_batch():
-    """The built-in rows of one state (the kernel called directly) equal those of the same state in a batch,
+    """The built-in rows of one state (the driver's single-state path) equal those of the same state in a batch,
     with and without a velocity; a non-finite configuration warns, as the full checks do."""
     ball = mb.load_urdf(mb.robots.path("ball"), floating_base=True)
     rolling = mb.RollingSphere("ball", 0.1, plane_normal=(np.sin(0.1), 0.0, np.cos(0.1)))
