@@ -133,11 +133,53 @@ def evaluate_one(kernel, tree, out_shape, x0=NO_INPUT, x1=NO_INPUT, x2=NO_INPUT,
     """``kernel`` on one state whose inputs ``x0 … x3`` are C-contiguous float64 vectors already (a
     length-0 vector for an unused one): ``-> out_shape``. The path of a single call, which has no
     batch to broadcast and so costs little more than the kernel; :func:`evaluate` takes anything else.
-    ``frames`` and ``workspace`` as :func:`evaluate`."""
+    ``frames`` (C-contiguous float64 rows) and ``workspace`` as :func:`evaluate`.
+
+    The kernel's machine code is called without Numba's dispatch (:func:`_direct`), so the types
+    above are the caller's to guarantee: every caller has checked them already, and a second look
+    would cost as much as the kernel's own arithmetic on a small robot."""
     out = np.empty(out_shape)
-    kernel(tree.joints, tree.reals, tree.bodies if frames is None else frames, x0, x1, x2, x3, out,
-           np.empty(_WORKSPACE[kernel](tree.joints.shape[0], tree.nv) if workspace is None else workspace))
+    if workspace is None:
+        workspace = _workspace_size(kernel, tree.njoints, tree.nv)
+    _direct(kernel)(tree.joints, tree.reals, tree.bodies if frames is None else frames, x0, x1, x2, x3, out,
+                    np.empty(workspace))
     return out
+
+
+_WORKSPACE_SIZES = {}
+
+
+def _workspace_size(kernel, nj, nv):
+    """Floats of workspace one state of ``kernel`` needs on a tree of ``nj`` joints and ``nv`` velocities."""
+    key = (kernel, nj, nv)
+    size = _WORKSPACE_SIZES.get(key)
+    if size is None:
+        size = _WORKSPACE_SIZES[key] = _WORKSPACE[kernel](nj, nv)
+    return size
+
+
+_DIRECT = {}
+_TREE_INTS, _TREE_FLOATS = (numba.types.Array(numba.types.int64, 2, "C", readonly=True),
+                            numba.types.Array(numba.types.float64, 2, "C", readonly=True))
+_VECTOR, _MATRIX = numba.types.float64[::1], numba.types.float64[:, ::1]
+#: The argument types of every single call: the tree's read-only arrays, then writable inputs and outputs.
+#: Machine code does not depend on whether an array is writable, and no kernel writes its inputs.
+_SINGLE_CALL_TYPES = (_TREE_INTS, _TREE_FLOATS, _TREE_FLOATS, _VECTOR, _VECTOR, _VECTOR, _VECTOR, _MATRIX, _VECTOR)
+
+
+def _direct(kernel):
+    """``kernel``'s compiled entry point for :data:`_SINGLE_CALL_TYPES`, compiled (or loaded from Numba's
+    cache) on first use: a call that skips the dispatcher's look at every argument's type, a third of
+    a small robot's single call. Under ``NUMBA_DISABLE_JIT=1``: the Python function."""
+    entry = _DIRECT.get(kernel)
+    if entry is None:
+        if isinstance(kernel, Dispatcher):
+            kernel.compile(_SINGLE_CALL_TYPES)
+            entry = kernel.overloads[_SINGLE_CALL_TYPES].entry_point
+        else:
+            entry = kernel
+        _DIRECT[kernel] = entry
+    return entry
 
 
 def vouches(out) -> bool:
@@ -161,7 +203,7 @@ def evaluate(kernel, tree, inputs, out_shape, batch=(), frames=None, workspace=N
     if not batch:
         return evaluate_one(kernel, tree, out_shape, *map(contiguous, inputs), frames=frames, workspace=workspace)
     frames = tree.bodies if frames is None else frames
-    workspace = np.empty(_WORKSPACE[kernel](tree.joints.shape[0], tree.nv) if workspace is None else workspace)
+    workspace = np.empty(_workspace_size(kernel, tree.njoints, tree.nv) if workspace is None else workspace)
     x0, x1, x2, x3 = inputs + _UNUSED[len(inputs):]
     n = math.prod(batch)
     out = np.empty((n,) + tuple(out_shape))

@@ -440,8 +440,8 @@ class Model:
         warn and raise."""
         total = 0.0
         if q is not NOT_GIVEN:
-            if not (type(q) is np.ndarray and q.dtype is _FLOAT and q.shape == self._configuration_shape
-                    and q.flags.c_contiguous):
+            if (type(q) is not np.ndarray or q.dtype is not _FLOAT or q.ndim != 1 or len(q) != self.nq
+                    or not q.flags.c_contiguous):
                 return False
             slices = self._unit_norm_slices
             if slices or finite:
@@ -451,24 +451,20 @@ class Model:
                     if not lower <= sum([c * c for c in values[start:stop]]) <= upper:
                         return False
                 total = sum(values)
-        shape = self._velocity_shape
-        for x in (v, w):
-            if x is NOT_GIVEN:
-                continue
-            if not (type(x) is np.ndarray and x.dtype is _FLOAT and x.shape == shape and x.flags.c_contiguous):
+        if v is NOT_GIVEN:
+            v, w = w, NOT_GIVEN
+        if v is not NOT_GIVEN:
+            nv = self.nv
+            if (type(v) is not np.ndarray or v.dtype is not _FLOAT or v.ndim != 1 or len(v) != nv
+                    or not v.flags.c_contiguous):
+                return False
+            if w is not NOT_GIVEN and (type(w) is not np.ndarray or w.dtype is not _FLOAT or w.ndim != 1
+                                       or len(w) != nv or not w.flags.c_contiguous):
                 return False
             if finite:
-                total += sum(x.tolist())
+                total += sum(v.tolist()) + (0.0 if w is NOT_GIVEN else sum(w.tolist()))
         # One non-finite entry makes the sum non-finite (and so may an overflow, which the full checks pass).
         return not finite or math.isfinite(total)
-
-    @cached_property
-    def _configuration_shape(self):
-        return (self.nq,)
-
-    @cached_property
-    def _velocity_shape(self):
-        return (self.nv,)
 
     def check_configuration(self, q, name="q") -> np.ndarray:
         """``q`` as a float array of shape ``(..., nq)``, or ``ValueError``.

@@ -54,10 +54,7 @@ class CompiledTree(NamedTuple):
     joint_frames: np.ndarray
     nq: int
     nv: int
-
-    @property
-    def njoints(self) -> int:
-        return self.joints.shape[0]
+    njoints: int
 
 
 def kind_code(joint) -> int:
@@ -112,4 +109,4 @@ def compile_tree(model) -> CompiledTree:
     joint_frames = np.zeros((nj, FRAME_SIZE))
     joint_frames[:, FRAME_JOINT] = np.arange(nj)
     joint_frames[:, FRAME_ROTATION:FRAME_POSITION] = np.eye(3).reshape(9)
-    return CompiledTree(_frozen(joints), _frozen(reals), _frozen(bodies), _frozen(joint_frames), model.nq, model.nv)
+    return CompiledTree(_frozen(joints), _frozen(reals), _frozen(bodies), _frozen(joint_frames), model.nq, model.nv, nj)

@@ -104,6 +104,29 @@ def test_a_row_of_one_state_serves_every_state():
     np.testing.assert_array_equal(tau, np.stack([mb.inverse_dynamics(model, q[0], x, a) for x in states["v"]]))
 
 
+def test_single_calls_take_read_only_and_strided_vectors():
+    """A single call runs one compiled signature whatever the writability of its vectors; a strided one
+    (which that signature's machine code cannot read) goes through the general path, with the same numbers."""
+    from multibody import driver
+    from multibody.kernels import rnea
+
+    model = random_tree_model(0)
+    states = _states(model, 1, seed=3)
+    q, v, a = states["q"][0], states["v"][0], states["a"][0]
+    expected = mb.inverse_dynamics(model, q, v, a)
+    signatures = list(getattr(rnea.inverse_dynamics, "signatures", []))
+    frozen = [x.copy() for x in (q, v, a)]
+    for x in frozen:
+        x.setflags(write=False)
+    np.testing.assert_array_equal(mb.inverse_dynamics(model, *frozen), expected)
+    strided = [np.repeat(x, 2)[::2] for x in (q, v, a)]
+    assert not strided[0].flags.c_contiguous
+    np.testing.assert_array_equal(mb.inverse_dynamics(model, *strided), expected)
+    # no new machine code for the read-only vectors: the single call's types are fixed (driver._SINGLE_CALL_TYPES)
+    assert list(getattr(rnea.inverse_dynamics, "signatures", [])) == signatures
+    assert driver._direct(rnea.inverse_dynamics) is driver._direct(rnea.inverse_dynamics)
+
+
 # ============================================================================= one thread, many
 
 def test_one_thread_equals_many():
