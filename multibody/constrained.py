@@ -19,6 +19,7 @@ import numpy as np
 from . import derivatives, differences, driver, dynamics, kinematics, linalg, spatial
 from .constraints import CompiledRows, _frame_key, constraint_program
 from .kernels import aba, integration, kkt
+from .kernels import constraints as compiled_rows
 from .model import Model
 from .spatial import matvec
 from .tree import frame_rows
@@ -223,6 +224,23 @@ class ConstrainedSystem:
         workspace = kkt.workspace_size(model.njoints, self.nv, len(frames), self.num_rows)
         return program, frames, workspace
 
+    def _compiled_levels(self, q):
+        """``(φ (m,), A (m, nv), b (m,))`` of every row at one state ``q``, all compiled and fixed in time
+        (``b = 0``), from one call of :func:`multibody.kernels.constraints.constraint_levels` on the step's
+        program; ``None`` for anything else, or where a row is undefined or an entry not finite (the
+        constraints' own methods then raise or warn)."""
+        model = self.system.model
+        if not model._is_one_state(q, finite=False):
+            return None
+        program, frames, _ = self._compiled_step
+        nv, m = self.nv, self.num_rows
+        row = driver.evaluate_one(compiled_rows.constraint_levels, model.tree, (1, compiled_rows.levels_columns(nv, m)), q,
+                                  driver.NO_INPUT, driver.NO_INPUT, program, frames=frames,
+                                  workspace=compiled_rows.workspace_size(model.njoints, nv, len(frames)))[0]
+        if row[-1] != 0.0:  # (a status NaN: a non-finite input)
+            return None
+        return row[m * nv + m : m * nv + 2 * m], row[: m * nv].reshape(m, nv), np.zeros(m)
+
     def _solve_compiled(self, q, v, tau):
         """:meth:`solve` by the compiled step, or ``None`` where it does not apply or did not solve (a
         singular ``M``, inconsistent rows, undefined geometry): the NumPy path then raises the error
@@ -383,7 +401,10 @@ class ConstrainedSystem:
         return float(worst) if q.ndim == 1 else worst
 
     def _position_and_velocity_levels(self, q, t):
-        """Stacked ``(φ, A, b)``, each constraint evaluated once."""
+        """Stacked ``(φ, A, b)``, each constraint evaluated once; those of one state with compiled rows by
+        one call of their kernel (:meth:`_compiled_levels`)."""
+        if self._compiled_step is not None and (levels := self._compiled_levels(q)) is not None:
+            return levels
         levels = [c.position_and_velocity_level(self.system, q, t) for c in self.constraints]
         return (self._stack([level[0] for level in levels], (0,)), self._stack([level[1] for level in levels], (0, self.nv)),
                 self._stack([level[2] for level in levels], (0,)))
@@ -662,8 +683,19 @@ class ConstrainedSystem:
         largest."""
         if not self.num_rows:
             return 0
+        if (rank := self._compiled_rank(q)) is not None:
+            return rank
         sigma, _ = self._metric_singular_values(self.jacobian(q, t), self._factor(q))
         return int(self._kept_directions(sigma)[0].sum()) if sigma.size and sigma[0] > 0 else 0
+
+    def _compiled_rank(self, q):
+        """:meth:`rank` at one state ``q`` by the compiled step, which makes the same decision on the same
+        singular values (:func:`multibody.kernels.kkt.orthogonalize_rows`) in one call, with ``M`` and the
+        rows; ``None`` where it does not apply (no compiled step, a batch) or did not solve."""
+        if self._compiled_step is None or not self.system.model._is_one_state(q, finite=False):
+            return None
+        solution = self._solve_compiled(q, np.zeros(self.nv), None)
+        return None if solution is None else solution.rank
 
     # ------------------------------------------------------------------ projection onto the constraints
 

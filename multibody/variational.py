@@ -121,10 +121,11 @@ import warnings
 
 import numpy as np
 
-from . import linalg
+from . import driver, linalg
 from .constrained import ConstrainedSystem, ConstraintError, ModelSystem
 from .tree import IQ, IV, KIND
 from .kernels import configuration, coriolis, crba, rnea
+from .kernels import lagrangian as lagrangian_kernels
 from .kernels import joints as kinds
 from .kernels import derivatives as derivative_kernels
 
@@ -137,6 +138,7 @@ YOSHIDA_W1 = 1.0 / (2.0 - 2.0 ** (1.0 / 3.0))
 YOSHIDA_W0 = -(2.0 ** (1.0 / 3.0)) * YOSHIDA_W1
 
 _EMPTY = np.zeros(0)  # an unused kernel input (zero velocity, acceleration, no external forces)
+_GROUP = np.ones(1)  # lagrangian_terms' flag: the velocities are the group velocities of _GroupLagrangian
 
 #: Relative size of the forward-difference step of ``∂τ/∂Δ`` (about √ε).
 _FORCE_DIFFERENCE_STEP = 1.5e-8
@@ -162,28 +164,33 @@ class _ModelLagrangian:
         nj, nv = tree.joints.shape[0], tree.nv
         self._workspaces = {kernel: np.empty(module.workspace_size(nj, nv)) for kernel, module in (
             (crba.mass_matrix, crba), (coriolis.coriolis_matrix, coriolis), (rnea.inverse_dynamics, rnea),
-            (derivative_kernels.inverse_dynamics_derivatives, derivative_kernels))}
+            (derivative_kernels.inverse_dynamics_derivatives, derivative_kernels),
+            (lagrangian_kernels.lagrangian_terms, lagrangian_kernels))}
 
     def _run(self, kernel, shape, q, v=_EMPTY, a=_EMPTY):
         out = np.empty(shape)
-        kernel(*self._tree, np.ascontiguousarray(q, dtype=float), v, a, _EMPTY, out, self._workspaces[kernel])
+        # (the step's own C-contiguous float64 vectors: the types driver.evaluate_one's callers guarantee)
+        driver._direct(kernel)(*self._tree, np.ascontiguousarray(q, dtype=float), v, a, _EMPTY, out,
+                               self._workspaces[kernel])
         return out
 
     def mass_matrix(self, q):
         # CRBA (RBDA Table 6.2): multibody.mass_matrix
         return self._run(crba.mass_matrix, (self.nv, self.nv), q)
 
+    def terms(self, q, v, group=False):
+        """``(M(q), ∂L/∂q(q, v))`` by one compiled call (:func:`multibody.kernels.lagrangian.lagrangian_terms`):
+        ``∂L/∂q = C(q, v)ᵀ v − g(q)`` (``C`` Christoffel-consistent: ``Cᵀ v = ½ vᵀ (∂M/∂q) v``), less
+        ``ad_vᵀ M v`` on Lie-group joints (module docstring, "Lie-group joints"). ``group``: ``v`` are
+        the group velocities of :class:`_GroupLagrangian`, which then gets its ``M_G`` and ``∂L_G/∂q``."""
+        nv = self.nv
+        out = self._run(lagrangian_kernels.lagrangian_terms, (nv + 1, nv), q, np.ascontiguousarray(v, dtype=float),
+                        _GROUP if group else _EMPTY)
+        return out[:nv], out[nv]
+
     def gradient(self, q, v, M=None):
-        """``∂L/∂q (nv,)`` at ``(q, v)``, left-trivialised on Lie-group joints (``M``: ``M(q)`` if known)."""
-        v = np.ascontiguousarray(v, dtype=float)
-        C = self._run(coriolis.coriolis_matrix, (self.nv, self.nv), q, v)
-        g = self._run(rnea.inverse_dynamics, (1, self.nv), q)[0]
-        # ∂L/∂q = C(q, v)ᵀ v − g(q)   (C Christoffel-consistent: Cᵀ v = ½ vᵀ (∂M/∂q) v)
-        gradient = C.T @ v - g
-        if self.chart is not None:
-            # d/dε L(q ⊕ εη, v) = (Cᵀ v − g − ad_vᵀ M v)·η   (module docstring, "Lie-group joints")
-            gradient -= self.chart.coadjoint(v, (self.mass_matrix(q) if M is None else M) @ v)
-        return gradient
+        """``∂L/∂q (nv,)`` at ``(q, v)`` (:meth:`terms`; ``M`` is not needed)."""
+        return self.terms(q, v)[1]
 
     def jacobian_terms(self, q, v):
         """``(K, H, S)``: ``K = ∂(M(q) v)/∂q``, ``H ≈ ∂²L/∂q²`` and ``S = ∂(C(q, v)ᵀ v)/∂v``, all ``(nv, nv)``.
@@ -226,6 +233,9 @@ class _SystemLagrangian:
 
     def gradient(self, q, v, M=None):
         return np.asarray(self.system.lagrangian_gradient(q, v), dtype=float).reshape(self.nv)
+
+    def terms(self, q, v):
+        return self.mass_matrix(q), self.gradient(q, v)
 
     def jacobian_terms(self, q, v):
         zero = np.zeros((self.nv, self.nv))
@@ -278,7 +288,8 @@ class _LieGroupChart:
     ``q + x`` on the other joints; ``x (nv,)`` in the velocity coordinates ``ω`` (spherical),
     ``[vx, vy, ω]`` (planar), ``[ṗ, ω]`` (free flyer, ``ṗ`` in the parent frame: :meth:`alignment`).
     The model's own SE(3) exponential of a free flyer (``[v_lin, ω]`` in the body frame) gives
-    ``ad_xᵀ p`` of its Lagrangian (:meth:`coadjoint`). The Lie algebras' adjoints are
+    ``ad_xᵀ p`` of its Lagrangian (:func:`multibody.kernels.lagrangian.lagrangian_terms`). The Lie algebras'
+    adjoints are
 
         SE(3): ad_(v,ω) = [[ω×, v×], [0, ω×]],   SO(3): ad_ω = ω×,   SE(2): ad_(u,ω) = [[ω E, −E u], [0, 0]]
 
@@ -339,22 +350,6 @@ class _LieGroupChart:
         self._alignments[key] = T
         return T
 
-    def translation_term(self, v, p):
-        """``(0, p_lin × v_lin)`` on each free flyer, zero elsewhere ``(nv,)``: the part of the group's
-        left-trivialised ``∂L/∂q`` that comes from turning the body under a fixed parent-frame velocity."""
-        out = np.zeros(self.nv)
-        for _, iv in self._free_flyers:
-            (px, py, pz), (vx, vy, vz) = p[iv:iv + 3], v[iv:iv + 3]
-            out[iv + 3:iv + 6] = (py * vz - pz * vy, pz * vx - px * vz, px * vy - py * vx)
-        return out
-
-    def coadjoint(self, x, p):
-        """``ad_xᵀ p (nv,)``, zero on the commutative joints (:func:`multibody.kernels.configuration.coadjoint`)."""
-        out = np.empty((1, self.nv))
-        configuration.coadjoint(*self._tree, np.ascontiguousarray(x, dtype=float), np.ascontiguousarray(p, dtype=float),
-                                _EMPTY, _EMPTY, out, _EMPTY)
-        return out[0]
-
     def exponential_terms(self, x):
         """``(Ad_exp(x), J_l(x))``, both ``(nv, nv)`` (:func:`multibody.kernels.configuration.exponential_terms`)."""
         out = np.empty((2 * self.nv, self.nv))
@@ -380,10 +375,11 @@ class _GroupLagrangian:
         return T.T @ self.inner.mass_matrix(q) @ T
 
     def gradient(self, q, w, M=None):
-        T = self.chart.alignment(q)
-        v = T @ w
-        M = self.inner.mass_matrix(q) if M is None else T @ M @ T.T
-        return T.T @ self.inner.gradient(q, v, M) + self.chart.translation_term(v, M @ v)
+        return self.terms(q, w)[1]
+
+    def terms(self, q, w):
+        """``(M_G, ∂L/∂q|_G)`` at one configuration, by one compiled call (:meth:`_ModelLagrangian.terms`)."""
+        return self.inner.terms(q, w, group=True)
 
     def jacobian_terms(self, q, w):
         T = self.chart.alignment(q)
@@ -427,10 +423,13 @@ class _Rows:
     def __init__(self, constrained):
         self.constrained = constrained
         self.m = constrained.num_rows
-        self.holonomic = np.asarray(constrained._position_mask, dtype=bool)
-        self.nonholonomic = ~self.holonomic
-        self.any_holonomic = bool(self.holonomic.any())
-        self.any_nonholonomic = bool(self.nonholonomic.any())
+        mask = np.asarray(constrained._position_mask, dtype=bool)
+        #: the indices of each kind of row: ``slice(None)`` when all rows are of that kind (which indexes
+        #: without the copy and the search of a mask)
+        self.holonomic = slice(None) if mask.all() else np.flatnonzero(mask)
+        self.nonholonomic = slice(None) if not mask.any() else np.flatnonzero(~mask)
+        self.any_holonomic = bool(mask.any())
+        self.any_nonholonomic = not mask.all()
 
     def levels(self, q, t):
         """``(φ (m,), A (m, nv), b (m,))`` at ``(q, t)``."""
@@ -439,6 +438,8 @@ class _Rows:
     def independent(self, q, A):
         """Whether the rows ``A (m, nv)`` at ``q`` are independent, by the system's one rank decision
         (:meth:`ConstrainedSystem.rank`'s singular values of ``A`` in the metric of ``M(q)``)."""
+        if (rank := self.constrained._compiled_rank(q)) is not None:
+            return rank == self.m
         sigma, _ = self.constrained._metric_singular_values(A, self.constrained._factor(q))
         return bool(sigma.size) and sigma[0] > 0 and bool(self.constrained._kept_directions(sigma)[0].all())
 
@@ -495,8 +496,7 @@ def _step(lagrangian, rows, rule, force, t, h, q0, p0, levels0, guess, tolerance
         xi = delta / h
         if rule == "midpoint":
             q_mid = advance(q0, 0.5 * delta)
-            M = lagrangian.mass_matrix(q_mid)
-            Lq = lagrangian.gradient(q_mid, xi, M)
+            M, Lq = lagrangian.terms(q_mid, xi)
             f = None if force is None else force(t + 0.5 * h, q_mid, xi)
             M_xi = M @ xi
             pull = Lq if f is None else Lq + f
@@ -587,6 +587,7 @@ def _step(lagrangian, rows, rule, force, t, h, q0, p0, levels0, guess, tolerance
         return c, C, scales, levels1
 
     delta = np.array(guess, dtype=float)
+    p0_size = _norm(p0)
     mu = np.zeros(m) if impulse_guess is None else np.array(impulse_guess, dtype=float)
     previous = np.inf
     J_inverse, fresh = None, False  # fresh: J_inverse is this step's analytical one (Broyden-updated since)
@@ -599,10 +600,10 @@ def _step(lagrangian, rows, rule, force, t, h, q0, p0, levels0, guess, tolerance
             impulse = B.T @ mu
             residual = residual - impulse
             scale = max(scale, _norm(impulse))
-        scale = max(scale, _norm(p0), 1e-300)
+        scale = max(scale, p0_size, 1e-300)
         error = _norm(residual) / scale
         if m:
-            row_error = float(np.max(np.abs(c) / row_scales, initial=0.0))
+            row_error = _norm(c / row_scales)
             error = max(error, row_error)
         if not math.isfinite(error):
             raise _NotConverged(error, iteration, "the residual is not finite")

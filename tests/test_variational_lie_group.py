@@ -18,6 +18,7 @@ import pytest
 
 import multibody as mb
 from multibody import demos, spatial, variational
+from multibody.kernels import configuration
 from multibody.spatial import pose_from_xyz_rpy
 
 LONG_STEPS = 100_000 if os.environ.get("MULTIBODY_LONG_RUNS") == "1" else 10_000
@@ -115,6 +116,14 @@ def test_integrator_group_terms_match_its_steps(make):
                              chart.exponential_terms)
 
 
+def _coadjoint(model, x, p):
+    """``ad_xᵀ p (nv,)`` by its kernel (:func:`multibody.kernels.configuration.coadjoint`)."""
+    out, unused = np.empty((1, model.nv)), np.zeros(0)
+    tree = model.tree
+    configuration.coadjoint(tree.joints, tree.reals, tree.bodies, x, p, unused, unused, out, unused)
+    return out[0]
+
+
 def test_coadjoint_of_the_joint_velocities():
     """``ad_xᵀ p`` from its kernel, for the joints' own velocities, against the adjoint matrices written
     out: the spatial motion cross product ``[x×]`` on a free flyer's ``[v, ω]`` (SE(3)), ``[ω]×`` on a
@@ -125,13 +134,13 @@ def test_coadjoint_of_the_joint_velocities():
     ad = np.zeros((chain.nv, chain.nv))
     ad[:6, :6] = spatial.motion_cross_matrix(x[:6])
     ad[7:10, 7:10] = spatial.skew(x[7:10])  # the wrist, after the arm's revolute joint
-    np.testing.assert_allclose(variational._LieGroupChart(chain).coadjoint(x, p), ad.T @ p, rtol=1e-14, atol=1e-15)
+    np.testing.assert_allclose(_coadjoint(chain, x, p), ad.T @ p, rtol=1e-14, atol=1e-15)
     planar = planar_chain()
     x, p = rng.standard_normal(planar.nv), rng.standard_normal(planar.nv)
     ux, uy, w = x[:3]
     ad = np.zeros((planar.nv, planar.nv))
     ad[:3, :3] = [[0.0, -w, uy], [w, 0.0, -ux], [0.0, 0.0, 0.0]]
-    np.testing.assert_allclose(variational._LieGroupChart(planar).coadjoint(x, p), ad.T @ p, rtol=1e-14, atol=1e-15)
+    np.testing.assert_allclose(_coadjoint(planar, x, p), ad.T @ p, rtol=1e-14, atol=1e-15)
 
 
 def test_the_commutative_joints_have_identity_terms():
@@ -140,7 +149,7 @@ def test_the_commutative_joints_have_identity_terms():
     Ad, J_l = chart.exponential_terms(np.array([0.4, -2.0]))
     np.testing.assert_array_equal(Ad, np.eye(2))
     np.testing.assert_array_equal(J_l, np.eye(2))
-    np.testing.assert_array_equal(chart.coadjoint(np.array([0.4, -2.0]), np.array([1.0, 3.0])), np.zeros(2))
+    np.testing.assert_array_equal(_coadjoint(model, np.array([0.4, -2.0]), np.array([1.0, 3.0])), np.zeros(2))
 
 
 @pytest.mark.parametrize("make", [lambda: free_chain((0.0, 0.0, -9.81)), planar_chain, heavy_top])
@@ -160,6 +169,12 @@ def test_left_trivialised_lagrangian_gradient(make):
     gradient = lagrangian.gradient(q, v)
     np.testing.assert_allclose(gradient, differences, atol=1e-7 * max(1.0, np.abs(differences).max()))
     np.testing.assert_allclose(lagrangian.gradient(q, v, mb.mass_matrix(model, q)), gradient, rtol=1e-14, atol=1e-14)
+    # the one compiled call against the public functions it stands for
+    M, from_terms = lagrangian.terms(q, v)
+    np.testing.assert_array_equal(M, mb.mass_matrix(model, q))
+    np.testing.assert_array_equal(from_terms, gradient)
+    composed = mb.coriolis_matrix(model, q, v).T @ v - mb.generalized_gravity(model, q) - _coadjoint(model, v, M @ v)
+    np.testing.assert_allclose(gradient, composed, rtol=1e-13, atol=1e-13 * np.abs(composed).max())
 
 
 def test_group_lagrangian_gradient_of_a_free_flyer():
@@ -182,6 +197,15 @@ def test_group_lagrangian_gradient_of_a_free_flyer():
     np.testing.assert_allclose(group.gradient(q, w), differences, atol=1e-7 * max(1.0, np.abs(differences).max()))
     T = chart.alignment(q)
     np.testing.assert_allclose(group.mass_matrix(q), T.T @ mb.mass_matrix(model, q) @ T, rtol=1e-14, atol=1e-14)
+    # the compiled M_G and ∂L_G/∂q against T and the joint-velocity terms (the free flyer's p_lin × v_lin added)
+    M_G, gradient = group.terms(q, w)
+    np.testing.assert_allclose(M_G, T.T @ mb.mass_matrix(model, q) @ T, rtol=1e-14, atol=1e-14)
+    v = T @ w
+    M = mb.mass_matrix(model, q)
+    turning = np.zeros(model.nv)
+    turning[3:6] = np.cross((M @ v)[:3], v[:3])
+    np.testing.assert_allclose(gradient, T.T @ inner.gradient(q, v) + turning, rtol=1e-13,
+                               atol=1e-13 * np.abs(gradient).max())
     assert variational._LieGroupChart(planar_chain()).alignment(planar_chain().neutral()) is None
 
 
