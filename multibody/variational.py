@@ -556,11 +556,11 @@ def _step(lagrangian, rows, rule, force, t, h, q0, p0, levels0, guess, tolerance
 
     def constraint_terms(delta, state):
         """Rows of the step's constraints at ``Δ`` (``state``: :func:`evaluate`'s at ``Δ``): ``(c, C, scales,
-        levels1)`` with the residuals ``c (m,)``, their linearisation ``C (m, nv)`` in ``Δ``, the rows' scales
-        and the levels at ``q_{k+1}`` (``None`` without holonomic rows, which alone need them while
-        iterating). The scales: ``max(1, |q_{k+1}|)`` for ``φ`` (its units are those of ``q``), the size
+        levels1, q1)`` with the residuals ``c (m,)``, their linearisation ``C (m, nv)`` in ``Δ``, the rows' scales,
+        and the levels at ``q_{k+1}`` and ``q_{k+1}`` itself (``None`` without holonomic rows, which alone need
+        them while iterating). The scales: ``max(1, |q_{k+1}|)`` for ``φ`` (its units are those of ``q``), the size
         of the terms of ``A ξ + b`` and ``max|A_row| · max|ξ|`` for the nonholonomic rows."""
-        levels1 = None
+        levels1 = q1 = None
         c, C, scales = np.empty(m), np.empty((m, nv)), np.empty(m)
         if rows.any_holonomic:
             q1 = state[0] if rule != "midpoint" else advance(q0, delta)
@@ -584,7 +584,7 @@ def _step(lagrangian, rows, rule, force, t, h, q0, p0, levels0, guess, tolerance
             magnitudes = np.abs(A_N)
             scales[N_rows] = np.maximum(np.maximum(magnitudes @ np.abs(xi), magnitudes.max(axis=1, initial=0.0) * _norm(xi)),
                                         np.maximum(np.abs(b_N), 1e-300))
-        return c, C, scales, levels1
+        return c, C, scales, levels1, q1
 
     delta = np.array(guess, dtype=float)
     p0_size = _norm(p0)
@@ -596,7 +596,7 @@ def _step(lagrangian, rows, rule, force, t, h, q0, p0, levels0, guess, tolerance
         start, scale, state = evaluate(delta)
         residual = start - p0
         if m:
-            c, C, row_scales, levels1 = constraint_terms(delta, state)
+            c, C, row_scales, levels1, q1 = constraint_terms(delta, state)
             impulse = B.T @ mu
             residual = residual - impulse
             scale = max(scale, _norm(impulse))
@@ -639,7 +639,8 @@ def _step(lagrangian, rows, rule, force, t, h, q0, p0, levels0, guess, tolerance
     # p_{k+1} = p_k + (D1 L_d + D2 L_d) + f⁻ + f⁺ + impulses: the momentum balance of the step, which keeps a
     # cyclic momentum exactly whatever the Newton residual left; on Lie-group joints
     # p_{k+1} = Ad_exp(Δ)ᵀ p_k + h Ad_exp(Δ/2)ᵀ (∂L/∂q(q̄, ξ) + τ̄) (midpoint), which keeps a momentum map
-    q1 = advance(q0, delta)
+    if not m or q1 is None:  # (the holonomic rows' last evaluation placed it)
+        q1 = advance(q0, delta)
     _, xi, M_state, pull, exponentials = state
     p_start = p0 + B.T @ mu if m else p0  # with the impulses A(q_k)ᵀ μ⁻ at the start
     if rule == "midpoint":

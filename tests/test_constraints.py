@@ -29,13 +29,16 @@ from constraint_helpers import (
     Helix,
     Parabola,
     assert_close,
+    crank_state,
     fd_constraint_jacobian,
     fd_gamma,
     four_bar,
     null_space,
+    parallelogram_chain,
     particle_model,
     pendulum_state,
     pendulum_tension,
+    planar_closures,
 )
 
 PANDA = "panda_description/urdf/panda.urdf"
@@ -874,3 +877,27 @@ def test_compiled_rows_of_one_state_equal_those_of_a_batch():
     with pytest.warns(RuntimeWarning, match="NaN"):
         A, _, _, _ = rolling._levels(system, q_bad, None, 0.0)
     assert np.isnan(A).all()
+
+
+def test_a_systems_compiled_rows_and_rank_equal_its_constraints_own():
+    """A system of compiled rows evaluates them at one state in one kernel call of its program, and makes its
+    rank decision in the compiled step: the same rows as each constraint's own, stacked, and the same rank
+    as the singular values of ``A`` in the metric of ``M``, also near a singular configuration (two
+    parallelograms with redundant closures, 1e-9 rad from flat)."""
+    model = parallelogram_chain(2)
+    system = mb.ConstrainedSystem(model, planar_closures(2))
+    assert system._compiled_step is not None
+    for phi in (0.3, 1e-9):
+        q, _ = crank_state(2, phi)
+        phi_rows, A, b = system._position_and_velocity_levels(q, 0.0)
+        own = [c.position_and_velocity_level(system.system, q, 0.0) for c in system.constraints]
+        np.testing.assert_array_equal(phi_rows, np.concatenate([level[0] for level in own]))
+        np.testing.assert_array_equal(A, np.concatenate([level[1] for level in own]))
+        np.testing.assert_array_equal(b, np.zeros(system.num_rows))
+        sigma, _ = system._metric_singular_values(A, system._factor(q))
+        assert system.rank(q) == int(system._kept_directions(sigma)[0].sum())
+    # an undefined or non-finite state leaves the answer (and its error or warning) to the constraints' own path
+    q_bad = crank_state(2, 0.3)[0]
+    q_bad[0] = np.nan
+    assert system._compiled_levels(q_bad) is None
+    assert system._compiled_rank(q[None]) is None
