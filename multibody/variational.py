@@ -98,7 +98,9 @@ to ``Δ`` is, for the midpoint rule, to first order in ``Δ``,
 
     J = M(q̄)/h + ½ (K − S) − (h/4) ∂²L/∂q² − ∂f⁻/∂Δ,      K = ∂(M(q) ξ)/∂q,  S = ∂(C(q, ξ)ᵀ ξ)/∂ξ at q̄
 
-(``S = Kᵀ`` on a vector space; the terms in ``ad`` cancel to first order), and for the trapezoidal rule
+(``S = Kᵀ`` on a vector space; the terms in ``ad`` cancel to first order; in a free flyer's group
+velocities ``K``, ``H`` and ``S = Kᵀ`` also carry the derivatives of ``T(q)``:
+:meth:`_GroupLagrangian.jacobian_terms`), and for the trapezoidal rule
 ``J = (M(q_k) + M(q_{k+1}))/(2h) + ½ K(q_{k+1}) − ½ S(q_k) − ∂f⁻/∂Δ``.
 For a :class:`~multibody.model.Model`, ``K = ∂τ/∂q|_{v=0, a=ξ} − ∂g/∂q`` from the analytical
 derivatives (:func:`multibody.inverse_dynamics_derivatives`, :func:`multibody.gravity_derivatives`),
@@ -121,7 +123,7 @@ import warnings
 
 import numpy as np
 
-from . import driver, linalg
+from . import driver, linalg, spatial
 from .constrained import ConstrainedSystem, ConstraintError, ModelSystem
 from .tree import IQ, IV, KIND
 from .kernels import configuration, coriolis, crba, rnea
@@ -192,6 +194,13 @@ class _ModelLagrangian:
         """``∂L/∂q (nv,)`` at ``(q, v)`` (:meth:`terms`; ``M`` is not needed)."""
         return self.terms(q, v)[1]
 
+    def momentum_terms(self, q, v):
+        """``(K, H)`` of :meth:`jacobian_terms`: ``K = ∂τ/∂q|_{v=0, a=v} − ∂g/∂q`` and ``H = −∂g/∂q``."""
+        nv = self.nv
+        kernel = derivative_kernels.inverse_dynamics_derivatives
+        dg_dq = self._run(kernel, (nv, nv), q)
+        return self._run(kernel, (2 * nv, nv), q, np.zeros(nv), np.ascontiguousarray(v, dtype=float))[:nv] - dg_dq, -dg_dq
+
     def jacobian_terms(self, q, v):
         """``(K, H, S)``: ``K = ∂(M(q) v)/∂q``, ``H ≈ ∂²L/∂q²`` and ``S = ∂(C(q, v)ᵀ v)/∂v``, all ``(nv, nv)``.
 
@@ -205,13 +214,12 @@ class _ModelLagrangian:
         nv = self.nv
         kernel = derivative_kernels.inverse_dynamics_derivatives
         v = np.ascontiguousarray(v, dtype=float)
-        dg_dq = self._run(kernel, (nv, nv), q)
-        K = self._run(kernel, (2 * nv, nv), q, np.zeros(nv), v)[:nv] - dg_dq
+        K, H = self.momentum_terms(q, v)
         if self.chart is None:
-            return K, -dg_dq, K.T
+            return K, H, K.T
         C = self._run(coriolis.coriolis_matrix, (nv, nv), q, v)
         dCv_dv = self._run(kernel, (2 * nv, nv), q, v, np.zeros(nv))[nv:]
-        return K, -dg_dq, C + C.T + K - dCv_dv
+        return K, H, C + C.T + K - dCv_dv
 
     def forces(self, q, v):
         return None
@@ -382,8 +390,32 @@ class _GroupLagrangian:
         return self.inner.terms(q, w, group=True)
 
     def jacobian_terms(self, q, w):
+        """``(K_G, H_G, S_G)`` of ``L_G(q, w) = L(q, T(q) w)``, from the model's ``K``, ``H = −∂g/∂q`` (in its own
+        tangent, a free flyer's translation in the body frame: ``δ = T η`` for the group's variation ``η``)
+        and the derivatives of ``T`` itself. Under ``q exp(ε η)`` a free flyer's ``R`` turns by ``exp(ε [η_ω]×)``,
+        so ``d(T w) = E η`` with ``E = [v_lin]×`` in the (linear, angular) block, and ``d(Tᵀ f) = −R [f_lin]× η_ω``
+        for a fixed joint-velocity covector ``f``. Then
+
+            K_G = d(M_G w) = Tᵀ K T + Tᵀ M E + D(M v),       H_G = Tᵀ H T + D(−g),       S_G = K_Gᵀ,
+
+        ``D(f)`` the block ``−R [f_lin]×``; ``S_G = ∂(∂L_G/∂q)/∂w = K_Gᵀ`` since both are mixed second
+        derivatives of ``½ wᵀ M_G(q) w``. ``D(−g)`` turns the gravity of the quasi-Newton ``H`` with ``T``, as
+        ``H`` leaves out the velocity terms of ``∂L/∂q`` (with them the iteration converges more slowly:
+        they belong with the second derivatives of ``M`` that ``H`` leaves out)."""
         T = self.chart.alignment(q)
-        return tuple(T.T @ term @ T for term in self.inner.jacobian_terms(q, T @ w))
+        v = T @ w
+        K, H = self.inner.momentum_terms(q, v)
+        M, minus_g = self.inner.terms(q, np.zeros(self.nv))  # ∂L/∂q at rest is −g
+        E, D_momentum, D_gravity = (np.zeros((self.nv, self.nv)) for _ in range(3))
+        p = M @ v
+        for _, iv in self.chart._free_flyers:
+            lin, ang = slice(iv, iv + 3), slice(iv + 3, iv + 6)
+            R = T[lin, lin].T
+            E[lin, ang] = spatial.skew(v[lin])
+            D_momentum[lin, ang] = -R @ spatial.skew(p[lin])
+            D_gravity[lin, ang] = -R @ spatial.skew(minus_g[lin])
+        K_G = T.T @ (K @ T + M @ E) + D_momentum
+        return K_G, T.T @ H @ T + D_gravity, K_G.T
 
 
 class _GroupRows:

@@ -383,3 +383,29 @@ def test_chaplygin_sleigh_on_a_planar_joint():
     assert np.ptp(run.energy) < 0.01**2 * run.energy[0]  # O(h²) at h = 0.01 s (measured 3.3e-5 of it)
     assert abs(run.v[-1, 2]) < 1e-3 * abs(v0[2])  # the turning has stopped
     assert abs(run.v[-1, 1]) < 1e-9 and run.v[-1, 0] > 0.5 * np.sqrt(2 * run.energy[0] / 1.0) * 0.9
+
+
+def test_group_newton_terms_against_differences():
+    """``K_G = ∂(M_G w)/∂q``, ``S_G = ∂(∂L_G/∂q)/∂w`` and, at rest, ``H_G = ∂(∂L_G/∂q)/∂q`` of the integrator's
+    group velocities, against central differences along its own steps (a free flyer carrying a revolute and a
+    spherical joint, with gravity): the derivatives of ``T(q)`` included."""
+    model = free_chain((0.0, 0.0, -9.81))
+    q, w = _random_state(model, 11)
+    group = variational._GroupLagrangian(variational._ModelLagrangian(model))
+    chart = group.chart
+    K, H, S = group.jacobian_terms(q, w)
+    eps = 1e-6
+
+    def along_q(f):
+        return np.stack([(f(chart.advance(q, eps * e)) - f(chart.advance(q, -eps * e))) / (2 * eps)
+                         for e in np.eye(model.nv)], axis=-1)
+
+    K_differences = along_q(lambda x: group.terms(x, w)[0] @ w)
+    np.testing.assert_allclose(K, K_differences, atol=1e-7 * np.abs(K_differences).max())
+    S_differences = np.stack([(group.terms(q, w + eps * e)[1] - group.terms(q, w - eps * e)[1]) / (2 * eps)
+                              for e in np.eye(model.nv)], axis=-1)
+    np.testing.assert_allclose(S, S_differences, atol=1e-7 * np.abs(S_differences).max())
+    H_differences = along_q(lambda x: group.terms(x, np.zeros(model.nv))[1])
+    _, H_at_rest, _ = group.jacobian_terms(q, np.zeros(model.nv))
+    np.testing.assert_allclose(H_at_rest, H_differences, atol=1e-7 * np.abs(H_differences).max())
+    np.testing.assert_array_equal(H, H_at_rest)  # (H leaves out the velocity terms)
