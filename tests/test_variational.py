@@ -386,14 +386,17 @@ def test_predicted_increment_is_fourth_order_after_three_equal_steps():
     assert np.array_equal(variational._predict(h, v, None, None, []), h * v)
 
 
-def test_a_rolling_ball_step_converges_in_two_newton_iterations(monkeypatch):
-    """With the extrapolated increment, the first Newton step of the rolling ball's smooth motion already
-    meets the tolerance: two evaluations of the discrete equations per step once three steps are known."""
+def _rolling_ball_rows_per_step(monkeypatch, velocity, spin, steps):
+    """The rolling ball on its tilted plane started at ``velocity`` (m/s) and ``spin`` (rad/s, body axes),
+    projected onto its constraints, by ``steps`` variational steps of 1 ms: its trajectory and the
+    evaluations of its rows per step (one more is made at the start). Per step and Newton iteration the rows
+    are evaluated twice: at q_{k+1} (the holonomic contact row) and at the midpoint (the rolling rows)."""
     ball = mb.load_urdf(mb.robots.path("ball"), floating_base=True)
-    system = mb.ConstrainedSystem(ball, [mb.RollingSphere("ball", 0.1, plane_normal=(np.sin(0.1), 0.0, np.cos(0.1)))])
+    normal = np.array([np.sin(0.1), 0.0, np.cos(0.1)])
+    system = mb.ConstrainedSystem(ball, [mb.RollingSphere("ball", 0.1, plane_normal=tuple(normal))])
     q0 = ball.neutral()
-    q0[:3] = 0.1 * np.array([np.sin(0.1), 0.0, np.cos(0.1)])
-    q0, v0 = system.project(q0, np.array([0.0, 1.0, 0.0, 0.0, 0.0, 0.0]))
+    q0[:3] = 0.1 * normal
+    q0, v0 = system.project(q0, np.concatenate([velocity, spin]))
     evaluations = []
     original = variational._Rows.levels
 
@@ -402,38 +405,27 @@ def test_a_rolling_ball_step_converges_in_two_newton_iterations(monkeypatch):
         return original(self, q, t)
 
     monkeypatch.setattr(variational._Rows, "levels", counted)
-    steps = 40
     trajectory = mb.simulate(system, q0, v0, steps * 1e-3, dt=1e-3, method="variational")
+    return trajectory, (len(evaluations) - 1) / steps
+
+
+def test_a_rolling_ball_step_converges_in_two_newton_iterations(monkeypatch):
+    """With the extrapolated increment, the first Newton step of the rolling ball's smooth motion already
+    meets the tolerance: two evaluations of the discrete equations per step once three steps are known."""
+    trajectory, per_step = _rolling_ball_rows_per_step(monkeypatch, np.array([0.0, 1.0, 0.0]), np.zeros(3), 40)
     assert trajectory.residual.max() <= 1e-11
-    # one evaluation at the start; per step, for each iteration, the rows at q_{k+1} (the holonomic contact
-    # row) and at the midpoint (the rolling rows): 4 with two iterations, 6 with three
-    per_step = (len(evaluations) - 1) / steps
-    assert per_step <= 4.5, per_step  # (the first three steps, before the extrapolation, may take three)
+    # 4 with two iterations, 6 with three (the first three steps, before the extrapolation, may take three)
+    assert per_step <= 4.5, per_step
 
 
 def test_a_fast_rolling_ball_still_takes_two_newton_iterations(monkeypatch):
     """At 10 rad/s the Newton Jacobian's terms in the free flyer's group velocities (with the derivatives of
     ``T(q)``, :meth:`variational._GroupLagrangian.jacobian_terms`) keep the iteration at two evaluations per
     step; without the derivatives of ``T`` it takes three on every step."""
-    ball = mb.load_urdf(mb.robots.path("ball"), floating_base=True)
     normal = np.array([np.sin(0.1), 0.0, np.cos(0.1)])
-    system = mb.ConstrainedSystem(ball, [mb.RollingSphere("ball", 0.1, plane_normal=tuple(normal))])
-    q0 = ball.neutral()
-    q0[:3] = 0.1 * normal
     velocity = np.array([0.0, 1.0, 0.0])  # m/s, with the spin of rolling without slipping, ω = n × v / r
-    q0, v0 = system.project(q0, np.concatenate([velocity, np.cross(normal, velocity) / 0.1]))
-    evaluations = []
-    original = variational._Rows.levels
-
-    def counted(self, q, t):
-        evaluations.append(t)
-        return original(self, q, t)
-
-    monkeypatch.setattr(variational._Rows, "levels", counted)
-    steps = 200
-    trajectory = mb.simulate(system, q0, v0, steps * 1e-3, dt=1e-3, method="variational")
+    trajectory, per_step = _rolling_ball_rows_per_step(monkeypatch, velocity, np.cross(normal, velocity) / 0.1, 200)
     assert np.abs(trajectory.v[-1, 3:]).max() >= 9.5  # rad/s
     assert trajectory.residual.max() <= 1e-11
-    # two rows evaluations per iteration (test above): at most one step in twenty takes a third iteration
-    per_step = (len(evaluations) - 1) / steps
+    # at most one step in twenty takes a third iteration
     assert per_step <= 4.1, per_step
