@@ -44,7 +44,7 @@ import math
 from ..tree import IQ, IV, KIND, NQ, NV, PARENT
 from . import joints as kinds
 from .jit import njit
-from .kinematics import frame_joint, frame_pose, jacobian_columns, joint_placements, world_position
+from .kinematics import frame_joint, frame_pose, jacobian_columns, joint_placements, mark_supports, world_position
 from .kkt import cholesky, cholesky_solve
 from .spatial import (IDENTITY, add3, compose_rotations, dot3, load3, load9, nan_unless_finite, rotate, rotate_back,
                       sub3)
@@ -154,19 +154,6 @@ def right_jacobian_inverse_blocks(rho, theta):
 
 
 # ----------------------------------------------------------------------------- errors
-
-@njit(cache=True, error_model="numpy")
-def mark_supports(joints, frames, needed):
-    """``needed[i] = 1`` for the joints that move a targeted frame (the frames' joints and their ancestors),
-    ``0`` for the others, whose placements the errors do not need."""
-    for i in range(needed.shape[0]):
-        needed[i] = 0.0
-    for k in range(frames.shape[0]):
-        i = frame_joint(frames, k)
-        while i >= 0 and needed[i] == 0.0:
-            needed[i] = 1.0
-            i = joints[i, PARENT]
-
 
 @njit(cache=True, error_model="numpy")
 def errors(joints, reals, frames, targets, options, q, pose_ws, e):

@@ -92,6 +92,19 @@ def joint_placements(joints, reals, q, ws, needed=None):
 
 
 @njit(cache=True, error_model="numpy")
+def mark_supports(joints, frames, needed):
+    """``needed[i] = 1`` for the joints that move a frame of ``frames`` (the frames' joints and their
+    ancestors), ``0`` for the others, whose placements those frames do not need (:func:`joint_placements`)."""
+    for i in range(needed.shape[0]):
+        needed[i] = 0.0
+    for k in range(frames.shape[0]):
+        i = frame_joint(frames, k)
+        while i >= 0 and needed[i] == 0.0:
+            needed[i] = 1.0
+            i = joints[i, PARENT]
+
+
+@njit(cache=True, error_model="numpy")
 def joint_motions(joints, reals, q, v, ws, qdd=None):
     """World poses, velocities and accelerations of every joint frame (RBDA Table 5.1, forward pass with
     no gravity), in ``ws[:24 nj + 12]``. Returns ``pose (nj + 1, 12)`` as :func:`joint_placements`,
@@ -264,7 +277,11 @@ def frame_jacobian(joints, reals, frames, q, point, reference, x3, out, ws):
     the origin; ``x3`` unused. Columns of coordinates that do not move the frame are zero, all of
     them for a frame fixed in the world. Pinocchio: ``computeJointJacobians`` + ``getFrameJacobian``.
     """
-    pose = joint_placements(joints, reals, q, ws)
+    # only the joints that move the frame: RBDA eq. 8.20 sums over its support
+    nj = joints.shape[0]
+    needed = ws[12 * (nj + 1) : 13 * nj + 12]
+    mark_supports(joints, frames[:1], needed)
+    pose = joint_placements(joints, reals, q, ws, needed)
     code = reference_code(reference)
     # WORLD: the velocity of the body point at the world origin; otherwise at F's origin x
     x = world_origin(pose) if code == WORLD else frame_point(frames, pose, point)
