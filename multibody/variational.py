@@ -327,9 +327,9 @@ class _LieGroupChart:
         """``q ⊕ x (nq,)`` on the integrator's group: :meth:`multibody.Model.integrate` (its compiled
         kernel), but a free flyer's position moves by ``x_lin`` in the parent frame (SO(3) × R³; its
         rotation ``R exp(ω)`` does not depend on the linear part)."""
-        x = np.array(x, dtype=float)
+        q, x = np.ascontiguousarray(q, dtype=float), np.ascontiguousarray(x, dtype=float)
         out = np.empty((1, self.nq))
-        configuration.integrate(*self._tree, q, x, _EMPTY, _EMPTY, out, _EMPTY)
+        driver._direct(configuration.integrate)(*self._tree, q, x, _EMPTY, _EMPTY, out, _EMPTY)
         moved = out[0]
         for iq, iv in self._free_flyers:
             moved[iq:iq + 3] = q[iq:iq + 3] + x[iv:iv + 3]  # (the rotation is Model.integrate's, R exp(ω))
@@ -348,7 +348,7 @@ class _LieGroupChart:
             return T
         # the compiled velocity_alignment holds each free flyer's R (parent from body) on its diagonal
         aligned = np.empty((self.nv, self.nv))
-        configuration.velocity_alignment(*self._tree, q, _EMPTY, _EMPTY, _EMPTY, aligned, _EMPTY)
+        driver._direct(configuration.velocity_alignment)(*self._tree, q, _EMPTY, _EMPTY, _EMPTY, aligned, _EMPTY)
         T = np.eye(self.nv)
         for _, iv in self._free_flyers:
             T[iv:iv + 3, iv:iv + 3] = aligned[iv:iv + 3, iv:iv + 3].T
@@ -361,8 +361,8 @@ class _LieGroupChart:
     def exponential_terms(self, x):
         """``(Ad_exp(x), J_l(x))``, both ``(nv, nv)`` (:func:`multibody.kernels.configuration.exponential_terms`)."""
         out = np.empty((2 * self.nv, self.nv))
-        configuration.exponential_terms(*self._tree, np.ascontiguousarray(x, dtype=float), _EMPTY, _EMPTY, _EMPTY, out,
-                                        self._workspace)
+        driver._direct(configuration.exponential_terms)(*self._tree, np.ascontiguousarray(x, dtype=float), _EMPTY, _EMPTY,
+                                                        _EMPTY, out, self._workspace)
         return out[:self.nv], out[self.nv:]
 
 
