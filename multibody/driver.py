@@ -25,7 +25,7 @@ from numba.core.dispatcher import Dispatcher
 from numba.core.types.function_type import CompileResultWAP
 
 from .kernels import (aba, centroidal, configuration, constraints, coriolis, crba, derivatives, energy, ik, integration,
-                      kinematics, kkt, lagrangian, rnea)
+                      kinematics, kkt, lagrangian, rnea, variational)
 
 #: Every kernel the driver runs.
 _KERNELS = (
@@ -38,7 +38,7 @@ _KERNELS = (
     constraints.constraint_levels, integration.chart_derivative, integration.constrained_chart_derivative,
     derivatives.inverse_dynamics_derivatives, derivatives.forward_dynamics_derivatives, centroidal.center_of_mass,
     centroidal.centroidal_momentum, centroidal.centroidal_map, centroidal.centroidal_map_time_variation,
-    ik.inverse_kinematics, lagrangian.lagrangian_terms)
+    ik.inverse_kinematics, lagrangian.lagrangian_terms, variational.midpoint_iterate)
 _WORKSPACE = {kernel: module.workspace_size for module in (rnea, crba, aba, coriolis, energy, kinematics, configuration,
                                                            derivatives, centroidal, lagrangian)
               for kernel in _KERNELS if getattr(kernel, "py_func", kernel).__module__ == module.__name__}

@@ -112,6 +112,11 @@ iteration reduces the residual less than tenfold. The iteration stops when the r
 equation is at most ``tolerance`` (default ``1e-12``) times the size of its momentum terms, and the
 holonomic rows at most ``tolerance · max(1, |q_{k+1}|)``; otherwise :class:`SimulationError`.
 
+For a :class:`~multibody.model.Model` stepped by the midpoint rule without forces, and without
+constraints or with built-in rows fixed in time, each iterate's terms (``q̄``, ``q_{k+1}``, ``M``,
+``∂L/∂q``, the exponential terms, the first equation and the rows) come from one compiled call
+(:func:`multibody.kernels.variational.midpoint_iterate`); other systems evaluate the same equations here.
+
 Limitations: a system other than a :class:`~multibody.model.Model` needs configurations in a vector
 space with ``q̇ = v``; ``order=4`` is for systems without constraints.
 """
@@ -128,6 +133,7 @@ from .constrained import ConstrainedSystem, ConstraintError, ModelSystem
 from .tree import IQ, IV, KIND
 from .kernels import configuration, coriolis, crba, rnea
 from .kernels import lagrangian as lagrangian_kernels
+from .kernels import variational as iteration_kernels
 from .kernels import joints as kinds
 from .kernels import derivatives as derivative_kernels
 
@@ -476,6 +482,64 @@ class _Rows:
         return bool(sigma.size) and sigma[0] > 0 and bool(self.constrained._kept_directions(sigma)[0].all())
 
 
+class _CompiledIterate:
+    """The terms of a midpoint step at a Newton iterate by one compiled call
+    (:func:`multibody.kernels.variational.midpoint_iterate`): for a :class:`~multibody.model.Model` with no
+    forces, without constraints or with compiled rows fixed in time. It gives what :func:`_step`'s
+    ``evaluate`` and ``constraint_terms`` give, with the rows at ``q_{k+1}`` always."""
+
+    def __init__(self, model, constrained, rows, grouped):
+        self.model, self.nq, self.nv = model, model.nq, model.nv
+        self.m = 0 if rows is None else rows.m
+        if self.m:
+            program, frames, _ = constrained._compiled_step
+            holonomic = np.asarray(constrained._position_mask, dtype=bool)
+        else:
+            program, frames, holonomic = driver.NO_INPUT, model.tree.bodies, np.zeros(0, dtype=bool)
+        self._program, self._frames = program, frames
+        self._settings = (1.0 if grouped else 0.0,) + tuple(1.0 if row else 0.0 for row in holonomic)
+        self._chart = grouped or not model.is_vector_space
+        self._out_shape = (1, iteration_kernels.output_columns(self.nq, self.nv, self.m))
+        self._workspace = iteration_kernels.workspace_size(model.njoints, self.nv, len(frames), self.m)
+
+    @staticmethod
+    def applies(lagrangian, constrained, rule, force):
+        """Whether the compiled iterate computes this step: a model's Lagrangian, the midpoint rule, no forces,
+        and no rows or only compiled rows fixed in time."""
+        inner = getattr(lagrangian, "inner", lagrangian)
+        return (isinstance(inner, _ModelLagrangian) and rule == "midpoint" and force is None
+                and (not constrained.num_rows or constrained._compiled_step is not None))
+
+    def __call__(self, q0, delta, h):
+        """``(start, scale, state, (c, C, scales, levels1, q1))`` at ``Δ`` as ``evaluate`` and
+        ``constraint_terms`` give them; ``None`` where a row is undefined or a term is not finite (the
+        Python terms then give the error)."""
+        nq, nv, m = self.nq, self.nv, self.m
+        row = driver.evaluate_one(iteration_kernels.midpoint_iterate, self.model.tree, self._out_shape,
+                                  np.ascontiguousarray(q0, dtype=float), np.ascontiguousarray(delta, dtype=float),
+                                  np.array((h,) + self._settings), self._program, frames=self._frames,
+                                  workspace=self._workspace)[0]
+        scale = row[nv]
+        if row[-1] != 0.0 or not math.isfinite(scale):
+            return None
+        o = nv + 1
+        q_mid, q1 = row[o : o + nq], row[o + nq : o + 2 * nq]
+        o += 2 * nq
+        M = row[o : o + nv * nv].reshape(nv, nv)
+        o += nv * nv
+        pull = row[o : o + nv]
+        o += nv
+        blocks = row[o : o + 4 * nv * nv].reshape(4 * nv, nv)
+        exponentials = ((blocks[:nv], blocks[nv : 2 * nv]), (blocks[2 * nv : 3 * nv], blocks[3 * nv :])) if self._chart else None
+        o += 4 * nv * nv
+        c, C = row[o : o + m], row[o + m : o + m + m * nv].reshape(m, nv)
+        o += m + m * nv
+        scales = row[o : o + m]
+        o += m
+        levels1 = (row[o : o + m], row[o + m : o + m + m * nv].reshape(m, nv), np.zeros(m))
+        return row[:nv], float(scale), (q_mid, delta / h, M, pull, exponentials), (c, C, scales, levels1, q1)
+
+
 def _add(q, delta):
     """``q + Δ``: the step of configurations in a vector space."""
     return q + delta
@@ -488,7 +552,8 @@ def _norm(x):
     return max(map(abs, values), default=0.0) if math.isfinite(sum(values)) else math.nan
 
 
-def _step(lagrangian, rows, rule, force, t, h, q0, p0, levels0, guess, tolerance, max_iterations, impulse_guess=None):
+def _step(lagrangian, rows, rule, force, t, h, q0, p0, levels0, guess, tolerance, max_iterations, impulse_guess=None,
+          compiled=None):
     """One step ``(q_k, p_k) → (q_{k+1}, p_{k+1})`` of size ``h`` (s, may be negative in a composition).
 
     Args:
@@ -501,6 +566,7 @@ def _step(lagrangian, rows, rule, force, t, h, q0, p0, levels0, guess, tolerance
         guess: predicted increment ``Δ`` ``(nv,)``, ``q_{k+1} = q_k ⊕ Δ``.
         impulse_guess: predicted start impulses ``μ⁻ (m,)`` (the last step's, scaled to this step), or
             ``None`` (zero).
+        compiled: :class:`_CompiledIterate` where it applies: each iterate's terms by one compiled call.
     Returns:
         ``(q1, p1, v1, μ⁻ (m,), μ⁺ (m,), levels1, Δ)``: the impulses ``μ`` (N s per row) that act at the
         start and at the end of the step, and the step's increment ``Δ (nv,)``, ``q1 = q0 ⊕ Δ``.
@@ -625,10 +691,15 @@ def _step(lagrangian, rows, rule, force, t, h, q0, p0, levels0, guess, tolerance
     J_inverse, fresh = None, False  # fresh: J_inverse is this step's analytical one (Broyden-updated since)
     delta_before = F_before = None  # the previous iterate and its −D1 L_d − f⁻ − p_k, for Broyden's update
     for iteration in range(1, max_iterations + 1):
-        start, scale, state = evaluate(delta)
+        terms = None if compiled is None else compiled(q0, delta, h)
+        if terms is None:
+            start, scale, state = evaluate(delta)
+            if m:
+                c, C, row_scales, levels1, q1 = constraint_terms(delta, state)
+        else:
+            start, scale, state, (c, C, row_scales, levels1, q1) = terms
         residual = start - p0
         if m:
-            c, C, row_scales, levels1, q1 = constraint_terms(delta, state)
             impulse = B.T @ mu
             residual = residual - impulse
             scale = max(scale, _norm(impulse))
@@ -829,6 +900,8 @@ def simulate(system, q0, v0, t_final, *, dt=None, tau=None, rule="midpoint", ord
         v = chart.alignment(q).T @ v
     levels = rows.levels(q, t0) if m else None
     p = lagrangian.mass_matrix(q) @ v
+    compiled = (_CompiledIterate(model, constrained, rows, aligned)
+                if _CompiledIterate.applies(lagrangian, constrained, rule, force) else None)
     weights = (YOSHIDA_W1, YOSHIDA_W0, YOSHIDA_W1) if order == 4 else (1.0,)
     last_velocity, last_h, last_impulse = v, None, None
     increments = []  # the last three steps' (h, Δ), newest first
@@ -846,7 +919,7 @@ def simulate(system, q0, v0, t_final, *, dt=None, tau=None, rule="midpoint", ord
                 try:
                     q, p, v_new, start, end, levels, delta = _step(
                         lagrangian, rows, rule, force, t, h, q, p, levels, guess, tolerance, max_iterations,
-                        impulse_guess)
+                        impulse_guess, compiled)
                 except _NotConverged as failure:
                     raise SimulationError(_failure_message(failure, t, h, tolerance), None) from None
                 except (np.linalg.LinAlgError, ConstraintError, FloatingPointError) as error:

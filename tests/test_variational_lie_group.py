@@ -409,3 +409,61 @@ def test_group_newton_terms_against_differences():
     _, H_at_rest, _ = group.jacobian_terms(q, np.zeros(model.nv))
     np.testing.assert_allclose(H_at_rest, H_differences, atol=1e-7 * np.abs(H_differences).max())
     np.testing.assert_array_equal(H, H_at_rest)  # (H leaves out the velocity terms)
+
+
+def _rolling_ball():
+    ball = mb.load_urdf(mb.robots.path("ball"), floating_base=True)
+    normal = np.array([np.sin(0.1), 0.0, np.cos(0.1)])
+    system = mb.ConstrainedSystem(ball, [mb.RollingSphere("ball", 0.1, plane_normal=tuple(normal))])
+    q0 = ball.neutral()
+    q0[:3] = 0.1 * normal
+    return (system, *system.project(q0, np.array([0.0, 1.0, 0.0, 0.5, 0.0, 3.0])))
+
+
+def _parallelograms():
+    from constraint_helpers import crank_state, parallelogram_chain, planar_closures
+
+    system = mb.ConstrainedSystem(parallelogram_chain(2), planar_closures(2))
+    return (system, *crank_state(2, 0.4, 2.0))
+
+
+def _free_chain():
+    model = free_chain((0.0, 0.0, -9.81))
+    return (model, *_random_state(model, 3))
+
+
+def _heavy_top():
+    model = heavy_top()
+    return model, model.neutral(), np.array([0.3, -0.2, 8.0])
+
+
+@pytest.mark.parametrize("make", [_rolling_ball, chaplygin_sleigh, _parallelograms, _free_chain, _heavy_top],
+                         ids=["rolling ball", "sleigh", "parallelograms", "free chain", "heavy top"])
+def test_the_compiled_iterate_gives_the_python_terms(make, monkeypatch):
+    """Each Newton iterate's terms by one compiled call (:class:`variational._CompiledIterate`) give the
+    trajectory of the Python terms: on a free flyer with holonomic and rolling rows, a planar joint with a
+    knife edge, redundant loop closures on a vector space, and free and spherical joints without rows."""
+    system, q0, v0 = make()
+    answered = []
+    call = variational._CompiledIterate.__call__
+    monkeypatch.setattr(variational._CompiledIterate, "__call__",
+                        lambda self, *args: answered.append(call(self, *args)) or answered[-1])
+    compiled = mb.simulate(system, q0, v0, 0.2, dt=1e-3, method="variational")
+    assert answered and all(terms is not None for terms in answered)
+    monkeypatch.setattr(variational._CompiledIterate, "applies", staticmethod(lambda *args: False))
+    python = mb.simulate(system, q0, v0, 0.2, dt=1e-3, method="variational")
+    np.testing.assert_allclose(compiled.q, python.q, rtol=0, atol=1e-10)
+    np.testing.assert_allclose(compiled.v, python.v, rtol=0, atol=1e-9 * max(1.0, np.abs(python.v).max()))
+    if python.lam.size:
+        np.testing.assert_allclose(compiled.lam, python.lam, rtol=0, atol=1e-8 * max(1.0, np.abs(python.lam).max()))
+    assert compiled.residual.max() <= 1e-11
+
+
+def test_the_compiled_iterate_applies_to_models_without_forces():
+    """The compiled iterate takes a model's midpoint steps without forces; forces, the trapezoidal rule and
+    systems that give their own Lagrangian keep the Python terms."""
+    system, q0, v0 = _rolling_ball()
+    lagrangian = variational._lagrangian_of(system.system)
+    assert variational._CompiledIterate.applies(lagrangian, system, "midpoint", None)
+    assert not variational._CompiledIterate.applies(lagrangian, system, "trapezoidal", None)
+    assert not variational._CompiledIterate.applies(lagrangian, system, "midpoint", lambda t, q, v: np.zeros(6))

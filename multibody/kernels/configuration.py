@@ -119,22 +119,33 @@ def normalize(joints, reals, frames, q, x1, x2, x3, out, ws):
 # ----------------------------------------------------------------------------- Lie-algebra terms of the joints
 
 @njit(cache=True, error_model="numpy")
+def rotation_block(kind, iv):
+    """Offset in ``v`` of a joint's 3×3 block of the integrator's non-commutative group (:func:`_adjoint_block`):
+    a spherical or planar joint's own ``iv``, a free flyer's rotation at ``iv + 3``; −1 for the others."""
+    if kind == kinds.PLANAR or kind == kinds.SPHERICAL:
+        return iv
+    if kind == kinds.FREE_FLYER:
+        return iv + 3
+    return -1
+
+
+@njit(cache=True, error_model="numpy")
 def _adjoint_block(kind, x, iv, Y):
     """``ad_x`` of one joint's rotation group into ``Y[:3, :3]``; returns the offset of its block in ``v``,
     or −1 for a commutative joint.
 
     SO(3) (spherical ``x = ω``, and a free flyer's rotation ``x[iv + 3:iv + 6]``): ``ω×``; SE(2) (planar,
     ``x = [ux, uy, ω]``): ``[[0, −ω, uy], [ω, 0, −ux], [0, 0, 0]]``."""
+    b = rotation_block(kind, iv)
+    if b < 0:
+        return b
     if kind == kinds.PLANAR:
-        ux, uy, w = x[iv], x[iv + 1], x[iv + 2]
+        ux, uy, w = x[b], x[b + 1], x[b + 2]
         Y[0, 0], Y[0, 1], Y[0, 2] = 0.0, -w, uy
         Y[1, 0], Y[1, 1], Y[1, 2] = w, 0.0, -ux
         Y[2, 0], Y[2, 1], Y[2, 2] = 0.0, 0.0, 0.0
-        return iv
-    if kind == kinds.FREE_FLYER:
-        iv += 3
-    elif kind != kinds.SPHERICAL:
-        return -1
+        return b
+    iv = b
     Y[0, 0], Y[0, 1], Y[0, 2] = 0.0, -x[iv + 2], x[iv + 1]
     Y[1, 0], Y[1, 1], Y[1, 2] = x[iv + 2], 0.0, -x[iv]
     Y[2, 0], Y[2, 1], Y[2, 2] = -x[iv + 1], x[iv], 0.0
