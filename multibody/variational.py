@@ -131,7 +131,7 @@ import numpy as np
 from . import driver, linalg, spatial
 from .constrained import ConstrainedSystem, ConstraintError, ModelSystem
 from .tree import IQ, IV, KIND
-from .kernels import configuration, coriolis, crba, rnea
+from .kernels import configuration, coriolis, crba
 from .kernels import lagrangian as lagrangian_kernels
 from .kernels import variational as iteration_kernels
 from .kernels import joints as kinds
@@ -171,7 +171,7 @@ class _ModelLagrangian:
         self._tree = (tree.joints, tree.reals, tree.bodies)
         nj, nv = tree.joints.shape[0], tree.nv
         self._workspaces = {kernel: np.empty(module.workspace_size(nj, nv)) for kernel, module in (
-            (crba.mass_matrix, crba), (coriolis.coriolis_matrix, coriolis), (rnea.inverse_dynamics, rnea),
+            (crba.mass_matrix, crba), (coriolis.coriolis_matrix, coriolis),
             (derivative_kernels.inverse_dynamics_derivatives, derivative_kernels),
             (lagrangian_kernels.lagrangian_terms, lagrangian_kernels))}
 
@@ -196,8 +196,8 @@ class _ModelLagrangian:
                         _GROUP if group else _EMPTY)
         return out[:nv], out[nv]
 
-    def gradient(self, q, v, M=None):
-        """``∂L/∂q (nv,)`` at ``(q, v)`` (:meth:`terms`; ``M`` is not needed)."""
+    def gradient(self, q, v):
+        """``∂L/∂q (nv,)`` at ``(q, v)`` (:meth:`terms`)."""
         return self.terms(q, v)[1]
 
     def momentum_terms(self, q, v):
@@ -245,7 +245,7 @@ class _SystemLagrangian:
     def mass_matrix(self, q):
         return np.asarray(self.system.mass_matrix(q), dtype=float).reshape(self.nv, self.nv)
 
-    def gradient(self, q, v, M=None):
+    def gradient(self, q, v):
         return np.asarray(self.system.lagrangian_gradient(q, v), dtype=float).reshape(self.nv)
 
     def terms(self, q, v):
@@ -385,10 +385,10 @@ class _GroupLagrangian:
         self.inner, self.chart, self.nv = lagrangian, lagrangian.chart, lagrangian.nv
 
     def mass_matrix(self, q):
-        T = self.chart.alignment(q)
-        return T.T @ self.inner.mass_matrix(q) @ T
+        """``M_G = Tᵀ M T`` (:meth:`terms` at rest)."""
+        return self.terms(q, np.zeros(self.nv))[0]
 
-    def gradient(self, q, w, M=None):
+    def gradient(self, q, w):
         return self.terms(q, w)[1]
 
     def terms(self, q, w):
@@ -609,7 +609,7 @@ def _step(lagrangian, rows, rule, force, t, h, q0, p0, levels0, guess, tolerance
             return start, scale, (q_mid, xi, M, pull, exponentials)
         q1 = advance(q0, delta)
         M1 = lagrangian.mass_matrix(q1)
-        Lq0 = lagrangian.gradient(q0, xi, M0)
+        Lq0 = lagrangian.gradient(q0, xi)
         f0 = None if force is None else force(t, q0, xi)
         pull = Lq0 if f0 is None else Lq0 + f0
         M_xi = 0.5 * (M0 + M1) @ xi
@@ -754,7 +754,7 @@ def _step(lagrangian, rows, rule, force, t, h, q0, p0, levels0, guess, tolerance
             p1 = exponentials[0][0].T @ p_start + h * (exponentials[1][0].T @ pull)
     else:
         M1 = M_state
-        Lq1 = lagrangian.gradient(q1, xi, M1)
+        Lq1 = lagrangian.gradient(q1, xi)
         f1 = None if force is None else force(t + h, q1, xi)
         pull1 = Lq1 if f1 is None else Lq1 + f1
         # (h/2) (∂L/∂q(q_k, ξ) + ∂L/∂q(q_{k+1}, ξ) + τ_k + τ_{k+1}); on Lie-group joints

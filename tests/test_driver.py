@@ -107,7 +107,6 @@ def test_a_row_of_one_state_serves_every_state():
 def test_single_calls_take_read_only_and_strided_vectors():
     """A single call runs one compiled signature whatever the writability of its vectors; a strided one
     (which that signature's machine code cannot read) goes through the general path, with the same numbers."""
-    from multibody import driver
     from multibody.kernels import rnea
 
     model = random_tree_model(0)
@@ -124,7 +123,6 @@ def test_single_calls_take_read_only_and_strided_vectors():
     np.testing.assert_array_equal(mb.inverse_dynamics(model, *strided), expected)
     # no new machine code for the read-only vectors: the single call's types are fixed (driver._SINGLE_CALL_TYPES)
     assert list(getattr(rnea.inverse_dynamics, "signatures", [])) == signatures
-    assert driver._direct(rnea.inverse_dynamics) is driver._direct(rnea.inverse_dynamics)
 
 
 # ============================================================================= one thread, many

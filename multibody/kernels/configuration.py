@@ -145,11 +145,10 @@ def _adjoint_block(kind, x, iv, Y):
         Y[1, 0], Y[1, 1], Y[1, 2] = w, 0.0, -ux
         Y[2, 0], Y[2, 1], Y[2, 2] = 0.0, 0.0, 0.0
         return b
-    iv = b
-    Y[0, 0], Y[0, 1], Y[0, 2] = 0.0, -x[iv + 2], x[iv + 1]
-    Y[1, 0], Y[1, 1], Y[1, 2] = x[iv + 2], 0.0, -x[iv]
-    Y[2, 0], Y[2, 1], Y[2, 2] = -x[iv + 1], x[iv], 0.0
-    return iv
+    Y[0, 0], Y[0, 1], Y[0, 2] = 0.0, -x[b + 2], x[b + 1]
+    Y[1, 0], Y[1, 1], Y[1, 2] = x[b + 2], 0.0, -x[b]
+    Y[2, 0], Y[2, 1], Y[2, 2] = -x[b + 1], x[b], 0.0
+    return b
 
 
 @njit(cache=True, error_model="numpy")

@@ -38,6 +38,19 @@ def workspace_size(nj, nv):
 
 
 @njit(cache=True, error_model="numpy")
+def to_group_velocities(joints, q, A):
+    """``A ← A T(q)`` for rows ``A (k, nv)`` on the joints' velocities: onto the group velocities, a free
+    flyer's linear columns times ``Rᵀ`` (``v_lin = Rᵀ w_lin``)."""
+    for i in range(joints.shape[0]):
+        if joints[i, KIND] == kinds.FREE_FLYER:
+            R, iv = kinds.quat_rotation(load4(q, joints[i, IQ] + 3)), joints[i, IV]
+            for r in range(A.shape[0]):
+                x, y, z = A[r, iv], A[r, iv + 1], A[r, iv + 2]
+                for k in range(3):
+                    A[r, iv + k] = x * R[3 * k] + y * R[3 * k + 1] + z * R[3 * k + 2]
+
+
+@njit(cache=True, error_model="numpy")
 def lagrangian_terms(joints, reals, frames, q, w, group, x3, out, ws):
     """``M`` and ``∂L/∂q`` (module docstring) at ``(q, w)`` into ``out (nv + 1, nv)``: rows ``0 … nv − 1``
     the mass matrix (kg, kg m, kg m²), row ``nv`` the gradient (N, N m per coordinate).
@@ -87,14 +100,11 @@ def lagrangian_terms(joints, reals, frames, q, w, group, x3, out, ws):
         for c in range(nv):
             out[r, c] = M[r, c]
     if grouped:
+        to_group_velocities(joints, q, out[:nv])  # M T
         for i in range(joints.shape[0]):
             if joints[i, KIND] == kinds.FREE_FLYER:
                 R, iv = kinds.quat_rotation(load4(q, joints[i, IQ] + 3)), joints[i, IV]
-                # M_G = Tᵀ M T: the linear block's columns times Rᵀ, then its rows times R
-                for r in range(nv):
-                    x, y, z = out[r, iv], out[r, iv + 1], out[r, iv + 2]
-                    for k in range(3):
-                        out[r, iv + k] = x * R[3 * k] + y * R[3 * k + 1] + z * R[3 * k + 2]
+                # M_G = Tᵀ (M T): the linear block's rows times R (the columns are turned below)
                 for c in range(nv):
                     x, y, z = out[iv, c], out[iv + 1, c], out[iv + 2, c]
                     for k in range(3):

@@ -21,7 +21,6 @@ from ..tree import IQ, IV, KIND
 from . import configuration, constraints, lagrangian
 from . import joints as kinds
 from .jit import njit
-from .joints import load4
 from .spatial import nan_unless_finite
 
 
@@ -73,19 +72,6 @@ def solve_transposed_blocks(joints, J, y, x):
         x[b] = (y0 * (a11 * a22 - a12 * a21) - a01 * (y1 * a22 - a12 * y2) + a02 * (y1 * a21 - a11 * y2)) / det
         x[b + 1] = (a00 * (y1 * a22 - a12 * y2) - y0 * (a10 * a22 - a12 * a20) + a02 * (a10 * y2 - y1 * a20)) / det
         x[b + 2] = (a00 * (a11 * y2 - y1 * a21) - a01 * (a10 * y2 - y1 * a20) + y0 * (a10 * a21 - a11 * a20)) / det
-
-
-@njit(cache=True, error_model="numpy")
-def to_group_velocities(joints, q, A):
-    """``A ← A T(q)``: rows on the joints' velocities onto the group velocities, a free flyer's linear columns
-    times ``Rᵀ`` (``v_lin = Rᵀ w_lin``)."""
-    for i in range(joints.shape[0]):
-        if joints[i, KIND] == kinds.FREE_FLYER:
-            R, iv = kinds.quat_rotation(load4(q, joints[i, IQ] + 3)), joints[i, IV]
-            for r in range(A.shape[0]):
-                x, y, z = A[r, iv], A[r, iv + 1], A[r, iv + 2]
-                for k in range(3):
-                    A[r, iv + k] = x * R[3 * k] + y * R[3 * k + 1] + z * R[3 * k + 2]
 
 
 @njit(cache=True, error_model="numpy")
@@ -186,8 +172,8 @@ def midpoint_iterate(joints, reals, frames, q0, delta, settings, program, out, w
         A_end = levels[0, : m * nv].reshape((m, nv))
         A_mid = levels[1, : m * nv].reshape((m, nv))
         if grouped:
-            to_group_velocities(joints, q1, A_end)
-            to_group_velocities(joints, q_mid, A_mid)
+            lagrangian.to_group_velocities(joints, q1, A_end)
+            lagrangian.to_group_velocities(joints, q_mid, A_mid)
         for r in range(m):
             phi1[r] = levels[0, m * nv + m + r]
             for k in range(nv):
