@@ -720,6 +720,9 @@ class ConstrainedSystem:
         if not self.num_rows:
             return q, v
         q, v = self._check_state(q, v)
+        compiled = self._project_compiled(q, v, tolerance, max_iterations)
+        if compiled is not None:
+            return compiled
         holonomic = self._position_mask
 
         def correction(A, error):
@@ -732,20 +735,51 @@ class ConstrainedSystem:
         # the velocity projection.
         phi, A, b = self._position_and_velocity_levels(q, t)
         if holonomic.any():
+            previous = np.full(q.shape[:-1], np.inf)
             for _ in range(max_iterations):
+                dq = correction(A[..., holonomic, :], phi[..., holonomic])
+                size = np.abs(dq).max(axis=-1)
                 # (a NaN error counts as off, and never converges)
-                off = ~(np.abs(phi[..., holonomic]).max(axis=-1) <= tolerance)
+                off = ~((np.abs(phi[..., holonomic]).max(axis=-1) <= tolerance) & ((size <= tolerance) | (size > 0.5 * previous)))
+                previous = np.where(off, size, previous)
                 if not off.any():
                     break
                 # Only the states still off the constraints move: each state of a batch takes the steps
                 # it would take alone.
-                step = self.system.integrate(q, -correction(A[..., holonomic, :], phi[..., holonomic]), 1.0)
+                step = self.system.integrate(q, -dq, 1.0)
                 q = np.where(off[..., None], step, q)
                 phi, A, b = self._position_and_velocity_levels(q, t)
             else:
                 raise ConstraintError(f"projection onto the position constraints did not converge: "
                                       f"|φ| = {np.abs(phi[..., holonomic]).max():.3g} after {max_iterations} iterations")
         return q, v - correction(A, matvec(A, v) + b)
+
+    def _project_compiled(self, q, v, tolerance, max_iterations):
+        """:meth:`project` by one call of :func:`multibody.kernels.kkt.project` per state (on all cores for a
+        batch), or ``None`` where the compiled step does not apply, or a state has an undefined row, a
+        singular ``M`` or a non-finite entry: the NumPy path then gives the error or the warning."""
+        if self._compiled_step is None:
+            return None
+        program, frames, _ = self._compiled_step
+        model, nq, nv = self.system.model, self.nq, self.nv
+        settings = np.concatenate(([tolerance, max_iterations], self._position_mask.astype(float)))
+        out_shape = (1, kkt.projection_columns(nq, nv))
+        workspace = kkt.projection_workspace_size(model.njoints, nq, nv, len(frames), self.num_rows)
+        if model._is_one_state(q, v):
+            row = driver.evaluate_one(kkt.project, model.tree, out_shape, q, v, settings, program, frames=frames,
+                                      workspace=workspace)[0]
+        else:
+            batch = spatial.batch_shape(q.shape[:-1], v.shape[:-1])
+            row = driver.evaluate(kkt.project, model.tree, (q, v, settings, program), out_shape, batch, frames,
+                                  workspace)[..., 0, :]
+        status = row[..., -1]
+        not_converged = status == kkt.NOT_CONVERGED
+        if not_converged.any():
+            raise ConstraintError(f"projection onto the position constraints did not converge: "
+                                  f"|φ| = {row[..., -2][not_converged].max():.3g} after {max_iterations} iterations")
+        if not (status == kkt.SOLVED).all():
+            return None
+        return row[..., :nq], row[..., nq : nq + nv]
 
     def body_forces(self, q, lam, t=0.0):
         """Spatial forces all constraints exert on the bodies: ``f_ext (njoints, 6)`` in joint frames.

@@ -169,3 +169,57 @@ def test_row_orthogonalization_and_cholesky_agree_with_lapack():
         kkt.cholesky_solve(L, m, solved)
         assert_close(G @ solved, x, 1e-10, scale=np.abs(x).max(), what="M⁻¹ x")
     assert not kkt.cholesky(-np.eye(3), 3)
+
+
+# ----------------------------------------------------------------------------- projection
+
+def numpy_projection(system, q, v, **options):
+    system.__dict__["_compiled_step"] = None  # the cached property, withheld
+    try:
+        return system.project(q, v, **options)
+    finally:
+        del system.__dict__["_compiled_step"]
+
+
+def projection_systems():
+    """Systems whose projection moves both positions and velocities: a ball on a tilted plane (one row
+    with a position level beside two without), a four-bar closed by a point (redundant), and a loop
+    closure on a floating body (its rows all with position levels, the free flyer's group steps)."""
+    model, tip, pivot = four_bar()
+    floating = ball()
+    return {
+        "ball": (floating, mb.ConstrainedSystem(floating, BALL_CONSTRAINTS["sphere"]())),
+        "four-bar": (model, mb.ConstrainedSystem(model, [mb.LoopClosure(None, "link3", frame_a=pose_from_xyz_rpy(pivot),
+                                                                        frame_b=tip)])),
+        "weld": (floating, mb.ConstrainedSystem(floating, [mb.LoopClosure(
+            "ball", None, frame_b=pose_from_xyz_rpy([0.3, -0.1, 0.2], [0.3, -0.2, 0.1]), kind="weld")])),
+    }
+
+
+@pytest.mark.parametrize("name", ["ball", "four-bar", "weld"])
+def test_compiled_projection_matches_numpy(name):
+    """The compiled projection (one kernel call: the Gauss–Newton steps and the velocity projection)
+    gives the NumPy path's state to rounding, on the constraints, for one state and for a batch."""
+    model, system = projection_systems()[name]
+    rng = np.random.default_rng(4)
+    q = np.stack([model.integrate(model.neutral() if name != "four-bar" else np.array([0.9, -0.9, -0.8]),
+                                  0.2 * rng.standard_normal(model.nv)) for _ in range(3)])
+    v = rng.standard_normal((3, model.nv))
+    q_batch, v_batch = system.project(q, v)
+    for k in range(3):
+        fast, slow = system.project(q[k], v[k]), numpy_projection(system, q[k], v[k])
+        assert np.abs(fast[0] - q[k]).max() > 1e-3  # the positions moved
+        assert_close(fast[0], slow[0], 1e-12, scale=1.0, what="q")
+        assert_close(fast[1], slow[1], 1e-12, scale=max(1.0, np.abs(slow[1]).max()), what="v")
+        assert np.array_equal(q_batch[k], fast[0]) and np.array_equal(v_batch[k], fast[1])
+        assert system.residual(*fast) <= 1e-12
+
+
+def test_compiled_projection_that_does_not_converge_raises():
+    model, system = projection_systems()["four-bar"]
+    q = np.array([0.3, -0.2, 0.4])  # far from the loop: more than one Gauss–Newton step
+    with pytest.raises(mb.ConstraintError, match=r"did not converge: \|φ\| = .* after 1 iterations"):
+        system.project(q, np.zeros(3), max_iterations=1)
+    with pytest.raises(mb.ConstraintError, match=r"did not converge: \|φ\| = .* after 1 iterations"):
+        numpy_projection(system, q, np.zeros(3), max_iterations=1)
+    assert system.residual(*system.project(q, np.zeros(3))) <= 1e-12

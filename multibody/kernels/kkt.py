@@ -19,7 +19,9 @@ from __future__ import annotations
 
 import math
 
+from ..tree import IQ, IV, KIND, NV
 from . import crba, kinematics, rnea
+from . import joints as kinds
 from .constraints import constraint_rows
 from .jit import njit
 from .spatial import nan_unless_finite
@@ -27,6 +29,8 @@ from .spatial import nan_unless_finite
 #: Status of a step: solved; ``M`` not positive definite; constraints that no acceleration meets;
 #: a constraint without a defined direction (see :mod:`multibody.kernels.constraints`).
 SOLVED, NOT_POSITIVE_DEFINITE, INCONSISTENT = 0, 1, 2
+#: Status of a projection (:func:`project`) whose positions did not converge.
+NOT_CONVERGED = 4
 
 
 @njit(cache=True, error_model="numpy")
@@ -169,6 +173,62 @@ def orthogonalize_rows(B, U, sigma, m):
 
 
 @njit(cache=True, error_model="numpy")
+def metric_rows(L, A, W, Y, m, nv):
+    """The rows in the metric of ``M = L Lᵀ`` (:func:`cholesky`): ``W_i = L⁻¹ A_iᵀ``, the rows of
+    ``B = A L⁻ᵀ``, and ``Y_i = L⁻ᵀ W_i = M⁻¹ A_iᵀ``, for the first ``m`` rows of ``A``."""
+    for i in range(m):
+        for c in range(nv):
+            W[i, c] = A[i, c]
+        forward_substitution(L, nv, W[i])
+        for c in range(nv):
+            Y[i, c] = W[i, c]
+        back_substitution(L, nv, Y[i])
+
+
+@njit(cache=True, error_model="numpy")
+def minimum_norm(V, sigma, rhs, rank_tolerance, m, coefficients, magnitudes, lam):
+    """Minimum-norm ``λ = G⁺ rhs`` into ``lam (m,)`` for ``G = A M⁻¹ Aᵀ = B Bᵀ = V diag(σ²) Vᵀ`` from
+    :func:`orthogonalize_rows`: ``λ = V diag(σ²)⁺ Vᵀ rhs``, keeping the directions with
+    ``σ > rank_tolerance · max σ``. Returns the rank; ``coefficients[j] = V_jᵀ rhs`` and
+    ``magnitudes[j] = Σ_i |V_ij rhs_i|`` on the kept directions (zero on the others)."""
+    sigma_max = 0.0
+    for i in range(m):
+        sigma_max = max(sigma_max, sigma[i])
+        lam[i] = 0.0
+    rank = 0
+    for j in range(m):
+        coefficients[j] = 0.0
+        magnitudes[j] = 0.0
+        if sigma[j] > rank_tolerance * sigma_max:
+            rank += 1
+            for i in range(m):
+                coefficients[j] += V[i, j] * rhs[i]
+                magnitudes[j] += abs(V[i, j] * rhs[i])
+            for i in range(m):
+                lam[i] += V[i, j] * coefficients[j] / (sigma[j] * sigma[j])
+    return rank
+
+
+@njit(cache=True, error_model="numpy")
+def solve_workspace(ws, start, m, nv):
+    """The arrays of the minimum-norm solves, carved from ``ws[start:]`` (``3 m nv + m² + 6 m`` floats):
+    the rows ``A (m, nv)``, ``γ``, ``φ``; ``W``, ``Y (m, nv)`` of :func:`metric_rows`; ``V (m, m)`` and
+    ``σ`` of :func:`orthogonalize_rows`; ``rhs``, ``coefficients`` and ``magnitudes`` of
+    :func:`minimum_norm`; and where the next array starts."""
+    A = ws[start : start + m * nv].reshape((m, nv))
+    start += m * nv
+    W = ws[start : start + m * nv].reshape((m, nv))  # rows: L⁻¹ A_iᵀ, then rotated
+    start += m * nv
+    Y = ws[start : start + m * nv].reshape((m, nv))  # rows: M⁻¹ A_iᵀ
+    start += m * nv
+    V = ws[start : start + m * m].reshape((m, m))
+    start += m * m
+    vectors = ws[start : start + 6 * m]
+    return (A, vectors[:m], vectors[m : 2 * m], W, Y, V, vectors[2 * m : 3 * m], vectors[3 * m : 4 * m],
+            vectors[4 * m : 5 * m], vectors[5 * m :], start + 6 * m)
+
+
+@njit(cache=True, error_model="numpy")
 def orthogonalize_stack(B, U, sigma):
     """:func:`orthogonalize_rows` of each matrix of a stack ``B (k, m, n)``, into ``U (k, m, m)`` and
     ``sigma (k, m)``."""
@@ -201,27 +261,8 @@ def constrained_accelerations(joints, reals, frames, q, v, tau, program, out, ws
     start += nv
     motions = ws[start : start + frames.shape[0] * cols].reshape((frames.shape[0], cols))
     start += frames.shape[0] * cols
-    A = ws[start : start + m * nv].reshape((m, nv))
-    start += m * nv
-    gamma = ws[start : start + m]
-    start += m
-    phi = ws[start : start + m]
-    start += m
-    Y = ws[start : start + m * nv].reshape((m, nv))  # rows: M⁻¹ A_iᵀ
-    start += m * nv
-    W = ws[start : start + m * nv].reshape((m, nv))  # rows: L⁻¹ A_iᵀ, then rotated
-    start += m * nv
-    V = ws[start : start + m * m].reshape((m, m))
-    start += m * m
-    sigma = ws[start : start + m]
-    start += m
-    rhs = ws[start : start + m]
-    start += m
+    A, gamma, phi, W, Y, V, sigma, rhs, coefficients, magnitudes, start = solve_workspace(ws, start, m, nv)
     scale = ws[start : start + m]
-    start += m
-    coefficients = ws[start : start + m]
-    start += m
-    magnitudes = ws[start : start + m]
     start += m
     passes = ws[start:]
     row = out[0]
@@ -253,14 +294,8 @@ def constrained_accelerations(joints, reals, frames, q, v, tau, program, out, ws
     for c in range(nv):
         a_free[c] = (tau[c] if tau.shape[0] > 0 else 0.0) - h[0, c]
     cholesky_solve(M, nv, a_free)
-    # W_i = L⁻¹ A_iᵀ (rows of B = A L⁻ᵀ) ;  Y_i = L⁻ᵀ W_i = M⁻¹ A_iᵀ ;  rhs = γ − A a_free
-    for i in range(m):
-        for c in range(nv):
-            W[i, c] = A[i, c]
-        forward_substitution(M, nv, W[i])
-        for c in range(nv):
-            Y[i, c] = W[i, c]
-        back_substitution(M, nv, Y[i])
+    # rhs = γ − A a_free
+    metric_rows(M, A, W, Y, m, nv)
     for i in range(m):
         A_a_free = 0.0
         for c in range(nv):
@@ -269,20 +304,7 @@ def constrained_accelerations(joints, reals, frames, q, v, tau, program, out, ws
         scale[i] = max(abs(gamma[i]), abs(A_a_free), 1.0)
     # G = A M⁻¹ Aᵀ = B Bᵀ = V diag(σ²) Vᵀ ;  λ = V diag(σ²)⁺ Vᵀ rhs, keeping σ > tolerance · max σ
     orthogonalize_rows(W, V, sigma, m)
-    sigma_max = 0.0
-    for i in range(m):
-        sigma_max = max(sigma_max, sigma[i])
-    rank = 0
-    for j in range(m):
-        coefficients[j] = 0.0
-        magnitudes[j] = 0.0
-        if sigma[j] > rank_tolerance * sigma_max:
-            rank += 1
-            for i in range(m):
-                coefficients[j] += V[i, j] * rhs[i]
-                magnitudes[j] += abs(V[i, j] * rhs[i])
-            for i in range(m):
-                lam[i] += V[i, j] * coefficients[j] / (sigma[j] * sigma[j])
+    rank = minimum_norm(V, sigma, rhs, rank_tolerance, m, coefficients, magnitudes, lam)
     # the part of rhs in the dropped directions cannot be met, judged against the terms that make it: the
     # row's own (scale) and those of the part met, Σ_j |V_ij| Σ_k |V_kj rhs_k|, whose rounding leaks
     # into every row that V mixes (a row of small rhs beside one of 1e12 at a fast joint)
@@ -306,3 +328,147 @@ def constrained_accelerations(joints, reals, frames, q, v, tau, program, out, ws
         row[base + m * nv + i] = gamma[i]
     row[rank_column] = rank
     nan_unless_finite(q, v, tau, program, out)
+
+
+def projection_columns(nq, nv):
+    """Columns of :func:`project`'s output row: ``q' (nq) | v' (nv) | |φ| | status``."""
+    return nq + nv + 2
+
+
+def projection_workspace_size(nj, nq, nv, nframes, m):
+    """Floats of workspace of :func:`project` with ``nframes`` constraint frames and ``m`` rows."""
+    passes = max(crba.workspace_size(nj, nv), kinematics.workspace_size(nj, nv))
+    return nv * nv + nframes * kinematics.motion_columns(nv) + 3 * m * nv + m * m + 7 * m + 2 * nv + nq + passes
+
+
+@njit(cache=True, error_model="numpy")
+def project(joints, reals, frames, q, v, settings, program, out, ws):
+    """The nearest consistent state into ``out[0]`` (layout :func:`projection_columns`): ``φ(q') = 0``
+    and ``A(q') v' = 0`` for the rows of ``program`` (fixed in time, ``b = 0``), with the largest
+    ``|φ|`` left and a status (``SOLVED``, ``NOT_CONVERGED``, ``NOT_POSITIVE_DEFINITE`` or
+    ``constraints.UNDEFINED``).
+
+    Positions by Gauss–Newton steps on the rows with a position level, the smallest moves in the
+    kinetic-energy metric (Hairer, Lubich & Wanner, *Geometric Numerical Integration*, §IV.4):
+
+        δ = M⁻¹ Aᵀ (A M⁻¹ Aᵀ)⁺ φ,   q ← q ⊕ (−δ)
+
+    until ``|φ| ≤ tol`` and the step is below ``tol`` too (in the coordinates' units), or stops
+    shrinking (by half), which is where rounding decides it near a singular configuration. Then the
+    velocities by the ``M``-orthogonal projection ``v' = v − M⁻¹ Aᵀ (A M⁻¹ Aᵀ)⁺ A v``. The minimum-norm
+    solves are those of :func:`constrained_accelerations`, with the same rank decision.
+
+    ``q (nq,)``, ``v (nv,)``; ``settings = [tol, max_iterations, position mask (m)]``: whether each row
+    has a position level (1.0) or not (0.0).
+    """
+    m = int(program[1])
+    nq, nv = q.shape[0], v.shape[0]
+    rank_tolerance = program[4]
+    tolerance, iterations = settings[0], int(settings[1])
+    mask = settings[2:]
+    cols = kinematics.motion_columns(nv)
+    # workspace
+    start = 0
+    L = ws[start : start + nv * nv].reshape((nv, nv))
+    start += nv * nv
+    motions = ws[start : start + frames.shape[0] * cols].reshape((frames.shape[0], cols))
+    start += frames.shape[0] * cols
+    A, gamma, phi, W, Y, V, sigma, rhs, coefficients, magnitudes, start = solve_workspace(ws, start, m, nv)
+    lam = ws[start : start + m]
+    start += m
+    zeros = ws[start : start + nv]
+    start += nv
+    step = ws[start : start + nv]
+    start += nv
+    moved = ws[start : start + nq]
+    start += nq
+    passes = ws[start:]
+    row = out[0]
+    q_new, v_new = row[:nq], row[nq : nq + nv]
+    status_column, error_column = row.shape[0] - 1, row.shape[0] - 2
+    for c in range(nq):
+        q_new[c] = q[c]
+    for c in range(nv):
+        zeros[c] = 0.0
+    holonomic = False
+    for i in range(m):
+        holonomic = holonomic or mask[i] != 0.0
+
+    status = _rows_and_factor(joints, reals, frames, q_new, zeros, program, motions, A, gamma, phi, L, passes)
+    previous = math.inf
+    converged = not holonomic
+    for _ in range(iterations if holonomic else 0):
+        if status != SOLVED:
+            break
+        # δ = M⁻¹ Aᵀ (A M⁻¹ Aᵀ)⁺ φ over the rows with a position level (the others' rows are zero)
+        metric_rows(L, A, W, Y, m, nv)
+        error = 0.0
+        for i in range(m):
+            if mask[i] == 0.0:
+                for c in range(nv):
+                    W[i, c] = 0.0
+                    Y[i, c] = 0.0
+                rhs[i] = 0.0
+            else:
+                rhs[i] = phi[i]
+                error = max(error, abs(phi[i]))
+        orthogonalize_rows(W, V, sigma, m)
+        minimum_norm(V, sigma, rhs, rank_tolerance, m, coefficients, magnitudes, lam)
+        size = 0.0
+        for c in range(nv):
+            s = 0.0
+            for i in range(m):
+                s += Y[i, c] * lam[i]
+            step[c] = -s
+            size = max(size, abs(s))
+        row[error_column] = error
+        if error <= tolerance and (size <= tolerance or size > 0.5 * previous):
+            converged = True
+            break
+        previous = size
+        # q ← q ⊕ (−δ)
+        for i in range(joints.shape[0]):
+            kinds.integrate(joints[i, KIND], joints[i, NV], q_new, step, joints[i, IQ], joints[i, IV], moved)
+        for c in range(nq):
+            q_new[c] = moved[c]
+        status = _rows_and_factor(joints, reals, frames, q_new, zeros, program, motions, A, gamma, phi, L, passes)
+    if status == SOLVED and not converged:
+        status = NOT_CONVERGED
+        error = 0.0
+        for i in range(m):
+            if mask[i] != 0.0:
+                error = max(error, abs(phi[i]))
+        row[error_column] = error
+    if status != SOLVED:
+        row[status_column] = status
+        nan_unless_finite(q, v, settings, program, out)
+        return
+    # v' = v − M⁻¹ Aᵀ (A M⁻¹ Aᵀ)⁺ A v over every row
+    metric_rows(L, A, W, Y, m, nv)
+    for i in range(m):
+        s = 0.0
+        for c in range(nv):
+            s += A[i, c] * v[c]
+        rhs[i] = s
+    orthogonalize_rows(W, V, sigma, m)
+    minimum_norm(V, sigma, rhs, rank_tolerance, m, coefficients, magnitudes, lam)
+    for c in range(nv):
+        s = 0.0
+        for i in range(m):
+            s += Y[i, c] * lam[i]
+        v_new[c] = v[c] - s
+    row[status_column] = SOLVED
+    nan_unless_finite(q, v, settings, program, out)
+
+
+@njit(cache=True, error_model="numpy")
+def _rows_and_factor(joints, reals, frames, q, zeros, program, motions, A, gamma, phi, L, passes):
+    """The rows ``A``, ``φ`` at ``q`` and the Cholesky factor ``L`` of ``M(q)`` for :func:`project`;
+    returns its status."""
+    none = program[:0]
+    kinematics.frame_motions(joints, reals, frames, q, zeros, none, none, motions, passes)
+    status = constraint_rows(program, motions, q, zeros, A, gamma, phi)
+    if status != 0:
+        return status
+    crba.mass_matrix(joints, reals, frames, q, none, none, none, L, passes)
+    return SOLVED if cholesky(L, L.shape[0]) else NOT_POSITIVE_DEFINITE
