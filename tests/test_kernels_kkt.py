@@ -171,6 +171,54 @@ def test_row_orthogonalization_and_cholesky_agree_with_lapack():
     assert not kkt.cholesky(-np.eye(3), 3)
 
 
+
+def graded(rng, m, n, smallest):
+    """A random ``(m, n)`` matrix whose rows are scaled from 1 down to ``smallest`` (the grading of a
+    closed chain's rows near a singular configuration), with its rows shuffled."""
+    return (np.geomspace(1.0, smallest, m)[:, None] * rng.standard_normal((m, n)))[rng.permutation(m)]
+
+
+def test_pivoted_lq_factors_the_metric_gram_matrix():
+    """``Π B = L Q``: ``L Lᵀ = Π B Bᵀ Πᵀ`` with ``L`` lower triangular, its diagonal non-increasing in size
+    (the pivoting), and ``|L|`` has ``B``'s singular values."""
+    rng = np.random.default_rng(1)
+    for m, n, smallest in ((1, 3, 1.0), (3, 5, 1e-3), (12, 14, 1e-8), (6, 6, 1.0)):
+        B = graded(rng, m, n, smallest)
+        work, order, norms = B.copy(), np.empty(m), np.empty(m)
+        kkt.pivoted_lq(work, m, n, order, norms)
+        L = np.tril(work[:, :m])
+        P = B[order.astype(int)]
+        assert_close(L @ L.T, P @ P.T, 1e-14, scale=np.abs(B @ B.T).max(), what="L Lᵀ")
+        assert np.all(np.diff(np.abs(np.diag(L))) <= 1e-15)
+        assert_close(np.linalg.svd(L, compute_uv=False), np.linalg.svd(B, compute_uv=False), 1e-13, scale=1.0,
+                     what="singular values")
+
+
+@pytest.mark.parametrize("smallest, full", [(1e-3, True), (1e-8, True), (1e-11, False), (0.0, False)])
+def test_full_rank_certified_by_the_lq_factor_and_solved_as_by_rotations(smallest, full):
+    """:func:`kkt.metric_solve` solves by the LQ factor only where ``1/‖L⁻¹‖_F > rank_tolerance ‖L‖_F``
+    proves that every singular value counts (rank tolerance 1e-10; rows graded down to ``smallest``, a
+    zero row at 0); there its multipliers equal the rotations' minimum-norm ones to the rounding of the
+    grading, and elsewhere it is the rotations' solve."""
+    rng = np.random.default_rng(2)
+    m, n = 12, 14
+    B = graded(rng, m, n, smallest if smallest else 1e-3)
+    if not smallest:
+        B[3] = 0.0
+    rhs = B @ rng.standard_normal(n)  # consistent, as the step's right-hand side at a state on the constraints
+    scratch, V, sigma = np.empty((m, n)), np.empty((m, m)), np.empty(m)
+    coefficients, magnitudes, lam, order, norms = (np.empty(m) for _ in range(5))
+    rank, every_row = kkt.metric_solve(B.copy(), scratch, V, sigma, rhs, 1e-10, m, n, coefficients, magnitudes,
+                                       lam, order, norms)
+    assert every_row == full
+    work, U, s = B.copy(), np.empty((m, m)), np.empty(m)
+    kkt.orthogonalize_rows(work, U, s, m)
+    expected = np.empty(m)
+    expected_rank = kkt.minimum_norm(U, s, rhs, 1e-10, m, np.empty(m), np.empty(m), expected)
+    assert rank == expected_rank and (rank == m) == full
+    assert_close(lam, expected, 1e-14 / (smallest if full else 1e-3), scale=np.abs(expected).max(), what="λ")
+
+
 # ----------------------------------------------------------------------------- projection
 
 def numpy_projection(system, q, v, **options):

@@ -8,11 +8,14 @@ of λ of :class:`multibody.ConstrainedSystem`):
     a = a_free + M⁻¹ Aᵀ λ
 
 ``M`` comes from CRBA, ``h`` from RNEA, the constraint frames from one forward pass, and the rows from
-:mod:`multibody.kernels.constraints`. ``M = L Lᵀ`` by Cholesky; ``G = B Bᵀ`` with ``B = A L⁻ᵀ``, whose
-rows one-sided Jacobi rotations make orthogonal, ``B = V diag(σ) Pᵀ``, so that
-``λ = V diag(σ²)⁺ Vᵀ rhs`` drops the directions with ``σ ≤ rank tolerance · max σ`` without squaring
-the condition number. :meth:`multibody.ConstrainedSystem.solve`'s NumPy path uses the same rotations
-(:func:`orthogonalize_stack`), so both paths give the same multipliers near singular configurations.
+:mod:`multibody.kernels.constraints`. ``M = L Lᵀ`` by Cholesky; ``G = B Bᵀ`` with ``B = A L⁻ᵀ``, never
+formed, so that no step squares the condition number. Where a row-pivoted LQ factor of ``B`` proves
+that every singular value exceeds the rank tolerance times the largest, ``λ`` comes from two
+triangular solves with that factor. Otherwise one-sided Jacobi rotations make the rows of ``B``
+orthogonal, ``B = V diag(σ) Pᵀ``, and ``λ = V diag(σ²)⁺ Vᵀ rhs`` drops the directions with
+``σ ≤ rank tolerance · max σ``. :meth:`multibody.ConstrainedSystem.solve`'s NumPy path uses the same
+rotations (:func:`orthogonalize_stack`) and the same rank rule, so both paths give the same
+multipliers near singular configurations.
 """
 
 from __future__ import annotations
@@ -42,7 +45,7 @@ def output_columns(nv, m):
 def workspace_size(nj, nv, nframes, m):
     """Floats of workspace of one step with ``nframes`` constraint frames and ``m`` rows."""
     passes = max(crba.workspace_size(nj, nv), rnea.workspace_size(nj, nv), kinematics.workspace_size(nj, nv))
-    return nv * nv + 2 * nv + nframes * kinematics.motion_columns(nv) + 3 * m * nv + m * m + 7 * m + passes
+    return nv * nv + 2 * nv + nframes * kinematics.motion_columns(nv) + 4 * m * nv + m * m + 9 * m + passes
 
 
 @njit(cache=True, error_model="numpy")
@@ -111,6 +114,21 @@ def row_dot(B, p, r, n):
 
 
 @njit(cache=True, error_model="numpy")
+def longest_first(B, n, norms, p, m):
+    """Row ``p`` of ``B`` (its first ``n`` columns) and ``norms[p]`` swapped with the row of largest
+    ``norms`` among ``p … m − 1``; returns the index that row came from."""
+    longest = p
+    for r in range(p + 1, m):
+        if norms[r] > norms[longest]:
+            longest = r
+    if longest != p:
+        norms[p], norms[longest] = norms[longest], norms[p]
+        for c in range(n):
+            B[p, c], B[longest, c] = B[longest, c], B[p, c]
+    return longest
+
+
+@njit(cache=True, error_model="numpy")
 def orthogonalize_rows(B, U, sigma, m):
     """``B = U diag(σ) Pᵀ`` for ``B (m, n)`` by one-sided Jacobi rotations of its rows (Hestenes; Golub
     & Van Loan, *Matrix Computations*, 4th ed., §8.6.3): pairs of rows are rotated until all are
@@ -131,14 +149,8 @@ def orthogonalize_rows(B, U, sigma, m):
         rotated = False
         for p in range(m - 1):
             # de Rijk's pivoting: the longest remaining row goes first, which cuts the number of sweeps
-            longest = p
-            for r in range(p + 1, m):
-                if sigma[r] > sigma[longest]:
-                    longest = r
+            longest = longest_first(B, n, sigma, p, m)
             if longest != p:
-                sigma[p], sigma[longest] = sigma[longest], sigma[p]
-                for c in range(n):
-                    B[p, c], B[longest, c] = B[longest, c], B[p, c]
                 for k in range(m):
                     U[p, k], U[longest, k] = U[longest, k], U[p, k]
             for r in range(p + 1, m):
@@ -210,11 +222,102 @@ def minimum_norm(V, sigma, rhs, rank_tolerance, m, coefficients, magnitudes, lam
 
 
 @njit(cache=True, error_model="numpy")
+def pivoted_lq(B, m, n, order, norms):
+    """``Π B = L Q`` for the first ``m`` rows of ``B (·, n)``, in place: Householder reflections from the
+    right, the remaining row of largest norm first at each step (Businger and Golub, Numer. Math. 7,
+    1965; Golub & Van Loan, *Matrix Computations*, 4th ed., Alg. 5.4.1, transposed). On return the lower
+    triangle of ``B[:m, :m]`` holds ``L`` and ``order[k]`` is the row of ``B`` that ``Π`` puts at ``k``
+    (as a float); ``norms (m,)`` is scratch."""
+    for i in range(m):
+        order[i] = i
+        norms[i] = row_dot(B, i, i, n)
+    for k in range(m):
+        # the remaining row of largest norm over columns k … n − 1 goes next
+        p = longest_first(B, n, norms, k, m)
+        order[k], order[p] = order[p], order[k]
+        # the reflection H = I − τ u uᵀ with x H = (α, 0, …, 0), x = B[k, k:], u = x − α e_k
+        s = 0.0
+        for c in range(k, n):
+            s += B[k, c] * B[k, c]
+        alpha = -math.sqrt(s) if B[k, k] > 0.0 else math.sqrt(s)
+        if alpha == 0.0:
+            continue
+        x_k = B[k, k]
+        B[k, k] = x_k - alpha  # u, kept in row k while the rows below are reflected
+        tau = 1.0 / (alpha * (alpha - x_k))  # 2 / uᵀu, with uᵀu = 2 α (α − x_k)
+        for r in range(k + 1, m):
+            d = 0.0
+            for c in range(k, n):
+                d += B[r, c] * B[k, c]
+            f = tau * d
+            t = 0.0
+            for c in range(k, n):
+                B[r, c] -= f * B[k, c]
+                if c > k:
+                    t += B[r, c] * B[r, c]
+            norms[r] = t
+        B[k, k] = alpha
+        for c in range(k + 1, n):
+            B[k, c] = 0.0
+
+
+@njit(cache=True, error_model="numpy")
+def certified_full_rank(L, m, rank_tolerance, inverse_row):
+    """Whether ``L (m, m)`` lower-triangular certainly has every singular value above
+    ``rank_tolerance`` times the largest: ``σ_min ≥ 1/‖L⁻¹‖_F`` and ``σ_max ≤ ‖L‖_F``, so that
+    ``‖L⁻¹‖_F ‖L‖_F · rank_tolerance < 1`` is enough. ``inverse_row (m,)`` is scratch."""
+    norm = 0.0
+    for i in range(m):
+        if L[i, i] == 0.0:
+            return False
+        for j in range(i + 1):
+            norm += L[i, j] * L[i, j]
+    # ‖L⁻¹‖_F² by the rows of L⁻¹: e_iᵀ L⁻¹ solves xᵀ L = e_iᵀ (back substitution on Lᵀ)
+    inverse = 0.0
+    for i in range(m):
+        for j in range(i, -1, -1):
+            s = 1.0 if j == i else 0.0
+            for k in range(j + 1, i + 1):
+                s -= inverse_row[k] * L[k, j]
+            inverse_row[j] = s / L[j, j]
+            inverse += inverse_row[j] * inverse_row[j]
+    return inverse * norm * rank_tolerance * rank_tolerance < 1.0
+
+
+@njit(cache=True, error_model="numpy")
+def metric_solve(W, scratch, V, sigma, rhs, rank_tolerance, m, n, coefficients, magnitudes, lam, order, norms):
+    """Minimum-norm ``λ = G⁺ rhs`` into ``lam (m,)`` for ``G = B Bᵀ``, ``B = W[:m, :n]`` the rows in the
+    metric of ``M`` (:func:`metric_rows`). Returns the rank, and whether every row counted.
+
+    Where a row-pivoted LQ of ``B`` (:func:`pivoted_lq`, ``Π B = L Q``, so ``G = Πᵀ L Lᵀ Π``) certifies
+    that every singular value exceeds ``rank_tolerance`` times the largest (:func:`certified_full_rank`),
+    ``Π λ = L⁻ᵀ L⁻¹ Π rhs`` by two triangular solves: ``L`` has the singular values of ``B``, so this
+    does not square the condition number either. Otherwise the one-sided Jacobi rotations of ``W``
+    (:func:`orthogonalize_rows`, which then holds ``V``, ``σ``) and :func:`minimum_norm` drop the
+    directions below the tolerance. ``scratch (m, n)``, ``order``, ``norms (m,)`` are scratch."""
+    for i in range(m):
+        for c in range(n):
+            scratch[i, c] = W[i, c]
+    pivoted_lq(scratch, m, n, order, norms)
+    if certified_full_rank(scratch, m, rank_tolerance, norms):
+        for k in range(m):
+            norms[k] = rhs[int(order[k])]
+        forward_substitution(scratch, m, norms)
+        back_substitution(scratch, m, norms)
+        for k in range(m):
+            lam[int(order[k])] = norms[k]
+        return m, True
+    orthogonalize_rows(W, V, sigma, m)
+    return minimum_norm(V, sigma, rhs, rank_tolerance, m, coefficients, magnitudes, lam), False
+
+
+@njit(cache=True, error_model="numpy")
 def solve_workspace(ws, start, m, nv):
-    """The arrays of the minimum-norm solves, carved from ``ws[start:]`` (``3 m nv + m² + 6 m`` floats):
+    """The arrays of the minimum-norm solves, carved from ``ws[start:]`` (``4 m nv + m² + 8 m`` floats):
     the rows ``A (m, nv)``, ``γ``, ``φ``; ``W``, ``Y (m, nv)`` of :func:`metric_rows`; ``V (m, m)`` and
     ``σ`` of :func:`orthogonalize_rows`; ``rhs``, ``coefficients`` and ``magnitudes`` of
-    :func:`minimum_norm`; and where the next array starts."""
+    :func:`minimum_norm`; the scratch ``(m, nv)``, ``order`` and ``norms`` of :func:`metric_solve`; and
+    where the next array starts."""
     A = ws[start : start + m * nv].reshape((m, nv))
     start += m * nv
     W = ws[start : start + m * nv].reshape((m, nv))  # rows: L⁻¹ A_iᵀ, then rotated
@@ -223,9 +326,12 @@ def solve_workspace(ws, start, m, nv):
     start += m * nv
     V = ws[start : start + m * m].reshape((m, m))
     start += m * m
-    vectors = ws[start : start + 6 * m]
+    scratch = ws[start : start + m * nv].reshape((m, nv))
+    start += m * nv
+    vectors = ws[start : start + 8 * m]
     return (A, vectors[:m], vectors[m : 2 * m], W, Y, V, vectors[2 * m : 3 * m], vectors[3 * m : 4 * m],
-            vectors[4 * m : 5 * m], vectors[5 * m :], start + 6 * m)
+            vectors[4 * m : 5 * m], vectors[5 * m : 6 * m], scratch, vectors[6 * m : 7 * m], vectors[7 * m :],
+            start + 8 * m)
 
 
 @njit(cache=True, error_model="numpy")
@@ -261,7 +367,8 @@ def constrained_accelerations(joints, reals, frames, q, v, tau, program, out, ws
     start += nv
     motions = ws[start : start + frames.shape[0] * cols].reshape((frames.shape[0], cols))
     start += frames.shape[0] * cols
-    A, gamma, phi, W, Y, V, sigma, rhs, coefficients, magnitudes, start = solve_workspace(ws, start, m, nv)
+    (A, gamma, phi, W, Y, V, sigma, rhs, coefficients, magnitudes, scratch, order, norms,
+     start) = solve_workspace(ws, start, m, nv)
     scale = ws[start : start + m]
     start += m
     passes = ws[start:]
@@ -302,13 +409,14 @@ def constrained_accelerations(joints, reals, frames, q, v, tau, program, out, ws
             A_a_free += A[i, c] * a_free[c]
         rhs[i] = gamma[i] - A_a_free
         scale[i] = max(abs(gamma[i]), abs(A_a_free), 1.0)
-    # G = A M⁻¹ Aᵀ = B Bᵀ = V diag(σ²) Vᵀ ;  λ = V diag(σ²)⁺ Vᵀ rhs, keeping σ > tolerance · max σ
-    orthogonalize_rows(W, V, sigma, m)
-    rank = minimum_norm(V, sigma, rhs, rank_tolerance, m, coefficients, magnitudes, lam)
+    # G = A M⁻¹ Aᵀ = B Bᵀ ;  λ = G⁺ rhs, keeping the directions with σ > tolerance · max σ
+    rank, every_row = metric_solve(W, scratch, V, sigma, rhs, rank_tolerance, m, nv, coefficients, magnitudes,
+                                   lam, order, norms)
     # the part of rhs in the dropped directions cannot be met, judged against the terms that make it: the
     # row's own (scale) and those of the part met, Σ_j |V_ij| Σ_k |V_kj rhs_k|, whose rounding leaks
-    # into every row that V mixes (a row of small rhs beside one of 1e12 at a fast joint)
-    for i in range(m):
+    # into every row that V mixes (a row of small rhs beside one of 1e12 at a fast joint); with every row
+    # counted, none is dropped
+    for i in range(m if not every_row else 0):
         met, terms = 0.0, 0.0
         for j in range(m):
             met += V[i, j] * coefficients[j]
@@ -338,7 +446,7 @@ def projection_columns(nq, nv):
 def projection_workspace_size(nj, nq, nv, nframes, m):
     """Floats of workspace of :func:`project` with ``nframes`` constraint frames and ``m`` rows."""
     passes = max(crba.workspace_size(nj, nv), kinematics.workspace_size(nj, nv))
-    return nv * nv + nframes * kinematics.motion_columns(nv) + 3 * m * nv + m * m + 7 * m + 2 * nv + nq + passes
+    return nv * nv + nframes * kinematics.motion_columns(nv) + 4 * m * nv + m * m + 9 * m + 2 * nv + nq + passes
 
 
 @njit(cache=True, error_model="numpy")
@@ -356,7 +464,8 @@ def project(joints, reals, frames, q, v, settings, program, out, ws):
     until ``|φ| ≤ tol`` and the step is below ``tol`` too (in the coordinates' units), or stops
     shrinking (by half), which is where rounding decides it near a singular configuration. Then the
     velocities by the ``M``-orthogonal projection ``v' = v − M⁻¹ Aᵀ (A M⁻¹ Aᵀ)⁺ A v``. The minimum-norm
-    solves are those of :func:`constrained_accelerations`, with the same rank decision.
+    solves are those of :func:`constrained_accelerations` (:func:`metric_solve`), with the same rank
+    decision.
 
     ``q (nq,)``, ``v (nv,)``; ``settings = [tol, max_iterations, position mask (m)]``: whether each row
     has a position level (1.0) or not (0.0).
@@ -373,7 +482,8 @@ def project(joints, reals, frames, q, v, settings, program, out, ws):
     start += nv * nv
     motions = ws[start : start + frames.shape[0] * cols].reshape((frames.shape[0], cols))
     start += frames.shape[0] * cols
-    A, gamma, phi, W, Y, V, sigma, rhs, coefficients, magnitudes, start = solve_workspace(ws, start, m, nv)
+    (A, gamma, phi, W, Y, V, sigma, rhs, coefficients, magnitudes, scratch, order, norms,
+     start) = solve_workspace(ws, start, m, nv)
     lam = ws[start : start + m]
     start += m
     zeros = ws[start : start + nv]
@@ -400,24 +510,21 @@ def project(joints, reals, frames, q, v, settings, program, out, ws):
     for _ in range(iterations if holonomic else 0):
         if status != SOLVED:
             break
-        # δ = M⁻¹ Aᵀ (A M⁻¹ Aᵀ)⁺ φ over the rows with a position level (the others' rows are zero)
-        metric_rows(L, A, W, Y, m, nv)
-        error = 0.0
+        # δ = M⁻¹ Aᵀ (A M⁻¹ Aᵀ)⁺ φ over the k rows with a position level, gathered into Y's first rows
+        k, error = 0, 0.0
         for i in range(m):
-            if mask[i] == 0.0:
+            if mask[i] != 0.0:
                 for c in range(nv):
-                    W[i, c] = 0.0
-                    Y[i, c] = 0.0
-                rhs[i] = 0.0
-            else:
-                rhs[i] = phi[i]
+                    Y[k, c] = A[i, c]
+                rhs[k] = phi[i]
                 error = max(error, abs(phi[i]))
-        orthogonalize_rows(W, V, sigma, m)
-        minimum_norm(V, sigma, rhs, rank_tolerance, m, coefficients, magnitudes, lam)
+                k += 1
+        metric_rows(L, Y, W, Y, k, nv)
+        metric_solve(W, scratch, V, sigma, rhs, rank_tolerance, k, nv, coefficients, magnitudes, lam, order, norms)
         size = 0.0
         for c in range(nv):
             s = 0.0
-            for i in range(m):
+            for i in range(k):
                 s += Y[i, c] * lam[i]
             step[c] = -s
             size = max(size, abs(s))
@@ -450,8 +557,7 @@ def project(joints, reals, frames, q, v, settings, program, out, ws):
         for c in range(nv):
             s += A[i, c] * v[c]
         rhs[i] = s
-    orthogonalize_rows(W, V, sigma, m)
-    minimum_norm(V, sigma, rhs, rank_tolerance, m, coefficients, magnitudes, lam)
+    metric_solve(W, scratch, V, sigma, rhs, rank_tolerance, m, nv, coefficients, magnitudes, lam, order, norms)
     for c in range(nv):
         s = 0.0
         for i in range(m):
