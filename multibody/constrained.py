@@ -715,6 +715,11 @@ class ConstrainedSystem:
         positions do not converge. ``q``, ``v`` may carry leading batch axes when :attr:`batched`; each state of
         a batch stops at its own tolerance, so that it equals its projection alone.
         """
+        if self._compiled_step is not None and self.system.model._is_one_state(q, v):
+            # (the kernel normalises q as below; a state that passes the checks unchanged skips them)
+            compiled = self._project_compiled(q, v, tolerance, max_iterations)
+            if compiled is not None:
+                return compiled
         q = self.system.normalize(np.asarray(q, dtype=float)) if hasattr(self.system, "normalize") else np.asarray(q, dtype=float)
         v = np.asarray(v, dtype=float)
         if not self.num_rows:
@@ -754,6 +759,16 @@ class ConstrainedSystem:
                                       f"|φ| = {np.abs(phi[..., holonomic]).max():.3g} after {max_iterations} iterations")
         return q, v - correction(A, matvec(A, v) + b)
 
+    @cached_property
+    def _projection_call(self):
+        """``(output shape, workspace size, {(tolerance, max_iterations): settings})`` of
+        :meth:`_project_compiled`; the settings vectors (:func:`multibody.kernels.kkt.project`) are made
+        once for each pair of options."""
+        _, frames, _ = self._compiled_step
+        return ((1, kkt.projection_columns(self.nq, self.nv)),
+                kkt.projection_workspace_size(self.system.model.njoints, self.nq, self.nv, len(frames), self.num_rows),
+                {})
+
     def _project_compiled(self, q, v, tolerance, max_iterations):
         """:meth:`project` by one call of :func:`multibody.kernels.kkt.project` per state (on all cores for a
         batch), or ``None`` where the compiled step does not apply, or a state has an undefined row, a
@@ -762,12 +777,17 @@ class ConstrainedSystem:
             return None
         program, frames, _ = self._compiled_step
         model, nq, nv = self.system.model, self.nq, self.nv
-        settings = np.concatenate(([tolerance, max_iterations], self._position_mask.astype(float)))
-        out_shape = (1, kkt.projection_columns(nq, nv))
-        workspace = kkt.projection_workspace_size(model.njoints, nq, nv, len(frames), self.num_rows)
-        if model._is_one_state(q, v):
+        out_shape, workspace, settings = self._projection_call
+        settings = settings.get((tolerance, max_iterations))
+        if settings is None:
+            settings = self._projection_call[2][tolerance, max_iterations] = np.concatenate(
+                ([tolerance, max_iterations], self._position_mask.astype(float)))
+        if q.ndim == 1 and v.ndim == 1 and q.flags.c_contiguous and v.flags.c_contiguous:
+            # (float64 arrays of the right sizes, as every caller has checked)
             row = driver.evaluate_one(kkt.project, model.tree, out_shape, q, v, settings, program, frames=frames,
                                       workspace=workspace)[0]
+            if row[-1] == kkt.SOLVED:
+                return row[:nq], row[nq : nq + nv]
         else:
             batch = spatial.batch_shape(q.shape[:-1], v.shape[:-1])
             row = driver.evaluate(kkt.project, model.tree, (q, v, settings, program), out_shape, batch, frames,

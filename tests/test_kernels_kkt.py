@@ -206,10 +206,11 @@ def test_full_rank_certified_by_the_lq_factor_and_solved_as_by_rotations(smalles
     if not smallest:
         B[3] = 0.0
     rhs = B @ rng.standard_normal(n)  # consistent, as the step's right-hand side at a state on the constraints
-    scratch, V, sigma = np.empty((m, n)), np.empty((m, m)), np.empty(m)
+    W, Y, scratch, V, sigma = np.empty((m, n)), np.empty((m, n)), np.empty((m, n)), np.empty((m, m)), np.empty(m)
     coefficients, magnitudes, lam, order, norms = (np.empty(m) for _ in range(5))
-    rank, every_row = kkt.metric_solve(B.copy(), scratch, V, sigma, rhs, 1e-10, m, n, coefficients, magnitudes,
-                                       lam, order, norms)
+    rank, every_row = kkt.metric_solve(np.eye(n), B, W, Y, scratch, V, sigma, rhs, 1e-10, m, n, coefficients,
+                                       magnitudes, lam, order, norms)  # M = I: B is its own metric rows
+    assert np.array_equal(Y, B)
     assert every_row == full
     work, U, s = B.copy(), np.empty((m, m)), np.empty(m)
     kkt.orthogonalize_rows(work, U, s, m)
@@ -271,3 +272,18 @@ def test_compiled_projection_that_does_not_converge_raises():
     with pytest.raises(mb.ConstraintError, match=r"did not converge: \|φ\| = .* after 1 iterations"):
         numpy_projection(system, q, np.zeros(3), max_iterations=1)
     assert system.residual(*system.project(q, np.zeros(3))) <= 1e-12
+
+
+def test_compiled_projection_normalizes_the_quaternion_first():
+    """A quaternion off unit norm by rounding (within the models' tolerance, so that the state passes the
+    checks unchanged) is normalised before the Gauss–Newton steps, as on the NumPy path."""
+    model, system = projection_systems()["ball"]
+    rng = np.random.default_rng(8)
+    q = model.integrate(model.neutral(), 0.2 * rng.standard_normal(model.nv))
+    q[3:7] *= 1.0 + 1e-9
+    v = rng.standard_normal(model.nv)
+    assert model._is_one_state(q, v)
+    fast, slow = system.project(q, v), numpy_projection(system, q, v)
+    assert abs(np.linalg.norm(fast[0][3:7]) - 1.0) <= 1e-15
+    assert_close(fast[0], slow[0], 1e-14, scale=1.0, what="q")
+    assert_close(fast[1], slow[1], 1e-12, scale=max(1.0, np.abs(slow[1]).max()), what="v")

@@ -185,19 +185,6 @@ def orthogonalize_rows(B, U, sigma, m):
 
 
 @njit(cache=True, error_model="numpy")
-def metric_rows(L, A, W, Y, m, nv):
-    """The rows in the metric of ``M = L Lᵀ`` (:func:`cholesky`): ``W_i = L⁻¹ A_iᵀ``, the rows of
-    ``B = A L⁻ᵀ``, and ``Y_i = L⁻ᵀ W_i = M⁻¹ A_iᵀ``, for the first ``m`` rows of ``A``."""
-    for i in range(m):
-        for c in range(nv):
-            W[i, c] = A[i, c]
-        forward_substitution(L, nv, W[i])
-        for c in range(nv):
-            Y[i, c] = W[i, c]
-        back_substitution(L, nv, Y[i])
-
-
-@njit(cache=True, error_model="numpy")
 def minimum_norm(V, sigma, rhs, rank_tolerance, m, coefficients, magnitudes, lam):
     """Minimum-norm ``λ = G⁺ rhs`` into ``lam (m,)`` for ``G = A M⁻¹ Aᵀ = B Bᵀ = V diag(σ²) Vᵀ`` from
     :func:`orthogonalize_rows`: ``λ = V diag(σ²)⁺ Vᵀ rhs``, keeping the directions with
@@ -285,19 +272,27 @@ def certified_full_rank(L, m, rank_tolerance, inverse_row):
 
 
 @njit(cache=True, error_model="numpy")
-def metric_solve(W, scratch, V, sigma, rhs, rank_tolerance, m, n, coefficients, magnitudes, lam, order, norms):
-    """Minimum-norm ``λ = G⁺ rhs`` into ``lam (m,)`` for ``G = B Bᵀ``, ``B = W[:m, :n]`` the rows in the
-    metric of ``M`` (:func:`metric_rows`). Returns the rank, and whether every row counted.
+def metric_solve(L, A, W, Y, scratch, V, sigma, rhs, rank_tolerance, m, n, coefficients, magnitudes, lam, order,
+                 norms):
+    """Minimum-norm ``λ = G⁺ rhs`` into ``lam (m,)`` for ``G = A M⁻¹ Aᵀ = B Bᵀ`` of the first ``m`` rows of
+    ``A (·, n)``, with the rows in the metric of ``M = L Lᵀ`` (:func:`cholesky`): ``W_i = L⁻¹ A_iᵀ``, the
+    rows of ``B = A L⁻ᵀ``, and ``Y_i = L⁻ᵀ W_i = M⁻¹ A_iᵀ``, which the caller reads afterwards (``A`` and
+    ``Y`` may be one array). Returns the rank, and whether every row counted.
 
-    Where a row-pivoted LQ of ``B`` (:func:`pivoted_lq`, ``Π B = L Q``, so ``G = Πᵀ L Lᵀ Π``) certifies
-    that every singular value exceeds ``rank_tolerance`` times the largest (:func:`certified_full_rank`),
-    ``Π λ = L⁻ᵀ L⁻¹ Π rhs`` by two triangular solves: ``L`` has the singular values of ``B``, so this
-    does not square the condition number either. Otherwise the one-sided Jacobi rotations of ``W``
+    Where a row-pivoted LQ of ``B`` (:func:`pivoted_lq`, ``Π B = T Q`` with ``T`` lower triangular, so
+    ``G = Πᵀ T Tᵀ Π``) certifies that every singular value exceeds ``rank_tolerance`` times the largest
+    (:func:`certified_full_rank`), ``Π λ = T⁻ᵀ T⁻¹ Π rhs`` by two triangular solves: ``T`` has the
+    singular values of ``B``, so this does not square the condition number either. Otherwise the one-sided Jacobi rotations of ``W``
     (:func:`orthogonalize_rows`, which then holds ``V``, ``σ``) and :func:`minimum_norm` drop the
     directions below the tolerance. ``scratch (m, n)``, ``order``, ``norms (m,)`` are scratch."""
     for i in range(m):
         for c in range(n):
+            W[i, c] = A[i, c]
+        forward_substitution(L, n, W[i])
+        for c in range(n):
+            Y[i, c] = W[i, c]
             scratch[i, c] = W[i, c]
+        back_substitution(L, n, Y[i])
     pivoted_lq(scratch, m, n, order, norms)
     if certified_full_rank(scratch, m, rank_tolerance, norms):
         for k in range(m):
@@ -314,7 +309,7 @@ def metric_solve(W, scratch, V, sigma, rhs, rank_tolerance, m, n, coefficients, 
 @njit(cache=True, error_model="numpy")
 def solve_workspace(ws, start, m, nv):
     """The arrays of the minimum-norm solves, carved from ``ws[start:]`` (``4 m nv + m² + 8 m`` floats):
-    the rows ``A (m, nv)``, ``γ``, ``φ``; ``W``, ``Y (m, nv)`` of :func:`metric_rows`; ``V (m, m)`` and
+    the rows ``A (m, nv)``, ``γ``, ``φ``; ``W``, ``Y (m, nv)`` of :func:`metric_solve`; ``V (m, m)`` and
     ``σ`` of :func:`orthogonalize_rows`; ``rhs``, ``coefficients`` and ``magnitudes`` of
     :func:`minimum_norm`; the scratch ``(m, nv)``, ``order`` and ``norms`` of :func:`metric_solve`; and
     where the next array starts."""
@@ -402,7 +397,6 @@ def constrained_accelerations(joints, reals, frames, q, v, tau, program, out, ws
         a_free[c] = (tau[c] if tau.shape[0] > 0 else 0.0) - h[0, c]
     cholesky_solve(M, nv, a_free)
     # rhs = γ − A a_free
-    metric_rows(M, A, W, Y, m, nv)
     for i in range(m):
         A_a_free = 0.0
         for c in range(nv):
@@ -410,8 +404,8 @@ def constrained_accelerations(joints, reals, frames, q, v, tau, program, out, ws
         rhs[i] = gamma[i] - A_a_free
         scale[i] = max(abs(gamma[i]), abs(A_a_free), 1.0)
     # G = A M⁻¹ Aᵀ = B Bᵀ ;  λ = G⁺ rhs, keeping the directions with σ > tolerance · max σ
-    rank, every_row = metric_solve(W, scratch, V, sigma, rhs, rank_tolerance, m, nv, coefficients, magnitudes,
-                                   lam, order, norms)
+    rank, every_row = metric_solve(M, A, W, Y, scratch, V, sigma, rhs, rank_tolerance, m, nv, coefficients,
+                                   magnitudes, lam, order, norms)
     # the part of rhs in the dropped directions cannot be met, judged against the terms that make it: the
     # row's own (scale) and those of the part met, Σ_j |V_ij| Σ_k |V_kj rhs_k|, whose rounding leaks
     # into every row that V mixes (a row of small rhs beside one of 1e12 at a fast joint); with every row
@@ -451,7 +445,8 @@ def projection_workspace_size(nj, nq, nv, nframes, m):
 
 @njit(cache=True, error_model="numpy")
 def project(joints, reals, frames, q, v, settings, program, out, ws):
-    """The nearest consistent state into ``out[0]`` (layout :func:`projection_columns`): ``φ(q') = 0``
+    """The nearest consistent state into ``out[0]`` (layout :func:`projection_columns`), from ``q`` with its
+    unit-norm blocks normalised (as :func:`multibody.kernels.configuration.normalize`): ``φ(q') = 0``
     and ``A(q') v' = 0`` for the rows of ``program`` (fixed in time, ``b = 0``), with the largest
     ``|φ|`` left and a status (``SOLVED``, ``NOT_CONVERGED``, ``NOT_POSITIVE_DEFINITE`` or
     ``constraints.UNDEFINED``).
@@ -496,19 +491,29 @@ def project(joints, reals, frames, q, v, settings, program, out, ws):
     row = out[0]
     q_new, v_new = row[:nq], row[nq : nq + nv]
     status_column, error_column = row.shape[0] - 1, row.shape[0] - 2
-    for c in range(nq):
-        q_new[c] = q[c]
+    # every quaternion and planar (cos θ, sin θ) of q scaled to unit norm first
+    for i in range(joints.shape[0]):
+        kinds.normalize(joints[i, KIND], joints[i, NV], q, joints[i, IQ], q_new)
     for c in range(nv):
         zeros[c] = 0.0
     holonomic = False
     for i in range(m):
         holonomic = holonomic or mask[i] != 0.0
 
-    status = _rows_and_factor(joints, reals, frames, q_new, zeros, program, motions, A, gamma, phi, L, passes)
+    none = program[:0]
     previous = math.inf
-    converged = not holonomic
-    for _ in range(iterations if holonomic else 0):
+    converged, status = not holonomic, SOLVED
+    for iteration in range(iterations + 1 if holonomic else 1):
+        # the rows A, φ at q and the Cholesky factor L of M(q)
+        kinematics.frame_motions(joints, reals, frames, q_new, zeros, none, none, motions, passes)
+        status = constraint_rows(program, motions, q_new, zeros, A, gamma, phi)
         if status != SOLVED:
+            break
+        crba.mass_matrix(joints, reals, frames, q_new, none, none, none, L, passes)
+        if not cholesky(L, nv):
+            status = NOT_POSITIVE_DEFINITE
+            break
+        if converged or iteration == iterations:
             break
         # δ = M⁻¹ Aᵀ (A M⁻¹ Aᵀ)⁺ φ over the k rows with a position level, gathered into Y's first rows
         k, error = 0, 0.0
@@ -519,8 +524,8 @@ def project(joints, reals, frames, q, v, settings, program, out, ws):
                 rhs[k] = phi[i]
                 error = max(error, abs(phi[i]))
                 k += 1
-        metric_rows(L, Y, W, Y, k, nv)
-        metric_solve(W, scratch, V, sigma, rhs, rank_tolerance, k, nv, coefficients, magnitudes, lam, order, norms)
+        metric_solve(L, Y, W, Y, scratch, V, sigma, rhs, rank_tolerance, k, nv, coefficients, magnitudes, lam, order,
+                     norms)
         size = 0.0
         for c in range(nv):
             s = 0.0
@@ -538,7 +543,6 @@ def project(joints, reals, frames, q, v, settings, program, out, ws):
             kinds.integrate(joints[i, KIND], joints[i, NV], q_new, step, joints[i, IQ], joints[i, IV], moved)
         for c in range(nq):
             q_new[c] = moved[c]
-        status = _rows_and_factor(joints, reals, frames, q_new, zeros, program, motions, A, gamma, phi, L, passes)
     if status == SOLVED and not converged:
         status = NOT_CONVERGED
         error = 0.0
@@ -551,13 +555,12 @@ def project(joints, reals, frames, q, v, settings, program, out, ws):
         nan_unless_finite(q, v, settings, program, out)
         return
     # v' = v − M⁻¹ Aᵀ (A M⁻¹ Aᵀ)⁺ A v over every row
-    metric_rows(L, A, W, Y, m, nv)
     for i in range(m):
         s = 0.0
         for c in range(nv):
             s += A[i, c] * v[c]
         rhs[i] = s
-    metric_solve(W, scratch, V, sigma, rhs, rank_tolerance, m, nv, coefficients, magnitudes, lam, order, norms)
+    metric_solve(L, A, W, Y, scratch, V, sigma, rhs, rank_tolerance, m, nv, coefficients, magnitudes, lam, order, norms)
     for c in range(nv):
         s = 0.0
         for i in range(m):
@@ -566,15 +569,3 @@ def project(joints, reals, frames, q, v, settings, program, out, ws):
     row[status_column] = SOLVED
     nan_unless_finite(q, v, settings, program, out)
 
-
-@njit(cache=True, error_model="numpy")
-def _rows_and_factor(joints, reals, frames, q, zeros, program, motions, A, gamma, phi, L, passes):
-    """The rows ``A``, ``φ`` at ``q`` and the Cholesky factor ``L`` of ``M(q)`` for :func:`project`;
-    returns its status."""
-    none = program[:0]
-    kinematics.frame_motions(joints, reals, frames, q, zeros, none, none, motions, passes)
-    status = constraint_rows(program, motions, q, zeros, A, gamma, phi)
-    if status != 0:
-        return status
-    crba.mass_matrix(joints, reals, frames, q, none, none, none, L, passes)
-    return SOLVED if cholesky(L, L.shape[0]) else NOT_POSITIVE_DEFINITE
