@@ -36,7 +36,8 @@ class ModelSystem:
     ``mass_matrix(q)``, ``bias_forces(q, v)``, ``integrate(q, v, dt)``, ``configuration_rate(q, v)``,
     ``normalize(q)``, ``neutral()`` and ``energy(q, v)``; the chart maps ``chart``, ``chart_rate``,
     ``velocity_alignment``, ``velocity_coupling`` and ``chart_magnitude`` (see :meth:`Model.chart`) only when its
-    configurations are not a vector space with ``q̇ = v``.
+    configurations are not a vector space with ``q̇ = v``, and optionally ``chart_coordinates``, which lets
+    ``simulate`` evaluate stages on the constraints near a singular configuration.
     """
 
     def __init__(self, model: Model):
@@ -74,6 +75,9 @@ class ModelSystem:
     # charts for Lie-group integration (see Model.chart)
     def chart(self, q0, delta):
         return self.model.chart(q0, delta)
+
+    def chart_coordinates(self, q0, q):
+        return self.model.chart_coordinates(q0, q)
 
     def chart_rate(self, delta, w):
         return self.model.chart_rate(delta, w)
@@ -481,9 +485,10 @@ class ConstrainedSystem:
 
     def _minimum_norm(self, A, L, rhs):
         """Minimum-norm ``λ = G⁺ rhs`` with ``G = A M⁻¹ Aᵀ``, the rank, the part of ``rhs`` that no ``λ``
-        meets, and the size of the terms of the part met, ``Σ_j |U_ij| Σ_k |U_kj rhs_k|`` over the directions
-        kept (its rounding leaks into every row that ``U`` mixes): ``(λ (..., m), rank, residual (..., m),
-        terms (..., m))``. One rank decision: a direction counts when its singular value in the metric of
+        meets, the size of the terms of the part met, ``Σ_j |U_ij| Σ_k |U_kj rhs_k|`` over the directions
+        kept (its rounding leaks into every row that ``U`` mixes), and the conditioning of the rows, the
+        smallest singular value above rounding over the largest: ``(λ (..., m), rank, residual (..., m),
+        terms (..., m), conditioning (...))``. One rank decision: a direction counts when its singular value in the metric of
         ``M`` exceeds ``rank_tolerance`` times the largest, the rule of :meth:`rank`."""
         sigma, U = self._metric_singular_values(A, L)
         keep, inverse = self._kept_directions(sigma)
@@ -493,14 +498,21 @@ class ConstrainedSystem:
         kept = np.abs(U) * keep[..., None, :]
         terms = matvec(kept, matvec(np.swapaxes(kept, -1, -2), np.abs(rhs)))
         rank = keep.sum(axis=-1)
-        return lam, int(rank) if rank.ndim == 0 else rank, residual, terms
+        # the smallest singular value above rounding over the largest, as the compiled step's
+        # (kkt.metric_solve): a direction dropped near a singular configuration still counts, a redundant
+        # row does not
+        largest = sigma[..., :1]
+        above = sigma > sigma.shape[-1] * kkt.EPSILON * largest
+        smallest = np.where(above, sigma, np.inf).min(axis=-1, initial=np.inf)
+        conditioning = np.where(above.any(axis=-1), smallest / np.where(above.any(axis=-1), largest[..., 0], 1.0), 0.0)
+        return lam, int(rank) if rank.ndim == 0 else rank, residual, terms, conditioning
 
     def _multipliers(self, A, L, rhs, scale):
         """:meth:`_minimum_norm` and a consistency check: rows whose right-hand side has a part that no
         ``λ`` meets, larger than ``1e-8`` of the size of the terms that make it, raise :class:`ConstraintError`:
         ``scale (..., m)`` (those of the row's ``γ − A a_free``) or those of the part met, whichever is larger
         (beside a row of ``1e12`` at a fast joint, a row of ``1`` is met only to ``1e-4``)."""
-        lam, rank, residual, terms = self._minimum_norm(A, L, rhs)
+        lam, rank, residual, terms, _ = self._minimum_norm(A, L, rhs)
         scale = np.maximum(scale, terms)
         bad = np.abs(residual) > 1e-8 * np.maximum(scale, np.finfo(float).tiny)
         if bad.any():
@@ -715,6 +727,13 @@ class ConstrainedSystem:
         positions do not converge. ``q``, ``v`` may carry leading batch axes when :attr:`batched`; each state of
         a batch stops at its own tolerance, so that it equals its projection alone.
         """
+        return self._projection(q, v, t, tolerance, max_iterations)[:2]
+
+    def _projection(self, q, v, t=0.0, tolerance=1e-12, max_iterations=50):
+        """:meth:`project`, and the conditioning of the rows at the projected state ``(...)``: the
+        smallest singular value of ``A L⁻ᵀ`` above rounding (``m ε σ_max``, which leaves out redundant rows)
+        over the largest, or (compiled, where the LQ factor decides) a lower bound on it within a factor
+        ``m``; 1 without rows."""
         if self._compiled_step is not None and self.system.model._is_one_state(q, v):
             # (the kernel normalises q as below; a state that passes the checks unchanged skips them)
             compiled = self._project_compiled(q, v, tolerance, max_iterations)
@@ -723,7 +742,7 @@ class ConstrainedSystem:
         q = self.system.normalize(np.asarray(q, dtype=float)) if hasattr(self.system, "normalize") else np.asarray(q, dtype=float)
         v = np.asarray(v, dtype=float)
         if not self.num_rows:
-            return q, v
+            return q, v, np.ones(spatial.batch_shape(q.shape[:-1], v.shape[:-1]))
         q, v = self._check_state(q, v)
         compiled = self._project_compiled(q, v, tolerance, max_iterations)
         if compiled is not None:
@@ -757,7 +776,9 @@ class ConstrainedSystem:
             else:
                 raise ConstraintError(f"projection onto the position constraints did not converge: "
                                       f"|φ| = {np.abs(phi[..., holonomic]).max():.3g} after {max_iterations} iterations")
-        return q, v - correction(A, matvec(A, v) + b)
+        L = self._factor(q)
+        lam, _, _, _, conditioning = self._minimum_norm(A, L, matvec(A, v) + b)
+        return q, v - matvec(self._solve_factored(L, np.swapaxes(A, -1, -2)), lam), conditioning
 
     @cached_property
     def _projection_call(self):
@@ -770,8 +791,8 @@ class ConstrainedSystem:
                 {})
 
     def _project_compiled(self, q, v, tolerance, max_iterations):
-        """:meth:`project` by one call of :func:`multibody.kernels.kkt.project` per state (on all cores for a
-        batch), or ``None`` where the compiled step does not apply, or a state has an undefined row, a
+        """:meth:`_projection` by one call of :func:`multibody.kernels.kkt.project` per state (on all cores for
+        a batch), or ``None`` where the compiled step does not apply, or a state has an undefined row, a
         singular ``M`` or a non-finite entry: the NumPy path then gives the error or the warning."""
         if self._compiled_step is None:
             return None
@@ -787,7 +808,7 @@ class ConstrainedSystem:
             row = driver.evaluate_one(kkt.project, model.tree, out_shape, q, v, settings, program, frames=frames,
                                       workspace=workspace)[0]
             if row[-1] == kkt.SOLVED:
-                return row[:nq], row[nq : nq + nv]
+                return row[:nq], row[nq : nq + nv], row[-3]
         else:
             batch = spatial.batch_shape(q.shape[:-1], v.shape[:-1])
             row = driver.evaluate(kkt.project, model.tree, (q, v, settings, program), out_shape, batch, frames,
@@ -799,7 +820,7 @@ class ConstrainedSystem:
                                   f"|φ| = {row[..., -2][not_converged].max():.3g} after {max_iterations} iterations")
         if not (status == kkt.SOLVED).all():
             return None
-        return row[..., :nq], row[..., nq : nq + nv]
+        return row[..., :nq], row[..., nq : nq + nv], row[..., -3]
 
     def body_forces(self, q, lam, t=0.0):
         """Spatial forces all constraints exert on the bodies: ``f_ext (njoints, 6)`` in joint frames.

@@ -153,6 +153,10 @@ class Joint:
         """Configuration at chart coordinates ``delta (..., nv)`` around ``q0 (..., nq)``."""
         return self._map("chart", (q0, self.nq, "q0"), (delta, self.nv, "delta"), (self.nq,))
 
+    def chart_coordinates(self, q0, q):
+        """Chart coordinates ``δ (..., nv)`` of ``q`` around ``q0``: the inverse of :meth:`chart`."""
+        return self._map("chart_coordinates", (q0, self.nq, "q0"), (q, self.nq, "q"), (self.nv,))
+
     def chart_rate(self, delta, w):
         """``δ̇`` of chart coordinates ``delta`` moving with parent-aligned velocity ``w`` (``(..., nv)``)."""
         return self._map("chart_rate", (delta, self.nv, "delta"), (w, self.nv, "w"), (self.nv,))

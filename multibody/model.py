@@ -349,6 +349,13 @@ class Model:
         q0, delta = self._array(q0, self.nq, "q0"), self._array(delta, self.nv, "delta")
         return self._configuration_map(configuration.chart, q0, delta, (self.nq,))
 
+    def chart_coordinates(self, q0, q) -> np.ndarray:
+        """Chart coordinates ``δ (..., nv)`` of ``q (..., nq)`` around ``q0 (..., nq)``: the inverse of
+        :meth:`chart`, ``chart(q0, δ) = q`` (rotation vectors of angle at most π). ``q − q0`` for angles
+        and displacements; ``log(q ⊗ q₀*)`` for quaternions, in the parent frame (rad)."""
+        q0, q = self.check_configuration(q0, "q0"), self.check_configuration(q, "q")
+        return self._configuration_map(configuration.chart_coordinates, q0, q, (self.nv,))
+
     def chart_rate(self, delta, w) -> np.ndarray:
         """``δ̇ (..., nv)`` of chart coordinates ``delta`` moving with aligned velocity ``w`` (see
         :meth:`velocity_alignment`): ``w`` itself, but ``J_l(δ)⁻¹ ω`` for rotation vectors."""

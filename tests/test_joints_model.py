@@ -252,6 +252,20 @@ def test_chart_is_centred_and_stays_on_the_manifold(joint):
 
 
 @pytest.mark.parametrize("joint", JOINTS, ids=JOINT_IDS)
+def test_chart_coordinates_invert_the_chart(joint):
+    """``chart(q₀, chart_coordinates(q₀, q)) = q`` and ``chart_coordinates(q₀, chart(q₀, δ)) = δ`` for
+    rotation angles below π, on batches."""
+    rng = np.random.default_rng(23)
+    q0 = random_joint_q(rng, joint, (5,))
+    delta = rng.uniform(-1.0, 1.0, (5, joint.nv))
+    q = joint.chart(q0, delta)
+    np.testing.assert_allclose(joint.chart_coordinates(q0, q), delta, rtol=0.0, atol=1e-14)
+    back = joint.chart(q0, joint.chart_coordinates(q0, q))
+    for k in range(5):
+        assert_same_joint_configuration(joint, back[k], q[k])
+
+
+@pytest.mark.parametrize("joint", JOINTS, ids=JOINT_IDS)
 def test_chart_rate_moves_the_configuration_with_the_aligned_velocity(joint):
     """Along δ(t) with δ̇ = chart_rate(δ, w), the configuration chart(q₀, δ) moves with body velocity
     v = Tᵀ w: its q̇ is configuration_rate(q, v) (central differences)."""

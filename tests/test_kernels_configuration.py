@@ -315,6 +315,7 @@ def test_alignment_coupling_magnitude_normalize_match_reference(name):
 _MODEL_MAPS = [  # (Model method, kernel, input layouts, result shape of one state: "q", "v" or "T")
     ("integrate", cfg.integrate, "qv", "q"), ("difference", cfg.difference, "qq", "v"),
     ("configuration_rate", cfg.configuration_rate, "qv", "q"), ("chart", cfg.chart, "qv", "q"),
+    ("chart_coordinates", cfg.chart_coordinates, "qq", "v"),
     ("chart_rate", cfg.chart_rate, "vv", "v"), ("velocity_alignment", cfg.velocity_alignment, "q", "T"),
     ("velocity_coupling", cfg.velocity_coupling, "v", "v"), ("chart_magnitude", cfg.chart_magnitude, "q", "v"),
     ("normalize", cfg.normalize, "q", "q"),
@@ -353,23 +354,26 @@ def test_model_maps_run_the_kernels_with_broadcast_batches(name, method, kernel,
 
 @pytest.mark.parametrize("name", MODELS)
 @pytest.mark.parametrize("angle", ANGLES, ids=lambda a: "random" if a is None else f"{a:.3g}")
-def test_integrate_difference_round_trip(name, angle):
+@pytest.mark.parametrize("forward, inverse", [(cfg.integrate, cfg.difference), (cfg.chart, cfg.chart_coordinates)],
+                         ids=["integrate-difference", "chart-chart_coordinates"])
+def test_maps_and_their_inverses_round_trip(name, angle, forward, inverse):
+    """``inverse(q, forward(q, v)) = v`` for rotation angles below π, and ``forward(q, inverse(q, q₁)) = q₁``
+    for any two configurations (quaternions up to sign): ``difference`` undoes ``integrate`` (``q ⊕ v``)
+    and ``chart_coordinates`` undoes ``chart``."""
     model, tree = case(name)
     nq, nv = model.nq, model.nv
     rng = np.random.default_rng(7)
     for q, v in states(model, 8, angle):
         if angle is None:
             v = 0.5 * v  # rotation angles below π
-        q1 = call(cfg.integrate, tree, q, v, (1, nq))[0]
-        # (q ⊕ v) ⊖ q = v, for rotation angles below π
-        assert_close(call(cfg.difference, tree, q, q1, (1, nv))[0], v, TOL, "(q ⊕ v) ⊖ q")
-        # q ⊕ (q₁ ⊖ q) = q₁ (quaternions up to sign)
+        q1 = call(forward, tree, q, v, (1, nq))[0]
+        assert_close(call(inverse, tree, q, q1, (1, nv))[0], v, TOL, "inverse(q, forward(q, v))")
         q1 = model.random_configuration(rng)
-        back = call(cfg.integrate, tree, q, call(cfg.difference, tree, q, q1, (1, nv))[0], (1, nq))[0]
+        back = call(forward, tree, q, call(inverse, tree, q, q1, (1, nv))[0], (1, nq))[0]
         for s, _ in rotation_blocks(model):
             if s is not None and back[s] @ q1[s] < 0.0:
                 back[s] = -back[s]
-        assert_close(back, q1, 1e-13, "q ⊕ (q₁ ⊖ q)")
+        assert_close(back, q1, 1e-13, "forward(q, inverse(q, q₁))")
 
 
 @pytest.mark.parametrize("name", ["random_tree_0", "solo12"])

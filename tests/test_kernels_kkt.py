@@ -200,7 +200,9 @@ def test_full_rank_certified_by_the_lq_factor_and_solved_as_by_rotations(smalles
     proves that every singular value counts (rank tolerance 1e-10; rows graded down to ``smallest``, a
     zero row at 0); there its multipliers equal the rotations' minimum-norm ones to rounding, whatever the
     grading (both factorisations resolve graded rows to relative accuracy), and elsewhere it is the
-    rotations' solve."""
+    rotations' solve. The conditioning it returns is the smallest singular value above rounding over the
+    largest (the rows graded to 1e-11 count, the zero row does not) after rotations, and after the LQ
+    factor a lower bound on it within a factor ``m``."""
     rng = np.random.default_rng(2)
     m, n = 12, 14
     B = graded(rng, m, n, smallest if smallest else 1e-3)
@@ -209,8 +211,15 @@ def test_full_rank_certified_by_the_lq_factor_and_solved_as_by_rotations(smalles
     rhs = B @ rng.standard_normal(n)  # consistent, as the step's right-hand side at a state on the constraints
     W, Y, scratch, V, sigma = np.empty((m, n)), np.empty((m, n)), np.empty((m, n)), np.empty((m, m)), np.empty(m)
     coefficients, magnitudes, lam, order, norms = (np.empty(m) for _ in range(5))
-    rank, every_row = kkt.metric_solve(np.eye(n), B, W, Y, scratch, V, sigma, rhs, 1e-10, m, n, coefficients,
-                                       magnitudes, lam, order, norms)  # M = I: B is its own metric rows
+    rank, every_row, conditioning = kkt.metric_solve(np.eye(n), B, W, Y, scratch, V, sigma, rhs, 1e-10, m, n,
+                                                     coefficients, magnitudes, lam, order, norms)  # M = I
+    singular_values = np.linalg.svd(B, compute_uv=False)
+    above_rounding = singular_values[singular_values > m * 2.0**-52 * singular_values[0]]
+    ratio = above_rounding[-1] / above_rounding[0]
+    if full:
+        assert ratio / m <= conditioning <= ratio
+    else:
+        assert_close(conditioning, ratio, 1e-8, scale=ratio, what="conditioning")
     assert np.array_equal(Y, B)
     assert every_row == full
     work, U, s = B.copy(), np.empty((m, m)), np.empty(m)

@@ -67,6 +67,16 @@ def chart(joints, reals, frames, q0, delta, x2, x3, out, ws):
 
 
 @njit(cache=True, error_model="numpy")
+def chart_coordinates(joints, reals, frames, q0, q, x2, x3, out, ws):
+    """Chart coordinates ``δ (nv,)`` into ``out[0]`` of the configuration ``q (nq,)`` around ``q0 (nq,)``:
+    the inverse of :func:`chart` (``q − q₀`` for angles and displacements, ``log(q ⊗ q₀*)`` for
+    quaternions, the planar angle's turn in ``(−π, π]``)."""
+    for i in range(joints.shape[0]):
+        kinds.chart_coordinates(joints[i, KIND], joints[i, NV], q0, q, joints[i, IQ], joints[i, IV], out[0])
+    nan_unless_finite(q0, q, x2, x3, out)
+
+
+@njit(cache=True, error_model="numpy")
 def chart_rate(joints, reals, frames, delta, w, x2, x3, out, ws):
     """``δ̇ (nv,)`` into ``out[0]`` of chart coordinates ``delta (nv,)`` moving with the parent-aligned
     velocity ``w (nv,)``: ``w``, but ``J_l(δ)⁻¹ ω`` for rotation vectors (Solà et al. 2018 App. B)."""

@@ -398,6 +398,31 @@ def chart(kind, nv, q0, delta, iq, iv, out):
 
 
 @njit(cache=True, error_model="numpy")
+def chart_coordinates(kind, nv, q0, q, iq, iv, out):
+    """``out[iv : iv + nv] = δ``: the chart coordinates of ``q[iq:]`` around ``q0[iq:]``, the inverse of
+    :func:`chart` (``chart(q₀, δ) = q``; rotation angles in ``[0, π]``)."""
+    if kind == SPHERICAL:
+        # exp(δ) = q ⊗ q₀*
+        quat0 = load4(q0, iq)
+        store(out, iv, quat_log(quat_multiply(load4(q, iq), (-quat0[0], -quat0[1], -quat0[2], quat0[3]))))
+    elif kind == FREE_FLYER:
+        # δ_p = p − p₀;  exp(δ_θ) = q ⊗ q₀*
+        quat0 = load4(q0, iq + 3)
+        store(out, iv, sub3(load3(q, iq), load3(q0, iq)))
+        store(out, iv + 3, quat_log(quat_multiply(load4(q, iq + 3), (-quat0[0], -quat0[1], -quat0[2], quat0[3]))))
+    elif kind == PLANAR:
+        c0, s0, c1, s1 = q0[iq + 2], q0[iq + 3], q[iq + 2], q[iq + 3]
+        # (x, y) − (x₀, y₀);  δ_θ = θ − θ₀ in (−π, π]
+        out[iv] = q[iq] - q0[iq]
+        out[iv + 1] = q[iq + 1] - q0[iq + 1]
+        out[iv + 2] = math.atan2(c0 * s1 - s0 * c1, c0 * c1 + s0 * s1)
+    else:
+        # q − q₀
+        for k in range(nv):
+            out[iv + k] = q[iq + k] - q0[iq + k]
+
+
+@njit(cache=True, error_model="numpy")
 def chart_rate(kind, nv, delta, w, iv, out):
     """``out[iv : iv + nv] = δ̇``: the rate of the chart coordinates ``delta[iv:]`` moving with the
     parent-aligned velocity ``w[iv:]``."""

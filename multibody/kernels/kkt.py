@@ -34,6 +34,8 @@ from .spatial import nan_unless_finite
 SOLVED, NOT_POSITIVE_DEFINITE, INCONSISTENT = 0, 1, 2
 #: Status of a projection (:func:`project`) whose positions did not converge.
 NOT_CONVERGED = 4
+#: The unit roundoff of float64: singular values below ``m ε σ_max`` are rounding (a redundant row).
+EPSILON = 2.0**-52
 
 
 @njit(cache=True, error_model="numpy")
@@ -249,14 +251,14 @@ def pivoted_lq(B, m, n, order, norms):
 
 
 @njit(cache=True, error_model="numpy")
-def certified_full_rank(L, m, rank_tolerance, inverse_row):
-    """Whether ``L (m, m)`` lower-triangular certainly has every singular value above
-    ``rank_tolerance`` times the largest: ``σ_min ≥ 1/‖L⁻¹‖_F`` and ``σ_max ≤ ‖L‖_F``, so that
-    ``‖L⁻¹‖_F ‖L‖_F · rank_tolerance < 1`` is enough. ``inverse_row (m,)`` is scratch."""
+def certified_conditioning(L, m, inverse_row):
+    """A lower bound on ``σ_min / σ_max`` of ``L (m, m)`` lower-triangular: ``σ_min ≥ 1/‖L⁻¹‖_F`` and
+    ``σ_max ≤ ‖L‖_F``, so ``σ_min / σ_max ≥ 1 / (‖L⁻¹‖_F ‖L‖_F)`` (within a factor ``m`` of the ratio
+    itself); 0 where a diagonal entry is zero. ``inverse_row (m,)`` is scratch."""
     norm = 0.0
     for i in range(m):
         if L[i, i] == 0.0:
-            return False
+            return 0.0
         for j in range(i + 1):
             norm += L[i, j] * L[i, j]
     # ‖L⁻¹‖_F² by the rows of L⁻¹: e_iᵀ L⁻¹ solves xᵀ L = e_iᵀ (back substitution on Lᵀ)
@@ -268,7 +270,7 @@ def certified_full_rank(L, m, rank_tolerance, inverse_row):
                 s -= inverse_row[k] * L[k, j]
             inverse_row[j] = s / L[j, j]
             inverse += inverse_row[j] * inverse_row[j]
-    return inverse * norm * rank_tolerance * rank_tolerance < 1.0
+    return 1.0 / math.sqrt(inverse * norm)
 
 
 @njit(cache=True, error_model="numpy")
@@ -277,14 +279,17 @@ def metric_solve(L, A, W, Y, scratch, V, sigma, rhs, rank_tolerance, m, n, coeff
     """Minimum-norm ``λ = G⁺ rhs`` into ``lam (m,)`` for ``G = A M⁻¹ Aᵀ = B Bᵀ`` of the first ``m`` rows of
     ``A (·, n)``, with the rows in the metric of ``M = L Lᵀ`` (:func:`cholesky`): ``W_i = L⁻¹ A_iᵀ``, the
     rows of ``B = A L⁻ᵀ``, and ``Y_i = L⁻ᵀ W_i = M⁻¹ A_iᵀ``, which the caller reads afterwards (``A`` and
-    ``Y`` may be one array). Returns the rank, and whether every row counted.
+    ``Y`` may be one array). Returns the rank, whether every row counted, and the conditioning of the rows:
+    the smallest singular value above rounding (``m ε σ_max``) over the largest, or a lower bound on it
+    (below).
 
     Where a row-pivoted LQ of ``B`` (:func:`pivoted_lq`, ``Π B = T Q`` with ``T`` lower triangular, so
     ``G = Πᵀ T Tᵀ Π``) certifies that every singular value exceeds ``rank_tolerance`` times the largest
-    (:func:`certified_full_rank`), ``Π λ = T⁻ᵀ T⁻¹ Π rhs`` by two triangular solves: ``T`` has the
-    singular values of ``B``, so this does not square the condition number either. Otherwise the one-sided Jacobi rotations of ``W``
-    (:func:`orthogonalize_rows`, which then holds ``V``, ``σ``) and :func:`minimum_norm` drop the
-    directions below the tolerance. ``scratch (m, n)``, ``order``, ``norms (m,)`` are scratch."""
+    (:func:`certified_conditioning`, whose bound is then the conditioning returned), ``Π λ = T⁻ᵀ T⁻¹ Π rhs``
+    by two triangular solves: ``T`` has the singular values of ``B``, so this does not square the condition
+    number either. Otherwise the one-sided Jacobi rotations of ``W`` (:func:`orthogonalize_rows`, which then
+    holds ``V``, ``σ``) and :func:`minimum_norm` drop the directions below the tolerance.
+    ``scratch (m, n)``, ``order``, ``norms (m,)`` are scratch."""
     for i in range(m):
         for c in range(n):
             W[i, c] = A[i, c]
@@ -294,16 +299,26 @@ def metric_solve(L, A, W, Y, scratch, V, sigma, rhs, rank_tolerance, m, n, coeff
             scratch[i, c] = W[i, c]
         back_substitution(L, n, Y[i])
     pivoted_lq(scratch, m, n, order, norms)
-    if certified_full_rank(scratch, m, rank_tolerance, norms):
+    conditioning = certified_conditioning(scratch, m, norms)
+    if conditioning > rank_tolerance:
         for k in range(m):
             norms[k] = rhs[int(order[k])]
         forward_substitution(scratch, m, norms)
         back_substitution(scratch, m, norms)
         for k in range(m):
             lam[int(order[k])] = norms[k]
-        return m, True
+        return m, True, conditioning
     orthogonalize_rows(W, V, sigma, m)
-    return minimum_norm(V, sigma, rhs, rank_tolerance, m, coefficients, magnitudes, lam), False
+    rank = minimum_norm(V, sigma, rhs, rank_tolerance, m, coefficients, magnitudes, lam)
+    # the smallest singular value above rounding over the largest: a direction dropped by the rank
+    # tolerance near a singular configuration still shows how close it is, a redundant row does not
+    largest, smallest = 0.0, math.inf
+    for j in range(m):
+        largest = max(largest, sigma[j])
+    for j in range(m):
+        if sigma[j] > m * EPSILON * largest:
+            smallest = min(smallest, sigma[j])
+    return rank, False, (smallest / largest if largest > 0.0 else 0.0)
 
 
 @njit(cache=True, error_model="numpy")
@@ -404,7 +419,7 @@ def constrained_accelerations(joints, reals, frames, q, v, tau, program, out, ws
         rhs[i] = gamma[i] - A_a_free
         scale[i] = max(abs(gamma[i]), abs(A_a_free), 1.0)
     # G = A M⁻¹ Aᵀ = B Bᵀ ;  λ = G⁺ rhs, keeping the directions with σ > tolerance · max σ
-    rank, every_row = metric_solve(M, A, W, Y, scratch, V, sigma, rhs, rank_tolerance, m, nv, coefficients,
+    rank, every_row, _ = metric_solve(M, A, W, Y, scratch, V, sigma, rhs, rank_tolerance, m, nv, coefficients,
                                    magnitudes, lam, order, norms)
     # the part of rhs in the dropped directions cannot be met, judged against the terms that make it: the
     # row's own (scale) and those of the part met, Σ_j |V_ij| Σ_k |V_kj rhs_k|, whose rounding leaks
@@ -433,8 +448,8 @@ def constrained_accelerations(joints, reals, frames, q, v, tau, program, out, ws
 
 
 def projection_columns(nq, nv):
-    """Columns of :func:`project`'s output row: ``q' (nq) | v' (nv) | |φ| | status``."""
-    return nq + nv + 2
+    """Columns of :func:`project`'s output row: ``q' (nq) | v' (nv) | conditioning | |φ| | status``."""
+    return nq + nv + 3
 
 
 def projection_workspace_size(nj, nq, nv, nframes, m):
@@ -447,8 +462,9 @@ def projection_workspace_size(nj, nq, nv, nframes, m):
 def project(joints, reals, frames, q, v, settings, program, out, ws):
     """The nearest consistent state into ``out[0]`` (layout :func:`projection_columns`), from ``q`` with its
     unit-norm blocks normalised (as :func:`multibody.kernels.configuration.normalize`): ``φ(q') = 0``
-    and ``A(q') v' = 0`` for the rows of ``program`` (fixed in time, ``b = 0``), with the largest
-    ``|φ|`` left and a status (``SOLVED``, ``NOT_CONVERGED``, ``NOT_POSITIVE_DEFINITE`` or
+    and ``A(q') v' = 0`` for the rows of ``program`` (fixed in time, ``b = 0``), with the conditioning of
+    the rows at ``q'`` (as :func:`metric_solve` returns it: near 0 close to a singular configuration), the
+    largest ``|φ|`` left and a status (``SOLVED``, ``NOT_CONVERGED``, ``NOT_POSITIVE_DEFINITE`` or
     ``constraints.UNDEFINED``).
 
     Positions by Gauss–Newton steps on the rows with a position level, the smallest moves in the
@@ -490,7 +506,7 @@ def project(joints, reals, frames, q, v, settings, program, out, ws):
     passes = ws[start:]
     row = out[0]
     q_new, v_new = row[:nq], row[nq : nq + nv]
-    status_column, error_column = row.shape[0] - 1, row.shape[0] - 2
+    status_column, error_column, conditioning_column = row.shape[0] - 1, row.shape[0] - 2, row.shape[0] - 3
     # every quaternion and planar (cos θ, sin θ) of q scaled to unit norm first
     for i in range(joints.shape[0]):
         kinds.normalize(joints[i, KIND], joints[i, NV], q, joints[i, IQ], q_new)
@@ -560,12 +576,14 @@ def project(joints, reals, frames, q, v, settings, program, out, ws):
         for c in range(nv):
             s += A[i, c] * v[c]
         rhs[i] = s
-    metric_solve(L, A, W, Y, scratch, V, sigma, rhs, rank_tolerance, m, nv, coefficients, magnitudes, lam, order, norms)
+    _, _, conditioning = metric_solve(L, A, W, Y, scratch, V, sigma, rhs, rank_tolerance, m, nv, coefficients,
+                                      magnitudes, lam, order, norms)
     for c in range(nv):
         s = 0.0
         for i in range(m):
             s += Y[i, c] * lam[i]
         v_new[c] = v[c] - s
+    row[conditioning_column] = conditioning
     row[status_column] = SOLVED
     nan_unless_finite(q, v, settings, program, out)
 
