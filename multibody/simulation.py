@@ -302,8 +302,9 @@ def simulate(system, q0, v0, t_final, *, dt=None, method="RK45", tau=None, rtol=
             Where the rows are close to singular there (the conditioning of ``A`` in the metric of ``M``,
             smallest singular value that counts over the largest, below :data:`NEAR_SINGULAR`: a closed
             chain near a flat configuration), the steps that start there evaluate every stage at its
-            projection onto the constraints (one trajectory; systems with the chart maps or ``q̇ = v``),
-            since off the constraints the accelerations' error grows as the conditioning falls.
+            projection onto the constraints (each trajectory of a batch by its own conditioning; systems
+            whose charts have ``chart_coordinates``, or with ``q̇ = v``), since off the constraints the
+            accelerations' error grows as the conditioning falls.
         projection_tolerance: largest move of a coordinate (``q`` in m or rad, ``v`` in m/s or rad/s) left
             unprojected at a step end; output states of the dense output whose residual
             ``max(|φ|, |A v + b|)`` exceeds it are projected too.
@@ -631,10 +632,10 @@ class _Charts:
         return q, T, (w if T is None else matvec(transpose(T), w))
 
     def coordinates(self, q_chart, q, v):
-        """``y = [δ, w] (2 nv,)`` of the state ``(q, v)`` in the chart around ``q_chart``: the inverse of
+        """``y = [δ, w] (..., 2 nv)`` of the states ``(q, v)`` in the charts around ``q_chart``: the inverse of
         :meth:`unchart` (``δ`` by the system's ``chart_coordinates``)."""
         T = self.velocity_alignment(q)
-        return np.concatenate([self.chart_coordinates(q_chart, q), v if T is None else T @ v])
+        return np.concatenate([self.chart_coordinates(q_chart, q), v if T is None else matvec(T, v)], axis=-1)
 
     def to_chart(self, state):
         """``y = [0, w] (..., 2 nv)`` of states ``[q, v] (..., nq + nv)`` in the chart around their own ``q``."""
@@ -901,8 +902,22 @@ def _simulate_batch(constrained, charts, q0, v0, times, torque, state_dependent,
     finite = np.isfinite(last).all(axis=-1)
     errors = {int(r): "the initial state is not finite" for r in np.flatnonzero(~finite)}
     start = np.flatnonzero(finite)
-    projected, more = _by_state(lambda q, v: np.concatenate(constrained.project(q, v, t0), axis=-1),
-                                (q0[start], v0[start]), (nq + nv,))
+
+    def projection(t):
+        """The projection of a batch of states ``(q, v)`` at ``t`` onto the constraints, ``(n, nq + nv + 1)``:
+        the states, and the conditioning of the rows there last."""
+        def projected(q, v):
+            q, v, conditioning = constrained._projection(q, v, t)
+            return np.concatenate([q, v, conditioning[..., None]], axis=-1)
+        return projected
+
+    # whether each trajectory's next step evaluates its stages on the constraints, as settle decides for one
+    near = np.zeros(count, dtype=bool)
+    evaluates_near = project and m and charts.invertible
+    projected, more = _by_state(projection(t0), (q0[start], v0[start]), (nq + nv + 1,))
+    if evaluates_near:
+        near[start] = projected[:, -1] < NEAR_SINGULAR
+    projected = projected[:, :-1]
     errors.update({int(start[i]): message for i, message in more.items()})
     moved = np.abs(projected - last[start]).max(axis=-1, initial=0.0)
     moved[list(more)] = 0.0
@@ -928,7 +943,16 @@ def _simulate_batch(constrained, charts, q0, v0, times, torque, state_dependent,
         """``ẏ (N, 2 nv)`` of the chart states ``y (N, 2 nv)`` around ``q_chart (N, nq)``: of the trajectories
         ``rows`` (indices) by one compiled call, zero for the others. A state the compiled step did not solve
         takes the NumPy path, as :func:`simulate` does for one trajectory; where that raises, ``failed[row]``
-        gets the message."""
+        gets the message. The trajectories ``near`` have their stage states projected onto the constraints
+        first."""
+        close = rows[near[rows]]
+        if close.size:
+            q_t, _, v_t = charts.unchart(q_chart[close], y[close])
+            on, errors = _by_state(lambda q, v: np.concatenate(constrained.project(q, v, t), axis=-1), (q_t, v_t),
+                                   (nq + nv,))
+            y = y.copy()
+            y[close] = charts.coordinates(q_chart[close], on[:, :nq], on[:, nq:])
+            failed.update({int(close[i]): message for i, message in errors.items()})
         tau = constant
         if state_dependent:
             q_t, _, v_t = charts.unchart(q_chart, y)
@@ -970,8 +994,10 @@ def _simulate_batch(constrained, charts, q0, v0, times, torque, state_dependent,
                 # the states that their projection onto the constraints moves by more than the tolerance,
                 # projected (as settle does for one trajectory)
                 at = np.flatnonzero(~np.isin(rows, list(reasons)))
-                settled, errors = _by_state(lambda q, v: np.concatenate(constrained.project(q, v, times[k]), axis=-1),
-                                            (end[at, :nq], end[at, nq:]), (nq + nv,))
+                settled, errors = _by_state(projection(times[k]), (end[at, :nq], end[at, nq:]), (nq + nv + 1,))
+                if evaluates_near:
+                    near[rows[at]] = settled[:, -1] < NEAR_SINGULAR
+                settled = settled[:, :-1]
                 off = np.abs(settled - end[at]).max(axis=-1, initial=0.0) > projection_tolerance
                 end[at[off]] = settled[off]
                 reasons.update({rows[at[i]]: message for i, message in errors.items()})

@@ -15,7 +15,7 @@ import pytest
 import multibody as mb
 
 from conftest import random_tree_model
-from constraint_helpers import CurveCoordinateSystem, Helix
+from constraint_helpers import CurveCoordinateSystem, Helix, crank_state, parallelogram_chain, planar_closures
 from test_simulation_batched import ball_system, random_states
 
 RK4 = dict(method="RK4")
@@ -104,6 +104,20 @@ def test_four_bar_projected_onto_its_loop():
     q0, v0 = system.project(guess, rng.standard_normal((4, 3)))
     batch = assert_equals_single_runs(system, q0, v0, 1.0, 0.01, projection_tolerance=1e-12)
     assert batch.residual.max() <= 1e-12
+
+
+def test_parallelogram_chains_through_flat_evaluate_their_stages_as_alone():
+    """Two-cell parallelogram chains swinging through their flat configuration: the steps that start near it
+    (conditioning below ``NEAR_SINGULAR``) evaluate their stages on the constraints, trajectory by trajectory,
+    as one trajectory alone does; one chain starts far from flat and one at its edge."""
+    cells = 2
+    system = mb.ConstrainedSystem(parallelogram_chain(cells), planar_closures(cells))
+    states = [crank_state(cells, angle, rate) for angle, rate in ((0.5, 0.0), (0.05, -1.0), (0.01, 2.0))]
+    q0, v0 = (np.array(x) for x in zip(*states))
+    conditioning = system._projection(q0, v0)[2]
+    assert conditioning[0] > mb.simulation.NEAR_SINGULAR > conditioning[2]
+    batch = assert_equals_single_runs(system, q0, v0, 2.0, 0.01)
+    assert np.count_nonzero(np.diff(np.sign(batch.q[:, :, 0]), axis=1)) >= 3  # flat passages
 
 
 def test_one_state_shared_by_a_batch_of_the_other():
