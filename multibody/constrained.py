@@ -488,8 +488,8 @@ class ConstrainedSystem:
         meets, the size of the terms of the part met, ``Σ_j |U_ij| Σ_k |U_kj rhs_k|`` over the directions
         kept (its rounding leaks into every row that ``U`` mixes), and the conditioning of the rows, the
         smallest singular value above rounding over the largest: ``(λ (..., m), rank, residual (..., m),
-        terms (..., m), conditioning (...))``. One rank decision: a direction counts when its singular value in the metric of
-        ``M`` exceeds ``rank_tolerance`` times the largest, the rule of :meth:`rank`."""
+        terms (..., m), conditioning (...))``. One rank decision: a direction counts when its singular value
+        in the metric of ``M`` exceeds ``rank_tolerance`` times the largest, the rule of :meth:`rank`."""
         sigma, U = self._metric_singular_values(A, L)
         keep, inverse = self._kept_directions(sigma)
         coefficients = matvec(np.swapaxes(U, -1, -2), rhs)

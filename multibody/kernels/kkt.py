@@ -420,7 +420,7 @@ def constrained_accelerations(joints, reals, frames, q, v, tau, program, out, ws
         scale[i] = max(abs(gamma[i]), abs(A_a_free), 1.0)
     # G = A M⁻¹ Aᵀ = B Bᵀ ;  λ = G⁺ rhs, keeping the directions with σ > tolerance · max σ
     rank, every_row, _ = metric_solve(M, A, W, Y, scratch, V, sigma, rhs, rank_tolerance, m, nv, coefficients,
-                                   magnitudes, lam, order, norms)
+                                      magnitudes, lam, order, norms)
     # the part of rhs in the dropped directions cannot be met, judged against the terms that make it: the
     # row's own (scale) and those of the part met, Σ_j |V_ij| Σ_k |V_kj rhs_k|, whose rounding leaks
     # into every row that V mixes (a row of small rhs beside one of 1e12 at a fast joint); with every row
