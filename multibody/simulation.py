@@ -306,8 +306,8 @@ def simulate(system, q0, v0, t_final, *, dt=None, method="RK45", tau=None, rtol=
             whose charts have ``chart_coordinates``, or with ``q̇ = v``), since off the constraints the
             accelerations' error grows as the conditioning falls.
         projection_tolerance: largest move of a coordinate (``q`` in m or rad, ``v`` in m/s or rad/s) left
-            unprojected at a step end; output states of the dense output whose residual
-            ``max(|φ|, |A v + b|)`` exceeds it are projected too.
+            unprojected at a step end; output states of the dense output that their projection moves by
+            more than it are projected too.
         max_step: largest internal step of the adaptive methods (s).
         joint_damping: add viscous joint damping ``−D v`` (``D = diag(model.damping)``, from URDF
             ``<dynamics damping>``) to the joint forces; needs a system built on a ``Model``.
@@ -773,8 +773,8 @@ def _trajectory(constrained, times, states, torque, status, projection_tolerance
     """The :class:`Trajectory` of output ``states (n, nq + nv)`` at ``times (n,)``.
 
     The states are on the configuration manifold already (charts keep them there); with a
-    ``projection_tolerance``, states whose residual exceeds it (dense-output states between
-    integrator steps) are projected onto the constraints. ``λ``, energy
+    ``projection_tolerance``, states that their projection onto the constraints moves by more than it
+    (dense-output states between integrator steps) are projected. ``λ``, energy
     and residual are then evaluated at exactly the returned states, in one batched call each when the
     system takes batches (else one state at a time).
     """
@@ -791,13 +791,17 @@ def _trajectory(constrained, times, states, torque, status, projection_tolerance
         return np.array([constrained.residual(q[k], v[k], times[k]) for k in index])
 
     residual = residuals(np.arange(n))
-    if projection_tolerance is not None and m:
-        off = np.flatnonzero(residual > projection_tolerance)
-        if off.size and batched:
-            q[off], v[off] = constrained.project(q[off], v[off], times[off])
-        for k in off if not batched else ():
-            q[k], v[k] = constrained.project(q[k], v[k], times[k])
+    if projection_tolerance is not None and m and n:
+        # judged by the move, as a step's end is (settle in simulate): near a singular configuration a
+        # residual far below the tolerance can hide a velocity off the constraints
+        if batched:
+            q_p, v_p = constrained.project(q, v, times)
+        else:
+            q_p, v_p = (np.array(x) for x in zip(*(constrained.project(q[k], v[k], times[k]) for k in range(n))))
+        off = np.flatnonzero(np.maximum(np.abs(q_p - q).max(axis=-1), np.abs(v_p - v).max(axis=-1))
+                             > projection_tolerance)
         if off.size:
+            q[off], v[off] = q_p[off], v_p[off]
             residual[off] = residuals(off)
     # The joint forces enter only the multipliers: without constraint rows there are none to solve for.
     taus = [torque(t, q_k, v_k) for t, q_k, v_k in zip(times, q, v)] if m else None
@@ -1051,12 +1055,14 @@ def _batch_trajectory(constrained, times, q, v, stop, last, torque, state_depend
             continue
         r_s, _ = _by_state(constrained.residual, (q_s, v_s, t_s), ())
         if projection_tolerance is not None:
-            # as _trajectory does for one trajectory: states left above the tolerance are projected
-            off = np.flatnonzero(r_s > projection_tolerance)
+            # as _trajectory does for one trajectory: states that their projection moves by more than the
+            # tolerance are projected (a state it cannot project stays as it is)
+            settled, _ = _by_state(lambda q_, v_, t_: np.concatenate(constrained.project(q_, v_, t_), axis=-1),
+                                   (q_s, v_s, t_s), (nq + nv,))
+            off = np.flatnonzero(np.abs(settled - np.concatenate([q_s, v_s], axis=-1)).max(axis=-1)
+                                 > projection_tolerance)
             if off.size:
-                settled, _ = _by_state(lambda q_, v_, t_: np.concatenate(constrained.project(q_, v_, t_), axis=-1),
-                                       (q_s[off], v_s[off], t_s[off]), (nq + nv,))
-                q_s[off], v_s[off] = settled[:, :nq], settled[:, nq:]
+                q_s[off], v_s[off] = settled[off, :nq], settled[off, nq:]
                 r_s[off], _ = _by_state(constrained.residual, (q_s[off], v_s[off], t_s[off]), ())
                 q[:, a:b][at], v[:, a:b][at] = q_s, v_s
         residual[:, a:b][at] = r_s

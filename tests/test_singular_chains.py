@@ -217,6 +217,34 @@ def test_near_flat_a_tiny_residual_hides_a_velocity_that_the_projection_removes(
     assert np.abs(v_p - drift).max() > 5e-8
 
 
+@pytest.mark.parametrize("batched", [True, False], ids=["compiled batch", "state by state"])
+def test_output_states_are_projected_by_the_move_too(batched):
+    """The trajectory's output states (dense output between steps) are projected as the steps' ends are:
+    a state 1e-6 rad from flat whose folding rate of 1e-7 rad/s leaves a residual of 1e-13, below the
+    tolerance, comes out as its projection; a state on the constraints comes out unchanged. ``batched``:
+    the system's batched calls, or (a system that does not take batches) one state at a time."""
+    from multibody.simulation import _trajectory
+
+    class OneStateAtATime(mb.ConstrainedSystem):
+        batched = property(lambda self: False)
+
+    cells = 2
+    model = parallelogram_chain(cells)
+    system = (mb.ConstrainedSystem if batched else OneStateAtATime)(model, planar_closures(cells))
+    assert system.batched == batched
+    q, v = crank_state(cells, 1e-6, 3.0)
+    drift = v.copy()
+    drift[[cells, 2 * cells]] += 1e-7
+    assert system.residual(q, drift) <= 1e-12
+    states = np.array([np.concatenate([q, drift]), np.concatenate([q, v])])
+    trajectory = _trajectory(system, np.array([0.0, 0.1]), states, lambda t, q, v: None, "completed", 1e-12)
+    q_p, v_p = system.project(q, drift)
+    np.testing.assert_array_equal(trajectory.q[0], q_p)
+    np.testing.assert_array_equal(trajectory.v[0], v_p)
+    assert np.abs(trajectory.v[0] - drift).max() > 5e-8
+    np.testing.assert_array_equal(trajectory.v[1], v)
+
+
 @pytest.mark.parametrize("angle", [1e-3, 1e-6, 1e-9, 1e-12])
 def test_the_projection_reports_how_near_flat_the_rows_are(angle):
     """The conditioning that :meth:`ConstrainedSystem._projection` returns with the projected state, and by
