@@ -28,6 +28,7 @@ residuals are those of the returned states.
 
 from __future__ import annotations
 
+import collections
 import os
 import sys
 import time
@@ -328,8 +329,10 @@ def simulate(system, q0, v0, t_final, *, dt=None, method="RK45", tau=None, rtol=
     Returns:
         :class:`Trajectory` (with a leading axis ``N`` for ``N`` trajectories).
     Raises:
-        SimulationError: the integration of one trajectory failed, or (``limits="error"``) a joint left its
-            limits; ``.trajectory`` holds the part computed so far.
+        SimulationError: the integration of one trajectory failed (a non-finite state, constraints without
+            a solution, or an adaptive method that stalled: its last :data:`STALLED_STEPS` steps advanced less
+            than :data:`STALLED_SPAN` of the run), or (``limits="error"``) a joint left its limits;
+            ``.trajectory`` holds the part computed so far.
     """
     if method == "variational":  # the discrete Hamilton's principle, in its own module
         from . import variational
@@ -472,11 +475,15 @@ def simulate(system, q0, v0, t_final, *, dt=None, method="RK45", tau=None, rtol=
             # It restarts from the end of a step that was projected, and, on a curved configuration
             # space, from every step's end in a new chart (keeping the step size it proposes next).
             solver, q_chart = start(t0, states[0], None)
+            recent = collections.deque(maxlen=STALLED_STEPS)  # the end times of the latest steps
             while done < len(times):
                 t_before = solver.t
                 message = solver.step()
                 if solver.status == "failed":
                     raise SimulationError(f"{method} failed at t = {t_before:.6g} s: {message}", None)
+                recent.append(solver.t)
+                if len(recent) == STALLED_STEPS and recent[-1] - recent[0] < STALLED_SPAN * (t_final - t0):
+                    raise SimulationError(_stalled(method, recent, near, t_final - t0), None)
                 bar.update(solver.t)
                 inside = done + int(np.searchsorted(times[done:], solver.t, side="left"))
                 if inside > done:
@@ -678,6 +685,25 @@ def _numpy_chart_derivative(constrained, charts, t, q_chart, y, torque):
 #: constraints. A ten-cell parallelogram chain passing its flat configurations with DOP853 at rtol 1e-9 and
 #: 1e-10 needs it from 1e-2, not from 1e-3; the demos' rows stay above 0.2.
 NEAR_SINGULAR = 1e-2
+
+#: An adaptive method has stalled when its last ``STALLED_STEPS`` steps together advance the time by less
+#: than ``STALLED_SPAN`` of the whole run: at that pace the run would take a billion steps.
+STALLED_STEPS, STALLED_SPAN = 1000, 1e-6
+
+
+def _stalled(method, recent, near, span):
+    """The message of an adaptive method that has stalled (see :data:`STALLED_STEPS`), at the end times
+    ``recent`` of its latest steps; ``near``: whether the rows are near singular there."""
+    advanced = recent[-1] - recent[0]
+    message = (f"{method} stalled at t = {recent[-1]:.6g} s: its last {len(recent)} steps advanced {advanced:.3g} s "
+               f"in all ({advanced / span:.2g} of the run)")
+    if near:
+        message += (". The constraints are near a singular configuration there, where they fix the motion only to "
+                    "rounding divided by the distance to it, and the accelerations change from one stage to the "
+                    "next by more than the tolerances allow; a looser rtol, method='DOP853', or method='RK4' "
+                    "with a fixed dt may pass it")
+    return message
+
 
 #: Wall time (s) above which a run shows a progress bar with ``simulate(..., progress=None)``.
 PROGRESS_AFTER = 2.0

@@ -585,6 +585,28 @@ def test_a_diverging_integration_says_so():
     assert re.search(r"v\[\d\] \(joint '\w+', rad/s\)", message), message
 
 
+def test_an_adaptive_method_that_stalls_says_so():
+    """Joint forces with a random part at every call (no smooth right-hand side) drive RK45 at rtol 1e-10
+    to ever smaller steps: once its last ``STALLED_STEPS`` steps advance less than ``STALLED_SPAN`` of the
+    run, the error names the method, the time and how far those steps went, with the trajectory so far,
+    rather than running on; away from constraints it says nothing of singular configurations."""
+    model = mb.robots.load("pendulum")
+    rng = np.random.default_rng(0)
+
+    def noisy(t, q, v):
+        return 10.0 * rng.standard_normal(model.nv)
+
+    with pytest.raises(mb.SimulationError) as info:
+        mb.simulate(model, np.zeros(1), np.zeros(1), 10.0, method="RK45", rtol=1e-10, atol=1e-12, tau=noisy)
+    message = str(info.value)
+    assert re.search(r"RK45 stalled at t = \S+ s: its last 1000 steps advanced \S+ s in all", message), message
+    assert "singular" not in message
+    partial = info.value.trajectory
+    assert partial.t[-1] < 10.0 and np.isfinite(partial.q).all()
+    stalled_at = float(re.search(r"stalled at t = (\S+) s", message).group(1))
+    assert partial.t[-1] <= stalled_at
+
+
 def test_the_projection_warning_names_the_coordinates_and_units():
     cs = pendulum_system()
     q_ok, v_ok = pendulum_state(L_PEND, 0.6, 0.4)
