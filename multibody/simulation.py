@@ -368,7 +368,7 @@ def simulate(system, q0, v0, t_final, *, dt=None, method="RK45", tau=None, rtol=
 
     if q.shape != (nq,) or v.shape != (nv,):
         raise ValueError(f"q0 and v0 must have shapes ({nq},) and ({nv},), got {q.shape} and {v.shape}")
-    q_projected, v_projected = constrained.project(q, v, t0)
+    q_projected, v_projected, conditioning = constrained._projection(q, v, t0)
     dq, dv = np.abs(q_projected - q), np.abs(v_projected - v)
     moved = max(dq.max(initial=0.0), dv.max(initial=0.0))
     if moved > 1e-10 and constrained.num_rows:
@@ -417,7 +417,7 @@ def simulate(system, q0, v0, t_final, *, dt=None, method="RK45", tau=None, rtol=
             # can hide a velocity off the constraints by 1e-3 (a row of size ε moves v by residual/ε).
             q_projected, v_projected, conditioning = constrained._projection(state[:nq], state[nq:], t)
             projected = np.concatenate([q_projected, v_projected])
-            near = charts.invertible and conditioning < NEAR_SINGULAR
+            near = _near_singular(conditioning, project, constrained, charts)
             if np.abs(projected - state).max() > projection_tolerance:
                 return projected, True, near
             return state, False, near
@@ -433,7 +433,7 @@ def simulate(system, q0, v0, t_final, *, dt=None, method="RK45", tau=None, rtol=
     try:
         constrained.solve(q, v, torque(t0, q, v), t0)  # the initial state has a KKT solution
         done = 1
-        near = settle(t0, states[0])[2]
+        near = _near_singular(conditioning, project, constrained, charts)
         if method == "RK4":
             instants = times.tolist()  # Python floats: the stages' time arithmetic is scalar
             for k in range(1, len(times)):
@@ -503,7 +503,8 @@ def simulate(system, q0, v0, t_final, *, dt=None, method="RK45", tau=None, rtol=
         t_fail = times[max(done - 1, 0)]
         message = f"simulation stopped at t = {t_fail:.6g} s: {_grown(mechanical, states[:done], nq, v) or exc}"
         try:
-            partial = _trajectory(constrained, times[:done], states[:done], torque, message, tolerance)
+            partial = _trajectory(constrained, times[:done], states[:done], torque, message, tolerance,
+                                  settled=method == "RK4")
         except (ConstraintError, np.linalg.LinAlgError, ValueError, FloatingPointError):
             # states so far out that their multipliers cannot be computed: the states alone
             m = constrained.num_rows
@@ -514,7 +515,7 @@ def simulate(system, q0, v0, t_final, *, dt=None, method="RK45", tau=None, rtol=
         raise SimulationError(message, partial) from exc
     finally:
         bar.close()
-    trajectory = _trajectory(constrained, times, states, torque, "completed", tolerance)
+    trajectory = _trajectory(constrained, times, states, torque, "completed", tolerance, settled=method == "RK4")
     if model is not None and limits != "ignore":
         _report_limits(mechanical, trajectory, limits)
     return trajectory
@@ -691,6 +692,13 @@ NEAR_SINGULAR = 1e-2
 STALLED_STEPS, STALLED_SPAN = 1000, 1e-6
 
 
+def _near_singular(conditioning, project, constrained, charts):
+    """Whether a step that starts where the rows' conditioning is ``conditioning`` (``(...)``; NaN: a state
+    that could not be projected) evaluates its stages on the constraints: with ``project``, rows, charts
+    that can express a projected stage, and the conditioning below :data:`NEAR_SINGULAR`."""
+    return bool(project and constrained.num_rows and charts.invertible) & (np.asarray(conditioning) < NEAR_SINGULAR)
+
+
 def _stalled(method, recent, near, span):
     """The message of an adaptive method that has stalled (see :data:`STALLED_STEPS`), at the end times
     ``recent`` of its latest steps; ``near``: whether the rows are near singular there."""
@@ -795,12 +803,13 @@ def _rk4_step(derivative, t, y, h):
     return y + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
 
 
-def _trajectory(constrained, times, states, torque, status, projection_tolerance=None):
+def _trajectory(constrained, times, states, torque, status, projection_tolerance=None, settled=False):
     """The :class:`Trajectory` of output ``states (n, nq + nv)`` at ``times (n,)``.
 
     The states are on the configuration manifold already (charts keep them there); with a
     ``projection_tolerance``, states that their projection onto the constraints moves by more than it
-    (dense-output states between integrator steps) are projected. ``λ``, energy
+    (dense-output states between integrator steps) are projected, unless they are ``settled``: every one
+    a step's end, which ``simulate`` has judged so already (the fixed-step methods). ``λ``, energy
     and residual are then evaluated at exactly the returned states, in one batched call each when the
     system takes batches (else one state at a time).
     """
@@ -817,7 +826,7 @@ def _trajectory(constrained, times, states, torque, status, projection_tolerance
         return np.array([constrained.residual(q[k], v[k], times[k]) for k in index])
 
     residual = residuals(np.arange(n))
-    if projection_tolerance is not None and m and n:
+    if projection_tolerance is not None and m and n and not settled:
         # judged by the move, as a step's end is (settle in simulate): near a singular configuration a
         # residual far below the tolerance can hide a velocity off the constraints
         if batched:
@@ -943,10 +952,8 @@ def _simulate_batch(constrained, charts, q0, v0, times, torque, state_dependent,
 
     # whether each trajectory's next step evaluates its stages on the constraints, as settle decides for one
     near = np.zeros(count, dtype=bool)
-    evaluates_near = project and m and charts.invertible
     projected, more = _by_state(projection(t0), (q0[start], v0[start]), (nq + nv + 1,))
-    if evaluates_near:
-        near[start] = projected[:, -1] < NEAR_SINGULAR
+    near[start] = _near_singular(projected[:, -1], project, constrained, charts)
     projected = projected[:, :-1]
     errors.update({int(start[i]): message for i, message in more.items()})
     moved = np.abs(projected - last[start]).max(axis=-1, initial=0.0)
@@ -1025,8 +1032,7 @@ def _simulate_batch(constrained, charts, q0, v0, times, torque, state_dependent,
                 # projected (as settle does for one trajectory)
                 at = np.flatnonzero(~np.isin(rows, list(reasons)))
                 settled, errors = _by_state(projection(times[k]), (end[at, :nq], end[at, nq:]), (nq + nv + 1,))
-                if evaluates_near:
-                    near[rows[at]] = settled[:, -1] < NEAR_SINGULAR
+                near[rows[at]] = _near_singular(settled[:, -1], project, constrained, charts)
                 settled = settled[:, :-1]
                 off = np.abs(settled - end[at]).max(axis=-1, initial=0.0) > projection_tolerance
                 end[at[off]] = settled[off]
@@ -1059,8 +1065,8 @@ def _warn_if_stopped(trajectory, stacklevel):
 
 
 def _batch_trajectory(constrained, times, q, v, stop, last, torque, state_dependent, status, projection_tolerance):
-    """The :class:`Trajectory` of ``N`` trajectories' output states ``q (N, n, nq)``, ``v (N, n, nv)`` (updated in
-    place) at ``times (n,)``, each valid before its ``stop``: :func:`_trajectory` for each, the multipliers,
+    """The :class:`Trajectory` of ``N`` trajectories' output states ``q (N, n, nq)``, ``v (N, n, nv)`` at
+    ``times (n,)``, each valid before its ``stop``: :func:`_trajectory` for each, the multipliers,
     energies and residuals of all valid states in a few batched calls (NaN elsewhere). ``last (N, nq + nv)``:
     each trajectory's last good state, which the joint forces ``torque`` see in place of a stopped one's NaN."""
     nq, nv, m = constrained.nq, constrained.nv, constrained.num_rows
@@ -1079,18 +1085,9 @@ def _batch_trajectory(constrained, times, q, v, stop, last, torque, state_depend
         if not m:
             residual[:, a:b][at] = 0.0
             continue
+        # (every output state is a step's end, projected already where that moved it: RK4 steps once per
+        # output interval)
         r_s, _ = _by_state(constrained.residual, (q_s, v_s, t_s), ())
-        if projection_tolerance is not None:
-            # as _trajectory does for one trajectory: states that their projection moves by more than the
-            # tolerance are projected (a state it cannot project stays as it is)
-            settled, _ = _by_state(lambda q_, v_, t_: np.concatenate(constrained.project(q_, v_, t_), axis=-1),
-                                   (q_s, v_s, t_s), (nq + nv,))
-            off = np.flatnonzero(np.abs(settled - np.concatenate([q_s, v_s], axis=-1)).max(axis=-1)
-                                 > projection_tolerance)
-            if off.size:
-                q_s[off], v_s[off] = settled[off, :nq], settled[off, nq:]
-                r_s[off], _ = _by_state(constrained.residual, (q_s[off], v_s[off], t_s[off]), ())
-                q[:, a:b][at], v[:, a:b][at] = q_s, v_s
         residual[:, a:b][at] = r_s
         if state_dependent:
             tau = np.stack([_as_rows(torque(times[k], np.where(valid[:, k, None], q[:, k], last[:, :nq]),
