@@ -147,14 +147,13 @@ def cmd_demo(args):
     if args.name not in DEMOS:
         print(f"multibody demo: unknown demo {args.name!r}; available: {', '.join(sorted(DEMOS))}", file=sys.stderr)
         return 2
-    from .driver import compiled_before
-    from .kernels import constraints, integration, kkt
+    from .demos import KERNELS
+    from .driver import compile_kernels, compiled_before
 
     print(f"demo {args.name}: {DEMOS[args.name].__doc__.strip().splitlines()[0]}", flush=True)
-    # the kernels a simulation with built-in constraints runs first
-    if not compiled_before((integration.constrained_chart_derivative, kkt.constrained_accelerations,
-                            constraints.constraint_levels)):
+    if not compiled_before(KERNELS):
         print("compiling multibody's kernels for this machine (first run only; about half a minute)", flush=True)
+        compile_kernels(KERNELS)
     result = DEMOS[args.name](args.out)
     for key, value in result.summary.items():
         print(f"  {key}: {value:.3e}")

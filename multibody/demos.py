@@ -21,10 +21,19 @@ from .constrained import ConstrainedSystem
 from .constraints import LoopClosure, PointOnCurve
 from .inertia import Inertia, point_mass
 from .joints import FreeFlyer, Translation
+from .kernels import configuration, constraints, energy, integration, kkt
 from .model import Geometry, ModelBuilder
 from .rolling import RollingDisc, RollingSphere
 from .simulation import simulate
 from .urdf import load_urdf
+
+
+#: The kernels a demo runs: the projection onto the constraints, the constrained step and its charts,
+#: and the energies of the summary. Heaviest first, so that :func:`multibody.driver.compile_kernels`
+#: deals them out evenly among the cores.
+KERNELS = (kkt.project, integration.constrained_chart_derivative, constraints.constraint_levels,
+           configuration.velocity_alignment, kkt.constrained_accelerations, configuration.chart_magnitude,
+           configuration.normalize, energy.kinetic_energy, energy.potential_energy)
 
 
 @dataclass(frozen=True)

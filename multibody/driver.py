@@ -15,8 +15,11 @@ of fewer than ``STATES_PER_THREAD`` states per thread runs on fewer of them.
 
 from __future__ import annotations
 
+import importlib
 import math
 import os
+import subprocess
+import sys
 
 import numba
 import numpy as np
@@ -52,6 +55,45 @@ def compiled_before(kernels=None) -> bool:
         if cache_file is None or not os.path.isfile(cache_file._index_path):
             return False
     return True
+
+
+def compile_kernels(kernels=None, processes=None) -> None:
+    """Compile the single-call machine code (:func:`_direct`) of those ``kernels`` (default: every kernel)
+    that Numba's on-disk cache lacks, sharing them among ``processes`` (default: the cores this process
+    may use), so that later processes load them in a fraction of a second.
+
+    Numba compiles in one thread, so a cold cache on a machine with several cores compiles faster this
+    way: this process takes every ``processes``-th kernel of the list and a worker process each of the
+    other shares, then this process waits for them. Kernels share helpers, which the workers may
+    compile more than once; a worker that fails leaves its kernels to be compiled on first use, as
+    without this call. Does nothing under ``NUMBA_DISABLE_JIT=1``."""
+    missing = [kernel for kernel in (_KERNELS if kernels is None else kernels)
+               if isinstance(kernel, Dispatcher) and not compiled_before((kernel,))]
+    if processes is None:
+        processes = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    processes = max(1, min(int(processes), len(missing)))
+    shares = [missing[k::processes] for k in range(processes)]
+    workers = [subprocess.Popen([sys.executable, "-c", f"from multibody.driver import _compile_named; "
+                                 f"_compile_named({[_qualified_name(kernel) for kernel in share]!r})"],
+                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL) for share in shares[1:]]
+    try:
+        for kernel in shares[0] if shares else ():
+            _direct(kernel)
+    finally:
+        for worker in workers:
+            worker.wait()
+
+
+def _qualified_name(kernel) -> str:
+    """``"module:function"`` of a kernel, the name a worker process of :func:`compile_kernels` imports."""
+    return f"{kernel.py_func.__module__}:{kernel.py_func.__qualname__}"
+
+
+def _compile_named(names) -> None:
+    """A worker of :func:`compile_kernels`: compile the kernels named ``"module:function"``."""
+    for name in names:
+        module, function = name.split(":")
+        _direct(getattr(importlib.import_module(module), function))
 
 
 def set_num_threads(n: int) -> None:
@@ -138,14 +180,20 @@ def evaluate_one(kernel, tree, out_shape, x0=NO_INPUT, x1=NO_INPUT, x2=NO_INPUT,
     The kernel's machine code is called without Numba's dispatch (:func:`_direct`), so the types
     above are the caller's to guarantee: every caller has checked them already, and a second look
     would cost as much as the kernel's own arithmetic on a small robot."""
+    joints, reals, bodies, _, _, nv, nj = tree
+    call = _SINGLE_CALLS.get((kernel, nj, nv))
+    if call is None:
+        size = _workspace_size(kernel, nj, nv) if kernel in _WORKSPACE else None  # (else always given)
+        call = _SINGLE_CALLS[kernel, nj, nv] = (_direct(kernel), size)
+    entry, size = call
     out = np.empty(out_shape)
-    if workspace is None:
-        workspace = _workspace_size(kernel, tree.njoints, tree.nv)
-    _direct(kernel)(tree.joints, tree.reals, tree.bodies if frames is None else frames, x0, x1, x2, x3, out,
-                    np.empty(workspace))
+    entry(joints, reals, bodies if frames is None else frames, x0, x1, x2, x3, out,
+          np.empty(size if workspace is None else workspace))
     return out
 
 
+#: ``(kernel, nj, nv) -> (entry point, workspace size)`` of single calls: one look-up per call.
+_SINGLE_CALLS = {}
 _WORKSPACE_SIZES = {}
 
 

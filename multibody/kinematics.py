@@ -72,6 +72,10 @@ def _point(point):
 
 def _body_frame(model, body):
     """The frame row ``(1, 13)`` of a body given by name or index."""
+    if type(body) is str or type(body) is int:  # (a bool, a float or an unknown name gets body_index's check)
+        row = model._body_frames.get(body)
+        if row is not None:
+            return row
     return model._body_frames[model.body_index(body)]
 
 

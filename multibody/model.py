@@ -267,8 +267,9 @@ class Model:
 
     @cached_property
     def _body_frames(self):
-        """Each body's frame row ``(1, 13)`` of :attr:`tree`, the frame a kernel is asked about."""
-        return tuple(self.tree.bodies[b : b + 1] for b in range(self.nbodies))
+        """``{name or index: frame row (1, 13)}`` of :attr:`tree` of each body, the frame a kernel is asked about."""
+        rows = [self.tree.bodies[b : b + 1] for b in range(self.nbodies)]
+        return {**dict(zip(self.body_names, rows)), **dict(enumerate(rows))}
 
     # ------------------------------------------------------------------ mass properties
 

@@ -395,3 +395,34 @@ def test_compiled_before_reports_kernels_with_code_on_disk():
     model = mb.robots.load("double_pendulum")
     mb.inverse_dynamics(model, np.zeros(2), np.zeros(2), np.zeros(2))
     assert mb.driver.compiled_before((mb.kernels.rnea.inverse_dynamics,))
+
+
+def test_compile_kernels_shares_a_cold_cache_among_processes(tmp_path):
+    """On an empty cache, ``compile_kernels`` compiles one share here and the other in a worker process:
+    both kernels are on disk afterwards, and this process holds the machine code of its share only."""
+    script = textwrap.dedent("""
+        from multibody import driver
+        from multibody.kernels import energy
+        kernels = (energy.kinetic_energy, energy.potential_energy)
+        assert not driver.compiled_before(kernels)
+        driver.compile_kernels(kernels, processes=2)
+        print(driver.compiled_before(kernels), len(kernels[0].overloads), len(kernels[1].overloads))
+    """)
+    done = subprocess.run([sys.executable, "-c", script], env={**os.environ, "NUMBA_CACHE_DIR": str(tmp_path)},
+                          capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.split() == ["True", "1", "0"]
+
+
+def test_compile_kernels_does_nothing_when_the_cache_has_them(monkeypatch):
+    """Kernels already on disk start no process and compile nothing here."""
+    def no_process(*args, **kwargs):
+        raise AssertionError("a worker process was started")
+
+    monkeypatch.setattr(mb.driver.subprocess, "Popen", no_process)
+    model = mb.robots.load("double_pendulum")
+    mb.kinetic_energy(model, np.zeros(2), np.zeros(2))
+    kernel = mb.kernels.energy.kinetic_energy
+    before = dict(kernel.overloads)
+    mb.driver.compile_kernels((kernel,), processes=2)
+    assert dict(kernel.overloads) == before
