@@ -252,7 +252,8 @@ def test_empty_batches():
 # ============================================================================= plain Python
 
 _ALGORITHMS = ("inverse_dynamics", "mass_matrix", "forward_dynamics", "coriolis_matrix", "jacobian",
-               "inverse_mass_matrix", "kinetic_energy", "forward_kinematics")
+               "jacobian_time_variation", "frame_kinematics", "inverse_mass_matrix", "kinetic_energy",
+               "potential_energy", "forward_kinematics")
 
 
 def _algorithms(model, states, single):
@@ -266,8 +267,12 @@ def _algorithms(model, states, single):
                 "forward_dynamics": mb.forward_dynamics(model, q, v, tau, f_ext=f),
                 "coriolis_matrix": mb.coriolis_matrix(model, q, v),
                 "jacobian": mb.jacobian(model, q, body, p),
+                "jacobian_time_variation": mb.jacobian_time_variation(model, q, v, body, p),
+                "frame_kinematics": np.concatenate([x.reshape(q.shape[:-1] + (-1,))
+                                                    for x in mb.kinematics.frame_kinematics(model, q, v, body)], -1),
                 "inverse_mass_matrix": mb.inverse_mass_matrix(model, q),
                 "kinetic_energy": mb.kinetic_energy(model, q, v),
+                "potential_energy": mb.potential_energy(model, q),
                 "forward_kinematics": mb.forward_kinematics(model, q)}
 
     args = [states[k] for k in ("q", "v", "a", "tau", "f_ext", "point")]
@@ -426,3 +431,18 @@ def test_compile_kernels_does_nothing_when_the_cache_has_them(monkeypatch):
     before = dict(kernel.overloads)
     mb.driver.compile_kernels((kernel,), processes=2)
     assert dict(kernel.overloads) == before
+
+
+@pytest.mark.skipif(os.environ.get("NUMBA_DISABLE_JIT") == "1", reason="no compiled code")
+def test_kernels_compile_without_the_reference_counted_runtime():
+    """Every compiled function of ``multibody.kernels`` is compiled without Numba's reference-counted
+    runtime: none can allocate (as the GPU target requires), and a single call passes plain buffers."""
+    import pkgutil
+
+    from numba.core.dispatcher import Dispatcher
+
+    functions = [value for info in pkgutil.iter_modules(mb.kernels.__path__)
+                 for value in vars(importlib.import_module(f"multibody.kernels.{info.name}")).values()
+                 if isinstance(value, Dispatcher) and value.py_func.__module__.startswith("multibody.kernels")]
+    assert len(functions) > 100
+    assert [f.py_func.__qualname__ for f in functions if f.targetoptions.get("_nrt", True)] == []

@@ -72,7 +72,7 @@ def center_of_mass(joints, reals, frames, q, v, a, x3, out, ws):
     nj = joints.shape[0]
     order = out.shape[0]
     if order == 1:
-        pose = joint_placements(joints, reals, q, ws)
+        pose, _ = joint_placements(joints, reals, q, ws)
         vel, acc = pose, pose  # unused
     elif order == 2:
         pose, vel, acc = joint_motions(joints, reals, q, v, ws)
@@ -187,7 +187,7 @@ def centroidal_map(joints, reals, frames, q, x1, x2, x3, out, ws):
     ``jacobianCenterOfMass``.
     """
     nj = joints.shape[0]
-    pose = joint_placements(joints, reals, q, ws)
+    pose, _ = joint_placements(joints, reals, q, ws)
     start = 24 * nj + 12
     Y = ws[start : start + 10 * nj].reshape((nj, 10))
     # no velocities (zero rows): no rates

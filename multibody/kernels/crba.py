@@ -19,8 +19,8 @@ from .spatial import (add10, dot6, force_to_parent, inertia_times, inertia_to_pa
 
 def workspace_size(nj, nv):
     """Floats of workspace one state needs: per joint its pose in its parent (12) and its composite
-    inertia (10); for :func:`inverse_mass_matrix` the factor of ``M`` too."""
-    return 22 * nj + nv * nv
+    inertia (10); for :func:`inverse_mass_matrix` the factor of ``M`` and the coordinates' parents too."""
+    return 22 * nj + nv * nv + nv
 
 
 @njit(cache=True, error_model="numpy")
@@ -159,7 +159,7 @@ def inverse_mass_matrix(joints, reals, frames, q, x1, x2, x3, out, ws):
     """
     n, nj = out.shape[0], joints.shape[0]
     M = ws[22 * nj : 22 * nj + n * n].reshape((n, n))
-    parent = np.empty(n, np.int64)
+    parent = ws[22 * nj + n * n : 22 * nj + n * n + n].view(np.int64)
     coordinate_parents(joints, parent)
     mass_matrix(joints, reals, frames, q, x1, x2, x3, M, ws)
     factored = factor_ltl(M, parent)

@@ -52,8 +52,8 @@ def workspace_size(nj, nv):
     poses (12 per joint and the reference point), per joint its twist, acceleration and force (6 each),
     composite inertia and its rate (10 each), composite momentum (6) and a subtree mark (1); per
     coordinate its Jacobian column and two 6-vectors of its row; for the forward-dynamics derivatives ABA's and CRBA's
-    workspaces, the accelerations and the factor of ``M``."""
-    return max(87 * nj + 12 + 18 * nv, aba.workspace_size(nj, nv), crba.workspace_size(nj, nv)) + nv + nv * nv
+    workspaces, the accelerations, the factor of ``M`` and the coordinates' parents."""
+    return max(87 * nj + 12 + 18 * nv, aba.workspace_size(nj, nv), crba.workspace_size(nj, nv)) + 2 * nv + nv * nv
 
 
 @njit(cache=True, error_model="numpy")
@@ -81,7 +81,7 @@ def torque_derivatives(joints, reals, q, v, a, f_ext, out, ws):
     force_local = rnea.forces(joints, reals, q, v, a, f_ext, ws)
     vel_local, acc_local, transmitted = force_local[1], force_local[2], force_local[3]
     start = 30 * nj
-    pose = joint_placements(joints, reals, q, ws[start:])
+    pose, _ = joint_placements(joints, reals, q, ws[start:])
     start += 12 * (nj + 1)
     twist = ws[start : start + 6 * nj].reshape((nj, 6))
     accel = ws[start + 6 * nj : start + 12 * nj].reshape((nj, 6))
@@ -196,10 +196,10 @@ def forward_dynamics_derivatives(joints, reals, frames, q, v, tau, f_ext, out, w
     :func:`aba.forward_dynamics`. Pinocchio: ``computeABADerivatives``.
     """
     nv = out.shape[1]
-    tail = ws.shape[0] - nv - nv * nv
+    tail = ws.shape[0] - 2 * nv - nv * nv
     acc = ws[tail : tail + nv].reshape((1, nv))
-    M = ws[tail + nv :].reshape((nv, nv))
-    parent = np.empty(nv, np.int64)
+    M = ws[tail + nv : tail + nv + nv * nv].reshape((nv, nv))
+    parent = ws[tail + nv + nv * nv :].view(np.int64)
     crba.coordinate_parents(joints, parent)
     crba.mass_matrix(joints, reals, frames, q, v, tau, f_ext, M, ws)
     if not crba.factor_ltl(M, parent):

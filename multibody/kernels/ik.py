@@ -161,7 +161,7 @@ def errors(joints, reals, frames, targets, options, q, pose_ws, e):
     ``pose_ws`` (its first ``12 (nj + 1)`` entries; the next ``nj`` mark the joints needed, see
     :func:`mark_supports`) for :func:`error_jacobian`. Returns ``‖e‖²``."""
     nj = joints.shape[0]
-    pose = joint_placements(joints, reals, q, pose_ws, pose_ws[12 * (nj + 1) : 13 * nj + 12])
+    pose, _ = joint_placements(joints, reals, q, pose_ws, pose_ws[12 * (nj + 1) : 13 * nj + 12])
     r = 0
     for k in range(frames.shape[0]):
         R_WF, p_OF = frame_pose(pose, frames, k)

