@@ -27,7 +27,14 @@ def njit(**options):
     its plain buffer instead of wrapping it in a counted block first, and no view inside a kernel
     counts references either: on Panda this takes about 0.8 µs off every call. A function then returns no bare
     array (Numba's rule, as there is no count to keep it alive): the kernels return views of their
-    workspace in tuples. Under ``NUMBA_DISABLE_JIT=1``: the Python function, as ``numba.njit`` gives it."""
+    workspace in tuples. Two consequences for code that calls kernel functions:
+
+    * compiled code *with* the runtime (Numba's default) may call only the functions that return no
+      array, such as the kernels' entry points, as the driver's batch loop does: it would release a
+      reference to a returned view that the kernel never took;
+    * Python receives a returned view as the whole array it views (read the workspace instead).
+
+    Under ``NUMBA_DISABLE_JIT=1``: the Python function, as ``numba.njit`` gives it."""
     def decorate(function):
         dispatcher = numba.njit(_nrt=False, **options)(function)
         if isinstance(dispatcher, Dispatcher):
