@@ -507,6 +507,26 @@ class ConstrainedSystem:
         conditioning = np.where(above.any(axis=-1), smallest / np.where(above.any(axis=-1), largest[..., 0], 1.0), 0.0)
         return lam, int(rank) if rank.ndim == 0 else rank, residual, terms, conditioning
 
+    def _row_space_projectors(self, q, t=0.0):
+        """``(P_position, P_velocity)``, each ``(nv, nv)``: ``P = M⁻¹Aᵀ (A M⁻¹ Aᵀ)⁺ A`` at one state ``q``, for ``A``
+        the rows with a position level and for all rows. ``P δ`` is the part of a velocity-space vector ``δ``
+        that the projection (:meth:`project`, to first order) removes: the ``M``-orthogonal projection onto the
+        rows' range, with the rank decision of :meth:`_kept_directions`."""
+        q = np.asarray(q, dtype=float)
+        A, L = self._position_and_velocity_levels(q, t)[1], self._factor(q)
+
+        def projector(rows):
+            if not rows.shape[0]:
+                return np.zeros((self.nv, self.nv))
+            sigma, U = self._metric_singular_values(rows, L)
+            _, inverse = self._kept_directions(sigma)
+            # M⁻¹Aᵀ G⁺ A with G⁺ = U diag(1/σ²) Uᵀ on the kept directions
+            return self._solve_factored(L, rows.T) @ ((U * inverse) @ (U.T @ rows))
+
+        holonomic = self._position_mask
+        velocity = projector(A)
+        return (velocity if holonomic.all() else projector(A[holonomic])), velocity
+
     def _multipliers(self, A, L, rhs, scale):
         """:meth:`_minimum_norm` and a consistency check: rows whose right-hand side has a part that no
         ``λ`` meets, larger than ``1e-8`` of the size of the terms that make it, raise :class:`ConstraintError`:

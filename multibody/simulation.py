@@ -49,6 +49,32 @@ FIXED_STEP_METHODS = ("RK4",)
 LIMIT_MODES = ("warn", "error", "ignore")
 
 
+class _TangentErrors:
+    """An explicit Runge–Kutta solver of SciPy that measures its local error on the constraints' tangent
+    space: the stage derivatives ``K`` less their parts along the rows, which the projection at the step's
+    end removes (E. Hairer, G. Wanner, *Solving Ordinary Differential Equations II*, §VII.2: projected
+    Runge–Kutta methods control the error of the projected solution). Near a singular configuration the
+    stages' accelerations along a nearly dependent row are set to within rounding divided by the distance to
+    it; measured there, that noise would shrink the steps without end, though the projection removes it.
+
+    ``tangent(t, y)``, set after construction, gives the map ``K (s, n) -> K`` at a step's start ``(t, y)``."""
+
+    tangent = None
+    _tangent_at = None
+
+    def _estimate_error_norm(self, K, h, scale):
+        if self.tangent is not None:
+            if self._tangent_at != self.t:  # (a rejected step tries again from the same start)
+                self._tangent_map, self._tangent_at = self.tangent(self.t, self.y), self.t
+            K = self._tangent_map(K)
+        return super()._estimate_error_norm(K, h, scale)
+
+
+#: The solvers of :data:`METHODS` that measure their error on the tangent space in the steps that start near a
+#: singular configuration.
+_TANGENT_SOLVERS = {solver: type(solver.__name__, (_TangentErrors, solver), {}) for solver in (RK23, RK45, DOP853)}
+
+
 @dataclass
 class Trajectory:
     """A simulated motion, one row per output time; or ``N`` of them (``simulate`` from ``q0 (N, nq)``), whose
@@ -305,7 +331,9 @@ def simulate(system, q0, v0, t_final, *, dt=None, method="RK45", tau=None, rtol=
             closed chain near a flat configuration), the steps that start there evaluate every stage at its
             projection onto the constraints (each trajectory of a batch by its own conditioning; systems
             whose charts have ``chart_coordinates``, or with ``q̇ = v``), since off the constraints the
-            accelerations' error grows as the conditioning falls.
+            accelerations' error grows as the conditioning falls; and RK23, RK45 and DOP853 measure their
+            local error there without the parts along the rows, which the projection removes
+            (``docs/theory.md`` §8).
         projection_tolerance: largest move of a coordinate (``q`` in m or rad, ``v`` in m/s or rad/s) left
             unprojected at a step end; output states of the dense output that their projection moves by
             more than it are projected too.
@@ -406,6 +434,19 @@ def simulate(system, q0, v0, t_final, *, dt=None, method="RK45", tau=None, rtol=
                 return y_dot
         return _numpy_chart_derivative(constrained, charts, t, q_chart, y, torque)
 
+    def tangent_part(t, y, q_chart):
+        """The map that takes stage derivatives ``K = [δ̇, ẇ] (s, 2 nv)`` in the chart around ``q_chart`` to their
+        tangent parts at the step's start ``y``: ``δ̇`` less its part along the rows with a position level,
+        ``ẇ`` less its part along all rows, each ``M``-orthogonal, as the projection removes them
+        (``δ`` and ``v = T⁻¹ w`` are velocity-space vectors)."""
+        q_t, T, _ = unchart(q_chart, y)
+        position, velocity = constrained._row_space_projectors(q_t, t)
+        if T is not None:
+            # on w = T v: T P T⁻¹
+            velocity = T @ np.linalg.solve(T.T, velocity.T).T
+        keep_position, keep_velocity = (np.eye(nv) - position).T, (np.eye(nv) - velocity).T
+        return lambda K: np.concatenate([K[:, :nv] @ keep_position, K[:, nv:] @ keep_velocity], axis=1)
+
     def settle(t, state):
         """``state`` projected onto the constraints when, with ``project``, the projection moves a
         coordinate by more than the tolerance. Returns the state, whether it was projected, and whether
@@ -463,11 +504,14 @@ def simulate(system, q0, v0, t_final, *, dt=None, method="RK45", tau=None, rtol=
                     return stage(t_, y, q_chart)
 
                 first_step = None if step_size is None else min(step_size, t_final - t)
+                tangent = near and solver_class in _TANGENT_SOLVERS
                 # Errors of δ relative to the configuration's size, as when integrating q itself; the solver
                 # would measure them against δ, which is zero at every step's start.
                 atol_chart = np.concatenate([atol + rtol * charts.chart_magnitude(q_chart), np.full(nv, atol)])
-                solver = solver_class(fun, t, y0, t_final, rtol=rtol, atol=atol_chart, max_step=max_step,
-                                      first_step=first_step)
+                solver = (_TANGENT_SOLVERS[solver_class] if tangent else solver_class)(
+                    fun, t, y0, t_final, rtol=rtol, atol=atol_chart, max_step=max_step, first_step=first_step)
+                if tangent:
+                    solver.tangent = lambda t_, y: tangent_part(t_, y, q_chart)
                 return solver, q_chart
 
             # One solver runs on to t_final; the output states inside each of its steps come from its
