@@ -73,12 +73,19 @@ def compile_kernels(kernels=None, processes=None) -> None:
         processes = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
     processes = max(1, min(int(processes), len(missing)))
     shares = [missing[k::processes] for k in range(processes)]
+    # (the workers import this very package, wherever it was imported from here)
+    package_root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, (package_root, os.environ.get("PYTHONPATH"))))}
     workers = [subprocess.Popen([sys.executable, "-c", f"from multibody.driver import _compile_named; "
                                  f"_compile_named({[_qualified_name(kernel) for kernel in share]!r})"],
-                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL) for share in shares[1:]]
+                                env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL) for share in shares[1:]]
     try:
         for kernel in shares[0] if shares else ():
             _direct(kernel)
+    except BaseException:
+        for worker in workers:  # (interrupted: the workers' compiling is no longer wanted)
+            worker.kill()
+        raise
     finally:
         for worker in workers:
             worker.wait()
