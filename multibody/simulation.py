@@ -752,8 +752,9 @@ def _stalled(method, recent, near, span):
     if near:
         message += (". The constraints are near a singular configuration there, where they fix the motion only to "
                     "rounding divided by the distance to it, and the accelerations change from one stage to the "
-                    "next by more than the tolerances allow; a looser rtol, method='DOP853', or method='RK4' "
-                    "with a fixed dt may pass it")
+                    "next by more than the tolerances allow; a looser rtol, method='DOP853' or 'RK45' (which "
+                    "measure their error there without the part the projection removes), or method='RK4' with a "
+                    "fixed dt may pass it")
     return message
 
 
