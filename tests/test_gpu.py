@@ -6,8 +6,9 @@
   The simulator runs the launchers as Python and the per-state arithmetic as the CPU kernels, so this
   checks the launch: threads, rows, broadcasting, workspaces, shapes, routing.
 * Compiled for the CUDA target (PTX for sm_90, through libNVVM, no device needed): the launchers of
-  RNEA, CRBA and ABA, with the CPU kernels' source beneath them, lower for the GPU. Skipped where
-  libNVVM (the CUDA toolkit) is not found.
+  RNEA, CRBA and ABA, with the CPU kernels' source beneath them, lower for the GPU, and so do launchers
+  of M⁻¹, the Coriolis matrix, a Jacobian, the kinetic energy and the forward-dynamics derivatives.
+  Skipped where libNVVM (the CUDA toolkit) is not found.
 """
 
 from __future__ import annotations
@@ -102,7 +103,7 @@ PTX = textwrap.dedent(r"""
     from numba import cuda
     from numba import types as nt
     from multibody import gpu
-    from multibody.kernels import aba, crba, rnea
+    from multibody.kernels import aba, coriolis, crba, derivatives, energy, kinematics, rnea
     def probe(x):
         x[0] = 1.0
     try:  # the toolchain (libNVVM; NVRTC for numba-cuda) on a trivial kernel
@@ -116,7 +117,10 @@ PTX = textwrap.dedent(r"""
     dispatcher.get_current_device = lambda: types.SimpleNamespace(compute_capability=(9, 0))
     rows = nt.float64[:, ::1]
     signature = (nt.int64[:, ::1], rows, rows, rows, rows, rows, rows, nt.float64[:, :, ::1], rows)
-    for kernel in (rnea.inverse_dynamics, crba.mass_matrix, aba.forward_dynamics):
+    # the launchers' kernels, and the others: none allocates or returns a bare array (kernels.jit)
+    for kernel in (rnea.inverse_dynamics, crba.mass_matrix, aba.forward_dynamics, crba.inverse_mass_matrix,
+                   coriolis.coriolis_matrix, kinematics.frame_jacobian, energy.kinetic_energy,
+                   derivatives.forward_dynamics_derivatives):
         ptx, _ = cuda.compile_ptx(gpu._launch_source(kernel), signature, cc=(9, 0))
         assert ".entry" in ptx, ptx[:500]
         print(kernel.__name__, len(ptx))

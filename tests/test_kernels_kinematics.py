@@ -262,7 +262,7 @@ def test_joint_placements_match_numpy():
     tree, q = case.tree, case.q[0]
     ws = np.full(kin.workspace_size(tree.njoints, tree.nv), np.nan)
     # (read from the workspace: compiled code hands a view back to Python as the array it views)
-    p_WO = np.array(kin.joint_placements(tree.joints, tree.reals, q, ws)[1])
+    p_WO = np.array(kin.joint_placements(tree.joints, tree.reals, q, ws, None)[1])
     pose = ws[: 12 * (tree.njoints + 1)].reshape(-1, 12).copy()
     R_WJ, p_WJ = mb.kinematics.joint_world_poses(case.model, q)
     # positions from the reference point O, the first joint's origin, whose world position is the last row's
@@ -272,5 +272,5 @@ def test_joint_placements_match_numpy():
     assert rel_error(pose[:-1, 9:] + p_WO, p_WJ) <= TOL
     assert rel_error(p_WO, p_WJ[0]) <= TOL
     ws[:] = np.nan
-    kin.joint_motions(tree.joints, tree.reals, q, case.v[0], ws)
+    kin.joint_motions(tree.joints, tree.reals, q, case.v[0], ws, None)
     np.testing.assert_array_equal(ws[: 12 * (tree.njoints + 1)].reshape(-1, 12), pose)

@@ -72,10 +72,10 @@ def center_of_mass(joints, reals, frames, q, v, a, x3, out, ws):
     nj = joints.shape[0]
     order = out.shape[0]
     if order == 1:
-        pose, _ = joint_placements(joints, reals, q, ws)
+        pose, _ = joint_placements(joints, reals, q, ws, None)
         vel, acc = pose, pose  # unused
     elif order == 2:
-        pose, vel, acc = joint_motions(joints, reals, q, v, ws)
+        pose, vel, acc = joint_motions(joints, reals, q, v, ws, None)
     else:
         pose, vel, acc = joint_motions(joints, reals, q, v, ws, a)
     M = 0.0
@@ -118,7 +118,7 @@ def centroidal_momentum(joints, reals, frames, q, v, x2, x3, out, ws):
     (``data.hg``, linear first).
     """
     nj = joints.shape[0]
-    pose, vel, _ = joint_motions(joints, reals, q, v, ws)
+    pose, vel, _ = joint_motions(joints, reals, q, v, ws, None)
     M = 0.0
     moment = ZERO3
     F = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
@@ -187,7 +187,7 @@ def centroidal_map(joints, reals, frames, q, x1, x2, x3, out, ws):
     ``jacobianCenterOfMass``.
     """
     nj = joints.shape[0]
-    pose, _ = joint_placements(joints, reals, q, ws)
+    pose, _ = joint_placements(joints, reals, q, ws, None)
     start = 24 * nj + 12
     Y = ws[start : start + 10 * nj].reshape((nj, 10))
     # no velocities (zero rows): no rates
@@ -224,7 +224,7 @@ def centroidal_map_time_variation(joints, reals, frames, q, v, x2, x3, out, ws):
     ``computeCentroidalMapTimeVariation`` (``data.dAg``).
     """
     nj = joints.shape[0]
-    pose, vel, _ = joint_motions(joints, reals, q, v, ws)
+    pose, vel, _ = joint_motions(joints, reals, q, v, ws, None)
     start = 24 * nj + 12
     Y = ws[start : start + 10 * nj].reshape((nj, 10))
     Y_dot = ws[start + 10 * nj : start + 20 * nj].reshape((nj, 10))

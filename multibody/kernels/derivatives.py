@@ -81,7 +81,7 @@ def torque_derivatives(joints, reals, q, v, a, f_ext, out, ws):
     force_local = rnea.forces(joints, reals, q, v, a, f_ext, ws)
     vel_local, acc_local, transmitted = force_local[1], force_local[2], force_local[3]
     start = 30 * nj
-    pose, _ = joint_placements(joints, reals, q, ws[start:])
+    pose, _ = joint_placements(joints, reals, q, ws[start:], None)
     start += 12 * (nj + 1)
     twist = ws[start : start + 6 * nj].reshape((nj, 6))
     accel = ws[start + 6 * nj : start + 12 * nj].reshape((nj, 6))

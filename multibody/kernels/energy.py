@@ -60,7 +60,7 @@ def potential_energy(joints, reals, frames, q, x1, x2, x3, out, ws):
     ``q (nq,)``; ``frames``, ``x1..x3`` unused. Pinocchio: ``computePotentialEnergy``.
     """
     nj = joints.shape[0]
-    pose, _ = joint_placements(joints, reals, q, ws)
+    pose, _ = joint_placements(joints, reals, q, ws, None)
     g = load3(reals[nj], GRAVITY)
     U = 0.0
     for i in range(nj):

@@ -62,7 +62,7 @@ def workspace_size(nj, nv):
 
 
 @njit(cache=True, error_model="numpy")
-def joint_placements(joints, reals, q, ws, needed=None):
+def joint_placements(joints, reals, q, ws, needed):
     """World pose ``X_Wi = (R_Wi, p_Oi)`` of every joint frame into ``ws[:12 (nj + 1)]``, returned as
     ``(pose (nj + 1, 12), p_WO)`` (``R_Wi`` row-major, then ``p_Oi`` in m): RBDA §4.1, ``X_Wi = X_Wλ(i) X_T X_J(q_i)``.
 
@@ -70,8 +70,9 @@ def joint_placements(joints, reals, q, ws, needed=None):
     ``p_WO`` is row ``nj``'s (at column 9): coordinates far from the world origin would cost the lever
     arms ``x − p_i`` of the Jacobians their digits.
 
-    ``needed (nj,)``: when given, only the joints marked non-zero are placed (the support paths of the
-    frames a caller reads; parents come before children, so a marked joint's parent is placed first).
+    ``needed (nj,)``: only the joints marked non-zero are placed (the support paths of the frames a caller
+    reads; parents come before children, so a marked joint's parent is placed first); ``None``: every joint.
+    (No default: Numba's own CUDA target compiles a device function only for the arguments a call gives.)
     """
     nj = joints.shape[0]
     pose = ws[: 12 * (nj + 1)].reshape((nj + 1, 12))
@@ -105,11 +106,11 @@ def mark_supports(joints, frames, needed):
 
 
 @njit(cache=True, error_model="numpy")
-def joint_motions(joints, reals, q, v, ws, qdd=None):
+def joint_motions(joints, reals, q, v, ws, qdd):
     """World poses, velocities and accelerations of every joint frame (RBDA Table 5.1, forward pass with
     no gravity), in ``ws[:24 nj + 12]``. Returns ``pose (nj + 1, 12)`` as :func:`joint_placements`,
     ``vel (nj, 6)`` the body velocities ``v_i`` and ``acc (nj, 6)`` the spatial accelerations ``a_i`` for the
-    joint accelerations ``qdd (nv,)`` (default zero: the velocity-product accelerations), both in joint
+    joint accelerations ``qdd (nv,)`` (``None``: zero, the velocity-product accelerations), both in joint
     coordinates at the joint origin (m/s, rad/s; m/s², rad/s²).
     """
     nj = joints.shape[0]
@@ -251,7 +252,7 @@ def frame_placements(joints, reals, frames, q, x1, x2, x3, out, ws):
     ``q (nq,)``; ``frames (m, 13)``; ``x1..x3`` unused. With ``frames = tree.bodies`` this is the forward
     kinematics of every body (Pinocchio: ``forwardKinematics`` + ``updateFramePlacements``, ``data.oMf``).
     """
-    pose, _ = joint_placements(joints, reals, q, ws)
+    pose, _ = joint_placements(joints, reals, q, ws, None)
     for k in range(frames.shape[0]):
         R, p_O = frame_pose(pose, frames, k)
         p = world_position(pose, p_O)
@@ -311,7 +312,7 @@ def frame_jacobian_time_variation(joints, reals, frames, q, v, point, reference,
     :func:`frame_jacobian`. Zero for a frame fixed in the world. Pinocchio:
     ``computeJointJacobiansTimeVariation`` + ``getFrameJacobianTimeVariation``.
     """
-    pose, vel, _ = joint_motions(joints, reals, q, v, ws)
+    pose, vel, _ = joint_motions(joints, reals, q, v, ws, None)
     for r in range(6):
         for c in range(out.shape[1]):
             out[r, c] = 0.0
@@ -379,7 +380,7 @@ def frame_motions(joints, reals, frames, q, v, x2, x3, out, ws):
     the world has ``J = 0`` and ``J̇ v = 0``. ``q (nq,)``, ``v (nv,)``; ``x2, x3`` unused.
     NumPy counterpart: ``multibody.kinematics.frame_kinematics``.
     """
-    pose, vel, acc = joint_motions(joints, reals, q, v, ws)
+    pose, vel, acc = joint_motions(joints, reals, q, v, ws, None)
     nv = (out.shape[1] - 18) // 6
     for k in range(frames.shape[0]):
         row = out[k]
