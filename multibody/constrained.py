@@ -511,17 +511,15 @@ class ConstrainedSystem:
         """``(P_position, P_velocity)``, each ``(nv, nv)``: ``P = M⁻¹Aᵀ (A M⁻¹ Aᵀ)⁺ A`` at one state ``q``, for ``A``
         the rows with a position level and for all rows. ``P δ`` is the part of a velocity-space vector ``δ``
         that the projection (:meth:`project`, to first order) removes: the ``M``-orthogonal projection onto the
-        rows' range, with the rank decision of :meth:`_kept_directions`."""
+        rows' range, with the rank decision of :meth:`_minimum_norm`."""
         q = np.asarray(q, dtype=float)
         A, L = self._position_and_velocity_levels(q, t)[1], self._factor(q)
 
         def projector(rows):
             if not rows.shape[0]:
                 return np.zeros((self.nv, self.nv))
-            sigma, U = self._metric_singular_values(rows, L)
-            _, inverse = self._kept_directions(sigma)
-            # M⁻¹Aᵀ G⁺ A with G⁺ = U diag(1/σ²) Uᵀ on the kept directions
-            return self._solve_factored(L, rows.T) @ ((U * inverse) @ (U.T @ rows))
+            # M⁻¹Aᵀ G⁺ A: the minimum-norm multipliers of each column of A as a right-hand side
+            return self._solve_factored(L, rows.T) @ self._minimum_norm(rows, L, rows.T)[0].T
 
         holonomic = self._position_mask
         velocity = projector(A)
@@ -770,10 +768,11 @@ class ConstrainedSystem:
         holonomic = self._position_mask
 
         def correction(A, error):
-            # M⁻¹Aᵀ (A M⁻¹ Aᵀ)⁺ error, with M from the current q
+            # M⁻¹Aᵀ (A M⁻¹ Aᵀ)⁺ error, with M from the current q, and the rows' conditioning
             L = self._factor(q)
             M_inv_At = self._solve_factored(L, np.swapaxes(A, -1, -2))
-            return matvec(M_inv_At, self._minimum_norm(A, L, error)[0])
+            lam, _, _, _, conditioning = self._minimum_norm(A, L, error)
+            return matvec(M_inv_At, lam), conditioning
 
         # Each pass gives φ, A and b together: A serves both the next position step and, at the end,
         # the velocity projection.
@@ -781,7 +780,7 @@ class ConstrainedSystem:
         if holonomic.any():
             previous = np.full(q.shape[:-1], np.inf)
             for _ in range(max_iterations):
-                dq = correction(A[..., holonomic, :], phi[..., holonomic])
+                dq = correction(A[..., holonomic, :], phi[..., holonomic])[0]
                 size = np.abs(dq).max(axis=-1)
                 # (a NaN error counts as off, and never converges)
                 off = ~((np.abs(phi[..., holonomic]).max(axis=-1) <= tolerance) & ((size <= tolerance) | (size > 0.5 * previous)))
@@ -796,9 +795,8 @@ class ConstrainedSystem:
             else:
                 raise ConstraintError(f"projection onto the position constraints did not converge: "
                                       f"|φ| = {np.abs(phi[..., holonomic]).max():.3g} after {max_iterations} iterations")
-        L = self._factor(q)
-        lam, _, _, _, conditioning = self._minimum_norm(A, L, matvec(A, v) + b)
-        return q, v - matvec(self._solve_factored(L, np.swapaxes(A, -1, -2)), lam), conditioning
+        dv, conditioning = correction(A, matvec(A, v) + b)
+        return q, v - dv, conditioning
 
     @cached_property
     def _projection_call(self):

@@ -80,7 +80,7 @@ def compile_kernels(kernels=None, processes=None) -> None:
                                  f"_compile_named({[_qualified_name(kernel) for kernel in share]!r})"],
                                 env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL) for share in shares[1:]]
     try:
-        for kernel in shares[0] if shares else ():
+        for kernel in shares[0]:
             _direct(kernel)
     except BaseException:
         for worker in workers:  # (interrupted: the workers' compiling is no longer wanted)
@@ -201,16 +201,11 @@ def evaluate_one(kernel, tree, out_shape, x0=NO_INPUT, x1=NO_INPUT, x2=NO_INPUT,
 
 #: ``(kernel, nj, nv) -> (entry point, workspace size)`` of single calls: one look-up per call.
 _SINGLE_CALLS = {}
-_WORKSPACE_SIZES = {}
 
 
 def _workspace_size(kernel, nj, nv):
     """Floats of workspace one state of ``kernel`` needs on a tree of ``nj`` joints and ``nv`` velocities."""
-    key = (kernel, nj, nv)
-    size = _WORKSPACE_SIZES.get(key)
-    if size is None:
-        size = _WORKSPACE_SIZES[key] = _WORKSPACE[kernel](nj, nv)
-    return size
+    return _WORKSPACE[kernel](nj, nv)
 
 
 _DIRECT = {}

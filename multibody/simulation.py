@@ -434,19 +434,6 @@ def simulate(system, q0, v0, t_final, *, dt=None, method="RK45", tau=None, rtol=
                 return y_dot
         return _numpy_chart_derivative(constrained, charts, t, q_chart, y, torque)
 
-    def tangent_part(t, y, q_chart):
-        """The map that takes stage derivatives ``K = [δ̇, ẇ] (s, 2 nv)`` in the chart around ``q_chart`` to their
-        tangent parts at the step's start ``y``: ``δ̇`` less its part along the rows with a position level,
-        ``ẇ`` less its part along all rows, each ``M``-orthogonal, as the projection removes them
-        (``δ`` and ``v = T⁻¹ w`` are velocity-space vectors)."""
-        q_t, T, _ = unchart(q_chart, y)
-        position, velocity = constrained._row_space_projectors(q_t, t)
-        if T is not None:
-            # on w = T v: T P T⁻¹
-            velocity = T @ np.linalg.solve(T.T, velocity.T).T
-        keep_position, keep_velocity = (np.eye(nv) - position).T, (np.eye(nv) - velocity).T
-        return lambda K: np.concatenate([K[:, :nv] @ keep_position, K[:, nv:] @ keep_velocity], axis=1)
-
     def settle(t, state):
         """``state`` projected onto the constraints when, with ``project``, the projection moves a
         coordinate by more than the tolerance. Returns the state, whether it was projected, and whether
@@ -511,7 +498,7 @@ def simulate(system, q0, v0, t_final, *, dt=None, method="RK45", tau=None, rtol=
                 solver = (_TANGENT_SOLVERS[solver_class] if tangent else solver_class)(
                     fun, t, y0, t_final, rtol=rtol, atol=atol_chart, max_step=max_step, first_step=first_step)
                 if tangent:
-                    solver.tangent = lambda t_, y: tangent_part(t_, y, q_chart)
+                    solver.tangent = lambda t_, y: _tangent_map(constrained, charts, q_chart, t_, y)
                 return solver, q_chart
 
             # One solver runs on to t_final; the output states inside each of its steps come from its
@@ -723,6 +710,21 @@ def _numpy_chart_derivative(constrained, charts, t, q_chart, y, torque):
     # ẇ = T (a + κ(v))
     w_dot = a if T is None else T @ (a + charts.velocity_coupling(v_t))
     return np.concatenate([charts.chart_rate(y[:nv], y[nv:]), w_dot])
+
+
+def _tangent_map(constrained, charts, q_chart, t, y):
+    """The map that takes stage derivatives ``K = [δ̇, ẇ] (s, 2 nv)`` in the chart around ``q_chart`` to their
+    tangent parts at the chart state ``y`` (a step's start) and time ``t``: ``δ̇`` less its part along the rows
+    with a position level, ``ẇ`` less its part along all rows, each ``M``-orthogonal, as the projection removes
+    them (``δ`` and ``v = T⁻¹ w`` are velocity-space vectors)."""
+    nv = charts.nv
+    q_t, T, _ = charts.unchart(q_chart, y)
+    position, velocity = constrained._row_space_projectors(q_t, t)
+    if T is not None:
+        # on w = T v: T P T⁻¹
+        velocity = T @ np.linalg.solve(T.T, velocity.T).T
+    keep_position, keep_velocity = (np.eye(nv) - position).T, (np.eye(nv) - velocity).T
+    return lambda K: np.concatenate([K[:, :nv] @ keep_position, K[:, nv:] @ keep_velocity], axis=1)
 
 
 #: Conditioning of the constraint rows at a step's start (the smallest singular value of ``A L⁻ᵀ`` above
@@ -1030,10 +1032,9 @@ def _simulate_batch(constrained, charts, q0, v0, times, torque, state_dependent,
         close = rows[near[rows]]
         if close.size:
             q_t, _, v_t = charts.unchart(q_chart[close], y[close])
-            on, errors = _by_state(lambda q, v: np.concatenate(constrained.project(q, v, t), axis=-1), (q_t, v_t),
-                                   (nq + nv,))
+            on, errors = _by_state(projection(t), (q_t, v_t), (nq + nv + 1,))
             y = y.copy()
-            y[close] = charts.coordinates(q_chart[close], on[:, :nq], on[:, nq:])
+            y[close] = charts.coordinates(q_chart[close], on[:, :nq], on[:, nq : nq + nv])
             failed.update({int(close[i]): message for i, message in errors.items()})
         tau = constant
         if state_dependent:

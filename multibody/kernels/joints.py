@@ -140,6 +140,12 @@ def quat_multiply(a, b):
 
 
 @njit(cache=True, error_model="numpy")
+def quat_conjugate(quat):
+    """``q* = [−u, w]``: the inverse rotation of a unit quaternion."""
+    return (-quat[0], -quat[1], -quat[2], quat[3])
+
+
+@njit(cache=True, error_model="numpy")
 def quat_normalized(quat):
     """``quat / |quat|``."""
     norm = math.sqrt(quat[0] * quat[0] + quat[1] * quat[1] + quat[2] * quat[2] + quat[3] * quat[3])
@@ -315,8 +321,7 @@ def difference(kind, nv, q0, q1, iq, iv, out):
     :func:`integrate`; rotation angles in ``[0, π]``)."""
     if kind == SPHERICAL:
         # log(q₀* ⊗ q₁)
-        quat0 = load4(q0, iq)
-        store(out, iv, quat_log(quat_multiply((-quat0[0], -quat0[1], -quat0[2], quat0[3]), load4(q1, iq))))
+        store(out, iv, quat_log(quat_multiply(quat_conjugate(load4(q0, iq)), load4(q1, iq))))
     elif kind == FREE_FLYER:
         R0, R1 = quat_rotation(load4(q0, iq + 3)), quat_rotation(load4(q1, iq + 3))
         # X₀⁻¹ X₁ = (R₀ᵀ R₁, R₀ᵀ (p₁ − p₀))
@@ -403,13 +408,11 @@ def chart_coordinates(kind, nv, q0, q, iq, iv, out):
     :func:`chart` (``chart(q₀, δ) = q``; rotation angles in ``[0, π]``)."""
     if kind == SPHERICAL:
         # exp(δ) = q ⊗ q₀*
-        quat0 = load4(q0, iq)
-        store(out, iv, quat_log(quat_multiply(load4(q, iq), (-quat0[0], -quat0[1], -quat0[2], quat0[3]))))
+        store(out, iv, quat_log(quat_multiply(load4(q, iq), quat_conjugate(load4(q0, iq)))))
     elif kind == FREE_FLYER:
         # δ_p = p − p₀;  exp(δ_θ) = q ⊗ q₀*
-        quat0 = load4(q0, iq + 3)
         store(out, iv, sub3(load3(q, iq), load3(q0, iq)))
-        store(out, iv + 3, quat_log(quat_multiply(load4(q, iq + 3), (-quat0[0], -quat0[1], -quat0[2], quat0[3]))))
+        store(out, iv + 3, quat_log(quat_multiply(load4(q, iq + 3), quat_conjugate(load4(q0, iq + 3)))))
     elif kind == PLANAR:
         c0, s0, c1, s1 = q0[iq + 2], q0[iq + 3], q[iq + 2], q[iq + 3]
         # (x, y) − (x₀, y₀);  δ_θ = θ − θ₀ in (−π, π]
