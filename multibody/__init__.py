@@ -53,7 +53,8 @@ from .robotics import (
 )
 from .rolling import KnifeEdge, RollingDisc, RollingSphere
 from .shooting import StepDerivatives, rk4_step, rk4_step_derivatives
-from .simulation import JointLimitWarning, SimulationError, Trajectory, simulate
+from .simulation import JointLimitWarning, SimulationError, simulate
+from .trajectory import Trajectory
 from . import variational
 
 

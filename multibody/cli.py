@@ -185,7 +185,7 @@ def _serve(viewer, html=None):
 
 
 def cmd_view(args):
-    from .simulation import Trajectory
+    from .trajectory import Trajectory
     from .viewer import INSTALL_HINT
 
     try:

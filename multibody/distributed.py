@@ -108,7 +108,7 @@ def _map_chunks(client, fn, model, arrays, chunks):
 
 def _concatenate(parts):
     """Chunk results joined along their leading axis: arrays, tuples of arrays, or batched trajectories."""
-    from .simulation import Trajectory
+    from .trajectory import Trajectory
 
     first = parts[0]
     if isinstance(first, Trajectory):
@@ -175,7 +175,7 @@ def simulate_many(system, q0, v0, t_final, *, chunks=None, client=None, **kw):
             ``tau(t, q, v)`` is sent to every worker and sees the states of its chunk, ``q (n, nq)`` with ``n``
             at most ``chunks`` (give values per trajectory as an array, or compute them from the state).
     Returns:
-        a :class:`~multibody.simulation.Trajectory` with a leading axis ``N``, as ``simulate`` returns for the
+        a :class:`~multibody.trajectory.Trajectory` with a leading axis ``N``, as ``simulate`` returns for the
         whole batch; one ``RuntimeWarning`` when some trajectories stopped early (``trajectory.status``).
     """
     from .constrained import ConstrainedSystem

@@ -1,4 +1,4 @@
-"""Figures of a simulated :class:`~multibody.simulation.Trajectory`, every axis with its unit.
+"""Figures of a simulated :class:`~multibody.trajectory.Trajectory`, every axis with its unit.
 
 :func:`plot_trajectory` writes them as PNG files; :func:`trajectory_figures` returns them as
 ``matplotlib.figure.Figure`` objects, to show in a notebook or restyle. The figures are built
@@ -139,7 +139,7 @@ def state_curves(trajectory, system=None, *, coordinate_labels=None, coordinate_
     """The curves of a trajectory's coordinates and velocities: ``(q curves, v curves)``.
 
     Args:
-        trajectory: a :class:`~multibody.simulation.Trajectory` with ``q (n, nq)``, ``v (n, nv)``.
+        trajectory: a :class:`~multibody.trajectory.Trajectory` with ``q (n, nq)``, ``v (n, nv)``.
         system: what was simulated: a ``Model``, a ``ConstrainedSystem``, or a mechanical system such as
             ``LagrangianSystem.numeric()`` (its ``coordinate_names``). A model's joints give names,
             units and the drawn form of rotations (table in the module docstring). ``None``: the raw
@@ -357,7 +357,7 @@ def plot_trajectory(trajectory, out_dir, name, system=None, *, coordinate_labels
     when the system has an energy, the last two when it has constraint rows.
 
     Args:
-        trajectory: a :class:`~multibody.simulation.Trajectory`.
+        trajectory: a :class:`~multibody.trajectory.Trajectory`.
         out_dir: folder for the files (created when missing).
         name: the files' common prefix.
         system: what was simulated (``Model``, ``ConstrainedSystem``, or a mechanical system such as

@@ -827,7 +827,7 @@ def simulate(system, q0, v0, t_final, *, dt=None, tau=None, rule="midpoint", ord
         max_iterations: Newton iterations allowed per step.
 
     Returns:
-        :class:`~multibody.simulation.Trajectory`: ``t (n,)``, ``q (n, nq)``, ``v = M(q)⁻¹ p (n, nv)``,
+        :class:`~multibody.trajectory.Trajectory`: ``t (n,)``, ``q (n, nq)``, ``v = M(q)⁻¹ p (n, nv)``,
         ``lam (n, m)`` the discrete multipliers as forces (module docstring), ``energy`` ``T + U`` (J)
         at ``(q_k, v_k)``, ``residual`` ``max(|φ|, |A v + b|)``.
 
@@ -994,10 +994,10 @@ def _failure_message(failure, t, h, tolerance):
 
 
 def _trajectory(constrained, times, q, v, mu_start, mu_end, status):
-    """The :class:`~multibody.simulation.Trajectory` of the states, with the node impulses turned into
+    """The :class:`~multibody.trajectory.Trajectory` of the states, with the node impulses turned into
     forces ``λ_k = 2 (μ_k⁺ + μ_k⁻) / (h_{k−1} + h_k)`` (extrapolated from the two nearest inner nodes at
     the two ends)."""
-    from .simulation import Trajectory
+    from .trajectory import Trajectory
 
     n, m = len(times), constrained.num_rows
     steps = np.diff(times)

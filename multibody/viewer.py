@@ -20,7 +20,7 @@ The page shows, in world coordinates (z up, metres):
 * each body's frame (x red, y green, z blue), the world frame, and a ground grid at ``z = 0`` (under the
   lowest point instead when the scene reaches below, as a hanging pendulum does); when the constraints
   include planes (rolling spheres and discs) those planes are drawn instead of the ground;
-* for a :class:`~multibody.simulation.Trajectory`: a play/pause button, a time slider spanning the
+* for a :class:`~multibody.trajectory.Trajectory`: a play/pause button, a time slider spanning the
   trajectory's times, the playback speed, and checkboxes that show or hide each layer;
 * ``trace=[...]``: the paths of chosen body points over the whole trajectory;
 * ``constraints=...``: the constraint forces at the current time, as arrows drawn to scale (m per N,
@@ -202,7 +202,7 @@ def body_shapes(model, point_radius):
 
 def _states(model, q, trajectory):
     """``(times (n,), q (n, nq))`` of what is shown, with clear errors."""
-    from .simulation import Trajectory
+    from .trajectory import Trajectory
 
     if q is not None and trajectory is not None:
         raise ValueError("give a configuration q or a trajectory, not both")
@@ -686,7 +686,7 @@ def view(model, q=None, trajectory=None, *, constraints=None, port=8080, **optio
     Args:
         model: a :class:`~multibody.model.Model`.
         q: one configuration ``(nq,)`` to show (default ``model.neutral()``); not with ``trajectory``.
-        trajectory: a :class:`~multibody.simulation.Trajectory` (``t (n,)``, ``q (n, nq)``) to play.
+        trajectory: a :class:`~multibody.trajectory.Trajectory` (``t (n,)``, ``q (n, nq)``) to play.
         constraints: the constraints that were simulated (a ``ConstrainedSystem`` or a list, in its order),
             to draw their forces from ``trajectory.lam`` as arrows (see the module docstring).
         port: where to listen (the next free one when taken; ``0``: any free port). ``viewer.port`` is
