@@ -9,6 +9,8 @@ neutral configuration. Each link ("body") sits at ``body_placements[b]`` in the 
 
 from __future__ import annotations
 
+import dataclasses
+import difflib
 import math
 import warnings
 from dataclasses import dataclass, field
@@ -63,6 +65,15 @@ class Mimic:
     mimicked: str
     multiplier: float = 1.0
     offset: float = 0.0
+
+
+def unknown_name(what, name, names, plural):
+    """The ``ValueError`` for a ``what`` (``"body"``, ``"joint"``) called ``name`` that is not among ``names``
+    (``plural`` says what they are): the close matches first (:func:`difflib.get_close_matches`), so that
+    a misspelling shows at a glance, then every valid name."""
+    close = difflib.get_close_matches(str(name), [str(n) for n in names], n=3)
+    hint = f"; did you mean {' or '.join(map(repr, close))}?" if close else ";"
+    return ValueError(f"unknown {what} {name!r}{hint} {plural} are {list(names)}")
 
 
 def _frozen(array, dtype=float):
@@ -241,7 +252,7 @@ class Model:
             if not -self.nbodies <= body < self.nbodies:
                 raise ValueError(f"body index {body} out of range for {self.nbodies} bodies")
             return int(body) % self.nbodies
-        raise ValueError(f"unknown body {body!r}; bodies are {list(self.body_names)}")
+        raise unknown_name("body", body, self.body_names, "bodies")
 
     @cached_property
     def _body_indices(self):
@@ -257,7 +268,7 @@ class Model:
         try:
             return self.joint_names.index(joint)
         except ValueError:
-            raise ValueError(f"unknown joint {joint!r}; moving joints are {list(self.joint_names)}") from None
+            raise unknown_name("joint", joint, self.joint_names, "moving joints") from None
 
     @cached_property
     def tree(self):
@@ -293,6 +304,20 @@ class Model:
     def total_mass(self) -> float:
         """Sum of all body masses (kg), links fixed to the world included."""
         return float(sum(inertia.mass for inertia in self.body_inertias))
+
+    def with_gravity(self, gravity) -> "Model":
+        """A new model equal to this one but for its gravity; this one is unchanged (models are immutable).
+
+        ``gravity``: ``(3,)`` finite gravitational acceleration in the world frame, m/s² (e.g.
+        ``(0, 0, -1.62)`` on the Moon, zeros for none).
+        """
+        try:
+            g = np.asarray(gravity, dtype=float)
+        except (TypeError, ValueError):  # (text, or a ragged sequence)
+            g = None
+        if g is None or g.shape != (3,) or not np.all(np.isfinite(g)):
+            raise ValueError(f"gravity must be 3 finite numbers (m/s², world frame), got {gravity!r}")
+        return dataclasses.replace(self, gravity=g)
 
     # ------------------------------------------------------------------ configuration space
 

@@ -707,6 +707,38 @@ def test_model_index_lookups(tree):
         tree.joint_index("nope")
 
 
+def test_misspelled_names_suggest_the_close_ones():
+    model = mb.robots.load("four_bar")
+    with pytest.raises(ValueError, match=r"unknown body 'coupler_tp'; did you mean 'coupler_tip'") as info:
+        model.body_index("coupler_tp")
+    assert all(repr(name) in str(info.value) for name in model.body_names)
+    with pytest.raises(ValueError, match=r"unknown joint 'crank'; did you mean 'crank_joint'\? moving joints are"):
+        model.joint_index("crank")
+    with pytest.raises(ValueError, match=r"unknown body 'zzz'; bodies are \['ground'"):
+        model.body_index("zzz")
+
+
+def test_with_gravity_returns_a_new_model_and_leaves_the_original():
+    model = mb.robots.load("double_pendulum")
+    q = np.array([0.3, -0.2])
+    moon = model.with_gravity((0.0, 0.0, -1.62))
+    assert isinstance(moon, mb.Model) and moon is not model
+    np.testing.assert_array_equal(model.gravity, [0.0, 0.0, -9.81])
+    np.testing.assert_array_equal(moon.gravity, [0.0, 0.0, -1.62])
+    assert not moon.gravity.flags.writeable
+    # g(q) is linear in the gravity vector; the mass matrix does not depend on it
+    assert_allclose(mb.generalized_gravity(moon, q), 1.62 / 9.81 * mb.generalized_gravity(model, q), rtol=1e-14)
+    assert_allclose(mb.mass_matrix(moon, q), mb.mass_matrix(model, q), rtol=0, atol=0)
+    assert_allclose(mb.generalized_gravity(model.with_gravity(np.zeros(3)), q), 0.0, atol=0)
+
+
+@pytest.mark.parametrize("bad", [(0.0, -9.81), (0.0, 0.0, np.inf), (0.0, np.nan, 0.0), "down", [[0, 0, -9.81]], None])
+def test_with_gravity_refuses_bad_vectors(bad):
+    model = mb.robots.load("double_pendulum")
+    with pytest.raises(ValueError, match=r"gravity must be 3 finite numbers \(m/s², world frame\), got"):
+        model.with_gravity(bad)
+
+
 def test_empty_model():
     b = mb.ModelBuilder()
     b.add_body("only", inertia=mb.inertia.box(1.0, (1, 1, 1)))
