@@ -20,14 +20,15 @@ The model follows Pinocchio's ``buildModelFromUrdf`` exactly where both are defi
   continuous and prismatic joints go into ``model.lower``/``model.upper`` (``(nq,)``) and
   ``model.effort_limit``, ``model.velocity_limit``, ``model.damping``, ``model.friction``
   (``(nv,)``), Pinocchio's ``lowerPositionLimit``, ``upperPositionLimit``, ``effortLimit``,
-  ``velocityLimit``, ``damping`` and ``friction``. What is not given is unbounded (``±inf``
-  positions, ``inf`` effort and speed) and undamped (zero damping and friction). Where Pinocchio
-  differs: a continuous joint's angle is unbounded here (Pinocchio bounds its ``(cos θ, sin θ)`` by
-  ±1.01); a ``<limit>`` without ``lower`` or ``upper`` leaves that side unbounded here (urdfdom reads
-  0, pinning the joint); a free flyer's position is unbounded and its quaternion bounded by ±1, where
-  Pinocchio writes ±``DBL_MAX`` for the ``root_joint`` of ``floating_base`` (and ±1.01 for the
-  quaternion of a URDF ``floating`` joint). As in Pinocchio, the ``<limit>`` and ``<dynamics>`` of
-  ``floating`` and ``planar`` joints are ignored. Effort and speed limits must not be negative, nor
+  ``velocityLimit``, ``damping`` and ``friction``. A joint without ``<limit>`` has unbounded positions
+  (``±inf``), and an absent ``effort`` or ``velocity`` means no limit (``inf``); a ``<limit>`` without
+  ``lower`` or ``upper`` gives that side 0, as the URDF specification, urdfdom and Pinocchio do, and a
+  revolute or prismatic joint whose limits are then both 0 (held still) warns. Without ``<dynamics>``
+  there is no damping or friction. Where Pinocchio differs: a continuous joint's angle is unbounded
+  here (Pinocchio bounds its ``(cos θ, sin θ)`` by ±1.01); a free flyer's position is unbounded and its
+  quaternion bounded by ±1, where Pinocchio writes ±``DBL_MAX`` for the ``root_joint`` of
+  ``floating_base`` (and ±1.01 for the quaternion of a URDF ``floating`` joint). As in Pinocchio, the
+  ``<limit>`` and ``<dynamics>`` of ``floating`` and ``planar`` joints are ignored. Effort and speed limits must not be negative, nor
   damping and friction; limits at or beyond ``UNBOUNDED_LIMIT`` mean none.
 * A ``<mimic>`` must name another joint with one coordinate (revolute, continuous or prismatic),
   and the joint that carries it must have one coordinate too. A mimicked joint that does not
@@ -191,14 +192,23 @@ def _joint_type(ctx, joint, path, name):
 
 
 def _limits(ctx, joint_element, joint, path):
-    """``(lower, upper)`` of a one-coordinate joint; a side at or beyond ``±UNBOUNDED_LIMIT`` is unbounded."""
+    """``(lower, upper)`` of a one-coordinate joint; a side at or beyond ``±UNBOUNDED_LIMIT`` is unbounded.
+    A ``<limit>`` without ``lower`` or ``upper`` gives that side 0 (the URDF specification's default, as in
+    urdfdom and Pinocchio); a revolute or prismatic joint held at 0 by both warns."""
     lower, upper = joint.default_limits
     limit = joint_element.find("limit")
     if limit is None or joint.nq != 1 or isinstance(joint, jt.Continuous):
         return lower, upper
     path = path + "/<limit>"
-    lower = _floats(ctx, limit, "lower", path, 1, lower, allow_infinite=True)
-    upper = _floats(ctx, limit, "upper", path, 1, upper, allow_infinite=True)
+    lower = _floats(ctx, limit, "lower", path, 1, (0.0,), allow_infinite=True)
+    upper = _floats(ctx, limit, "upper", path, 1, (0.0,), allow_infinite=True)
+    absent = [side for side in ("lower", "upper") if limit.get(side) is None]
+    reason = f" ({' and '.join(absent)} absent: the URDF specification reads 0)" if absent else ""
+    if lower[0] == upper[0] == 0.0:
+        remedy = "give its range, or make it continuous for an unbounded angle" if isinstance(joint, jt.Revolute) \
+            else "give its range"
+        warnings.warn(f"{ctx.source_name}: {path}: the limits are lower = upper = 0{reason}, which hold the "
+                      f"{joint.kind} joint still; {remedy}", UserWarning, stacklevel=3)
     if lower[0] >= UNBOUNDED_LIMIT:
         raise ctx.error(path, f"attribute lower={limit.get('lower')!r} leaves no finite position "
                               f"(limits at or beyond ±{UNBOUNDED_LIMIT:g} mean unbounded)")
@@ -206,7 +216,7 @@ def _limits(ctx, joint_element, joint, path):
         raise ctx.error(path, f"attribute upper={limit.get('upper')!r} leaves no finite position "
                               f"(limits at or beyond ±{UNBOUNDED_LIMIT:g} mean unbounded)")
     if lower[0] > upper[0]:
-        raise ctx.error(path, f"lower limit {lower[0]:g} exceeds upper limit {upper[0]:g}")
+        raise ctx.error(path, f"lower limit {lower[0]:g} exceeds upper limit {upper[0]:g}{reason}")
     lower = np.where(lower <= -UNBOUNDED_LIMIT, -np.inf, lower)
     upper = np.where(upper >= UNBOUNDED_LIMIT, np.inf, upper)
     return lower, upper

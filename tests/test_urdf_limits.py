@@ -14,7 +14,6 @@ from __future__ import annotations
 import glob
 import os
 import warnings
-import xml.etree.ElementTree as ET
 
 import numpy as np
 import pytest
@@ -42,7 +41,7 @@ def _unbounded(x):
     return np.where(x >= DBL_MAX, np.inf, np.where(x <= -DBL_MAX, -np.inf, x))
 
 
-def expected_from_pinocchio(model, pmodel, urdf):
+def expected_from_pinocchio(model, pmodel):
     """Our ``(damping, friction, effort_limit, velocity_limit, lower, upper)`` from Pinocchio's model.
 
     Per-velocity quantities are equal, with ``DBL_MAX`` (Pinocchio's free flyer) read as ``inf``.
@@ -50,9 +49,9 @@ def expected_from_pinocchio(model, pmodel, urdf):
     * continuous: one unbounded angle here, ``(cos θ, sin θ)`` within ±1.01 there;
     * free flyer: unbounded position and a quaternion within ±1 here, ``±DBL_MAX`` there;
     * one coordinate: Pinocchio's values, except that a side at or beyond ``UNBOUNDED_LIMIT`` is
-      unbounded here, and so is a side the URDF's ``<limit>`` leaves out (urdfdom reads 0).
+      unbounded here (a side the URDF's ``<limit>`` leaves out is 0 in both, the URDF specification's
+      default).
     """
-    limits = {joint.get("name"): joint.find("limit") for joint in ET.parse(urdf).getroot().findall("joint")}
     per_dof = [_unbounded(getattr(pmodel, name)) for name in ("damping", "friction", "effortLimit", "velocityLimit")]
     lower, upper = [], []
     for joint, name in zip(model.joints, model.joint_names):
@@ -69,17 +68,16 @@ def expected_from_pinocchio(model, pmodel, urdf):
         else:
             assert joint.nq == pjoint.nq == 1
             lo, hi = pmodel.lowerPositionLimit[pjoint.idx_q], pmodel.upperPositionLimit[pjoint.idx_q]
-            given = limits[name].attrib if limits.get(name) is not None else {}
-            lower.append([-np.inf if lo <= -UNBOUNDED_LIMIT or "lower" not in given else lo])
-            upper.append([np.inf if hi >= UNBOUNDED_LIMIT or "upper" not in given else hi])
+            lower.append([-np.inf if lo <= -UNBOUNDED_LIMIT else lo])
+            upper.append([np.inf if hi >= UNBOUNDED_LIMIT else hi])
     return (*per_dof, np.concatenate(lower or [[]]), np.concatenate(upper or [[]]))
 
 
 ATTRIBUTES = ("damping", "friction", "effort_limit", "velocity_limit", "lower", "upper")
 
 
-def assert_like_pinocchio(model, pmodel, urdf):
-    for attribute, expected in zip(ATTRIBUTES, expected_from_pinocchio(model, pmodel, urdf)):
+def assert_like_pinocchio(model, pmodel):
+    for attribute, expected in zip(ATTRIBUTES, expected_from_pinocchio(model, pmodel)):
         np.testing.assert_array_equal(getattr(model, attribute), expected, err_msg=attribute)
 
 
@@ -94,7 +92,7 @@ def test_limits_and_dynamics_equal_pinocchio(pin, name):
     assert (model.nv,) == model.damping.shape == model.friction.shape == model.effort_limit.shape \
         == model.velocity_limit.shape
     assert (model.nq,) == model.lower.shape == model.upper.shape
-    assert_like_pinocchio(model, pmodel, urdf)
+    assert_like_pinocchio(model, pmodel)
 
 
 def test_panda_values_as_written(pin):
@@ -120,7 +118,7 @@ def test_every_example_robot_data_urdf_equals_pinocchio(pin, erd_dir):
                 pmodel = pinocchio_model(pin, urdf, floating_base)
             except (RuntimeError, ValueError):
                 continue
-            assert_like_pinocchio(model, pmodel, urdf)
+            assert_like_pinocchio(model, pmodel)
             checked += 1
     assert checked > 50
 
@@ -176,6 +174,59 @@ def test_multi_coordinate_joints_ignore_limit_and_dynamics_as_pinocchio(pin, kin
     np.testing.assert_array_equal(model.effort_limit, _unbounded(pmodel.effortLimit))
     np.testing.assert_array_equal(model.velocity_limit, _unbounded(pmodel.velocityLimit))
     assert np.all(model.effort_limit == np.inf) and np.all(model.damping == 0.0)
+
+
+@pytest.mark.parametrize("kind, limit, expected", [
+    ("revolute", '<limit effort="35" velocity="20"/>', (0.0, 0.0)),
+    ("revolute", '<limit lower="-1.5" effort="35" velocity="20"/>', (-1.5, 0.0)),
+    ("revolute", '<limit upper="2" effort="35" velocity="20"/>', (0.0, 2.0)),
+    ("prismatic", '<limit upper="0.5" effort="35" velocity="20"/>', (0.0, 0.5)),
+    ("prismatic", '<limit effort="35" velocity="20"/>', (0.0, 0.0)),
+])
+def test_limit_without_lower_or_upper_reads_zero_as_the_specification_and_pinocchio(pin, kind, limit, expected):
+    """A ``<limit>`` that leaves out ``lower`` or ``upper`` gives that side 0 (the URDF specification,
+    urdfdom, Pinocchio: centauro's wheels and the quadruped's knees in example-robot-data have such limits)."""
+    xml = one_joint(kind, limit)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # (a joint held at 0 warns: the test below)
+        model = mb.load_urdf(xml)
+    pmodel = pin.buildModelFromXML(xml)
+    assert (model.lower[0], model.upper[0]) == expected
+    np.testing.assert_array_equal(model.lower, pmodel.lowerPositionLimit)
+    np.testing.assert_array_equal(model.upper, pmodel.upperPositionLimit)
+
+
+@pytest.mark.parametrize("kind, limit, absent, remedy", [
+    ("revolute", '<limit effort="35" velocity="20"/>', " (lower and upper absent", "or make it continuous"),
+    ("revolute", '<limit lower="0" effort="35" velocity="20"/>', " (upper absent", "or make it continuous"),
+    ("revolute", '<limit lower="0" upper="0" effort="35" velocity="20"/>', ", which", "or make it continuous"),
+    ("prismatic", '<limit effort="35" velocity="20"/>', " (lower and upper absent", "give its range"),
+])
+def test_joint_held_at_zero_by_its_limits_warns(kind, limit, absent, remedy):
+    with pytest.warns(UserWarning, match=r"<joint name='j'>/<limit>: the limits are lower = upper = 0") as caught:
+        mb.load_urdf(one_joint(kind, limit))
+    message = str(caught[0].message)
+    assert f"lower = upper = 0{absent}" in message and f"{kind} joint still" in message and remedy in message
+    assert os.path.basename(caught[0].filename) == os.path.basename(__file__)  # points at the caller
+
+
+def test_lower_above_an_absent_upper_says_the_upper_reads_zero():
+    with pytest.raises(URDFError, match=r"<joint name='j'>/<limit>.*lower limit 1 exceeds upper limit 0 "
+                                        r"\(upper absent: the URDF specification reads 0\)"):
+        mb.load_urdf(one_joint("revolute", '<limit lower="1" effort="1" velocity="1"/>'))
+
+
+@pytest.mark.parametrize("kind, limit", [
+    ("revolute", '<limit lower="-1" upper="1" effort="1" velocity="1"/>'),
+    ("revolute", '<limit lower="0" upper="1" effort="1" velocity="1"/>'),
+    ("continuous", '<limit effort="35" velocity="20"/>'),
+])
+def test_joints_with_a_range_or_continuous_load_silently(kind, limit):
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        model = mb.load_urdf(one_joint(kind, limit))
+    if kind == "continuous":  # no position limits, whatever <limit> says
+        assert (model.lower[0], model.upper[0]) == (-np.inf, np.inf)
 
 
 def test_huge_effort_and_velocity_mean_none():
