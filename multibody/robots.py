@@ -9,8 +9,9 @@
 Shipped models live in the project's ``robots/`` folder, installed as the package data of
 ``multibody.robot_files``.
 
-example-robot-data (``pip install multibody[robots]``) ships URDF files and no Python module: they
-lie under ``<site-packages>/cmeel.prefix/share/example-robot-data/robots`` (or, from conda or ROS,
+example-robot-data (``pip install example-robot-data``, or ``pip install -e ".[robots]"`` in multibody's
+checkout) ships URDF files and no Python module: they lie under
+``<site-packages>/cmeel.prefix/share/example-robot-data/robots`` (or, from conda or ROS,
 ``<prefix>/share/example-robot-data/robots``). :data:`EXAMPLE_ROBOTS` names them as
 ``example_robot_data.load`` does, with the same files and bases:
 
@@ -41,7 +42,8 @@ _PACKAGE = "multibody.robot_files"
 #: Prefix that names an example-robot-data robot explicitly, e.g. ``"example-robot-data:double_pendulum"``.
 EXAMPLE_ROBOT_DATA_PREFIX = "example-robot-data:"
 
-_INSTALL_HINT = "pip install multibody[robots] (or pip install example-robot-data)"
+# (multibody is installed from its checkout, not from PyPI: "pip install multibody[robots]" finds nothing)
+_INSTALL_HINT = "pip install example-robot-data (or, in multibody's checkout, pip install -e \".[robots]\")"
 
 #: example-robot-data's robots: name -> (URDF path under its ``robots`` folder, floating base).
 EXAMPLE_ROBOTS = {
