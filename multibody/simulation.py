@@ -40,7 +40,7 @@ from scipy.integrate import BDF, DOP853, LSODA, RK23, RK45, Radau
 from .constrained import ConstrainedSystem, ConstraintError, ModelSystem
 from .constraints import CompiledRows
 from .spatial import matvec, transpose
-from .trajectory import Trajectory
+from .trajectory import Trajectory, recorded_names
 
 METHODS = {"RK45": RK45, "DOP853": DOP853, "Radau": Radau, "RK23": RK23, "BDF": BDF, "LSODA": LSODA}
 ADAPTIVE_METHODS = tuple(METHODS)
@@ -377,7 +377,7 @@ def simulate(system, q0, v0, t_final, *, dt=None, method="RK45", tau=None, rtol=
             partial = Trajectory(t=times[:done].copy(), q=states[:done, :nq].copy(), v=states[:done, nq:].copy(),
                                  lam=np.full((done, m), np.nan), energy=np.full(done, np.nan),
                                  residual=np.full(done, np.nan), row_names=list(constrained.row_names), status=message,
-                                 projection_tolerance=tolerance)
+                                 projection_tolerance=tolerance, joint_names=recorded_names(constrained))
         raise SimulationError(message, partial) from exc
     finally:
         bar.close()
@@ -809,6 +809,7 @@ def _simulate_batch(constrained, charts, q0, v0, times, torque, state_dependent,
     """
     mechanical = constrained.system
     nq, nv, m = constrained.nq, constrained.nv, constrained.num_rows
+        joint_names=recorded_names(constrained),
     count, n, t0 = len(q0), len(times), times[0]
     status = ["completed"] * count
     stop = np.full(count, n)  # each trajectory's outputs [stop:] are NaN
@@ -985,7 +986,7 @@ def _batch_trajectory(constrained, times, q, v, stop, last, torque, state_depend
         lam[:, a:b][at] = lam_s
     return Trajectory(t=np.array(times, dtype=float), q=q, v=v, lam=lam, energy=energy, residual=residual,
                       row_names=list(constrained.row_names), status=list(status),
-                      projection_tolerance=projection_tolerance)
+                      projection_tolerance=projection_tolerance, joint_names=recorded_names(constrained))
 
 
 def _as_rows(tau, count, nv):

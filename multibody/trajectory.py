@@ -2,7 +2,11 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
+import uuid
+import zipfile
+import zlib
 from dataclasses import MISSING, dataclass, field, fields, replace
 
 import numpy as np
@@ -10,7 +14,7 @@ import numpy as np
 from .spatial import matvec
 
 
-@dataclass
+@dataclass(repr=False)
 class Trajectory:
     """A simulated motion, one row per output time; or ``N`` of them (``simulate`` from ``q0 (N, nq)``), whose
     arrays then have a leading axis ``N`` (``t`` is shared).
@@ -27,6 +31,10 @@ class Trajectory:
             status names (its last good state), and is NaN from the next output time on.
         projection_tolerance: the residual above which output states were projected back onto the
             constraints (``simulate``'s ``projection_tolerance``), ``None`` when they were not.
+        joint_names: the model the trajectory belongs to: the names of its moving joints
+            (``Model.joint_names``), or of the coordinates of a symbolic system
+            (``LagrangianSystem.numeric()``); ``None`` when the system names none. With the widths
+            ``nq``, ``nv`` of ``q`` and ``v`` it is what :meth:`load` checks a model against.
     """
 
     t: np.ndarray
@@ -38,10 +46,42 @@ class Trajectory:
     row_names: list = field(default_factory=list)
     status: str = "completed"
     projection_tolerance: float | None = None
+    joint_names: list | None = None
 
     def __len__(self):
         """The number of output times ``n``."""
         return len(self.t)
+
+    @property
+    def nq(self):
+        """The size of a configuration, the width of ``q``."""
+        return int(np.shape(self.q)[-1])
+
+    @property
+    def nv(self):
+        """The size of a velocity, the width of ``v``."""
+        return int(np.shape(self.v)[-1])
+
+    def __repr__(self):
+        """A few lines: the output times, the arrays' shapes, the constraint rows, the model and the status
+        (the arrays themselves are ``trajectory.q`` and so on)."""
+        t = np.asarray(self.t)
+        span = f"t = {t[0]:.6g} to {t[-1]:.6g} s" if t.size else "no output times"
+        runs = "" if self.batch_size is None else f"{self.batch_size} trajectories, "
+        shapes = ", ".join(f"{name} {np.shape(getattr(self, name))}" for name in _ARRAYS if name != "t")
+        lines = [f"Trajectory: {runs}{len(t)} output times, {span}", f"  {shapes}",
+                 f"  constraint rows: {_listed(self.row_names)}"]
+        if self.joint_names is not None:
+            lines.append(f"  model: nq = {self.nq}, nv = {self.nv}, joints {_listed(self.joint_names)}")
+        if self.projection_tolerance is not None:
+            lines.append(f"  outputs projected onto the constraints above a residual of {self.projection_tolerance:.3g}")
+        if self.batch_size is None:
+            lines.append(f"  status: {self.status}")
+        else:
+            stopped = [k for k, status in enumerate(self.status) if status != "completed"]
+            first = f"; trajectory {stopped[0]}: {self.status[stopped[0]]}" if stopped else ""
+            lines.append(f"  status: {len(self.status) - len(stopped)} completed, {len(stopped)} stopped early{first}")
+        return "\n".join(lines)
 
     @property
     def batch_size(self):
@@ -105,7 +145,14 @@ class Trajectory:
     def save(self, path):
         """Write the trajectory to a NumPy ``.npz`` archive at ``path`` (``.npz`` added when missing) and
         return the path written. Every array keeps its shape and dtype; names and the status are stored
-        as arrays of ``str``, so :meth:`load` reads the file without pickle."""
+        as arrays of ``str``, so :meth:`load` reads the file without pickle.
+
+        The archive is written to a temporary file in the same folder, flushed to disk, and then renamed
+        onto ``path`` in one step (``os.replace``): a full disk or a killed process leaves any earlier file
+        at ``path`` as it was. A failed write removes its temporary file and raises; a process killed while
+        writing leaves it behind (a hidden ``.NAME.npz.*.tmp`` next to ``path``). Raises ``ValueError``,
+        writing nothing, for a trajectory whose arrays disagree in shape or are not floating point."""
+        _check_arrays(self, "Trajectory.save: the trajectory")
         arrays = {_FILE_FORMAT_KEY: np.array(_FILE_FORMAT)}
         for f in fields(self):
             value = getattr(self, f.name)
@@ -113,18 +160,43 @@ class Trajectory:
                 arrays[f.name] = _stored(f.name, value)
         path = os.fspath(path)
         path = path if path.endswith(".npz") else path + ".npz"
-        np.savez(path, **arrays)
+        folder, name = os.path.split(os.path.abspath(path))
+        temporary = os.path.join(folder, f".{name}.{uuid.uuid4().hex}.tmp")
+        # (os.open with mode 0o666 gives the file the permissions the umask allows, as open() would)
+        descriptor = os.open(temporary, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_BINARY", 0), 0o666)
+        try:
+            with os.fdopen(descriptor, "wb") as file:
+                np.savez(file, **arrays)
+                file.flush()
+                os.fsync(file.fileno())
+            os.replace(temporary, path)
+        except BaseException:
+            with contextlib.suppress(FileNotFoundError):
+                os.unlink(temporary)
+            raise
+        _sync_folder(folder)
         return path
 
     @classmethod
-    def load(cls, path):
-        """The trajectory that :meth:`save` wrote to ``path``. Raises ``FileNotFoundError`` when there is
-        no such file, ``ValueError`` when the file is not a saved trajectory."""
+    def load(cls, path, model=None):
+        """The trajectory that :meth:`save` wrote to ``path``.
+
+        ``model``: the :class:`~multibody.model.Model`, :class:`~multibody.constrained.ConstrainedSystem`
+        or mechanical system the trajectory is meant for, or ``None`` for no check. Given one, the file
+        must belong to it: the widths of ``q`` and ``v`` must be its ``nq`` and ``nv``, and the joint (or
+        coordinate) names the file records must be its own. A file without recorded names (written by a
+        trajectory built without them, or by an earlier version of multibody) is checked on ``nq`` and
+        ``nv`` only.
+
+        Raises ``FileNotFoundError`` when there is no such file, ``ValueError`` when the file is not a
+        saved trajectory: another kind of file, a truncated or corrupted archive, arrays that disagree in
+        shape or are not floating point, or a trajectory of another model (each message names the
+        arrays, or what differs from ``model``)."""
         path = os.fspath(path)
         not_ours = f"{path!r} is not a trajectory saved by Trajectory.save"
         try:
             archive = np.load(path, allow_pickle=False)
-        except (ValueError, EOFError, OSError) as error:
+        except (ValueError, EOFError, OSError, zipfile.BadZipFile) as error:
             if isinstance(error, FileNotFoundError | IsADirectoryError):
                 raise
             raise ValueError(f"{not_ours}: {error}") from None
@@ -134,19 +206,28 @@ class Trajectory:
             if _FILE_FORMAT_KEY not in archive.files:
                 raise ValueError(f"{not_ours}: a .npz archive without the entry {_FILE_FORMAT_KEY!r} "
                                  f"(it has {sorted(archive.files)})")
-            name, version = archive[_FILE_FORMAT_KEY].tolist()
-            if name != _FILE_FORMAT[0] or version != _FILE_FORMAT[1]:
-                raise ValueError(f"{not_ours}: its format is {name!r} version {version!r}; this version of "
-                                 f"multibody reads {_FILE_FORMAT[0]!r} version {_FILE_FORMAT[1]!r}")
-            required = [f.name for f in fields(cls) if f.default is MISSING and f.default_factory is MISSING]
-            missing = [key for key in required if key not in archive.files]
-            if missing:
-                raise ValueError(f"{not_ours}: it lacks the arrays {missing}")
             try:
+                entry = archive[_FILE_FORMAT_KEY]
+                if entry.dtype.kind != "U" or entry.shape != (2,):
+                    raise ValueError(f"its entry {_FILE_FORMAT_KEY!r} is not (format name, version)")
+                name, version = entry.tolist()
+                if name != _FILE_FORMAT[0] or version != _FILE_FORMAT[1]:
+                    raise ValueError(f"its format is {name!r} version {version!r}; this version of "
+                                     f"multibody reads {_FILE_FORMAT[0]!r} version {_FILE_FORMAT[1]!r}")
+                required = [f.name for f in fields(cls) if f.default is MISSING and f.default_factory is MISSING]
+                missing = [key for key in required if key not in archive.files]
+                if missing:
+                    raise ValueError(f"it lacks the arrays {missing}")
+                # (an object array, which only pickle could read, raises ValueError; a truncated or
+                # corrupted member BadZipFile, EOFError or zlib.error)
                 values = {f.name: _restored(archive[f.name]) for f in fields(cls) if f.name in archive.files}
-            except ValueError as error:  # an object array, which only pickle could read
+            except (ValueError, TypeError, EOFError, OSError, zipfile.BadZipFile, zlib.error) as error:
                 raise ValueError(f"{not_ours}: {error}") from None
-        return cls(**values)
+        trajectory = cls(**values)
+        _check_arrays(trajectory, not_ours)
+        if model is not None:
+            _check_model(trajectory, model, repr(path))
+        return trajectory
 
 
 # The entry that marks a file written by Trajectory.save, holding (format name, version).
@@ -173,3 +254,116 @@ def _restored(array):
     if array.dtype.kind == "U":
         return str(array[()]) if array.ndim == 0 else array.tolist()
     return array[()].item() if array.ndim == 0 else array
+
+
+#: The array fields of a :class:`Trajectory`, in the order of their shapes ``(n,)``, ``(n, nq)``, ...
+_ARRAYS = ("t", "q", "v", "lam", "energy", "residual")
+
+
+def _listed(names, shown=4):
+    """``"3: a, b, c"``, or the first ``shown`` of many names and how many more."""
+    names = list(names)
+    more = f", ... ({len(names) - shown} more)" if len(names) > shown else ""
+    return f"{len(names)}" + (": " + ", ".join(map(str, names[:shown])) + more if names else "")
+
+
+def _is_names(value):
+    return isinstance(value, list) and all(isinstance(x, str) for x in value)
+
+
+def _check_arrays(trajectory, what):
+    """Raise ``ValueError`` (``what`` and the arrays at fault) unless the fields of ``trajectory`` fit
+    together: ``t (n,)``, ``q (n, nq)``, ``v (n, nv)``, ``lam (n, m)``, ``energy (n,)``, ``residual (n,)``
+    of floating point (a leading axis ``N`` but for ``t`` when ``q`` has three axes), ``m`` row names,
+    the status a string (``N`` strings), names lists of strings."""
+    arrays = {name: getattr(trajectory, name) for name in _ARRAYS}
+    not_arrays = [name for name, value in arrays.items() if not isinstance(value, np.ndarray)]
+    if not_arrays:
+        raise ValueError(f"{what}: the fields {', '.join(not_arrays)} must be arrays of floating point, got "
+                         f"{', '.join(type(arrays[name]).__name__ for name in not_arrays)}")
+    not_float = [f"{name} ({value.dtype})" for name, value in arrays.items() if value.dtype.kind != "f"]
+    if not_float:
+        raise ValueError(f"{what}: the arrays {', '.join(not_float)} are not floating point")
+    t, q = arrays["t"], arrays["q"]
+    if t.ndim != 1 or q.ndim not in (2, 3):
+        raise ValueError(f"{what}: t must be (n,) and q (n, nq) or (N, n, nq), got t {t.shape} and q {q.shape}")
+    lead = q.shape[:-1]
+    expected = {"t": lead[-1:], "v": lead, "lam": lead, "energy": lead, "residual": lead}
+    wrong = [f"{name} {arrays[name].shape}" for name, shape in expected.items()
+             if arrays[name].shape[: len(shape)] != shape
+             or arrays[name].ndim != len(shape) + (name in ("v", "lam"))]
+    if wrong:
+        axes = "n" if len(lead) == 1 else "N, n"
+        raise ValueError(f"{what}: the arrays disagree in length: q {q.shape} has ({axes}) = {lead}, but "
+                         f"{', '.join(wrong)} (t (n,), v (..., nv), lam (..., m), energy and residual ({axes}))")
+    if not _is_names(trajectory.row_names) or len(trajectory.row_names) != arrays["lam"].shape[-1]:
+        raise ValueError(f"{what}: row_names must be the names of the {arrays['lam'].shape[-1]} constraint rows of "
+                         f"lam {arrays['lam'].shape}, got {trajectory.row_names!r}")
+    status = trajectory.status
+    if len(lead) == 1 and not isinstance(status, str):
+        raise ValueError(f"{what}: status must be a string, got {status!r}")
+    if len(lead) == 2 and not (_is_names(status) and len(status) == lead[0]):
+        raise ValueError(f"{what}: status must be a list of {lead[0]} strings (one per trajectory of q "
+                         f"{q.shape}), got {status!r}")
+    tolerance = trajectory.projection_tolerance
+    if tolerance is not None and (isinstance(tolerance, bool) or not isinstance(tolerance, int | float)):
+        raise ValueError(f"{what}: projection_tolerance must be a number or None, got {tolerance!r}")
+    if trajectory.joint_names is not None and not _is_names(trajectory.joint_names):
+        raise ValueError(f"{what}: joint_names must be a list of strings or None, got {trajectory.joint_names!r}")
+
+
+def _system_of(system):
+    """The mechanical system of a Model, a ConstrainedSystem or a mechanical system."""
+    from .constrained import ConstrainedSystem, as_system
+
+    return system.system if isinstance(system, ConstrainedSystem) else as_system(system)
+
+
+def _names_of(mechanical):
+    """The joint names of a mechanical system's model, or its coordinate names; ``None`` when it has neither."""
+    model = getattr(mechanical, "model", None)
+    names = list(model.joint_names) if model is not None else getattr(mechanical, "coordinate_names", None)
+    return list(names) if names is not None else None
+
+
+def recorded_names(system):
+    """What a :class:`Trajectory` of ``system`` records of its model (``Trajectory.joint_names``): the joint
+    names of a :class:`~multibody.model.Model` (or of the model under a
+    :class:`~multibody.constrained.ConstrainedSystem`), the coordinate names of a symbolic system, else
+    ``None``."""
+    return _names_of(_system_of(system))
+
+
+def _check_model(trajectory, system, source):
+    """Raise ``ValueError`` when ``trajectory`` (from ``source``) does not belong to ``system``: other widths
+    ``nq``, ``nv``, or other recorded joint names."""
+    mechanical = _system_of(system)
+    model = getattr(mechanical, "model", None)
+    of = f"the model {model.name!r}" if model is not None else f"the system {type(mechanical).__name__}"
+    sizes = [f"{name} = {got} in the file, {want} in {of}" for name, got, want in
+             (("nq", trajectory.nq, mechanical.nq), ("nv", trajectory.nv, mechanical.nv)) if got != want]
+    if sizes:
+        raise ValueError(f"{source} is a trajectory of another model: {'; '.join(sizes)}")
+    names = _names_of(mechanical)
+    if trajectory.joint_names is None or names is None or trajectory.joint_names == names:
+        return
+    recorded = trajectory.joint_names
+    if len(recorded) != len(names):
+        difference = f"{len(recorded)} joints in the file ({_listed(recorded)}), {len(names)} in {of}"
+    else:
+        k = next(k for k, (a, b) in enumerate(zip(recorded, names)) if a != b)
+        difference = f"joint {k} is {recorded[k]!r} in the file, {names[k]!r} in {of}"
+    raise ValueError(f"{source} is a trajectory of another model: {difference}")
+
+
+def _sync_folder(folder):
+    """Flush ``folder``'s entries (a rename into it) to disk, where folders can be opened (POSIX); a file
+    system that cannot sync a folder leaves the rename to its own schedule."""
+    if not hasattr(os, "O_DIRECTORY"):
+        return
+    descriptor = os.open(folder, os.O_RDONLY | os.O_DIRECTORY)
+    try:
+        with contextlib.suppress(OSError):
+            os.fsync(descriptor)
+    finally:
+        os.close(descriptor)

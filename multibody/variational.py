@@ -997,7 +997,7 @@ def _trajectory(constrained, times, q, v, mu_start, mu_end, status):
     """The :class:`~multibody.trajectory.Trajectory` of the states, with the node impulses turned into
     forces ``λ_k = 2 (μ_k⁺ + μ_k⁻) / (h_{k−1} + h_k)`` (extrapolated from the two nearest inner nodes at
     the two ends)."""
-    from .trajectory import Trajectory
+    from .trajectory import Trajectory, recorded_names
 
     n, m = len(times), constrained.num_rows
     steps = np.diff(times)
@@ -1023,4 +1023,5 @@ def _trajectory(constrained, times, q, v, mu_start, mu_end, status):
                     if m else np.zeros(n))
     return Trajectory(t=np.array(times, dtype=float), q=q.copy(), v=v.copy(), lam=np.asarray(lam, dtype=float),
                       energy=energy, residual=np.asarray(residual, dtype=float).reshape(n),
-                      row_names=list(constrained.row_names), status=status, projection_tolerance=None)
+                      row_names=list(constrained.row_names), status=status, projection_tolerance=None,
+                      joint_names=recorded_names(constrained))
