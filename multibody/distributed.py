@@ -66,12 +66,12 @@ def _run(fn, model, arrays, host_threads):
     import numba
     from distributed import get_worker
 
-    from .driver import set_num_threads
+    from .driver import local_num_threads
 
     sharing = host_threads.get(get_worker().address, 1)
-    # (Numba's thread count is per calling thread: this task's only)
-    set_num_threads(max(1, numba.config.NUMBA_NUM_THREADS // sharing))
-    return fn(model, *arrays)
+    # (this task's batches only: a worker may share its process with the client or with other workers)
+    with local_num_threads(max(1, numba.config.NUMBA_NUM_THREADS // sharing)):
+        return fn(model, *arrays)
 
 
 def _split(n, chunks, client):

@@ -9,29 +9,40 @@ states in parallel: each thread takes its own contiguous share of the states and
 workspace. The states are independent, so any number of threads gives the same numbers.
 
 Batches run on Numba's threads: :func:`set_num_threads` or the environment variable
-``MULTIBODY_NUM_THREADS`` sets how many (at most ``NUMBA_NUM_THREADS``, the cores by default); a batch
-of fewer than ``STATES_PER_THREAD`` states per thread runs on fewer of them.
+``MULTIBODY_NUM_THREADS`` sets how many for the whole process (at most ``NUMBA_NUM_THREADS``, the cores by
+default; a larger ``MULTIBODY_NUM_THREADS`` is lowered to it with a warning), whichever Python thread runs a
+batch; a batch of fewer than ``STATES_PER_THREAD`` states per thread runs on fewer of them. Batches from
+several Python threads run at once, except under Numba's ``workqueue`` threading layer (no OpenMP or TBB
+found), which cannot: there they take turns.
+
+A call that compiles a function of multibody, the first on a machine (Numba's on-disk cache has the machine
+code afterwards), says so in one line on standard error, once per function and process; the environment
+variable ``MULTIBODY_QUIET=1`` silences these lines.
 """
 
 from __future__ import annotations
 
+import contextlib
 import importlib
 import math
 import os
 import subprocess
 import sys
+import threading
+import warnings
 
 import numba
 import numpy as np
 from numba import njit, prange
+from numba.core import event
 from numba.core.dispatcher import Dispatcher
 from numba.core.types.function_type import CompileResultWAP
 
 from .kernels import (aba, centroidal, configuration, constraints, coriolis, crba, derivatives, energy, ik, integration,
                       kinematics, kkt, lagrangian, rnea, variational)
 
-#: Every kernel the driver runs.
-_KERNELS = (
+#: Every kernel the driver runs (``multibody compile --all`` compiles them).
+ALL_KERNELS = (
     rnea.inverse_dynamics, rnea.joint_reaction_forces, crba.mass_matrix, aba.forward_dynamics,
     crba.inverse_mass_matrix, coriolis.coriolis_matrix, energy.kinetic_energy, energy.potential_energy,
     kinematics.frame_placements, kinematics.frame_jacobian, kinematics.frame_jacobian_time_variation,
@@ -41,16 +52,17 @@ _KERNELS = (
     constraints.constraint_levels, integration.chart_derivative, integration.constrained_chart_derivative,
     derivatives.inverse_dynamics_derivatives, derivatives.forward_dynamics_derivatives, centroidal.center_of_mass,
     centroidal.centroidal_momentum, centroidal.centroidal_map, centroidal.centroidal_map_time_variation,
-    ik.inverse_kinematics, lagrangian.lagrangian_terms, variational.midpoint_iterate)
+    ik.inverse_kinematics, lagrangian.lagrangian_terms, variational.midpoint_iterate, kkt.project,
+    configuration.exponential_terms, configuration.coadjoint)
 _WORKSPACE = {kernel: module.workspace_size for module in (rnea, crba, aba, coriolis, energy, kinematics, configuration,
                                                            derivatives, centroidal, lagrangian)
-              for kernel in _KERNELS if getattr(kernel, "py_func", kernel).__module__ == module.__name__}
+              for kernel in ALL_KERNELS if getattr(kernel, "py_func", kernel).__module__ == module.__name__}
 
 
 def compiled_before(kernels=None) -> bool:
     """Whether this machine has the compiled code of ``kernels`` (default: every kernel) on disk
     already (Numba's cache index of each), so that a first run can say it is compiling."""
-    for kernel in _KERNELS if kernels is None else kernels:
+    for kernel in ALL_KERNELS if kernels is None else kernels:
         cache_file = getattr(getattr(kernel, "_cache", None), "_cache_file", None)
         if cache_file is None or not os.path.isfile(cache_file._index_path):
             return False
@@ -67,7 +79,7 @@ def compile_kernels(kernels=None, processes=None) -> None:
     other shares, then this process waits for them. Kernels share helpers, which the workers may
     compile more than once; a worker that fails leaves its kernels to be compiled on first use, as
     without this call. Does nothing under ``NUMBA_DISABLE_JIT=1``."""
-    missing = [kernel for kernel in (_KERNELS if kernels is None else kernels)
+    missing = [kernel for kernel in (ALL_KERNELS if kernels is None else kernels)
                if isinstance(kernel, Dispatcher) and not compiled_before((kernel,))]
     if processes is None:
         processes = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
@@ -79,6 +91,8 @@ def compile_kernels(kernels=None, processes=None) -> None:
     workers = [subprocess.Popen([sys.executable, "-c", f"from multibody.driver import _compile_named; "
                                  f"_compile_named({[_qualified_name(kernel) for kernel in share]!r})"],
                                 env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL) for share in shares[1:]]
+    # (the caller says that it compiles, for every share: no line per kernel of this one)
+    _COMPILE_NOTICES.said.update(kernel.py_func for kernel in shares[0])
     try:
         for kernel in shares[0]:
             _direct(kernel)
@@ -89,6 +103,42 @@ def compile_kernels(kernels=None, processes=None) -> None:
     finally:
         for worker in workers:
             worker.wait()
+
+
+class _CompileNotices(event.Listener):
+    """One line on standard error when a function of multibody starts compiling, once per function and
+    process: a first call compiles for seconds. Numba's ``numba:compile`` event comes only when no
+    machine code is in its on-disk cache, so a cached function says nothing; nor does a function
+    compiled as part of another (a kernel's helpers). ``MULTIBODY_QUIET=1`` silences the lines."""
+
+    def __init__(self):
+        self.said = set()  # the Python functions of the lines said (or not wanted)
+        self.depth = 0  # multibody compiles under way in this one (Numba compiles under one lock)
+
+    @staticmethod
+    def _ours(event_):
+        function = getattr(event_.data["dispatcher"], "py_func", None)
+        return function if getattr(function, "__module__", "").startswith("multibody.") else None
+
+    def on_start(self, event_):
+        function = self._ours(event_)
+        if function is None:
+            return
+        if self.depth == 0 and function not in self.said:
+            self.said.add(function)
+            if os.environ.get("MULTIBODY_QUIET", "0") in ("", "0"):
+                name = f"{function.__module__.removeprefix('multibody.')}.{function.__qualname__}"
+                print(f"multibody: compiling {name} for this machine (first use; cached afterwards) ...",
+                      file=sys.stderr, flush=True)
+        self.depth += 1
+
+    def on_end(self, event_):
+        if self._ours(event_) is not None:
+            self.depth -= 1
+
+
+_COMPILE_NOTICES = _CompileNotices()
+event.register("numba:compile", _COMPILE_NOTICES)
 
 
 def _qualified_name(kernel) -> str:
@@ -104,17 +154,69 @@ def _compile_named(names) -> None:
 
 
 def set_num_threads(n: int) -> None:
-    """Run batches on ``n`` threads (``1 ≤ n ≤ numba.config.NUMBA_NUM_THREADS``)."""
-    numba.set_num_threads(int(n))
+    """Run batches on ``n`` threads (``1 ≤ n ≤ numba.config.NUMBA_NUM_THREADS``), for the whole process:
+    a batch that any Python thread runs afterwards uses them.
+
+    Raises:
+        TypeError: ``n`` is not an integer.
+        ValueError: ``n`` is out of that range.
+    """
+    global _num_threads
+    _num_threads = _thread_count(n, "set_num_threads")
 
 
 def get_num_threads() -> int:
-    """The number of threads batches run on."""
-    return numba.get_num_threads()
+    """The number of threads batches run on (in this Python thread, within :func:`local_num_threads`)."""
+    local = getattr(_LOCAL, "num_threads", None)
+    return _num_threads if local is None else local
 
 
-if os.environ.get("MULTIBODY_NUM_THREADS"):
-    set_num_threads(int(os.environ["MULTIBODY_NUM_THREADS"]))
+@contextlib.contextmanager
+def local_num_threads(n: int):
+    """Within the ``with`` block, batches that the calling Python thread runs use ``n`` threads, whatever
+    :func:`set_num_threads` set for the process: a Dask task's share of its host's cores
+    (:mod:`multibody.distributed`), beside other tasks of the same process. ``n`` as :func:`set_num_threads`."""
+    previous = getattr(_LOCAL, "num_threads", None)
+    _LOCAL.num_threads = _thread_count(n, "local_num_threads")
+    try:
+        yield
+    finally:
+        _LOCAL.num_threads = previous
+
+
+def _thread_count(n, caller) -> int:
+    """``n`` as a thread count of batches, or the error that names it and ``caller``."""
+    if isinstance(n, bool) or not isinstance(n, (int, np.integer)):
+        raise TypeError(f"{caller}: n must be an integer, got {n!r}")
+    if not 1 <= n <= numba.config.NUMBA_NUM_THREADS:
+        raise ValueError(f"{caller}: n must be between 1 and NUMBA_NUM_THREADS = {numba.config.NUMBA_NUM_THREADS} "
+                         f"(the threads Numba starts), got {n}")
+    return int(n)
+
+
+def _environment_num_threads() -> int:
+    """The thread count of ``MULTIBODY_NUM_THREADS``, at most ``NUMBA_NUM_THREADS``; all of those when unset."""
+    most = numba.config.NUMBA_NUM_THREADS
+    value = os.environ.get("MULTIBODY_NUM_THREADS", "").strip()
+    if not value:
+        return most
+    try:
+        n = int(value)
+    except ValueError:
+        n = 0
+    if n < 1:
+        raise ValueError(f"MULTIBODY_NUM_THREADS must be a whole number of threads, at least 1, got {value!r}")
+    if n > most:
+        warnings.warn(f"MULTIBODY_NUM_THREADS={n} is more than the {most} threads Numba starts (NUMBA_NUM_THREADS, "
+                      f"the cores by default): batches run on {most}", RuntimeWarning, stacklevel=2)
+    return min(n, most)
+
+
+#: The process's thread count of batches (:func:`set_num_threads`); Numba's own count is per Python
+#: thread, so each batch sets it from this one.
+_num_threads = _environment_num_threads()
+#: :func:`local_num_threads` of each Python thread.
+_LOCAL = threading.local()
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
@@ -132,21 +234,18 @@ def _batch(kernel, joints, reals, frames, X0, X1, X2, X3, OUT, workspace_size, s
 _LOOP_KERNELS = {}
 
 
-def _loop_kernel(kernel, joints, reals, frames, X0, X1, X2, X3, OUT, workspace):
-    """``kernel`` as :func:`_batch` takes it: its machine code for the loop's argument types (the same
-    code a single state runs), passed as a first-class function, a function pointer. The loop is then
-    compiled once for every kernel, and no kernel is compiled again into a loop of its own (a
+def _loop_kernel(kernel):
+    """``kernel`` as :func:`_batch` takes it: the machine code a single state runs (:func:`_direct`, the
+    types :data:`_SINGLE_CALL_TYPES`), passed as a first-class function, a function pointer. The loop is
+    then compiled once for every kernel, and no kernel is compiled again into a loop of its own (a
     specialization per kernel would compile the kernel's whole call tree twice more: the loop's
     body and the loop). Under ``NUMBA_DISABLE_JIT=1``: the Python function."""
-    if not isinstance(kernel, Dispatcher):
-        return kernel
-    arrays = (joints, reals, frames, X0[0], X1[0], X2[0], X3[0], OUT[0], workspace)
-    key = (kernel,) + tuple((a.flags.c_contiguous, a.flags.writeable) for a in arrays)  # all float64 but joints
-    function = _LOOP_KERNELS.get(key)
+    function = _LOOP_KERNELS.get(kernel)
     if function is None:
-        types = tuple(numba.typeof(a) for a in arrays)
-        kernel.compile(types)
-        function = _LOOP_KERNELS[key] = CompileResultWAP(kernel.overloads[types])
+        if not isinstance(kernel, Dispatcher):
+            return kernel
+        _direct(kernel)
+        function = _LOOP_KERNELS[kernel] = CompileResultWAP(kernel.overloads[_SINGLE_CALL_TYPES])
     return function
 
 
@@ -171,18 +270,24 @@ def contiguous(x):
 
 def _rows(x, batch, n):
     """Input ``x (..., k)`` as ``(n, k)`` rows of the batch, or one row that serves every state: a
-    writable C-contiguous float64 array (a read-only one would compile the loop again)."""
+    C-contiguous float64 array. An input that is one already, of the whole batch or of one row, is
+    used as it is (reshaped, not copied), read-only or not: the loop runs one set of argument types
+    (:data:`_BATCH_TYPES`), and no kernel writes its inputs."""
     if x is None:
         return _NO_ROWS
-    x = x.reshape(1, -1) if math.prod(x.shape[:-1]) == 1 else np.broadcast_to(x, batch + x.shape[-1:]).reshape(n, -1)
-    return x if x.dtype is _FLOAT and x.flags.c_contiguous and x.flags.writeable else np.array(x, np.float64, order="C")
+    k = x.shape[-1]
+    if math.prod(x.shape[:-1]) == 1:
+        return contiguous(x.reshape(1, k))
+    return contiguous(x if x.shape[:-1] == batch else np.broadcast_to(x, batch + (k,))).reshape(n, k)
 
 
-def evaluate_one(kernel, tree, out_shape, x0=NO_INPUT, x1=NO_INPUT, x2=NO_INPUT, x3=NO_INPUT, frames=None, workspace=None):
+def evaluate_one(kernel, tree, out_shape, x0=NO_INPUT, x1=NO_INPUT, x2=NO_INPUT, x3=NO_INPUT, frames=None, workspace=None,
+                 out=None):
     """``kernel`` on one state whose inputs ``x0 … x3`` are C-contiguous float64 vectors already (a
     length-0 vector for an unused one): ``-> out_shape``. The path of a single call, which has no
     batch to broadcast and so costs little more than the kernel; :func:`evaluate` takes anything else.
-    ``frames`` (C-contiguous float64 rows) and ``workspace`` as :func:`evaluate`.
+    ``frames`` (C-contiguous float64 rows) and ``workspace`` as :func:`evaluate`; ``out``: a C-contiguous
+    float64 array of ``out_shape`` to write into (default a new one).
 
     The kernel's machine code is called without Numba's dispatch (:func:`_direct`), so the types
     above are the caller's to guarantee: every caller has checked them already, and a second look
@@ -193,7 +298,8 @@ def evaluate_one(kernel, tree, out_shape, x0=NO_INPUT, x1=NO_INPUT, x2=NO_INPUT,
         size = _workspace_size(kernel, nj, nv) if kernel in _WORKSPACE else None  # (else always given)
         call = _SINGLE_CALLS[kernel, nj, nv] = (_direct(kernel), size)
     entry, size = call
-    out = np.empty(out_shape)
+    if out is None:
+        out = np.empty(out_shape)
     entry(joints, reals, bodies if frames is None else frames, x0, x1, x2, x3, out,
           np.empty(size if workspace is None else workspace))
     return out
@@ -217,15 +323,24 @@ _VECTOR, _MATRIX = numba.types.float64[::1], numba.types.float64[:, ::1]
 _SINGLE_CALL_TYPES = (_TREE_INTS, _TREE_FLOATS, _TREE_FLOATS, _VECTOR, _VECTOR, _VECTOR, _VECTOR, _MATRIX, _VECTOR)
 
 
-def _direct(kernel):
-    """``kernel``'s compiled entry point for :data:`_SINGLE_CALL_TYPES`, compiled (or loaded from Numba's
-    cache) on first use: a call that skips the dispatcher's look at every argument's type, a third of
-    a small robot's single call. Under ``NUMBA_DISABLE_JIT=1``: the Python function."""
+#: The argument types of :func:`_batch`: a kernel's single call (:func:`_loop_kernel`), the tree's arrays and
+#: the frames read-only, the input rows and the outputs writable, whatever the arrays passed are.
+_BATCH_TYPES = (numba.types.FunctionType(numba.types.none(*_SINGLE_CALL_TYPES)), _TREE_INTS, _TREE_FLOATS,
+                _TREE_FLOATS, _MATRIX, _MATRIX, _MATRIX, _MATRIX, numba.types.float64[:, :, ::1], numba.types.int64,
+                numba.types.int64)
+
+
+def _direct(kernel, types=_SINGLE_CALL_TYPES):
+    """``kernel``'s compiled entry point for ``types`` (a kernel's: :data:`_SINGLE_CALL_TYPES`), compiled
+    (or loaded from Numba's cache) on first use: a call that skips the dispatcher's look at every
+    argument's type, a third of a small robot's single call, and that takes a read-only array where
+    the types say writable (Numba's dispatch would compile the function again for it). Under
+    ``NUMBA_DISABLE_JIT=1``: the Python function."""
     entry = _DIRECT.get(kernel)
     if entry is None:
         if isinstance(kernel, Dispatcher):
-            kernel.compile(_SINGLE_CALL_TYPES)
-            entry = kernel.overloads[_SINGLE_CALL_TYPES].entry_point
+            kernel.compile(types)
+            entry = kernel.overloads[types].entry_point
         else:
             entry = kernel
         _DIRECT[kernel] = entry
@@ -240,8 +355,25 @@ def vouches(out) -> bool:
     return out.size == 0 or math.isfinite(out.item(0))
 
 
-def evaluate(kernel, tree, inputs, out_shape, batch=(), frames=None, workspace=None):
-    """Run ``kernel`` on every state of ``batch``: ``-> batch + out_shape``.
+def output(out, shape):
+    """A new float64 array of ``shape``, or ``out`` when it can receive a result of that shape: a
+    writable C-contiguous float64 ``numpy.ndarray`` of exactly ``shape``; ``ValueError`` otherwise,
+    naming what was expected and what was given."""
+    if out is None:
+        return np.empty(shape)
+    if (isinstance(out, np.ndarray) and out.shape == shape and out.dtype == _FLOAT and out.flags.c_contiguous
+            and out.flags.writeable):
+        return out
+    if not isinstance(out, np.ndarray):
+        raise ValueError(f"out must be a numpy.ndarray of shape {shape} and dtype float64, got {type(out).__name__}")
+    got = ", ".join(word for word, bad in (("read-only", not out.flags.writeable),
+                                          ("not C-contiguous", not out.flags.c_contiguous)) if bad)
+    raise ValueError(f"out must be a writable C-contiguous float64 array of shape {shape}, got a "
+                     f"{got + ' ' if got else ''}{out.dtype} array of shape {out.shape}")
+
+
+def evaluate(kernel, tree, inputs, out_shape, batch=(), frames=None, workspace=None, out=None, shape=None):
+    """Run ``kernel`` on every state of ``batch``: ``-> batch + shape``.
 
     ``inputs``: up to four float arrays ``(..., k)`` whose leading axes broadcast to ``batch``
     (``None``: unused); ``out_shape``: ``(rows, cols)`` of one state's output; ``frames``: frame rows
@@ -249,28 +381,64 @@ def evaluate(kernel, tree, inputs, out_shape, batch=(), frames=None, workspace=N
     whose need depends on more than the tree (default its module's ``workspace_size(nj, nv)``). A state
     with a non-finite input gets an output of NaN (every kernel ends with
     :func:`~multibody.kernels.spatial.nan_unless_finite`).
+
+    ``shape``: one state's result as the caller returns it, of the size of ``out_shape`` (default
+    ``out_shape``); ``out``: an array that receives the result and is returned, C-contiguous float64 of
+    shape ``batch + shape`` (:func:`output`; default a new one). An input that shares memory with
+    ``out`` is read from a copy, so that no state's output overwrites another's input.
     """
+    shape = tuple(out_shape) if shape is None else tuple(shape)
+    result = output(out, batch + shape)
+    if out is not None:
+        inputs = tuple(x.copy() if isinstance(x, np.ndarray) and np.may_share_memory(x, result) else x for x in inputs)
     if not batch:
-        return evaluate_one(kernel, tree, out_shape, *map(contiguous, inputs), frames=frames, workspace=workspace)
+        evaluate_one(kernel, tree, out_shape, *map(contiguous, inputs), frames=frames, workspace=workspace,
+                     out=result.reshape(out_shape))
+        return result
     frames = tree.bodies if frames is None else frames
     workspace = np.empty(_workspace_size(kernel, tree.njoints, tree.nv) if workspace is None else workspace)
     x0, x1, x2, x3 = inputs + _UNUSED[len(inputs):]
     n = math.prod(batch)
-    out = np.empty((n,) + tuple(out_shape))
+    out = result.reshape((n,) + tuple(out_shape))  # (a view: the result is C-contiguous)
     if n == 1:  # one state with batch axes: the kernel directly, as for no batch axes
-        kernel(tree.joints, tree.reals, frames, _rows(x0, batch, 1)[0], _rows(x1, batch, 1)[0], _rows(x2, batch, 1)[0],
-               _rows(x3, batch, 1)[0], out[0], workspace)
+        _direct(kernel)(tree.joints, tree.reals, frames, _rows(x0, batch, 1)[0], _rows(x1, batch, 1)[0],
+                        _rows(x2, batch, 1)[0], _rows(x3, batch, 1)[0], out[0], workspace)
     elif n:
-        threads = get_num_threads()
         # A small batch runs on fewer threads: waking a sleeping thread costs more than it would compute.
-        shares = max(1, min(threads, n // STATES_PER_THREAD))
-        if shares < threads:
-            numba.set_num_threads(shares)
+        shares = max(1, min(get_num_threads(), n // STATES_PER_THREAD))
+        with _BATCH_LOCK if _one_at_a_time else _ANY_TIME:
+            # Numba's count is this Python thread's: set from the process's for this batch, then put back
+            # (inside the try, so that an interrupt cannot leave it changed).
+            numba_threads = numba.get_num_threads()
+            try:
+                if shares != numba_threads:
+                    numba.set_num_threads(shares)
+                rows = (_rows(x0, batch, n), _rows(x1, batch, n), _rows(x2, batch, n), _rows(x3, batch, n))
+                _direct(_batch, _BATCH_TYPES)(_loop_kernel(kernel), tree.joints, tree.reals, frames, *rows, out,
+                                              workspace.size, shares)
+            finally:
+                if shares != numba_threads:
+                    numba.set_num_threads(numba_threads)
+            _threading_layer_seen()
+    return result
+
+
+#: Held by a running batch while batches run one at a time: under Numba's ``workqueue`` threading layer
+#: (Numba's choice where neither OpenMP nor TBB is found), parallel code run by two Python threads at once
+#: aborts the process.
+_BATCH_LOCK = threading.Lock()
+_ANY_TIME = contextlib.nullcontext()
+#: Whether batches take :data:`_BATCH_LOCK`: until a batch has shown which threading layer Numba runs,
+#: then while that is ``workqueue``.
+_one_at_a_time = True
+
+
+def _threading_layer_seen() -> None:
+    """After a batch: batches go on one at a time only under Numba's ``workqueue`` threading layer (or
+    where no layer has started: ``NUMBA_DISABLE_JIT=1``, and nothing runs in parallel anyway)."""
+    global _one_at_a_time
+    if _one_at_a_time:
         try:
-            rows = (_rows(x0, batch, n), _rows(x1, batch, n), _rows(x2, batch, n), _rows(x3, batch, n))
-            _batch(_loop_kernel(kernel, tree.joints, tree.reals, frames, *rows, out, workspace), tree.joints,
-                   tree.reals, frames, *rows, out, workspace.size, shares)
-        finally:
-            if shares < threads:
-                numba.set_num_threads(threads)
-    return out.reshape(batch + tuple(out_shape))
+            _one_at_a_time = numba.threading_layer() == "workqueue"
+        except ValueError:  # no parallel code has run yet
+            pass

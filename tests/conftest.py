@@ -25,6 +25,10 @@ from multibody.check import to_pinocchio_configuration
 from multibody import joints as jt
 from multibody.spatial import pose_from_xyz_rpy
 
+# No "multibody: compiling ..." lines in the suite's output, nor in the processes its tests start
+# (tests/test_compile_notices.py turns them on where it checks them).
+os.environ.setdefault("MULTIBODY_QUIET", "1")
+
 # ----------------------------------------------------------------------------- hypothesis profiles
 
 # "ci": the default, small enough for .ci/run; "thorough" (pytest --hypothesis-profile=thorough):
