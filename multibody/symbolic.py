@@ -11,7 +11,7 @@ absent from ``L`` is cyclic, and its momentum ``p_k = ∂L/∂q̇_k`` is conserv
 
 :meth:`LagrangianSystem.numeric` turns the equations into a NumPy system that
 :class:`~multibody.constrained.ConstrainedSystem` and :func:`~multibody.simulation.simulate` accept.
-See ``docs/theory.md`` for the derivation, step by step.
+See ``docs/theory.md`` for the derivation, step by step. Needs SymPy, the ``[symbolic]`` extra.
 """
 
 from __future__ import annotations
@@ -19,9 +19,16 @@ from __future__ import annotations
 from functools import cached_property
 
 import numpy as np
-import sympy as sp
-from sympy.core.function import AppliedUndef
-from sympy.physics.mechanics import dynamicsymbols
+
+INSTALL_HINT = ('the symbolic front-end (mb.LagrangianSystem, mb.generalized_forces) needs SymPy: '
+                'pip install -e ".[symbolic]" from the multibody checkout, or pip install sympy')
+
+try:
+    import sympy as sp
+    from sympy.core.function import AppliedUndef
+    from sympy.physics.mechanics import dynamicsymbols
+except ImportError as error:
+    raise ImportError(INSTALL_HINT) from error
 
 from .constraints import Holonomic, Pfaffian
 
