@@ -1,9 +1,12 @@
 """Command line: ``multibody demo NAME`` (``--list``, ``--view``), ``multibody info URDF|ROBOT``,
-``multibody check URDF|ROBOT``, ``multibody view URDF|ROBOT [--trajectory FILE.npz]``, ``multibody --version``.
-See ``multibody --help``.
+``multibody check URDF|ROBOT``, ``multibody view URDF|ROBOT [--trajectory FILE.npz]``,
+``multibody compile [--all]``, ``multibody --version``. See ``multibody --help``.
 
-Wrong input (a missing file, a directory, an unknown robot name, a malformed URDF) gives one line on
-standard error, ``multibody COMMAND: what is wrong``, and exit status 2.
+Exit status: 0 on success; 1 when ``check`` finds a quantity that disagrees with Pinocchio; 2 on any
+failure (a missing file, a directory, an unknown robot name, a malformed URDF, a file that is not a
+trajectory of the model, ...), which prints one line on standard error, ``multibody COMMAND: what is
+wrong``, and no traceback; 141 (128 + SIGPIPE, what the shell reports for a program that a closed pipe
+stops) when the reader of standard output goes away early (``multibody info talos | head``), quietly.
 """
 
 from __future__ import annotations
@@ -202,10 +205,55 @@ def cmd_view(args):
             raise InputError(f"{args.trajectory!r} is a directory; give a trajectory file (.npz, Trajectory.save)")
         if not os.path.isfile(args.trajectory):
             raise InputError(f"no such file: {args.trajectory!r}")
-        trajectory = Trajectory.load(args.trajectory)
+        trajectory = Trajectory.load(args.trajectory, model=model)
     viewer = view(model, trajectory=trajectory, port=args.port, trace=args.trace,
                   title=f"multibody view {os.path.basename(args.urdf)}")
     return _serve(viewer, args.html)
+
+
+def _compiled_by_default():
+    """The kernels ``multibody compile`` compiles without ``--all``: those of the demos
+    (:data:`multibody.demos.KERNELS`), then those of the common dynamics calls (inverse and forward
+    dynamics, mass and Coriolis matrices, body placements and Jacobians) and of configuration arithmetic
+    (integrate, difference, normalize)."""
+    from .demos import KERNELS
+    from .kernels import aba, configuration, coriolis, crba, kinematics, rnea
+
+    common = (rnea.inverse_dynamics, aba.forward_dynamics, crba.mass_matrix, coriolis.coriolis_matrix,
+              kinematics.frame_placements, kinematics.frame_jacobian, configuration.integrate,
+              configuration.difference, configuration.normalize)
+    # (the demos' kernels first: heaviest first, so that compile_kernels deals them out evenly)
+    return tuple(dict.fromkeys(KERNELS + common))
+
+
+def cmd_compile(args):
+    import time
+
+    from numba.core.dispatcher import Dispatcher
+
+    from . import driver
+
+    which = "every kernel" if args.all else "the kernels of the demos and the common dynamics calls"
+    kernels = driver.ALL_KERNELS if args.all else _compiled_by_default()
+    if not all(isinstance(kernel, Dispatcher) for kernel in kernels):
+        print("nothing to compile: NUMBA_DISABLE_JIT=1 runs the kernels as Python")
+        return 0
+    missing = [kernel for kernel in kernels if not driver.compiled_before((kernel,))]
+    if not missing:
+        print(f"{which}: all {len(kernels)} compiled already, in Numba's cache on disk")
+        return 0
+    print(f"{which}: compiling {len(missing)} of {len(kernels)} on every core "
+          f"({len(kernels) - len(missing)} compiled already)", flush=True)
+    start = time.perf_counter()
+    driver.compile_kernels(missing)
+    elapsed = time.perf_counter() - start
+    failed = [kernel for kernel in missing if not driver.compiled_before((kernel,))]
+    if failed:
+        print(f"multibody compile: {len(failed)} of {len(missing)} kernels did not compile (each compiles on its "
+              f"first use instead): {', '.join(driver._qualified_name(kernel) for kernel in failed)}", file=sys.stderr)
+        return 2
+    print(f"compiled {len(missing)} kernels in {elapsed:.1f} s; later processes load them from Numba's cache")
+    return 0
 
 
 def build_parser():
@@ -228,7 +276,7 @@ def build_parser():
     demo.add_argument("name", nargs="?", help="demo name: " + ", ".join(sorted(DEMOS)))
     demo.add_argument("--list", action="store_true", help="list the demos, each with what it shows")
     demo.add_argument("--out", default="multibody_output", help="folder for the figures (default multibody_output)")
-    demo.add_argument("--view", action="store_true", help="then show the motion in the 3-D viewer (needs multibody[viz])")
+    demo.add_argument("--view", action="store_true", help="then show the motion in the 3-D viewer (needs Viser: pip install viser)")
     demo.add_argument("--port", type=int, default=8080, help="the viewer's port (default 8080; the next free one if taken)")
     demo.set_defaults(run=cmd_demo)
 
@@ -253,20 +301,51 @@ def build_parser():
     check.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     check.add_argument("--package-dir", action="append", default=[], help="where package:// meshes live (repeatable)")
     check.set_defaults(run=cmd_check)
+
+    compile_ = commands.add_parser(
+        "compile", help="compile multibody's kernels for this machine ahead of first use, on every core",
+        description="Compile multibody's Numba kernels into Numba's on-disk cache, sharing them among "
+                    "worker processes (one per core), so that later runs start without compiling. Without "
+                    "--all: the kernels the demos run, and those of the common dynamics calls (inverse and "
+                    "forward dynamics, mass and Coriolis matrices, placements, Jacobians, configuration "
+                    "arithmetic). Kernels compiled already are skipped.")
+    compile_.add_argument("--all", action="store_true", help="every kernel (derivatives, centroidal quantities, "
+                          "inverse kinematics, the variational integrator, ...)")
+    compile_.set_defaults(run=cmd_compile)
     return parser
 
 
 def main(argv=None) -> int:
     parser = build_parser()
-    args = parser.parse_args(argv)
-    if args.command is None:
-        parser.print_help()
-        return 0
     try:
-        return args.run(args)
-    except (ValueError, FileNotFoundError) as error:  # malformed URDFs (URDFError), unknown names, bad paths
-        print(f"multibody {args.command}: {error}", file=sys.stderr)
-        return 2
+        args = parser.parse_args(argv)
+        if args.command is None:
+            parser.print_help()
+            return 0
+        try:
+            status = args.run(args)
+            sys.stdout.flush()  # (so that a reader that has gone shows here, not at exit)
+            return status
+        except BrokenPipeError:
+            raise
+        except (ValueError, OSError) as error:  # malformed URDFs (URDFError), unknown names, bad paths and files
+            message = str(error)
+        except Exception as error:  # noqa: BLE001 (a failure of multibody itself: one line all the same)
+            message = f"{type(error).__name__}: {error}"
+    except BrokenPipeError:
+        return _closed_pipe()
+    print(f"multibody {args.command}: {message}", file=sys.stderr)
+    return 2
+
+
+def _closed_pipe():
+    """Stop quietly after the reader of standard output has gone: status 141, as the shell reports for a
+    program that SIGPIPE stops (128 + 13)."""
+    # Python flushes standard output once more at exit, which must not fail again: it goes to devnull.
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, sys.stdout.fileno())
+    os.close(devnull)
+    return 141
 
 
 if __name__ == "__main__":
