@@ -13,8 +13,7 @@ in :mod:`multibody.dynamics`.
 
 from __future__ import annotations
 
-from . import driver
-from .dynamics import _check, _require_nonsingular
+from .dynamics import _check, _evaluate
 from .kernels import derivatives as kernels
 
 
@@ -28,7 +27,7 @@ def inverse_dynamics_derivatives(model, q, v, a, f_ext=None):
     """
     q, v, a, _, f_ext, batch = _check(model, q, v, a, f_ext=f_ext)
     nv = model.nv
-    out = driver.evaluate(kernels.inverse_dynamics_derivatives, model.tree, (q, v, a, f_ext), (2 * nv, nv), batch)
+    out = _evaluate(model, kernels.inverse_dynamics_derivatives, (q, v, a, f_ext), (2 * nv, nv), batch)
     return out[..., :nv, :], out[..., nv:, :]
 
 
@@ -38,7 +37,7 @@ def gravity_derivatives(model, q):
     ``q (..., nq)``. Pinocchio counterpart: ``computeGeneralizedGravityDerivatives``.
     """
     q = model.check_configuration(q)
-    return driver.evaluate(kernels.inverse_dynamics_derivatives, model.tree, (q,), (model.nv, model.nv), q.shape[:-1])
+    return _evaluate(model, kernels.inverse_dynamics_derivatives, (q,), (model.nv, model.nv), q.shape[:-1])
 
 
 def forward_dynamics_derivatives(model, q, v, tau, f_ext=None):
@@ -51,6 +50,5 @@ def forward_dynamics_derivatives(model, q, v, tau, f_ext=None):
     """
     q, v, _, tau, f_ext, batch = _check(model, q, v, tau=tau, f_ext=f_ext)
     nv = model.nv
-    out = driver.evaluate(kernels.forward_dynamics_derivatives, model.tree, (q, v, tau, f_ext), (3 * nv, nv), batch)
-    out = _require_nonsingular(model, (q, v, tau, f_ext), out)
+    out = _evaluate(model, kernels.forward_dynamics_derivatives, (q, v, tau, f_ext), (3 * nv, nv), batch)
     return out[..., :nv, :], out[..., nv : 2 * nv, :], out[..., 2 * nv :, :]

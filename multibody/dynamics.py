@@ -14,11 +14,17 @@ Conventions (``docs/conventions.md``): spatial vectors are ``[linear; angular]``
 a fictitious acceleration ``a₀ = [−g; 0]`` of the world (RBDA §5.3); external forces ``f_ext`` have
 shape ``(..., njoints, 6)``: the spatial force on the rigid body of each joint, expressed in that
 joint's frame at its origin (Pinocchio's ``fext``). Every function accepts leading batch axes on
-its array arguments and broadcasts them.
+its array arguments and broadcasts them, and takes ``out=``: a C-contiguous float64 array of the
+result's shape that receives the result and is returned (:func:`multibody.driver.output`).
+
+Finite inputs whose result is not finite raise: ``FloatingPointError`` when float64 overflowed,
+naming the input whose size did it and the state of a batch; ``numpy.linalg.LinAlgError`` for a
+singular mass matrix (:func:`_require_finite`).
 """
 
 from __future__ import annotations
 
+import inspect
 import math
 
 import numpy as np
@@ -26,6 +32,7 @@ import numpy as np
 from . import driver, gpu, spatial
 from .driver import NO_INPUT
 from .kernels import aba, coriolis, crba, energy, rnea
+from .kernels import derivatives as derivative_kernels
 from .kinematics import _frame_arguments, frame_motions, joint_world_poses
 from .model import NOT_GIVEN
 
@@ -77,81 +84,178 @@ def _on_device(q):
     return type(q) is not np.ndarray and gpu.is_device_array(q)
 
 
-def _on_gpu(model, kernel, inputs, out_shape, template):
+def _on_gpu(model, kernel, inputs, out_shape, template, out=None):
     """``kernel`` on the GPU: ``inputs`` ``(name, array or None, trailing size)`` -> a device array
     ``batch + out_shape`` (of ``template``'s library)."""
+    if out is not None:
+        raise ValueError("out must be None for CUDA arrays: the result is a new device array")
     arrays, batch = gpu.check(inputs)
     out = gpu.evaluate_device(kernel, gpu.device_tree(model), arrays, out_shape if len(out_shape) == 2
                               else (1,) + out_shape, batch)
     return gpu.like(out.reshape(batch + out_shape), template)
 
 
-def _vector(model, kernel, inputs, batch):
-    """A kernel whose per-state output is one vector ``(nv,)``: ``-> batch + (nv,)``."""
-    return driver.evaluate(kernel, model.tree, inputs, (1, model.nv), batch)[..., 0, :]
+def _vector(model, kernel, inputs, batch, out=None):
+    """A kernel whose per-state output is one vector ``(nv,)``: ``-> batch + (nv,)`` (:func:`_evaluate`)."""
+    return _evaluate(model, kernel, inputs, (1, model.nv), batch, out, (model.nv,))
+
+
+def _evaluate(model, kernel, inputs, out_shape, batch, out=None, shape=None):
+    """``kernel`` on ``inputs`` through the batch driver (:func:`multibody.driver.evaluate`, whose
+    arguments these are), its result checked by :func:`_require_finite`: every dynamics kernel's result
+    passes here."""
+    result = driver.evaluate(kernel, model.tree, inputs, out_shape, batch, out=out, shape=shape)
+    return _require_finite(model, kernel, inputs, out_shape, result, batch)
+
+
+def _written(out, result):
+    """``result`` (NumPy's, of a ``method="lagrangian"`` form), or ``out`` holding it when given."""
+    if out is None:
+        return result
+    driver.output(out, result.shape)[...] = result
+    return out
+
+
+#: Kernels that divide by the joints' articulated inertias ``Sᵀ I^A S``: a result that is not finite at
+#: finite inputs of ordinary size comes from a singular mass matrix.
+_INVERTING = frozenset((aba.forward_dynamics, crba.inverse_mass_matrix, derivative_kernels.forward_dynamics_derivatives))
+
+#: Entries beyond this size make an input a suspect when a result overflows (no quantity of a mechanism in
+#: SI units comes near it); the state evaluated again without the suspect confirms it.
+_HUGE = 1e30
+
+#: What an input too large overflows, for the message.
+_TERMS = {"q": "the products of positions (inertias about distant joints)", "v": "the velocity-product terms",
+          "a": "the inertial terms M a", "tau": "the terms M⁻¹ τ", "f_ext": "the external-force terms"}
+
+
+def _require_finite(model, kernel, inputs, out_shape, result, batch):
+    """``result`` (``batch + ...``) of ``kernel`` on ``inputs`` (leading axes broadcasting to ``batch``,
+    kernel output ``out_shape`` per state), or an error when it is not finite at a state whose inputs
+    are (a state with a NaN or infinite input, already warned about, just propagates). The error names
+    that state of a batch (the first, and how many there are):
+
+    * ``FloatingPointError`` when an input's size overflowed float64: it names the input and its
+      largest entry. Suspects are the inputs with entries beyond :data:`_HUGE`; one is to blame when the
+      state's result is finite without it (zero, or the neutral configuration for ``q``), and so are
+      all of them together when only that makes it finite.
+    * ``numpy.linalg.LinAlgError`` from a kernel of :data:`_INVERTING` otherwise, when the state's mass
+      matrix is finite: it is singular (:func:`_singular`).
+    * ``FloatingPointError`` otherwise: the model's own masses, inertias or lengths overflowed.
+
+    A finite result costs one sum (a non-finite entry makes it non-finite); the rest runs only on a
+    result that is not."""
+    # Summing a short list is quicker than NumPy's call overhead, a long one slower; a sum of finite entries
+    # that overflows is settled entry by entry.
+    if result.size <= 256:
+        total = sum(result.reshape(-1).tolist())
+    else:
+        with np.errstate(over="ignore", invalid="ignore"):
+            total = np.add.reduce(result, axis=None)
+    if math.isfinite(total) or np.isfinite(result).all():
+        return result
+    n = math.prod(batch)
+    failed = ~np.isfinite(result.reshape(n, -1)).all(axis=1)
+    for x in inputs:
+        if x is not None:
+            failed &= np.broadcast_to(np.isfinite(x).all(axis=-1), batch).reshape(n)
+    states = np.flatnonzero(failed)
+    if not states.size:
+        return result
+    index = tuple(int(i) for i in np.unravel_index(states[0], batch))
+    state = {name: np.broadcast_to(x, batch + x.shape[-1:])[index]
+             for name, x in zip(list(inspect.signature(getattr(kernel, "py_func", kernel)).parameters)[3:], inputs)
+             if x is not None}
+    where = "" if not batch else (f" at state {index} of the batch" if states.size == 1 else
+                                  f" at state {index} of the batch (the first of {states.size} states)")
+    largest = {name: float(np.max(np.abs(x), initial=0.0)) for name, x in state.items()}
+
+    def finite_without(names):
+        xs = [(model.neutral() if name == "q" else np.zeros_like(x)) if name in names else x for name, x in state.items()]
+        return np.isfinite(driver.evaluate(kernel, model.tree, tuple(xs), out_shape)).all()
+
+    suspects = [name for name, size in largest.items() if size > _HUGE]
+    blamed = [name for name in suspects if finite_without((name,))]
+    if not blamed and len(suspects) > 1 and finite_without(suspects):
+        blamed = suspects
+    if blamed:
+        sizes = " and ".join(f"{name} has entries up to {largest[name]:.3g}" for name in blamed)
+        terms = _TERMS[blamed[0]] if len(blamed) == 1 else "together their terms"
+        raise FloatingPointError(f"the computation overflowed float64{where}: {sizes}; {terms} overflow float64")
+    if kernel in _INVERTING and np.isfinite(driver.evaluate(crba.mass_matrix, model.tree, (state["q"],),
+                                                            (model.nv, model.nv))).all():
+        _singular(model, where)
+    sizes = ", ".join(f"{name} {size:.3g}" for name, size in largest.items())
+    raise FloatingPointError(f"the computation overflowed float64{where}, and no input's size explains it (largest "
+                             f"entries: {sizes}): the model's masses, inertias or lengths are too large for float64")
 
 
 # ============================================================================= RNEA
 
-def inverse_dynamics(model, q, v, a, f_ext=None):
+def inverse_dynamics(model, q, v, a, f_ext=None, *, out=None):
     """Joint forces ``τ = M(q) a + C(q, v) v + g(q) − Σ Jᵢᵀ f_ext,i`` by Recursive Newton–Euler.
 
     RBDA Table 5.1 (:func:`multibody.kernels.rnea.inverse_dynamics`). Shapes: ``q (..., nq)``,
     ``v, a (..., nv)``, ``f_ext (..., njoints, 6)`` (see module docstring) -> ``τ (..., nv)`` (N or N m
-    per coordinate). Pinocchio counterpart: ``rnea``. CUDA arrays in, CUDA arrays out (:mod:`multibody.gpu`).
+    per coordinate), written into ``out`` when given (C-contiguous float64 of that shape). Inputs so large
+    that float64 overflows raise ``FloatingPointError`` naming the input. Pinocchio counterpart: ``rnea``.
+    CUDA arrays in, CUDA arrays out (:mod:`multibody.gpu`).
     """
-    if f_ext is None and (tau := _single(model, rnea.inverse_dynamics, (1, model.nv), q, v, a)) is not None:
+    if f_ext is None and out is None and (tau := _single(model, rnea.inverse_dynamics, (1, model.nv), q, v, a)) is not None:
         return tau[0]
     if _on_device(q):
         return _on_gpu(model, rnea.inverse_dynamics, (("q", q, model.nq), ("v", v, model.nv), ("a", a, model.nv),
-                                                      ("f_ext", f_ext, (model.njoints, 6))), (model.nv,), q)
+                                                      ("f_ext", f_ext, (model.njoints, 6))), (model.nv,), q, out)
     q, v, a, _, f_ext, batch = _check(model, q, v, a, f_ext=f_ext)
-    return _vector(model, rnea.inverse_dynamics, (q, v, a, f_ext), batch)
+    return _vector(model, rnea.inverse_dynamics, (q, v, a, f_ext), batch, out)
 
 
-def joint_reaction_forces(model, q, v, a, f_ext=None):
+def joint_reaction_forces(model, q, v, a, f_ext=None, *, out=None):
     """Spatial force each joint transmits from its parent to its child body: ``(..., njoints, 6)``.
 
     The force ``[f; n]`` (N, N m) the parent exerts on the subtree of joint i through the joint,
     expressed in joint frame i at its origin: the RNEA backward-pass force ``f_i`` (RBDA Table 5.1).
     Its projection on the motion subspace is the joint force ``τ_i = S_iᵀ f_i``; the rest is what
     the joint's bearings carry. Constraint forces enter through ``f_ext`` (see
-    ``ConstrainedSystem.body_forces``). Shapes as :func:`inverse_dynamics`.
+    ``ConstrainedSystem.body_forces``). Shapes, ``out`` and errors as :func:`inverse_dynamics`.
     """
     q, v, a, _, f_ext, batch = _check(model, q, v, a, f_ext=f_ext)
-    return driver.evaluate(rnea.joint_reaction_forces, model.tree, (q, v, a, f_ext), (model.njoints, 6), batch)
+    return _evaluate(model, rnea.joint_reaction_forces, (q, v, a, f_ext), (model.njoints, 6), batch, out)
 
 
-def generalized_gravity(model, q):
-    """Gravity term ``g(q) = ∂U/∂q`` (N, N m), i.e. RNEA with ``v = a = 0``. ``(..., nq) -> (..., nv)``.
+def generalized_gravity(model, q, *, out=None):
+    """Gravity term ``g(q) = ∂U/∂q`` (N, N m), i.e. RNEA with ``v = a = 0``. ``(..., nq) -> (..., nv)``;
+    ``out`` and errors as :func:`inverse_dynamics`.
 
     Pinocchio counterpart: ``computeGeneralizedGravity``.
     """
-    if (g := _single(model, rnea.inverse_dynamics, (1, model.nv), q)) is not None:
+    if out is None and (g := _single(model, rnea.inverse_dynamics, (1, model.nv), q)) is not None:
         return g[0]
     if _on_device(q):
-        return _on_gpu(model, rnea.inverse_dynamics, (("q", q, model.nq),), (model.nv,), q)
+        return _on_gpu(model, rnea.inverse_dynamics, (("q", q, model.nq),), (model.nv,), q, out)
     q = model.check_configuration(q)
-    return _vector(model, rnea.inverse_dynamics, (q,), q.shape[:-1])
+    return _vector(model, rnea.inverse_dynamics, (q,), q.shape[:-1], out)
 
 
-def bias_forces(model, q, v):
-    """``h(q, v) = C(q, v) v + g(q)``, i.e. RNEA with ``a = 0``. ``-> (..., nv)``.
+def bias_forces(model, q, v, *, out=None):
+    """``h(q, v) = C(q, v) v + g(q)``, i.e. RNEA with ``a = 0``. ``-> (..., nv)``; ``out`` and errors as
+    :func:`inverse_dynamics`.
 
     Pinocchio counterpart: ``nonLinearEffects``.
     """
-    if (h := _single(model, rnea.inverse_dynamics, (1, model.nv), q, v)) is not None:
+    if out is None and (h := _single(model, rnea.inverse_dynamics, (1, model.nv), q, v)) is not None:
         return h[0]
     if _on_device(q):
-        return _on_gpu(model, rnea.inverse_dynamics, (("q", q, model.nq), ("v", v, model.nv)), (model.nv,), q)
+        return _on_gpu(model, rnea.inverse_dynamics, (("q", q, model.nq), ("v", v, model.nv)), (model.nv,), q, out)
     q, v, *_, batch = _check(model, q, v)
-    return _vector(model, rnea.inverse_dynamics, (q, v), batch)
+    return _vector(model, rnea.inverse_dynamics, (q, v), batch, out)
 
 
 # ============================================================================= mass matrix
 
-def mass_matrix(model, q, method="crba"):
-    """Joint-space inertia matrix ``M(q)``, full and symmetric: ``(..., nq) -> (..., nv, nv)``.
+def mass_matrix(model, q, method="crba", *, out=None):
+    """Joint-space inertia matrix ``M(q)``, full and symmetric: ``(..., nq) -> (..., nv, nv)``; ``out`` and
+    errors as :func:`inverse_dynamics`.
 
     ``method="crba"``: Composite Rigid Body Algorithm (RBDA Table 6.2,
     :func:`multibody.kernels.crba.mass_matrix`).
@@ -161,17 +265,17 @@ def mass_matrix(model, q, method="crba"):
     """
     if method not in ("crba", "lagrangian"):
         raise ValueError(f"method must be 'crba' or 'lagrangian', got {method!r}")
-    if method == "crba" and (M := _single(model, crba.mass_matrix, (model.nv, model.nv), q)) is not None:
+    if method == "crba" and out is None and (M := _single(model, crba.mass_matrix, (model.nv, model.nv), q)) is not None:
         return M
     if method == "crba" and _on_device(q):
-        return _on_gpu(model, crba.mass_matrix, (("q", q, model.nq),), (model.nv, model.nv), q)
+        return _on_gpu(model, crba.mass_matrix, (("q", q, model.nq),), (model.nv, model.nv), q, out)
     q = model.check_configuration(q)
     if method == "crba":
-        return driver.evaluate(crba.mass_matrix, model.tree, (q,), (model.nv, model.nv), q.shape[:-1])
+        return _evaluate(model, crba.mass_matrix, (q,), (model.nv, model.nv), q.shape[:-1], out)
     jacobians, inertias = _world_body_jacobians_and_inertias(model, q)
     # M = Σ_i J_iᵀ I_i J_i
     M = np.einsum("...ick,...icd,...idl->...kl", jacobians, inertias, jacobians, optimize=True)
-    return 0.5 * (M + spatial.transpose(M))  # exactly symmetric
+    return _written(out, 0.5 * (M + spatial.transpose(M)))  # exactly symmetric
 
 
 def mass_matrix_and_bias(model, q, v):
@@ -184,7 +288,7 @@ def mass_matrix_bias_and_frames(model, q, v, frames=()):
     """:func:`mass_matrix_and_bias` and the :func:`~multibody.kinematics.frame_kinematics` of each
     ``(body, placement)`` in ``frames``. Returns ``(M, h, [(R_WF, p_WF, J, J̇v), ...])``."""
     q, v, *_, batch = _check(model, q, v)
-    M = driver.evaluate(crba.mass_matrix, model.tree, (q,), (model.nv, model.nv), batch)
+    M = _evaluate(model, crba.mass_matrix, (q,), (model.nv, model.nv), batch)
     h = _vector(model, rnea.inverse_dynamics, (q, v), batch)
     if not frames:
         return M, h, []
@@ -216,7 +320,7 @@ def _world_body_jacobians_and_inertias(model, q):
 
 # ============================================================================= Coriolis matrix
 
-def coriolis_matrix(model, q, v, method="recursive"):
+def coriolis_matrix(model, q, v, method="recursive", *, out=None):
     """Christoffel-consistent Coriolis matrix ``C(q, v)``: ``Ṁ = C + Cᵀ``, ``C v + g = h``.
 
     ``method="recursive"``: :func:`multibody.kernels.coriolis.coriolis_matrix`, Pinocchio's
@@ -225,15 +329,16 @@ def coriolis_matrix(model, q, v, method="recursive"):
     ``Γᵢⱼₖ = ½ (∂Mᵢⱼ/∂qₖ + ∂Mᵢₖ/∂qⱼ − ∂Mⱼₖ/∂qᵢ)``, ``Cᵢⱼ = Σₖ Γᵢⱼₖ q̇ₖ``, from an analytic ``∂M/∂q``;
     it needs ``v = q̇`` (revolute, continuous, prismatic and translation joints only).
 
-    Shapes: ``q (..., nq)``, ``v (..., nv)`` -> ``(..., nv, nv)``.
+    Shapes: ``q (..., nq)``, ``v (..., nv)`` -> ``(..., nv, nv)``; ``out`` and errors as :func:`inverse_dynamics`.
     """
     if method not in ("recursive", "lagrangian"):
         raise ValueError(f"method must be 'recursive' or 'lagrangian', got {method!r}")
-    if method == "recursive" and (C := _single(model, coriolis.coriolis_matrix, (model.nv, model.nv), q, v)) is not None:
+    if (method == "recursive" and out is None
+            and (C := _single(model, coriolis.coriolis_matrix, (model.nv, model.nv), q, v)) is not None):
         return C
     q, v, *_, batch = _check(model, q, v)
     if method == "recursive":
-        return driver.evaluate(coriolis.coriolis_matrix, model.tree, (q, v), (model.nv, model.nv), batch)
+        return _evaluate(model, coriolis.coriolis_matrix, (q, v), (model.nv, model.nv), batch, out)
     if any(joint.nq != joint.nv for joint in model.joints):
         raise ValueError("method='lagrangian' needs v = q̇ (revolute, continuous, prismatic and translation "
                          "joints only); use method='recursive'")
@@ -242,7 +347,7 @@ def coriolis_matrix(model, q, v, method="recursive"):
     christoffel = 0.5 * (np.einsum("...kij->...ijk", dM) + np.einsum("...jik->...ijk", dM)
                          - np.einsum("...ijk->...ijk", dM))
     # C_ij = Σ_k Γ_ijk q̇_k
-    return np.einsum("...ijk,...k->...ij", christoffel, v)
+    return _written(out, np.einsum("...ijk,...k->...ij", christoffel, v))
 
 
 def mass_matrix_derivative(model, q):
@@ -271,80 +376,79 @@ def mass_matrix_derivative(model, q):
 
 # ============================================================================= ABA
 
-def _require_nonsingular(model, inputs, result):
-    """``result``, or ``LinAlgError`` when it is not finite at a finite state (a NaN input, already warned
-    about, just propagates): the mass matrix is singular. The error names the first joint whose subtree
-    carries no inertia at all, the usual cause."""
-    # A non-finite entry makes the sum non-finite (and a finite sum needs no further look); summing a
-    # short list is quicker than NumPy's call overhead, a long one slower.
-    if (result.size <= 256 and math.isfinite(sum(result.reshape(-1).tolist()))) or np.isfinite(result).all() \
-            or not all(np.isfinite(x).all() for x in inputs if x is not None):
-        return result
+def _singular(model, where=""):
+    """``LinAlgError``: the mass matrix is singular (``where``: at which state of a batch, or ""). The error
+    names the first joint whose subtree carries no inertia at all, the usual cause (at every state)."""
     for i in range(model.njoints):
         subtree = [model.joint_inertias[j] for j in range(i, model.njoints) if model.ancestors[j, i]]
         if not any(inertia.mass or np.any(inertia.rotational) for inertia in subtree):
             raise np.linalg.LinAlgError(
                 f"the mass matrix is singular: joint {model.joint_names[i]!r} moves no inertia "
                 "(its articulated inertia Sᵀ I^A S is singular); give the bodies it carries mass and inertia")
-    raise np.linalg.LinAlgError("the mass matrix is singular at this configuration (the articulated inertia "
-                                "Sᵀ I^A S of some joint is singular)")
+    raise np.linalg.LinAlgError(f"the mass matrix is singular {where.strip() or 'at this configuration'} (the "
+                                "articulated inertia Sᵀ I^A S of some joint is singular)")
 
 
-def forward_dynamics(model, q, v, tau, f_ext=None):
+def forward_dynamics(model, q, v, tau, f_ext=None, *, out=None):
     """Accelerations ``a = M⁻¹ (τ + Σ Jᵀ f_ext − C v − g)`` by the Articulated Body Algorithm.
 
     RBDA Table 7.1 (:func:`multibody.kernels.aba.forward_dynamics`). Shapes: ``q (..., nq)``,
-    ``v, tau (..., nv)``, ``f_ext (..., njoints, 6)`` -> ``a (..., nv)``. A joint that moves no
-    inertia makes ``M`` singular and raises ``numpy.linalg.LinAlgError`` naming it. Pinocchio
-    counterpart: ``aba``. On CUDA arrays (:mod:`multibody.gpu`) a singular ``M`` gives NaN rather than the error.
+    ``v, tau (..., nv)``, ``f_ext (..., njoints, 6)`` -> ``a (..., nv)``; ``out`` as
+    :func:`inverse_dynamics`. A joint that moves no inertia makes ``M`` singular and raises
+    ``numpy.linalg.LinAlgError`` naming it; inputs so large that float64 overflows raise
+    ``FloatingPointError`` naming the input. Pinocchio counterpart: ``aba``. On CUDA arrays
+    (:mod:`multibody.gpu`) a singular ``M`` gives NaN rather than the error.
     """
-    if f_ext is None and (a := _single(model, aba.forward_dynamics, (1, model.nv), q, v, tau)) is not None:
-        return _require_nonsingular(model, (q, v, tau), a)[0]
+    if f_ext is None and out is None and (a := _single(model, aba.forward_dynamics, (1, model.nv), q, v, tau)) is not None:
+        return _require_finite(model, aba.forward_dynamics, (q, v, tau), (1, model.nv), a, ())[0]
     if _on_device(q):
         return _on_gpu(model, aba.forward_dynamics, (("q", q, model.nq), ("v", v, model.nv), ("tau", tau, model.nv),
-                                                     ("f_ext", f_ext, (model.njoints, 6))), (model.nv,), q)
+                                                     ("f_ext", f_ext, (model.njoints, 6))), (model.nv,), q, out)
     q, v, _, tau, f_ext, batch = _check(model, q, v, tau=tau, f_ext=f_ext)
-    return articulated_body_accelerations(model, q, v, tau, f_ext, batch)
+    return articulated_body_accelerations(model, q, v, tau, f_ext, batch, out)
 
 
-def articulated_body_accelerations(model, q, v, tau, f_ext, batch):
+def articulated_body_accelerations(model, q, v, tau, f_ext, batch, out=None):
     """:func:`forward_dynamics` of inputs already checked: float64 arrays of the right sizes, whose
     leading axes broadcast to ``batch`` (``f_ext (..., 6 nj)`` or ``None``). For callers that produce
     their own states, such as the integrators."""
-    return _require_nonsingular(model, (q, v, tau, f_ext), _vector(model, aba.forward_dynamics, (q, v, tau, f_ext), batch))
+    return _vector(model, aba.forward_dynamics, (q, v, tau, f_ext), batch, out)
 
 
-def inverse_mass_matrix(model, q):
+def inverse_mass_matrix(model, q, *, out=None):
     """``M(q)⁻¹`` from CRBA's ``M`` and its sparse ``Lᵀ L`` factorization
-    (:func:`multibody.kernels.crba.inverse_mass_matrix`): ``(..., nq) -> (..., nv, nv)``. A joint that
-    moves no inertia makes ``M`` singular and raises ``numpy.linalg.LinAlgError`` naming it. Pinocchio
-    counterpart: ``computeMinverse``.
+    (:func:`multibody.kernels.crba.inverse_mass_matrix`): ``(..., nq) -> (..., nv, nv)``; ``out`` as
+    :func:`inverse_dynamics`. A joint that moves no inertia makes ``M`` singular and raises
+    ``numpy.linalg.LinAlgError`` naming it. Pinocchio counterpart: ``computeMinverse``.
     """
     q = model.check_configuration(q)
-    result = driver.evaluate(crba.inverse_mass_matrix, model.tree, (q,), (model.nv, model.nv), q.shape[:-1])
-    return _require_nonsingular(model, (q,), result)
+    return _evaluate(model, crba.inverse_mass_matrix, (q,), (model.nv, model.nv), q.shape[:-1], out)
 
 
 # ============================================================================= energies
 
-def kinetic_energy(model, q, v):
-    """``T = ½ vᵀ M(q) v = Σᵢ ½ Vᵢᵀ Iᵢ Vᵢ`` (J), with ``Vᵢ`` each body's spatial velocity. ``-> (...)``.
+def kinetic_energy(model, q, v, *, out=None):
+    """``T = ½ vᵀ M(q) v = Σᵢ ½ Vᵢᵀ Iᵢ Vᵢ`` (J), with ``Vᵢ`` each body's spatial velocity. ``-> (...)``
+    (a float64 scalar for one state); ``out`` (of shape ``(...)``) and errors as :func:`inverse_dynamics`.
 
     Pinocchio counterpart: ``computeKineticEnergy``.
     """
-    if (T := _single(model, energy.kinetic_energy, (1, 1), q, v)) is not None:
+    if out is None and (T := _single(model, energy.kinetic_energy, (1, 1), q, v)) is not None:
         return T[0, 0]
     q, v, *_, batch = _check(model, q, v)
-    return driver.evaluate(energy.kinetic_energy, model.tree, (q, v), (1, 1), batch)[..., 0, 0]
+    T = _evaluate(model, energy.kinetic_energy, (q, v), (1, 1), batch, out, ())
+    return T[()] if out is None else T
 
 
-def potential_energy(model, q):
+def potential_energy(model, q, *, out=None):
     """Gravitational potential ``U = −Σᵢ mᵢ gᵀ cᵢ`` (J) of the moving bodies, ``cᵢ`` their world centres of mass.
 
     Bodies fixed to the world are not counted (their energy is constant), as in Pinocchio's
-    ``computePotentialEnergy``. ``(..., nq) -> (...)``.
+    ``computePotentialEnergy``. ``(..., nq) -> (...)`` (a float64 scalar for one state); ``out`` and errors
+    as :func:`kinetic_energy`.
     """
-    if (U := _single(model, energy.potential_energy, (1, 1), q)) is not None:
+    if out is None and (U := _single(model, energy.potential_energy, (1, 1), q)) is not None:
         return U[0, 0]
     q = model.check_configuration(q)
-    return driver.evaluate(energy.potential_energy, model.tree, (q,), (1, 1), q.shape[:-1])[..., 0, 0]
+    U = _evaluate(model, energy.potential_energy, (q,), (1, 1), q.shape[:-1], out, ())
+    return U[()] if out is None else U

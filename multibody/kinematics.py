@@ -33,10 +33,11 @@ from .spatial import matvec
 from .tree import frame_rows
 
 
-def _placements(model, q, rows, batch):
-    """World placements ``(..., k, 4, 4)`` of the frame ``rows (k, 13)``."""
-    return driver.evaluate(kernels.frame_placements, model.tree, (q,), (len(rows), 16), batch,
-                           rows).reshape(batch + (len(rows), 4, 4))
+def _placements(model, q, rows, batch, out=None, shape=None):
+    """World placements ``(..., k, 4, 4)`` of the frame ``rows (k, 13)`` (``shape``: another shape of one
+    state's, such as ``(4, 4)`` for one frame), into ``out`` when given (:func:`multibody.driver.evaluate`)."""
+    return driver.evaluate(kernels.frame_placements, model.tree, (q,), (len(rows), 16), batch, rows, out=out,
+                           shape=(len(rows), 4, 4) if shape is None else shape)
 
 
 def joint_world_poses(model, q):
@@ -46,13 +47,14 @@ def joint_world_poses(model, q):
     return X[..., :3, :3], X[..., :3, 3]
 
 
-def forward_kinematics(model, q):
+def forward_kinematics(model, q, *, out=None):
     """World placements of every body: ``(..., nbodies, 4, 4)``, in ``model.body_names`` order.
 
-    ``q (..., nq)``. Pinocchio counterpart: ``forwardKinematics`` + ``updateFramePlacements``.
+    ``q (..., nq)``; ``out``: a C-contiguous float64 array of the result's shape that receives it and is
+    returned. Pinocchio counterpart: ``forwardKinematics`` + ``updateFramePlacements``.
     """
     q = model.check_configuration(q)
-    return _placements(model, q, model.tree.bodies, q.shape[:-1])
+    return _placements(model, q, model.tree.bodies, q.shape[:-1], out)
 
 
 def _point(point):
@@ -92,28 +94,30 @@ def _reference(reference):
         raise ValueError(f"reference must be one of {', '.join(map(repr, _REFERENCES))}, got {reference!r}") from None
 
 
-def frame_placement(model, q, name):
+def frame_placement(model, q, name, *, out=None):
     """World placement of one body's frame: ``(..., 4, 4)`` homogeneous ``X_WF`` (rotation, then
     position in m).
 
     ``name`` is any URDF link in ``model.body_names`` (links attached by fixed joints included, and
     links fixed to the world), or its index. Computes that frame only; :func:`forward_kinematics`
-    gives every body at once. Pinocchio counterpart: ``updateFramePlacements`` + ``data.oMf``.
+    gives every body at once. ``out`` as :func:`forward_kinematics`. Pinocchio counterpart:
+    ``updateFramePlacements`` + ``data.oMf``.
     """
     q, rows = model.check_configuration(q), _body_frame(model, name)
-    return _placements(model, q, rows, q.shape[:-1])[..., 0, :, :]
+    return _placements(model, q, rows, q.shape[:-1], out, (4, 4))
 
 
-def jacobian(model, q, body, point=None, reference="local_world_aligned"):
+def jacobian(model, q, body, point=None, reference="local_world_aligned", *, out=None):
     """Jacobian of a body's frame: ``(..., 6, nv)``, rows ``[linear; angular]`` in ``reference``
     (module docstring): ``J(q) v`` is the frame's velocity.
 
     ``body`` is a name from ``model.body_names`` or an index; ``point (..., 3)`` (body-frame
     coordinates, m; default the body origin) places the frame at that point with the body's axes.
-    With the default ``reference="local_world_aligned"``, ``[ẋ; ω] = J v`` in world axes.
-    Pinocchio counterpart: ``getFrameJacobian`` with ``LOCAL_WORLD_ALIGNED``, ``WORLD`` or ``LOCAL``.
+    With the default ``reference="local_world_aligned"``, ``[ẋ; ω] = J v`` in world axes. ``out`` as
+    :func:`forward_kinematics`. Pinocchio counterpart: ``getFrameJacobian`` with ``LOCAL_WORLD_ALIGNED``,
+    ``WORLD`` or ``LOCAL``.
     """
-    if point is None and model._is_one_state(q, finite=False):
+    if point is None and out is None and model._is_one_state(q, finite=False):
         J = driver.evaluate_one(kernels.frame_jacobian, model.tree, (6, model.nv), q, driver.NO_INPUT,
                                 _reference(reference), frames=_body_frame(model, body))
         if driver.vouches(J):
@@ -121,22 +125,23 @@ def jacobian(model, q, body, point=None, reference="local_world_aligned"):
     q, rows, point = model.check_configuration(q), _body_frame(model, body), _point(point)
     batch = q.shape[:-1] if point is None else spatial.batch_shape(q.shape[:-1], point.shape[:-1])
     return driver.evaluate(kernels.frame_jacobian, model.tree, (q, point, _reference(reference)), (6, model.nv),
-                           batch, rows)
+                           batch, rows, out=out)
 
 
-def jacobian_time_variation(model, q, v, body, point=None, reference="local_world_aligned"):
+def jacobian_time_variation(model, q, v, body, point=None, reference="local_world_aligned", *, out=None):
     """Time derivative ``J̇(q, v)`` of :func:`jacobian`, in the same ``reference``, along the motion:
     ``(..., 6, nv)``.
 
     ``J a + J̇ v`` is the time derivative of the frame's velocity ``J v``: the classical acceleration
     ``[ẍ; ω̇]`` for ``"local_world_aligned"``, the spatial acceleration for ``"world"`` and ``"local"``.
-    Pinocchio counterpart: ``getFrameJacobianTimeVariation`` with the same reference.
+    ``out`` as :func:`forward_kinematics`. Pinocchio counterpart: ``getFrameJacobianTimeVariation`` with
+    the same reference.
     """
     q, v = model.check_configuration(q), model.check_velocity(v)
     rows, point = _body_frame(model, body), _point(point)
     shapes = (q.shape[:-1], v.shape[:-1]) + (() if point is None else (point.shape[:-1],))
     return driver.evaluate(kernels.frame_jacobian_time_variation, model.tree, (q, v, point, _reference(reference)),
-                           (6, model.nv), spatial.batch_shape(*shapes), rows)
+                           (6, model.nv), spatial.batch_shape(*shapes), rows, out=out)
 
 
 def _frame_arguments(model, body, placement):

@@ -52,44 +52,48 @@ def center_of_mass_acceleration(model, q, v, a):
     return _center_of_mass(model, inputs, 3)[..., 2, :]
 
 
-def center_of_mass_jacobian(model, q):
+def center_of_mass_jacobian(model, q, *, out=None):
     """Jacobian ``J_c (..., 3, nv)`` of the centre of mass of the moving bodies: ``ċ = J_c v``.
 
     ``J_c = A_G,linear / M``, the linear rows of :func:`centroidal_momentum_matrix` over the moving
-    mass. Pinocchio counterpart: ``jacobianCenterOfMass``.
+    mass. ``out``: a C-contiguous float64 array of the result's shape that receives it and is returned.
+    Pinocchio counterpart: ``jacobianCenterOfMass``.
     """
     q = model.check_configuration(q)
-    return driver.evaluate(kernels.centroidal_map, model.tree, (q,), (3, model.nv), q.shape[:-1])
+    return driver.evaluate(kernels.centroidal_map, model.tree, (q,), (3, model.nv), q.shape[:-1], out=out)
 
 
-def centroidal_momentum_matrix(model, q):
+def centroidal_momentum_matrix(model, q, *, out=None):
     """Centroidal momentum matrix ``A_G (..., 6, nv)``: ``h_G = A_G v``.
 
     Rows ``[linear; angular]``: the moving bodies' linear momentum (kg m/s) and angular momentum about
     their centre of mass (kg m²/s), world axes, per unit of each velocity coordinate (Orin, Goswami and
-    Lee 2013). Pinocchio counterpart: ``computeCentroidalMap`` (same row order).
+    Lee 2013). ``out`` as :func:`center_of_mass_jacobian`. Pinocchio counterpart: ``computeCentroidalMap``
+    (same row order).
     """
     q = model.check_configuration(q)
-    return driver.evaluate(kernels.centroidal_map, model.tree, (q,), (6, model.nv), q.shape[:-1])
+    return driver.evaluate(kernels.centroidal_map, model.tree, (q,), (6, model.nv), q.shape[:-1], out=out)
 
 
-def centroidal_momentum(model, q, v):
+def centroidal_momentum(model, q, v, *, out=None):
     """Centroidal momentum ``h_G = [M ċ; k_G] (..., 6)``: linear momentum (kg m/s) and angular momentum
-    about the centre of mass (kg m²/s) of the moving bodies, world axes; equal to ``A_G v``.
+    about the centre of mass (kg m²/s) of the moving bodies, world axes; equal to ``A_G v``. ``out`` as
+    :func:`center_of_mass_jacobian`.
 
     Pinocchio counterpart: ``computeCentroidalMomentum`` (``data.hg``, linear first).
     """
     q, v = model.check_configuration(q), model.check_velocity(v)
     return driver.evaluate(kernels.centroidal_momentum, model.tree, (q, v), (1, 6),
-                           spatial.batch_shape(q.shape[:-1], v.shape[:-1]))[..., 0, :]
+                           spatial.batch_shape(q.shape[:-1], v.shape[:-1]), out=out, shape=(6,))
 
 
-def centroidal_momentum_matrix_derivative(model, q, v):
+def centroidal_momentum_matrix_derivative(model, q, v, *, out=None):
     """Time derivative ``Ȧ_G (..., 6, nv)`` of :func:`centroidal_momentum_matrix` along the motion ``v``:
-    ``ḣ_G = A_G a + Ȧ_G v`` (world axes, angular rows about the moving centre of mass).
+    ``ḣ_G = A_G a + Ȧ_G v`` (world axes, angular rows about the moving centre of mass). ``out`` as
+    :func:`center_of_mass_jacobian`.
 
     Pinocchio counterpart: ``computeCentroidalMapTimeVariation`` (``data.dAg``).
     """
     q, v = model.check_configuration(q), model.check_velocity(v)
     return driver.evaluate(kernels.centroidal_map_time_variation, model.tree, (q, v), (6, model.nv),
-                           spatial.batch_shape(q.shape[:-1], v.shape[:-1]))
+                           spatial.batch_shape(q.shape[:-1], v.shape[:-1]), out=out)

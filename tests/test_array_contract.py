@@ -9,6 +9,8 @@ batches that do not broadcast, complex numbers, strings, ``None`` and object arr
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 from hypothesis import given
@@ -174,3 +176,86 @@ def test_a_non_finite_input_never_gives_a_finite_answer(name, which, value, entr
     clean = function(**args)
     assert np.isnan(result[1]).all()
     np.testing.assert_array_equal(result[0], clean[0])
+
+
+# ============================================================================= out=
+
+# name -> (function of keyword arrays and out, its arguments): every function that takes out=
+OUT_FUNCTIONS = {
+    "mass_matrix": (lambda q, out: mb.mass_matrix(MODEL, q, out=out), ("q",)),
+    "mass_matrix[lagrangian]": (lambda q, out: mb.mass_matrix(MODEL, q, method="lagrangian", out=out), ("q",)),
+    "coriolis_matrix": (lambda q, v, out: mb.coriolis_matrix(MODEL, q, v, out=out), ("q", "v")),
+    "generalized_gravity": (lambda q, out: mb.generalized_gravity(MODEL, q, out=out), ("q",)),
+    "bias_forces": (lambda q, v, out: mb.bias_forces(MODEL, q, v, out=out), ("q", "v")),
+    "inverse_dynamics": (lambda q, v, a, f_ext, out: mb.inverse_dynamics(MODEL, q, v, a, f_ext=f_ext, out=out),
+                         ("q", "v", "a", "f_ext")),
+    "forward_dynamics": (lambda q, v, tau, f_ext, out: mb.forward_dynamics(MODEL, q, v, tau, f_ext=f_ext, out=out),
+                         ("q", "v", "tau", "f_ext")),
+    "joint_reaction_forces": (lambda q, v, a, out: mb.joint_reaction_forces(MODEL, q, v, a, out=out), ("q", "v", "a")),
+    "inverse_mass_matrix": (lambda q, out: mb.inverse_mass_matrix(MODEL, q, out=out), ("q",)),
+    "kinetic_energy": (lambda q, v, out: mb.kinetic_energy(MODEL, q, v, out=out), ("q", "v")),
+    "potential_energy": (lambda q, out: mb.potential_energy(MODEL, q, out=out), ("q",)),
+    "forward_kinematics": (lambda q, out: mb.forward_kinematics(MODEL, q, out=out), ("q",)),
+    "frame_placement": (lambda q, out: mb.frame_placement(MODEL, q, BODY, out=out), ("q",)),
+    "jacobian": (lambda q, point, out: mb.jacobian(MODEL, q, BODY, point, out=out), ("q", "point")),
+    "jacobian_time_variation": (lambda q, v, point, out: mb.jacobian_time_variation(MODEL, q, v, BODY, point, out=out),
+                                ("q", "v", "point")),
+    "center_of_mass_jacobian": (lambda q, out: mb.center_of_mass_jacobian(MODEL, q, out=out), ("q",)),
+    "centroidal_momentum_matrix": (lambda q, out: mb.centroidal_momentum_matrix(MODEL, q, out=out), ("q",)),
+    "centroidal_momentum": (lambda q, v, out: mb.centroidal_momentum(MODEL, q, v, out=out), ("q", "v")),
+    "centroidal_momentum_matrix_derivative": (
+        lambda q, v, out: mb.centroidal_momentum_matrix_derivative(MODEL, q, v, out=out), ("q", "v")),
+}
+
+
+def _out_call(name, batch, seed=0):
+    """``(function of out, the result without out)`` of OUT_FUNCTIONS[name] on valid arguments of ``batch``."""
+    function, names = OUT_FUNCTIONS[name]
+    args = {n: x for n, x in arguments(batch, np.random.default_rng(seed)).items() if n in names}
+    return (lambda out: function(**args, out=out)), function(**args, out=None)
+
+
+@pytest.mark.parametrize("batch", [(), (1,), (3,), (2, 3)])
+@pytest.mark.parametrize("name", sorted(OUT_FUNCTIONS))
+def test_out_receives_the_result_and_is_returned(name, batch):
+    call, expected = _out_call(name, batch)
+    out = np.full(np.shape(expected), np.nan)
+    assert call(out) is out
+    np.testing.assert_array_equal(out, expected)
+
+
+def _read_only(shape):
+    x = np.empty(shape)
+    x.setflags(write=False)
+    return x
+
+
+#: out arrays that cannot receive a result of shape ``shape``, and what the error says they are
+BAD_OUT = {
+    "shape": (lambda shape: np.empty((4,) + shape), lambda shape: f"a float64 array of shape {(4,) + shape}"),
+    "float32": (lambda shape: np.empty(shape, np.float32), lambda shape: f"a float32 array of shape {shape}"),
+    "not C-contiguous": (lambda shape: np.empty(shape + (2,))[..., 0],
+                         lambda shape: f"a not C-contiguous float64 array of shape {shape}"),
+    "read-only": (_read_only, lambda shape: f"a read-only float64 array of shape {shape}"),
+    "list": (lambda shape: np.empty(shape).tolist(), lambda shape: "list"),
+}
+
+
+@pytest.mark.parametrize("bad", sorted(BAD_OUT))
+@pytest.mark.parametrize("name", sorted(OUT_FUNCTIONS))
+def test_out_that_cannot_receive_the_result_is_refused(name, bad):
+    """ValueError naming the shape expected and what was given."""
+    call, expected = _out_call(name, (3,))
+    make, got = BAD_OUT[bad]
+    with pytest.raises(ValueError, match=f"^out must be .*{re.escape(str(expected.shape))}.*, got {re.escape(got(expected.shape))}$"):
+        call(make(expected.shape))
+
+
+@pytest.mark.parametrize("batch", [(), (3,)])
+def test_out_may_be_an_input(batch):
+    """An out that is also an input (τ into the buffer of v) gives the result of separate arrays."""
+    values = arguments(batch, np.random.default_rng(4))
+    q, v, a = values["q"], values["v"], values["a"]
+    expected = mb.inverse_dynamics(MODEL, q, v, a)
+    assert mb.inverse_dynamics(MODEL, q, v, a, out=v) is v
+    np.testing.assert_array_equal(v, expected)

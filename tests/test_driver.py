@@ -446,3 +446,46 @@ def test_kernels_compile_without_the_reference_counted_runtime():
                  if isinstance(value, Dispatcher) and value.py_func.__module__.startswith("multibody.kernels")]
     assert len(functions) > 100
     assert [f.py_func.__qualname__ for f in functions if f.targetoptions.get("_nrt", True)] == []
+
+
+# ============================================================================= memory of batched calls
+
+def test_batched_inputs_that_fit_are_read_in_place():
+    """C-contiguous float64 inputs of the whole batch, writable or read-only, and an input of one row reach
+    the compiled loop as they are: a call's traced peak is its new result, or below a tenth of one input
+    when ``out=`` receives the result (copies of the inputs would take several times it), and a
+    read-only input compiles nothing new."""
+    import tracemalloc
+
+    from multibody import driver
+    from multibody.kernels import rnea
+
+    model = random_tree_model(0)
+    n = 4096
+    states = _states(model, n, seed=4)
+    q, v, a = states["q"], states["v"], states["a"]
+    expected = mb.inverse_dynamics(model, q, v, a)
+    out = np.empty_like(expected)
+    assert mb.inverse_dynamics(model, q, v, a, out=out) is out
+    loops, kernels = list(driver._batch.signatures), list(rnea.inverse_dynamics.signatures)
+    tracemalloc.start()
+    try:
+        mb.inverse_dynamics(model, q, v, a)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 1.1 * expected.nbytes, (peak, expected.nbytes)  # the new result alone
+    for x in (q, v, a):
+        x.setflags(write=False)
+    for inputs in ((q, v, a), (q, v, a[0])):
+        out[:] = np.nan
+        tracemalloc.start()
+        try:
+            result = mb.inverse_dynamics(model, *inputs, out=out)
+            peak = tracemalloc.get_traced_memory()[1]
+        finally:
+            tracemalloc.stop()
+        assert result is out
+        assert peak < v.nbytes / 10, (peak, v.nbytes)
+        np.testing.assert_array_equal(out, expected if inputs[2].ndim == 2 else mb.inverse_dynamics(model, q, v, a[0]))
+    assert list(driver._batch.signatures) == loops and list(rnea.inverse_dynamics.signatures) == kernels

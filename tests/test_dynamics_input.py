@@ -427,3 +427,143 @@ def test_nan_warns_once_per_call():
         with pytest.warns(RuntimeWarning) as record:
             a = mb.forward_dynamics(model, q, v, np.zeros(2))
         assert len(record) == 1 and np.isnan(a).all()
+
+
+# ============================================================================= finite inputs that overflow
+
+HUGE_V = 1e160  # v² overflows float64 (1.8e308); v alone does not
+
+# name -> function(model, q, v) of every public function whose result has velocity-product terms
+VELOCITY_PRODUCTS = {
+    "inverse_dynamics": lambda m, q, v: mb.inverse_dynamics(m, q, v, np.zeros_like(v)),
+    "bias_forces": mb.bias_forces,
+    "joint_reaction_forces": lambda m, q, v: mb.joint_reaction_forces(m, q, v, np.zeros_like(v)),
+    "forward_dynamics": lambda m, q, v: mb.forward_dynamics(m, q, v, np.zeros_like(v)),
+    "kinetic_energy": mb.kinetic_energy,
+    "mass_matrix_and_bias": mb.dynamics.mass_matrix_and_bias,
+    "inverse_dynamics_derivatives": lambda m, q, v: mb.inverse_dynamics_derivatives(m, q, v, np.zeros_like(v)),
+    "forward_dynamics_derivatives": lambda m, q, v: mb.forward_dynamics_derivatives(m, q, v, np.zeros_like(v)),
+}
+
+
+def _hostile_state(batch, states=((),), scale=HUGE_V):
+    """Valid ``q, v`` of ``tree()`` with ``batch`` axes, ``v`` of the ``states`` scaled by ``scale``."""
+    inputs = valid_inputs(tree(), seed=5, batch=batch)
+    q, v = inputs["q"], inputs["v"]
+    for state in states:
+        v[state] *= scale
+    return q, v
+
+
+@pytest.mark.parametrize("name", list(VELOCITY_PRODUCTS))
+def test_overflowing_velocities_raise_naming_v(name):
+    """v of 1e160: the velocity products overflow, and the error says so (no NaN, no singular mass matrix)."""
+    q, v = _hostile_state(())
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(FloatingPointError, match=r"overflowed float64: v has entries up to \d\.\d+e\+160; "
+                                                     r"the velocity-product terms overflow float64$") as error:
+            VELOCITY_PRODUCTS[name](tree(), q, v)
+    assert "singular" not in str(error.value)
+
+
+@pytest.mark.parametrize("name", list(VELOCITY_PRODUCTS))
+def test_overflowing_velocities_of_a_batch_name_the_state(name):
+    q, v = _hostile_state((2, 3), states=((1, 2), (1, 0)))  # in C order (1, 0) comes first
+    with pytest.raises(FloatingPointError, match=re.escape("at state (1, 0) of the batch (the first of 2 states): v "
+                                                           "has entries up to")):
+        VELOCITY_PRODUCTS[name](tree(), q, v)
+    q, v = _hostile_state((2, 3), states=((0, 1),))
+    with pytest.raises(FloatingPointError, match=re.escape("at state (0, 1) of the batch: v has entries up to")):
+        VELOCITY_PRODUCTS[name](tree(), q, v)
+
+
+@pytest.mark.parametrize("batch", [(), (3,)], ids=["one", "batch"])
+def test_coriolis_matrix_of_huge_velocities_is_linear_until_it_overflows(batch):
+    """``C(q, v)`` is linear in ``v``: 1e160 velocities give 1e160 times ``C`` of the unscaled ones; at
+    1e307 the products with the inertias overflow, and the error names ``v``."""
+    q, v = _hostile_state(batch, scale=1.0)
+    C = mb.coriolis_matrix(tree(), q, v)
+    huge = mb.coriolis_matrix(tree(), q, HUGE_V * v)
+    assert np.all(np.isfinite(huge))
+    assert_rel(huge / HUGE_V, C, 1e-13, "C(1e160 v) / 1e160", batch_ndim=len(batch))
+    with pytest.raises(FloatingPointError, match="v has entries up to .*e\\+307; the velocity-product terms overflow"):
+        mb.coriolis_matrix(tree(), q, 1e307 * v)
+
+
+@pytest.mark.parametrize("batch", [(), (3,)], ids=["one", "batch"])
+def test_huge_torques_and_accelerations_are_no_overflow(batch):
+    """τ of 1e160 and accelerations of 1e200 stay within float64 through the linear terms ``M⁻¹ τ`` and
+    ``M a``: the results are those, finite (the bias forces of ordinary velocities vanish beside them)."""
+    model = tree()
+    inputs = valid_inputs(model, seed=6, batch=batch)
+    q, v, unit = inputs["q"], inputs["v"], inputs["a"]
+    M_unit = np.einsum("...ij,...j->...i", mb.mass_matrix(model, q), unit)
+    a = mb.forward_dynamics(model, q, v, 1e160 * unit)
+    assert np.all(np.isfinite(a))
+    # (ABA's accelerations carry cond(M) ≈ 4e3 times the rounding)
+    assert_rel(np.einsum("...ij,...j->...i", mb.mass_matrix(model, q), a) / 1e160, unit, 1e-11, "M a / 1e160",
+               batch_ndim=len(batch))
+    tau = mb.inverse_dynamics(model, q, v, 1e200 * unit)
+    assert np.all(np.isfinite(tau))
+    assert_rel(tau / 1e200, M_unit, 1e-13, "τ / 1e200", batch_ndim=len(batch))
+
+
+@pytest.mark.parametrize("name, arg", [("forward_dynamics", "tau"), ("inverse_dynamics", "a"),
+                                       ("inverse_dynamics", "f_ext")])
+@pytest.mark.parametrize("batch", [(), (2,)], ids=["one", "batch"])
+def test_a_linear_term_that_overflows_names_its_input(name, arg, batch):
+    """1e308 in τ (``M⁻¹ τ``), a (``M a``) or f_ext (``Jᵀ f``) overflows; the error names that input,
+    not the velocities beside it."""
+    model = tree()
+    inputs = valid_inputs(model, seed=7, batch=batch)
+    q, v, a, f_ext = inputs["q"], 1e50 * inputs["v"], inputs["a"], None  # v large, though v² stays finite
+    if arg == "f_ext":
+        f_ext = np.full_like(inputs["f_ext"], 1e308)
+    else:
+        a = np.full_like(a, 1e308)
+    function = {"forward_dynamics": lambda: mb.forward_dynamics(model, q, v, a),
+                "inverse_dynamics": lambda: mb.inverse_dynamics(model, q, v, a, f_ext=f_ext)}[name]
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", "overflow encountered in reduce")  # the input check's sum of 1e308s
+        with pytest.raises(FloatingPointError, match=rf"{arg} has entries up to 1e\+308; the .* overflow float64$"):
+            function()
+
+
+def _far_prismatic(batch=()):
+    """A configuration of ``tree()`` whose first prismatic joint is 1e160 m out."""
+    model = tree()
+    q = valid_inputs(model, seed=8, batch=batch)["q"]
+    start = next(s for joint, s in zip(model.joints, model.idx_q) if isinstance(joint, jt.Prismatic))
+    q[..., start] = 1e160
+    return model, q
+
+
+@pytest.mark.parametrize("name", ["mass_matrix", "inverse_mass_matrix", "forward_dynamics"])
+@pytest.mark.parametrize("batch", [(), (2,)], ids=["one", "batch"])
+def test_a_configuration_far_out_overflows_and_names_q(name, batch):
+    """A prismatic joint 1e160 m out: the inertias about the joints above (m p²) overflow; the error
+    names q, and the mass matrix is not called singular."""
+    model, q = _far_prismatic(batch)
+    zero = np.zeros(batch + (model.nv,))
+    function = {"mass_matrix": lambda: mb.mass_matrix(model, q),
+                "inverse_mass_matrix": lambda: mb.inverse_mass_matrix(model, q),
+                "forward_dynamics": lambda: mb.forward_dynamics(model, q, zero, zero)}[name]
+    with pytest.raises(FloatingPointError, match=r"q has entries up to 1e\+160; the products of positions"):
+        function()
+
+
+def test_a_model_too_heavy_for_float64_is_no_singular_mass_matrix():
+    """Ordinary inputs on a model whose own numbers overflow (1e306 kg at 100 m): the error says that no
+    input explains it, and forward dynamics does not call the mass matrix singular."""
+    builder = mb.ModelBuilder("heavy")
+    builder.add_body("arm", joint=jt.Revolute([0, 0, 1]), inertia=mb.inertia.point_mass(1e306, (100.0, 0, 0)))
+    model = builder.build()
+    q, one = np.zeros(1), np.ones(1)
+    for function in (lambda: mb.mass_matrix(model, q), lambda: mb.forward_dynamics(model, q, one, one),
+                     lambda: mb.inverse_mass_matrix(model, q[None])):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # the compiled tree's own overflow of m c²
+            with pytest.raises(FloatingPointError, match="no input's size explains it .*: the model's masses, "
+                                                         "inertias or lengths are too large for float64"):
+                function()
