@@ -34,7 +34,7 @@ from .driver import NO_INPUT
 from .kernels import aba, coriolis, crba, energy, rnea
 from .kernels import derivatives as derivative_kernels
 from .kinematics import _frame_arguments, frame_motions, joint_world_poses
-from .model import NOT_GIVEN
+from .model import NOT_GIVEN, all_finite
 
 
 # ============================================================================= shared pieces
@@ -143,16 +143,9 @@ def _require_finite(model, kernel, inputs, out_shape, result, batch):
       matrix is finite: it is singular (:func:`_singular`).
     * ``FloatingPointError`` otherwise: the model's own masses, inertias or lengths overflowed.
 
-    A finite result costs one sum (a non-finite entry makes it non-finite); the rest runs only on a
-    result that is not."""
-    # Summing a short list is quicker than NumPy's call overhead, a long one slower; a sum of finite entries
-    # that overflows is settled entry by entry.
-    if result.size <= 256:
-        total = sum(result.reshape(-1).tolist())
-    else:
-        with np.errstate(over="ignore", invalid="ignore"):
-            total = np.add.reduce(result, axis=None)
-    if math.isfinite(total) or np.isfinite(result).all():
+    A finite result costs one sum (:func:`~multibody.model.all_finite`); the rest runs only on a result
+    that is not."""
+    if all_finite(result):
         return result
     n = math.prod(batch)
     failed = ~np.isfinite(result.reshape(n, -1)).all(axis=1)

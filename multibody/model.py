@@ -33,6 +33,18 @@ _FLOAT = np.dtype(np.float64)
 NOT_GIVEN = object()
 
 
+def all_finite(x) -> bool:
+    """Whether every entry of the float64 array ``x`` is finite, from one sum: a non-finite entry makes it
+    non-finite. Python sums a few numbers for a fraction of a NumPy reduction's cost; only a sum of finite
+    entries that overflows is settled entry by entry (without NumPy's warning about the sum)."""
+    if x.size <= _PYTHON_SUM_SIZE:
+        total = sum(x.reshape(-1).tolist())
+    else:
+        with np.errstate(over="ignore", invalid="ignore"):
+            total = np.add.reduce(x, axis=None)
+    return math.isfinite(total) or bool(np.isfinite(x).all())
+
+
 @dataclass(frozen=True, eq=False)
 class Geometry:
     """A visual or collision shape attached to a body (loaded on demand, see :mod:`multibody.geometry`).
@@ -447,10 +459,7 @@ class Model:
     @staticmethod
     def _as_float_array(x, name):
         if type(x) is np.ndarray and x.dtype == np.float64:
-            # A non-finite entry makes the sum non-finite; Python sums a single state's few numbers for a
-            # fraction of a NumPy reduction's cost.
-            total = sum(x.reshape(-1).tolist()) if x.size <= _PYTHON_SUM_SIZE else np.add.reduce(x, axis=None)
-            if not math.isfinite(total) and not np.all(np.isfinite(x)):
+            if not all_finite(x):
                 warnings.warn(f"{name} contains NaN or infinite values; results will contain NaN", RuntimeWarning,
                               stacklevel=3)
             return x

@@ -525,7 +525,7 @@ def test_a_linear_term_that_overflows_names_its_input(name, arg, batch):
     function = {"forward_dynamics": lambda: mb.forward_dynamics(model, q, v, a),
                 "inverse_dynamics": lambda: mb.inverse_dynamics(model, q, v, a, f_ext=f_ext)}[name]
     with warnings.catch_warnings():
-        warnings.filterwarnings("ignore", "overflow encountered in reduce")  # the input check's sum of 1e308s
+        warnings.simplefilter("error")  # (the input check's sum of 1e308s overflows too, and says nothing)
         with pytest.raises(FloatingPointError, match=rf"{arg} has entries up to 1e\+308; the .* overflow float64$"):
             function()
 
