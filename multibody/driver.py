@@ -4,9 +4,9 @@ A kernel (:mod:`multibody.kernels`) computes one state: ``kernel(joints, reals, 
 out, workspace)`` with the compiled tree's arrays, a table of frame rows (:mod:`multibody.tree`), up
 to four per-state input vectors (length 0 when unused), a per-state output ``out (rows, cols)``
 written in place and a workspace. :func:`evaluate` broadcasts the leading batch axes of the inputs,
-allocates the output and the workspaces, and runs the kernel on one state directly or on many
-states in parallel: each thread takes its own contiguous share of the states and its own
-workspace. The states are independent, so any number of threads gives the same numbers.
+allocates the output (or takes the caller's, :func:`output`) and the workspaces, and runs the kernel
+on one state directly or on many states in parallel: each thread takes its own contiguous share of
+the states and its own workspace. The states are independent: any number of threads, same numbers.
 
 Batches run on Numba's threads: :func:`set_num_threads` or the environment variable
 ``MULTIBODY_NUM_THREADS`` sets how many for the whole process (at most ``NUMBA_NUM_THREADS``, the cores by
