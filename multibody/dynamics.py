@@ -125,7 +125,7 @@ _INVERTING = frozenset((aba.forward_dynamics, crba.inverse_mass_matrix, derivati
 _HUGE = 1e30
 
 #: What an input too large overflows, for the message.
-_TERMS = {"q": "the products of positions (inertias about distant joints)", "v": "the velocity-product terms",
+_TERMS = {"q": "the terms of the bodies' positions (moments, inertias about the joints)", "v": "the velocity-product terms",
           "a": "the inertial terms M a", "tau": "the terms M⁻¹ τ", "f_ext": "the external-force terms"}
 
 

@@ -530,27 +530,35 @@ def test_a_linear_term_that_overflows_names_its_input(name, arg, batch):
             function()
 
 
-def _far_prismatic(batch=()):
-    """A configuration of ``tree()`` whose first prismatic joint is 1e160 m out."""
+def _far_prismatic(batch, distance):
+    """A configuration of ``tree()`` whose first prismatic joint is ``distance`` (m) out."""
     model = tree()
     q = valid_inputs(model, seed=8, batch=batch)["q"]
     start = next(s for joint, s in zip(model.joints, model.idx_q) if isinstance(joint, jt.Prismatic))
-    q[..., start] = 1e160
+    q[..., start] = distance
     return model, q
 
 
-@pytest.mark.parametrize("name", ["mass_matrix", "inverse_mass_matrix", "forward_dynamics"])
+@pytest.mark.parametrize("name, distance", [("mass_matrix", 1e160), ("inverse_mass_matrix", 1e160),
+                                            ("forward_dynamics", 1e160), ("generalized_gravity", 1.7e308),
+                                            ("potential_energy", 1.7e308)])
 @pytest.mark.parametrize("batch", [(), (2,)], ids=["one", "batch"])
-def test_a_configuration_far_out_overflows_and_names_q(name, batch):
-    """A prismatic joint 1e160 m out: the inertias about the joints above (m p²) overflow; the error
-    names q, and the mass matrix is not called singular."""
-    model, q = _far_prismatic(batch)
+def test_a_configuration_far_out_overflows_and_names_q(name, distance, batch):
+    """A prismatic joint far out: the inertias about the joints above (m p², beyond 1e154 m) or the
+    gravity moments (m g p, near float64's largest number) overflow; the error names q, and the mass
+    matrix is not called singular."""
+    model, q = _far_prismatic(batch, distance)
     zero = np.zeros(batch + (model.nv,))
     function = {"mass_matrix": lambda: mb.mass_matrix(model, q),
                 "inverse_mass_matrix": lambda: mb.inverse_mass_matrix(model, q),
-                "forward_dynamics": lambda: mb.forward_dynamics(model, q, zero, zero)}[name]
-    with pytest.raises(FloatingPointError, match=r"q has entries up to 1e\+160; the products of positions"):
-        function()
+                "forward_dynamics": lambda: mb.forward_dynamics(model, q, zero, zero),
+                "generalized_gravity": lambda: mb.generalized_gravity(model, q),
+                "potential_energy": lambda: mb.potential_energy(model, q)}[name]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(FloatingPointError, match=re.escape(f"q has entries up to {distance:.3g}; the terms of the "
+                                                               "bodies' positions (moments, inertias about the joints)")):
+            function()
 
 
 def test_a_model_too_heavy_for_float64_is_no_singular_mass_matrix():
