@@ -39,6 +39,7 @@ from scipy.integrate import BDF, DOP853, LSODA, RK23, RK45, Radau
 
 from .constrained import ConstrainedSystem, ConstraintError, ModelSystem
 from .constraints import CompiledRows
+from .model import all_finite
 from .spatial import matvec, transpose
 from .trajectory import Trajectory, recorded_names
 
@@ -90,16 +91,26 @@ class SimulationError(RuntimeError):
         self.trajectory = trajectory
 
 
-def _torque_function(tau, nv, batch=None):
+def _torque_function(tau, nv, batch=None, system=None):
     """``tau`` as a function ``(t, q, v) -> None or array``. For a batch of ``batch`` trajectories an array
     may also have the shape ``(batch, nv)``, and a callable's results are checked to have one of the two
-    shapes."""
+    shapes. An array must be finite (``ValueError``); for one trajectory a callable's non-finite result raises
+    :class:`SimulationError` naming the time and the joints (of ``system``, a mechanical system), a batch's
+    stops only the trajectories whose rows are not finite (:func:`_simulate_batch`)."""
     shapes = ((nv,),) if batch is None else ((nv,), (batch, nv))
     if tau is None:
         return lambda t, q, v: None
     if callable(tau):
         if batch is None:
-            return tau
+            def finite(t, q, v):
+                value = tau(t, q, v)
+                if value is not None:
+                    values = np.asarray(value, dtype=float)
+                    # (other shapes are refused, with their own message, where the forces are used)
+                    if values.shape == (nv,) and not all_finite(values):
+                        raise SimulationError(_non_finite_torque(system, t, values), None)
+                return value
+            return finite
 
         def checked(t, q, v):
             value = tau(t, q, v)
@@ -116,6 +127,7 @@ def _torque_function(tau, nv, batch=None):
     if tau.shape not in shapes:
         raise ValueError(f"tau must be None, an array of shape {' or '.join(map(str, shapes))} or a callable "
                          f"tau(t, q, v), got shape {tau.shape}")
+    _require_finite(system, "tau", tau, force=True)
     return lambda t, q, v: tau
 
 
@@ -141,8 +153,9 @@ def simulate(system, q0, v0, t_final, *, dt=None, method="RK45", tau=None, rtol=
         system: a :class:`~multibody.model.Model`, a :class:`ConstrainedSystem`, or any mechanical system
             (:class:`~multibody.constrained.ModelSystem` lists the members; one without the chart maps
             must have ``q̇ = v``).
-        q0, v0: initial state ``(nq,)``, ``(nv,)``. An inconsistent state is projected onto the
-            constraints with a warning giving the distance moved; if that fails, ``ConstraintError``.
+        q0, v0: initial state ``(nq,)``, ``(nv,)``, finite (``ValueError`` names the non-finite entries by
+            joint). An inconsistent state is projected onto the constraints with a warning giving the distance
+            moved; if that fails, ``ConstraintError``.
             ``q0 (N, nq)``, ``v0 (N, nv)`` (or one of them a single state, shared) integrate ``N`` trajectories
             in lockstep with ``"RK4"``, each stage of all of them in one compiled call on all cores: a
             ``Model``, or a ``ConstrainedSystem`` on one with built-in constraints (compiled rows); other
@@ -156,7 +169,9 @@ def simulate(system, q0, v0, t_final, *, dt=None, method="RK45", tau=None, rtol=
             multipliers (:func:`multibody.variational.simulate`, one state; Lie-group joints included).
         tau: joint forces: ``None``, an array ``(nv,)``, or a callable ``tau(t, q, v) -> (nv,)``. For ``N``
             trajectories also an array ``(N, nv)``, and the callable takes the batch, ``q (N, nq)``, ``v (N, nv)
-            -> (N, nv)`` (a stopped trajectory's row holds its last state).
+            -> (N, nv)`` (a stopped trajectory's row holds its last state). An array must be finite
+            (``ValueError``); a callable's non-finite result stops the run (a batch: the trajectories of its
+            non-finite rows) with :class:`SimulationError` naming the time it was called at and the joints.
         rtol, atol: tolerances of the adaptive methods.
         project: keep the state on the constraints (default ``True``): after an integrator step whose
             end state's projection onto them (:meth:`ConstrainedSystem.project`) moves it by more than
@@ -192,10 +207,12 @@ def simulate(system, q0, v0, t_final, *, dt=None, method="RK45", tau=None, rtol=
     Returns:
         :class:`Trajectory` (with a leading axis ``N`` for ``N`` trajectories).
     Raises:
-        SimulationError: the integration of one trajectory failed (a non-finite state, constraints without
-            a solution, or an adaptive method that stalled: its last :data:`STALLED_STEPS` steps advanced less
-            than :data:`STALLED_SPAN` of the run), or (``limits="error"``) a joint left its limits;
-            ``.trajectory`` holds the part computed so far.
+        ValueError: invalid arguments, among them non-finite ``q0``, ``v0`` or an array ``tau``.
+        SimulationError: the integration of one trajectory failed (a non-finite state, joint forces or
+            derivative of the state, constraints without a solution, or an adaptive method that stalled: its
+            last :data:`STALLED_STEPS` steps advanced less than :data:`STALLED_SPAN` of the run), or
+            (``limits="error"``) a joint left its limits; ``.trajectory`` holds the part computed so far (up to
+            the last output time before the failure).
     """
     if method == "variational":  # the discrete Hamilton's principle, in its own module
         from . import variational
@@ -216,21 +233,23 @@ def simulate(system, q0, v0, t_final, *, dt=None, method="RK45", tau=None, rtol=
     batch = _batch_size(q, v, nq, nv)
     if batch is not None:
         _check_batchable(constrained, method, q.shape, v.shape)
+    elif q.shape != (nq,) or v.shape != (nv,):
+        raise ValueError(f"q0 and v0 must have shapes ({nq},) and ({nv},), got {q.shape} and {v.shape}")
+    _require_finite(mechanical, "q0", q)
+    _require_finite(mechanical, "v0", v, rate=True)
     if joint_damping:
         if model is None:
             raise ValueError(f"joint_damping=True needs a system built on a Model (model.damping); "
                              f"{type(mechanical).__name__} has none: give the damping as tau(t, q, v) instead")
         if np.any(model.damping):
-            tau = _with_joint_damping(_torque_function(tau, nv, batch), model.damping)
-    torque = _torque_function(tau, nv, batch)
+            tau = _with_joint_damping(_torque_function(tau, nv, batch, mechanical), model.damping)
+    torque = _torque_function(tau, nv, batch, mechanical)
     charts = _Charts(mechanical)
     if batch is not None:
         return _simulate_batch(constrained, charts, np.broadcast_to(q, (batch, nq)), np.broadcast_to(v, (batch, nv)),
                                _output_times(t0, t_final, dt), torque, callable(tau), project=project,
                                projection_tolerance=projection_tolerance, limits=limits, progress=progress)
 
-    if q.shape != (nq,) or v.shape != (nv,):
-        raise ValueError(f"q0 and v0 must have shapes ({nq},) and ({nv},), got {q.shape} and {v.shape}")
     q_projected, v_projected, conditioning = constrained._projection(q, v, t0)
     dq, dv = np.abs(q_projected - q), np.abs(v_projected - v)
     moved = max(dq.max(initial=0.0), dv.max(initial=0.0))
@@ -323,7 +342,11 @@ def simulate(system, q0, v0, t_final, *, dt=None, method="RK45", tau=None, rtol=
                     if first[0] is not None and t_ == t and np.array_equal(y, y0):
                         known, first[0] = first[0], None
                         return known
-                    return stage(t_, y, q_chart)
+                    y_dot = stage(t_, y, q_chart)
+                    # SciPy's solvers answer a non-finite derivative by shrinking the step, to no end
+                    if not all_finite(y_dot):
+                        raise SimulationError(_non_finite_rates(mechanical, t_, y, y_dot), None)
+                    return y_dot
 
                 first_step = None if step_size is None else min(step_size, t_final - t)
                 tangent = near and solver_class in _TANGENT_SOLVERS
@@ -371,8 +394,9 @@ def simulate(system, q0, v0, t_final, *, dt=None, method="RK45", tau=None, rtol=
         try:
             partial = _trajectory(constrained, times[:done], states[:done], torque, message, tolerance,
                                   settled=method == "RK4")
-        except (ConstraintError, np.linalg.LinAlgError, ValueError, FloatingPointError):
-            # states so far out that their multipliers cannot be computed: the states alone
+        except _FAILURES:
+            # states so far out that their multipliers cannot be computed (or joint forces that are not finite
+            # at them): the states alone
             m = constrained.num_rows
             partial = Trajectory(t=times[:done].copy(), q=states[:done, :nq].copy(), v=states[:done, nq:].copy(),
                                  lam=np.full((done, m), np.nan), energy=np.full(done, np.nan),
@@ -437,9 +461,12 @@ def _report_limits(system, trajectory, mode):
                       JointLimitWarning, stacklevel=3)
 
 
-def _coordinate(system, k, rate):
-    """``"q[k] (joint 'name', unit)"`` or ``"v[k] (...)"``: a coordinate of ``system`` named for messages."""
-    symbol = f"{'v' if rate else 'q'}[{k}]"
+def _coordinate(system, k, rate, force=False):
+    """``"q[k] (joint 'name', unit)"``, ``"v[k] (...)"`` or, with ``force``, the joint force ``"tau[k] (..., N or
+    N·m)"`` (indexed as ``v``): a coordinate of ``system`` named for messages (by its index alone without a
+    ``Model``)."""
+    rate = rate or force
+    symbol = f"{'tau' if force else 'v' if rate else 'q'}[{k}]"
     model = getattr(system, "model", None)
     if model is None:
         return symbol
@@ -447,13 +474,59 @@ def _coordinate(system, k, rate):
     joint = max(j for j in range(model.njoints) if offsets[j] <= k)
     within = k - offsets[joint]
     kind = model.joints[joint].kind
-    if kind in ("revolute", "continuous"):
+    linear = kind in ("prismatic", "translation") or (kind in ("free-flyer", "planar")
+                                                      and within < (3 if kind == "free-flyer" else 2))
+    if force:
+        unit = "N" if linear else "N·m"
+    elif kind in ("revolute", "continuous"):
         unit = "rad/s" if rate else "rad"
-    elif kind in ("prismatic", "translation") or (kind in ("free-flyer", "planar") and within < (3 if kind == "free-flyer" else 2)):
+    elif linear:
         unit = "m/s" if rate else "m"
     else:  # quaternion or (cos θ, sin θ) entries, angular velocities
         unit = "rad/s" if rate else "unit-norm component"
     return f"{symbol} (joint {model.joint_names[joint]!r}, {unit})"
+
+
+def _non_finite(system, values, rate=False, force=False):
+    """The non-finite entries of ``values (n,)`` (``q``, with ``rate`` ``v``, with ``force`` joint forces of
+    ``system``), each named by :func:`_coordinate` with its value, the first five listed."""
+    bad = np.flatnonzero(~np.isfinite(values))
+    named = ", ".join(f"{_coordinate(system, int(k), rate, force)} = {values[k]}" for k in bad[:5])
+    return named + (f" and {bad.size - 5} more" if bad.size > 5 else "")
+
+
+def _require_finite(system, name, values, rate=False, force=False):
+    """``ValueError`` naming the argument ``name`` and its non-finite entries (see :func:`_non_finite`) unless
+    ``values`` ``(n,)``, or ``(N, n)`` for ``N`` trajectories (then also naming the trajectories), are finite:
+    from a non-finite state an integrator cannot choose a step, and SciPy's adaptive ones try for ever."""
+    values = np.asarray(values, dtype=float)
+    finite = np.isfinite(values).all(axis=-1)
+    if finite.all():
+        return
+    if values.ndim == 1:
+        raise ValueError(f"{name} must be finite: {_non_finite(system, values, rate, force)}")
+    rows = np.flatnonzero(~finite)
+    others = "" if rows.size == 1 else f" ({rows.size} trajectories have non-finite entries: {rows[:10].tolist()}" + (
+        " ...)" if rows.size > 10 else ")")
+    raise ValueError(f"{name} must be finite: in trajectory {rows[0]}, {name}[{rows[0]}] has "
+                     f"{_non_finite(system, values[rows[0]], rate, force)}{others}")
+
+
+def _non_finite_torque(system, t, values):
+    """The message of joint forces ``values (nv,)`` from ``tau(t, q, v)`` at ``t`` (s) that are not finite."""
+    return f"the joint forces tau(t, q, v) are not finite at t = {t:.6g} s: {_non_finite(system, values, force=True)}"
+
+
+def _non_finite_rates(system, t, y, y_dot):
+    """The message of chart rates ``y_dot = [δ̇, ẇ] (2 nv,)`` at the chart state ``y (2 nv,)`` and ``t`` (s) that
+    are not finite."""
+    if not np.isfinite(y).all():
+        return f"the state became non-finite at t = {t:.6g} s"
+    nv = len(y) // 2
+    k = int(np.flatnonzero(~np.isfinite(y_dot))[0])
+    rate = "acceleration" if k >= nv else "velocity"
+    return (f"the equations of motion are not finite at t = {t:.6g} s, at a finite state (the dynamics overflowed): "
+            f"the {rate} of {_coordinate(system, k % nv, True)} is {y_dot[k]}")
 
 
 def _grown(system, states, nq, v0):
@@ -742,6 +815,7 @@ def _trajectory(constrained, times, states, torque, status, projection_tolerance
         row_names=list(constrained.row_names),
         status=status,
         projection_tolerance=projection_tolerance,
+        joint_names=recorded_names(constrained),
     )
 
 
@@ -801,15 +875,14 @@ def _simulate_batch(constrained, charts, q0, v0, times, torque, state_dependent,
     the trajectories in lockstep, one classical RK4 step per output interval, each stage's chart derivatives
     of all of them in one compiled call on all cores (:meth:`ConstrainedSystem._chart_derivatives`).
 
-    A trajectory that fails (a non-finite state, a constrained step without solution, a projection that does not
-    converge) stops: its status says when and why, its outputs from the next output time on are NaN, and the
-    others go on. ``torque(t, q (N, nq), v (N, nv))`` sees every trajectory, a stopped one at its last state
-    (one that never started, with a non-finite initial state or one that cannot be projected, at rest in the
-    neutral configuration).
+    A trajectory that fails (a non-finite state or joint forces, a constrained step without solution, a projection
+    that does not converge) stops: its status says when and why, its outputs from the next output time on are NaN,
+    and the others go on. ``torque(t, q (N, nq), v (N, nv))`` sees every trajectory, a stopped one at its last
+    state (one that never started, whose initial state cannot be projected, at rest in the neutral
+    configuration). The initial states are finite (:func:`simulate` checks them).
     """
     mechanical = constrained.system
     nq, nv, m = constrained.nq, constrained.nv, constrained.num_rows
-        joint_names=recorded_names(constrained),
     count, n, t0 = len(q0), len(times), times[0]
     status = ["completed"] * count
     stop = np.full(count, n)  # each trajectory's outputs [stop:] are NaN
@@ -820,10 +893,7 @@ def _simulate_batch(constrained, charts, q0, v0, times, torque, state_dependent,
         grown = _grown(mechanical, last[r : r + 1], nq, v_start[r]) if k else None
         status[r] = f"simulation stopped at t = {times[max(k - 1, 0)]:.6g} s: {grown or reason}"
 
-    last = np.concatenate([q0, v0], axis=-1)  # each trajectory's latest good state
-    finite = np.isfinite(last).all(axis=-1)
-    errors = {int(r): "the initial state is not finite" for r in np.flatnonzero(~finite)}
-    start = np.flatnonzero(finite)
+    last = np.concatenate([q0, v0], axis=-1)  # each trajectory's latest good state (finite: simulate checks)
 
     def projection(t):
         """The projection of a batch of states ``(q, v)`` at ``t`` onto the constraints, ``(n, nq + nv + 1)``:
@@ -834,19 +904,17 @@ def _simulate_batch(constrained, charts, q0, v0, times, torque, state_dependent,
         return projected
 
     # whether each trajectory's next step evaluates its stages on the constraints, as settle decides for one
-    near = np.zeros(count, dtype=bool)
-    projected, more = _by_state(projection(t0), (q0[start], v0[start]), (nq + nv + 1,))
-    near[start] = _near_singular(projected[:, -1], project, constrained, charts)
+    projected, errors = _by_state(projection(t0), (q0, v0), (nq + nv + 1,))
+    near = np.zeros(count, dtype=bool) | _near_singular(projected[:, -1], project, constrained, charts)
     projected = projected[:, :-1]
-    errors.update({int(start[i]): message for i, message in more.items()})
-    moved = np.abs(projected - last[start]).max(axis=-1, initial=0.0)
-    moved[list(more)] = 0.0
+    moved = np.abs(projected - last).max(axis=-1, initial=0.0)
+    moved[list(errors)] = 0.0
     if m and moved.max(initial=0.0) > 1e-10:
         j = int(np.argmax(moved))
         warnings.warn(f"the initial states of {int(np.sum(moved > 1e-10))} of {count} trajectories violated the "
-                      f"constraints; projected onto them (moved by up to {moved[j]:.3g}, in trajectory {start[j]})",
+                      f"constraints; projected onto them (moved by up to {moved[j]:.3g}, in trajectory {j})",
                       UserWarning, stacklevel=3)
-    last[start] = projected
+    last[:] = projected
     good = np.ones(count, dtype=bool)
     good[list(errors)] = False
     # A trajectory that never started stands at rest in the neutral configuration, for the joint forces only.
@@ -876,6 +944,11 @@ def _simulate_batch(constrained, charts, q0, v0, times, torque, state_dependent,
         if state_dependent:
             q_t, _, v_t = charts.unchart(q_chart, y)
             tau = torque(t, q_t, v_t)
+            if tau is not None:
+                # a trajectory whose joint forces are not finite stops at the first stage that meets them
+                bad = np.broadcast_to(~np.isfinite(tau).all(axis=-1), (count,))
+                for r in rows[bad[rows]]:
+                    failed.setdefault(int(r), _non_finite_torque(mechanical, t, tau if tau.ndim == 1 else tau[r]))
         whole = rows.size == count
         q_rows, y_rows = (q_chart, y) if whole else (q_chart[rows], y[rows])
         tau_rows = tau if tau is None or tau.ndim == 1 or whole else tau[rows]

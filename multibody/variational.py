@@ -123,6 +123,7 @@ space with ``q̇ = v``; ``order=4`` is for systems without constraints.
 
 from __future__ import annotations
 
+import functools
 import math
 import warnings
 
@@ -130,6 +131,7 @@ import numpy as np
 
 from . import driver, linalg, spatial
 from .constrained import ConstrainedSystem, ConstraintError, ModelSystem
+from .model import all_finite
 from .tree import IQ, IV, KIND
 from .kernels import configuration, coriolis, crba
 from .kernels import lagrangian as lagrangian_kernels
@@ -843,12 +845,14 @@ def simulate(system, q0, v0, t_final, *, dt=None, tau=None, rule="midpoint", ord
 
     Raises:
         ValueError: a system with its own chart maps (not a Model), a system without ``∂L/∂q``,
-            ``order=4`` with constraints, or invalid arguments.
+            ``order=4`` with constraints, or invalid arguments (non-finite ``q0``, ``v0`` or array ``tau``
+            among them, named by joint).
         SimulationError: a step whose Newton iteration did not converge (it names the time and the
-            residual); ``.trajectory`` holds the states before it.
+            residual), joint forces ``tau(t, q, v)`` that are not finite (it names the time and the joints),
+            or a state that is not; ``.trajectory`` holds the states before it.
     """
-    from .simulation import (SimulationError, _checked_timing, _Progress, _report_limits, _torque_function,
-                             _with_joint_damping)
+    from .simulation import (SimulationError, _checked_timing, _Progress, _report_limits, _require_finite,
+                             _torque_function, _with_joint_damping)
 
     if rule not in RULES:
         raise ValueError(f"rule must be one of {RULES}, got {rule!r}")
@@ -870,14 +874,16 @@ def simulate(system, q0, v0, t_final, *, dt=None, tau=None, rule="midpoint", ord
             raise ValueError(f"joint_damping=True needs a system built on a Model (model.damping); "
                              f"{type(mechanical).__name__} has none: give the damping as tau(t, q, v) instead")
         if np.any(model.damping):
-            tau = _with_joint_damping(_torque_function(tau, nv), model.damping)
-    force = _total_force(tau, nv, lagrangian, _torque_function)
+            tau = _with_joint_damping(_torque_function(tau, nv, system=mechanical), model.damping)
+    force = _total_force(tau, nv, lagrangian, functools.partial(_torque_function, system=mechanical))
 
     q, v = np.array(q0, dtype=float), np.array(v0, dtype=float)
     chart = lagrangian.chart
     if q.shape != (nq,) or v.shape != (nv,):
         raise ValueError(f"q0 and v0 must have shapes ({nq},) and ({nv},), got {q.shape} and {v.shape} "
                          "(method='variational' integrates one state at a time)")
+    _require_finite(mechanical, "q0", q)
+    _require_finite(mechanical, "v0", v, rate=True)
     if m:
         q_projected, v_projected = constrained.project(q, v, t0)
         moved = max(_norm(q_projected - q), _norm(v_projected - v))
@@ -932,6 +938,9 @@ def simulate(system, q0, v0, t_final, *, dt=None, tau=None, rule="midpoint", ord
                 mu_start[k - 1] += start
                 mu_end[k] = end
             qs[k], vs[k] = q, (chart.alignment(q) @ v if aligned else v)
+            # (a step's equations can hold with v = M⁻¹ p overflowing: such a state is not kept)
+            if not (all_finite(qs[k]) and all_finite(vs[k])):
+                raise SimulationError(f"the state became non-finite at t = {times[k]:.6g} s", None)
             done = k + 1
             bar.update(times[k])
     except SimulationError as error:

@@ -9,6 +9,8 @@ that cannot batch are refused by name.
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 
@@ -159,7 +161,8 @@ def test_a_trajectory_that_blows_up_is_marked_and_the_others_go_on():
 
 def test_non_finite_joint_forces_of_one_trajectory_stop_it_alone():
     """A callable that returns NaN for trajectory 1 from t = 0.2 s: it stops there, with the state of its last
-    good step kept; the callable keeps receiving every trajectory (the stopped one at its last state)."""
+    good step kept and a status naming the stage time and the joint, as the same run alone says; the callable
+    keeps receiving every trajectory (the stopped one at its last state)."""
     ball, cs = ball_system()
     q0, v0 = cs.project(*random_states(ball, cs, 3, seed=8))
     seen = []
@@ -175,7 +178,12 @@ def test_non_finite_joint_forces_of_one_trajectory_stop_it_alone():
         batch = mb.simulate(cs, q0, v0, 0.5, dt=0.05, tau=tau, **RK4)
     assert batch.completed.tolist() == [True, False, True]
     assert set(seen) == {(3, 7)}
-    assert batch.status[1].startswith("simulation stopped at t = 0.2 s: the state became non-finite at t = 0.25 s")
+    # (the first RK4 stage after t = 0.2 s is the midpoint one, at 0.225 s)
+    assert batch.status[1].startswith("simulation stopped at t = 0.2 s: the joint forces tau(t, q, v) are not finite "
+                                      "at t = 0.225 s: tau[0] (joint 'root_joint', N) = nan")
+    with pytest.raises(mb.SimulationError) as alone:
+        mb.simulate(cs, q0[1], v0[1], 0.5, dt=0.05, tau=lambda t, q, v: tau(t, q[None], v[None])[1], **RK4)
+    assert batch.status[1] == str(alone.value)
     stopped = np.flatnonzero(np.isnan(batch.q[1]).any(axis=1))
     assert stopped[0] == 5 and np.isfinite(batch.q[1, :5]).all() and np.isfinite(batch.lam[1, :5]).all()
     for k in (0, 2):
@@ -184,15 +192,25 @@ def test_non_finite_joint_forces_of_one_trajectory_stop_it_alone():
         np.testing.assert_array_equal(batch.lam[k], alone.lam)
 
 
-def test_a_non_finite_initial_state_stops_its_trajectory_at_the_start():
+def test_non_finite_initial_states_or_joint_forces_of_a_batch_are_refused():
+    """Non-finite entries of q0 (N, nq), v0 (N, nv) or constant joint forces (N, nv) are a ValueError naming the
+    argument, the trajectory and the joint, before anything runs."""
     ball, cs = ball_system()
     q0, v0 = cs.project(*random_states(ball, cs, 3, seed=11))
-    q0[1, 0] = np.nan
-    with pytest.warns(RuntimeWarning, match="1 of 3 trajectories stopped early"):
-        batch = mb.simulate(cs, q0, v0, 0.1, dt=0.05, tau=lambda t, q, v: np.zeros_like(v), **RK4)
-    assert batch.status[1] == "simulation stopped at t = 0 s: the initial state is not finite"
-    assert np.isnan(batch.q[1]).all() and np.isnan(batch.lam[1]).all()
-    np.testing.assert_array_equal(batch.q[2], mb.simulate(cs, q0[2], v0[2], 0.1, dt=0.05, **RK4).q)
+    bad_q, bad_v, tau = q0.copy(), v0.copy(), np.zeros((3, ball.nv))
+    bad_q[1, 0] = np.nan
+    bad_v[2, 4], bad_v[0, 1] = np.inf, np.nan
+    tau[2, 5] = np.nan
+    with pytest.raises(ValueError, match=re.escape("q0 must be finite: in trajectory 1, q0[1] has q[0] (joint "
+                                                   "'root_joint', m) = nan")):
+        mb.simulate(cs, bad_q, v0, 0.1, dt=0.05, **RK4)
+    with pytest.raises(ValueError, match=re.escape("v0 must be finite: in trajectory 0, v0[0] has v[1] (joint "
+                                                   "'root_joint', m/s) = nan (2 trajectories have non-finite "
+                                                   "entries: [0, 2])")):
+        mb.simulate(cs, q0, bad_v, 0.1, dt=0.05, **RK4)
+    with pytest.raises(ValueError, match=re.escape("tau must be finite: in trajectory 2, tau[2] has tau[5] (joint "
+                                                   "'root_joint', N·m) = nan")):
+        mb.simulate(cs, q0, v0, 0.1, dt=0.05, tau=tau, **RK4)
 
 
 def test_joint_limits_of_a_batch():

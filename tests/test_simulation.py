@@ -10,6 +10,9 @@ output intervals (``dt``, also the projection interval) are 0.05–0.25 s rather
 from __future__ import annotations
 
 import re
+import subprocess
+import sys
+import textwrap
 import warnings
 
 import numpy as np
@@ -475,11 +478,15 @@ def test_inconsistent_initial_state_is_projected_with_a_warning():
         mb.simulate(cs, q_ok, v_ok, 0.2, dt=0.1)
 
 
-@pytest.mark.filterwarnings("ignore::RuntimeWarning")  # NaN input warnings, by design
-@pytest.mark.parametrize("method", ["RK4", "RK45"])
+#: Every integration method of ``mb.simulate``.
+ALL_METHODS = mb.simulation.ADAPTIVE_METHODS + mb.simulation.FIXED_STEP_METHODS + ("variational",)
+
+
+@pytest.mark.parametrize("method", ["RK4", "RK45", "variational"])
 def test_blow_up_raises_simulation_error_with_partial_trajectory(method):
-    """A torque that turns NaN after t = 0.5 s: SimulationError, whose ``.trajectory`` holds the
-    (finite) states computed before the failure, all at times before it."""
+    """A torque that turns NaN after t = 0.5 s: SimulationError naming the time it was evaluated at and the
+    joint, whose ``.trajectory`` holds the (finite) states computed before the failure, all at times before
+    it."""
     cs = pendulum_system()
     q0, v0 = pendulum_state(L_PEND, 0.6, 0.4)
 
@@ -488,16 +495,129 @@ def test_blow_up_raises_simulation_error_with_partial_trajectory(method):
 
     with pytest.raises(mb.SimulationError) as info:
         mb.simulate(cs, q0, v0, 1.0, dt=0.05, method=method, tau=tau)
+    message = str(info.value)
+    found = re.search(r"the joint forces tau\(t, q, v\) are not finite at t = (\S+) s: tau\[0\] \(joint 'p_joint', N\) "
+                      r"= nan, tau\[1\] .* = nan, tau\[2\] .* = nan$", message)
+    assert found, message
     partial = info.value.trajectory
     assert isinstance(partial, mb.Trajectory)
-    assert len(partial) > 0 and partial.t[-1] <= 0.5 + 1e-12
+    assert len(partial) > 0 and partial.t[-1] <= 0.5 + 1e-12 and float(found.group(1)) > 0.5
+    assert message.startswith(f"simulation stopped at t = {partial.t[-1]:.6g} s: ")
     assert_close(partial.t, np.linspace(0.0, partial.t[-1], len(partial)), 1e-12, scale=1.0, what="times")
     assert np.all(np.isfinite(partial.q)) and np.all(np.isfinite(partial.v)) and np.all(np.isfinite(partial.lam))
-    assert partial.status != "completed" and "0.5" in str(info.value)
+    assert partial.status == message
     # the states before the failure are the undisturbed motion (the same run to the same t_final, so
     # the same steps: the outputs agree to rounding, not just to the integration tolerance)
     reference = mb.simulate(cs, q0, v0, 1.0, dt=0.05, method=method)
     assert_close(partial.q, reference.q[: len(partial)], 1e-12, scale=1.0, what="states before the failure")
+
+
+@pytest.mark.parametrize("method", ALL_METHODS)
+def test_joint_forces_that_turn_non_finite_stop_every_method_naming_time_and_joint(method):
+    """The double pendulum with an elbow torque that turns NaN after t = 0.5 s, by every method: SimulationError
+    naming the time the torque was evaluated at and the joint, with the finite states before it, which are
+    those of the run without the torque (the same steps, so to rounding)."""
+    model = mb.robots.load("double_pendulum")
+    q0, v0 = np.array([0.3, 0.2]), np.zeros(2)
+
+    def tau(t, q, v):
+        return np.array([0.0, np.nan if t > 0.5 else 0.0])
+
+    with pytest.raises(mb.SimulationError) as info:
+        mb.simulate(model, q0, v0, 1.0, dt=0.05, method=method, tau=tau)
+    message = str(info.value)
+    found = re.search(r"the joint forces tau\(t, q, v\) are not finite at t = (\S+) s: tau\[1\] \(joint 'elbow', "
+                      r"N·m\) = nan$", message)
+    assert found and float(found.group(1)) > 0.5, message
+    partial = info.value.trajectory
+    assert 0 < len(partial) and partial.t[-1] <= 0.5 + 1e-12 and partial.status == message
+    assert np.isfinite(partial.q).all() and np.isfinite(partial.v).all()
+    reference = mb.simulate(model, q0, v0, 1.0, dt=0.05, method=method)
+    assert_close(partial.q, reference.q[: len(partial)], 1e-12, scale=1.0, what="states before the failure")
+
+
+def test_non_finite_initial_state_or_constant_joint_forces_are_refused_rather_than_hanging():
+    """Non-finite q0, v0 or constant tau: ValueError at once by every method, naming the argument and its
+    entries by joint (from a NaN state SciPy's RK45 and DOP853 would shrink their steps for ever). The
+    simulations run in a child process with a timeout, so that a regression fails instead of hanging the
+    suite: the child takes about 3 s, most of it importing, and the timeout of 120 s leaves a wide margin for
+    a slow machine."""
+    code = textwrap.dedent("""
+        import numpy as np
+        import multibody as mb
+        from multibody.simulation import ADAPTIVE_METHODS, FIXED_STEP_METHODS
+        model = mb.robots.load("double_pendulum")
+        q0, v0 = np.array([0.3, 0.2]), np.zeros(2)
+        cases = {"q0": dict(q0=np.array([np.nan, 0.2]), v0=v0), "v0": dict(q0=q0, v0=np.array([-np.inf, np.nan])),
+                 "tau": dict(q0=q0, v0=v0, tau=np.array([0.0, np.nan])),
+                 # (joint damping wraps the joint forces in a callable: the array is checked first)
+                 "damped tau": dict(q0=q0, v0=v0, tau=np.array([0.0, np.nan]), joint_damping=True)}
+        for method in ADAPTIVE_METHODS + FIXED_STEP_METHODS + ("variational",):
+            for case, arguments in cases.items():
+                try:
+                    mb.simulate(model, t_final=1.0, method=method, **arguments)
+                except ValueError as error:
+                    print(f"{method}, {case}: {error}")
+        """)
+    child = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert child.returncode == 0, child.stderr
+    messages = {"q0": "q0 must be finite: q[0] (joint 'shoulder', rad) = nan",
+                "v0": "v0 must be finite: v[0] (joint 'shoulder', rad/s) = -inf, v[1] (joint 'elbow', rad/s) = nan",
+                "tau": "tau must be finite: tau[1] (joint 'elbow', N·m) = nan",
+                "damped tau": "tau must be finite: tau[1] (joint 'elbow', N·m) = nan"}
+    assert child.stdout.splitlines() == [f"{method}, {case}: {message}" for method in ALL_METHODS
+                                         for case, message in messages.items()]
+
+
+def _free_particle_system():
+    """A free particle of 1 g on a line, written as a symbolic Lagrangian system (no Model: no joint names)."""
+    import sympy as sp
+    from sympy.physics.mechanics import dynamicsymbols
+
+    x, y = dynamicsymbols("x y")
+    mass = sp.Symbol("m")
+    return mb.LagrangianSystem([x, y], mass / 2 * (x.diff() ** 2 + y.diff() ** 2)).numeric(m=1e-3)
+
+
+@pytest.mark.parametrize("method", ALL_METHODS)
+def test_non_finite_joint_forces_of_a_system_without_a_model_name_the_coordinate(method):
+    system = _free_particle_system()
+
+    def tau(t, q, v):
+        return np.array([0.0, np.nan if t > 0.5 else 0.0])
+
+    with pytest.raises(mb.SimulationError, match=r"the joint forces tau\(t, q, v\) are not finite at t = \S+ s: "
+                                                 r"tau\[1\] = nan$") as info:
+        mb.simulate(system, np.zeros(2), np.ones(2), 1.0, dt=0.01, method=method, tau=tau)
+    assert info.value.trajectory.t[-1] <= 0.5 and np.isfinite(info.value.trajectory.q).all()
+
+
+def test_a_non_finite_initial_state_of_a_system_without_a_model_is_named_by_index():
+    with pytest.raises(ValueError, match=re.escape("q0 must be finite: q[1] = inf")):
+        mb.simulate(_free_particle_system(), np.array([0.0, np.inf]), np.ones(2), 1.0, method="RK4")
+
+
+@pytest.mark.parametrize("method", ALL_METHODS)
+def test_dynamics_that_overflow_stop_with_the_time(method):
+    """Finite joint forces of 1e307 N on a particle of 1 g from t = 0.5 s: the accelerations overflow. Every
+    method stops with SimulationError naming a time after 0.5 s; the adaptive ones, which would shrink their
+    steps until SciPy gives up, say that the equations of motion are not finite and where."""
+    system = _free_particle_system()
+
+    def tau(t, q, v):
+        return np.array([1e307 if t > 0.5 else 0.0, 0.0])
+
+    with pytest.raises(mb.SimulationError) as info:
+        mb.simulate(system, np.zeros(2), np.ones(2), 1.0, dt=0.01, method=method, tau=tau)
+    message = str(info.value)
+    times = [float(t) for t in re.findall(r"at t = (\S+) s", message)]
+    assert len(times) == 2 and times[1] > 0.5, message
+    if method in mb.simulation.ADAPTIVE_METHODS:
+        assert re.search(r"the equations of motion are not finite at t = \S+ s, at a finite state \(the dynamics "
+                         r"overflowed\): the acceleration of v\[0\] is (inf|nan)$", message), message
+    partial = info.value.trajectory
+    assert partial.t[-1] == pytest.approx(times[0], abs=1e-6) and np.isfinite(partial.q).all()
+    assert np.isfinite(partial.v).all()
 
 
 def test_massless_model_raises_simulation_error():
