@@ -8,6 +8,7 @@ Run: python examples/diff_drive.py [output_folder]
 """
 
 import sys
+import warnings
 
 import numpy as np
 
@@ -15,6 +16,8 @@ import multibody as mb
 from multibody.plotting import plot_path, plot_trajectory
 
 out = sys.argv[1] if len(sys.argv) > 1 else "output"
+# The repeated sideways row is intended: the simulation's rank check need not say so.
+warnings.filterwarnings("ignore", category=mb.RankDeficientWarning)
 robot = mb.robots.load("diff_drive")
 wheels = [mb.RollingDisc(name, 0.08, axis=(0.0, 1.0, 0.0), normal=False) for name in ("left_wheel", "right_wheel")]
 system = mb.ConstrainedSystem(robot, wheels)

@@ -6,7 +6,7 @@ Public names are listed in ``docs/api.md``; conventions (vector ordering, frames
 
 from . import inertia, joints, robots, spatial
 from .driver import get_num_threads, set_num_threads
-from .constrained import ConstrainedSystem, ConstraintError, KKTDerivatives, KKTSolution
+from .constrained import ConstrainedSystem, ConstraintError, KKTDerivatives, KKTSolution, RankDeficientWarning
 from .constraints import (
     Distance,
     Holonomic,
@@ -96,6 +96,7 @@ __all__ = [
     "Pfaffian",
     "PointOnCurve",
     "PointOnSurface",
+    "RankDeficientWarning",
     "RollingDisc",
     "RollingSphere",
     "JointLimitWarning",

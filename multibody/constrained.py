@@ -11,6 +11,7 @@ Eliminating ``a`` gives the multipliers from the *Delassus* matrix ``G = A M⁻�
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass
 from functools import cached_property
 
@@ -27,6 +28,17 @@ from .tree import frame_rows
 
 class ConstraintError(RuntimeError):
     """Constraints that cannot hold together (inconsistent), or a state that cannot be projected."""
+
+
+class RankDeficientWarning(UserWarning):
+    """Constraint rows that are not independent at the state a :class:`ConstrainedSystem` is first projected
+    at (:meth:`ConstrainedSystem.project`, or the initial state of :func:`multibody.simulate`).
+
+    Redundant rows are supported (their multipliers are the minimum-norm ones): a parallelogram's
+    second crank, a car's four wheels. Where the redundancy is intended, filter this warning
+    (``warnings.filterwarnings("ignore", category=mb.RankDeficientWarning)``); where it is not, a
+    constraint holds less than it seems to (a planar loop closure in a plane that is not the loop's).
+    """
 
 
 class ModelSystem:
@@ -187,7 +199,8 @@ class ConstrainedSystem:
     def __init__(self, model, constraints=(), *, baumgarte=None, rank_tolerance=1e-10):
         self.system = as_system(model)
         self.model = model if isinstance(model, Model) else None
-        self.constraints = list(constraints)
+        # Each constraint checked against the model, as it applies to it (Constraint.bind).
+        self.constraints = [c.bind(self.system) for c in constraints]
         self.nq, self.nv = self.system.nq, self.system.nv
         if baumgarte is None:
             self.baumgarte = None
@@ -197,6 +210,8 @@ class ConstrainedSystem:
                 raise ValueError(f"Baumgarte gains must be non-negative, got {baumgarte!r}")
             self.baumgarte = (float(alpha), float(beta))
         self.rank_tolerance = rank_tolerance
+        # whether the rows' rank has been checked, at the first projected state (_projection)
+        self._rank_checked = False
         self._rows = [c.rows(self.system) for c in self.constraints]
         masks = [np.asarray(c.position_rows(self.system), dtype=bool) for c in self.constraints]
         self._position_mask = np.concatenate(masks) if masks else np.zeros(0, dtype=bool)
@@ -722,8 +737,43 @@ class ConstrainedSystem:
             return 0
         if (rank := self._compiled_rank(q)) is not None:
             return rank
-        sigma, _ = self._metric_singular_values(self.jacobian(q, t), self._factor(q))
-        return int(self._kept_directions(sigma)[0].sum()) if sigma.size and sigma[0] > 0 else 0
+        return int(self._row_rank(self.jacobian(q, t), self._factor(q)))
+
+    def _row_rank(self, A, L):
+        """The rank ``(...)`` of rows ``A (..., k, nv)`` in the metric of ``M = L Lᵀ``, by the one rank decision
+        (:meth:`_kept_directions`)."""
+        if not A.shape[-2]:
+            return np.zeros(A.shape[:-2], dtype=int)
+        return self._kept_directions(self._metric_singular_values(A, L)[0])[0].sum(axis=-1)
+
+    def _warn_if_rank_deficient(self, q, t):
+        """A :class:`RankDeficientWarning` when the rows at ``q`` (one state or a batch) have a lower rank than
+        the constraints' independent rows (:meth:`~multibody.constraints.Constraint.independent_rows`), naming
+        each constraint whose own rows fall short, with its rank against its rows. Each rank is the lowest over
+        a batch."""
+        if not self.num_rows:
+            return
+        q = np.asarray(q, dtype=float)
+        A = self._position_and_velocity_levels(q, t)[1]
+        if not np.isfinite(A).all():
+            return
+        L = self._factor(q)
+        rank = int(np.min(self._row_rank(A, L)))
+        independent = [c.independent_rows(self.system) for c in self.constraints]
+        if rank >= sum(independent):
+            return
+        offsets = np.cumsum([0] + self._rows)
+        ranks = [int(np.min(self._row_rank(A[..., offsets[k] : offsets[k + 1], :], L))) for k in range(len(self._rows))]
+        parts = [f"{c.name!r} has rank {r} of its {m} rows" + (f" ({n} independent by design)" if n < m else "")
+                 for c, r, m, n in zip(self.constraints, ranks, self._rows, independent) if r < n]
+        if sum(ranks) > rank:
+            parts.append(f"{sum(ranks) - rank} row(s) repeat rows of other constraints")
+        where = "" if q.ndim == 1 else f" (the lowest of the {int(np.prod(q.shape[:-1]))} states)"
+        warnings.warn(f"the constraint rows are not independent at the initial state: rank {rank} of "
+                      f"{self.num_rows} rows{where}: {'; '.join(parts)}. Redundant rows get minimum-norm "
+                      "multipliers; if the redundancy is not intended, a constraint holds less than it seems to "
+                      "(e.g. a planar loop closure in a plane that is not the loop's); if it is, filter "
+                      "mb.RankDeficientWarning", RankDeficientWarning, stacklevel=4)
 
     def _compiled_rank(self, q):
         """:meth:`rank` at one state ``q`` by the compiled step, which makes the same decision on the same
@@ -744,6 +794,9 @@ class ConstrainedSystem:
         projection ``v' = v − M⁻¹Aᵀ (A M⁻¹ Aᵀ)⁺ (A v + b)``. Raises :class:`ConstraintError` when the
         positions do not converge. ``q``, ``v`` may carry leading batch axes when :attr:`batched`; each state of
         a batch stops at its own tolerance, so that it equals its projection alone.
+
+        The first projection of this system (here, or at the initial state of :func:`multibody.simulate`)
+        gives a :class:`RankDeficientWarning` when the rows at the projected state are not independent.
         """
         return self._projection(q, v, t, tolerance, max_iterations)[:2]
 
@@ -751,7 +804,16 @@ class ConstrainedSystem:
         """:meth:`project`, and the conditioning of the rows at the projected state ``(...)``: the
         smallest singular value of ``A L⁻ᵀ`` above rounding (``m ε σ_max``, which leaves out redundant rows)
         over the largest, or (compiled, where the LQ factor decides) a lower bound on it within a factor
-        ``m``; 1 without rows."""
+        ``m``; 1 without rows. The first projection of the system checks the rank of the rows at its state
+        (:meth:`_warn_if_rank_deficient`)."""
+        projected = self._projected(q, v, t, tolerance, max_iterations)
+        if not self._rank_checked:
+            self._rank_checked = True
+            self._warn_if_rank_deficient(projected[0], t)
+        return projected
+
+    def _projected(self, q, v, t, tolerance, max_iterations):
+        """:meth:`_projection` without the rank check."""
         if self._compiled_step is not None and self.system.model._is_one_state(q, v):
             # (the kernel normalises q as below; a state that passes the checks unchanged skips them)
             compiled = self._project_compiled(q, v, tolerance, max_iterations)

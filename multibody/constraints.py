@@ -73,12 +73,37 @@ class Constraint:
         """Number of rows ``m``."""
         raise NotImplementedError
 
+    def independent_rows(self, system) -> int:
+        """How many of the rows are independent by design, away from singular configurations: ``m``, or fewer
+        for a constraint written with a redundant row (a bead on a wire: three rows of rank 2). Fewer at a
+        state means that it holds less than it should (see :class:`~multibody.constrained.RankDeficientWarning`)."""
+        return self.rows(system)
+
     @property
     def body_frames(self) -> tuple:
         """``(body, placement)`` of the frames whose kinematics :meth:`evaluate` reads (none here): a
         :class:`~multibody.constrained.ConstrainedSystem` computes them in its pass down the tree for
         ``M`` and ``h`` rather than in one pass per frame."""
         return ()
+
+    def bind(self, system):
+        """This constraint checked against ``system`` where the two meet (a
+        :class:`~multibody.constrained.ConstrainedSystem`'s construction), and returned as it applies to it:
+        itself, or a copy that carries what the model decides (the plane of a planar :class:`LoopClosure`).
+
+        Every body of :attr:`body_frames` must be one of the model's (a misspelled name raises ``ValueError``
+        naming the constraint and the close matches); a constraint on bodies needs a :class:`Model`.
+        Subclasses that name other parts of the model (joints) check those too.
+        """
+        bodies = [body for body, _ in self.body_frames if body is not None]
+        if bodies:
+            model = _require_model(system, self)
+            for body in bodies:
+                try:
+                    model.body_index(body)
+                except ValueError as error:
+                    raise ValueError(f"{self.name}: {error}") from None
+        return self
 
     def position_rows(self, system):
         """``(m,)`` boolean: the rows that have a position level ``φ = 0`` (all of a holonomic
@@ -384,6 +409,38 @@ def _placement(frame):
     return frame
 
 
+def _plane_normal(normal):
+    """``normal`` as a unit ``(3,)`` vector whose largest component is positive (a plane's normal has no sign;
+    this choice changes only where two components tie, away from the axes that normals are usually
+    along), or ``ValueError``."""
+    n = np.asarray(normal, dtype=float)
+    if n.shape != (3,) or not np.all(np.isfinite(n)) or not np.linalg.norm(n) > 0.0:
+        raise ValueError(f"normal must be a non-zero, finite 3-vector, got {normal!r}")
+    n = n / np.linalg.norm(n)
+    return -n if n[np.argmax(np.abs(n))] < 0.0 else n
+
+
+def _turn_z_to(n):
+    """The smallest rotation ``R (3, 3)`` with ``R e_z = n`` for a unit ``n`` of :func:`_plane_normal` (so that
+    ``n_z ≥ −1/√2``; Rodrigues: ``I + [k]× + [k]×² / (1 + n_z)`` with ``k = e_z × n``)."""
+    k = spatial.skew(np.array([-n[1], n[0], 0.0]))
+    return np.eye(3) + k + k @ k / (1.0 + n[2])
+
+
+def _describe_joint(model, j, columns):
+    """``'name' (kind about/along [axis])`` of joint ``j`` for a message; ``columns``: its motion subspace's
+    ``(linear, angular)`` parts in world axes, ``(2, 3, k)``."""
+    kind = model.joints[j].kind
+    linear, angular = columns
+    if kind in ("revolute", "continuous"):
+        kind += f" about {np.round(angular[:, 0], 3).tolist()}"
+    elif kind == "prismatic":
+        kind += f" along {np.round(linear[:, 0], 3).tolist()}"
+    elif kind == "planar":
+        kind += f" about {np.round(angular[:, 2], 3).tolist()}"
+    return f"{model.joint_names[j]!r} ({kind})"
+
+
 class PointOnCurve(Constraint):
     """A body point stays on a fixed parametric curve ``r(s)`` (a bead on a wire).
 
@@ -413,6 +470,9 @@ class PointOnCurve(Constraint):
 
     def rows(self, system):
         return 3
+
+    def independent_rows(self, system):
+        return 2  # the projector normal to the tangent
 
     @property
     def body_frames(self):
@@ -596,17 +656,31 @@ class LoopClosure(CompiledRows):
     kind         position axes of A          perpendicular axis pairs (A, B)             rows
     ===========  ==========================  ==========================================  ====
     "point"      x, y, z                     —                                           3
-    "planar"     x, y (the loop's plane)     —                                           2
+    "planar"     two axes of the loop's      —                                           2
+                 plane (below)
     "revolute"   x, y, z                     (x, z), (y, z): B's z stays along A's z     5
     "weld"       x, y, z                     (y, z), (z, x), (x, y): axes stay aligned   6
     ===========  ==========================  ==========================================  ====
 
-    The multipliers of the position rows are the reaction force on body B at B's origin, in frame A
-    axes (N); those of the orientation rows are the moments (N m) about ``e_i^A × e_j^B``.
+    The plane of ``"planar"`` is normal to ``normal`` (frame A's axes) when given. Otherwise it is inferred
+    from the model where the constraint meets it (:meth:`bind`, at a ConstrainedSystem's construction): the
+    loop's joints, those on the paths from both bodies to their common ancestor, must all turn about one
+    axis (revolute, continuous and planar joints, axes parallel) and slide across it (prismatic, planar),
+    and the plane is normal to that axis; otherwise ``ValueError`` names the loop's joints and asks for
+    ``normal``. The two position rows are along frame A's x and y axes turned by
+    the smallest rotation that takes A's z axis to the normal (of the normal's two signs, the one whose
+    largest component is positive): A's own x and y when its z is the normal. :meth:`position_directions`
+    gives them.
+
+    The multipliers of the position rows are the reaction force on body B at B's origin, along those
+    axes of frame A (N); those of the orientation rows are the moments (N m) about ``e_i^A × e_j^B``.
 
     Args:
         body_a, body_b: body names or indices (``None``: the world).
         frame_a, frame_b: 4×4 poses of A and B in their bodies (world poses for ``None``).
+        kind: one of the table's.
+        normal: ``(3,)`` the normal of the loop's plane in frame A's axes (``kind="planar"`` only); ``None``
+            infers it.
     """
 
     holonomic = True
@@ -617,20 +691,101 @@ class LoopClosure(CompiledRows):
         "weld": ((0, 1, 2), ((1, 2), (2, 0), (0, 1))),
     }
 
-    def __init__(self, body_a, body_b, *, frame_a=None, frame_b=None, kind="point", name=None):
+    #: Largest sine of the angle between axes counted as parallel (and cosine counted as perpendicular)
+    #: when the plane is inferred: URDF axes and rotations are exact to rounding.
+    PARALLEL_TOLERANCE = 1e-9
+
+    def __init__(self, body_a, body_b, *, frame_a=None, frame_b=None, kind="point", normal=None, name=None):
         super().__init__(name or f"{kind} loop closure {body_a}-{body_b}")
         if kind not in self.KINDS:
             raise ValueError(f"kind must be one of {sorted(self.KINDS)}, got {kind!r}")
+        if normal is not None and kind != "planar":
+            raise ValueError(f"normal gives the plane of kind='planar'; it does not apply to kind={kind!r}")
         self.body_a, self.body_b, self.kind = body_a, body_b, kind
         self.frame_a, self.frame_b = _placement(frame_a), _placement(frame_b)
         self.position_axes, self.aligned_axes = self.KINDS[kind]
+        self.normal = None if normal is None else _plane_normal(normal)
+        # The rows' frame A: frame_a turned so that its x–y plane is the loop's plane.
+        self._turn, self._rows_frame_a = np.eye(3), self.frame_a
+        if self.normal is not None:
+            self._turn = _turn_z_to(self.normal)
+            self._rows_frame_a = self.frame_a.copy()
+            self._rows_frame_a[:3, :3] = self.frame_a[:3, :3] @ self._turn
+
+    @property
+    def _plane_unknown(self):
+        """Whether this is a planar closure whose plane the model has yet to give (see :meth:`bind`)."""
+        return self.kind == "planar" and self.normal is None
 
     def rows(self, system):
         return len(self.position_axes) + len(self.aligned_axes)
 
     @property
     def body_frames(self):
-        return ((self.body_a, self.frame_a), (self.body_b, self.frame_b))
+        return ((self.body_a, self._rows_frame_a), (self.body_b, self.frame_b))
+
+    def bind(self, system):
+        """Checks the bodies (:meth:`Constraint.bind`); a planar closure without ``normal`` returns a copy
+        with the normal inferred from ``system``'s model (see the class docstring), kept for the last model
+        seen."""
+        super().bind(system)
+        if not self._plane_unknown:
+            return self
+        model = _require_model(system, self)
+        kept = self.__dict__.get("_kept_binding")
+        if kept is None or kept[0] is not model:
+            kept = (model, LoopClosure(self.body_a, self.body_b, frame_a=self.frame_a, frame_b=self.frame_b,
+                                       kind=self.kind, normal=self._inferred_normal(model), name=self.name))
+            self._kept_binding = kept
+        return kept[1]
+
+    def _inferred_normal(self, model):
+        """The normal of the loop's plane in frame A's axes, from the joints of the loop at the model's
+        neutral configuration (the class docstring says which loops have one), or ``ValueError``."""
+        ask = "give the plane's normal in frame A's axes: LoopClosure(..., kind='planar', normal=(nx, ny, nz))"
+        where = [None if body is None else int(model.body_joints[model.body_index(body)])
+                 for body in (self.body_a, self.body_b)]
+        support = [model.ancestors[j] if j is not None and j >= 0 else np.zeros(model.njoints, dtype=bool)
+                   for j in where]
+        loop = np.flatnonzero(support[0] ^ support[1])
+        if not loop.size:
+            raise ValueError(f"{self.name}: cannot infer the plane of kind='planar': no joint moves frame B "
+                             f"relative to frame A; {ask}")
+        q = model.neutral()
+        R_WJ, _ = kinematics.joint_world_poses(model, q)
+        # each joint's motion subspace columns [linear; angular] in world axes
+        columns = {j: R_WJ[j] @ np.reshape(model.joints[j].motion_subspace, (2, 3, -1)) for j in loop}
+        turning = [w for j in loop for w in columns[j][1].T if np.linalg.norm(w) > 0.0]
+        n = turning[0] / np.linalg.norm(turning[0]) if turning else None
+        tolerance = self.PARALLEL_TOLERANCE
+
+        def planar(j):
+            linear, angular = columns[j]
+            return all(np.linalg.norm(np.cross(w, n)) <= tolerance * np.linalg.norm(w) for w in angular.T) and \
+                all(abs(u @ n) <= tolerance * np.linalg.norm(u) for u in linear.T)
+
+        if n is None or not all(planar(j) for j in loop):
+            joints = ", ".join(_describe_joint(model, j, columns[j]) for j in loop)
+            problem = "only slide: none turns about an axis normal to a plane" if n is None else \
+                "do not all turn about one axis and slide across it"
+            raise ValueError(f"{self.name}: cannot infer the plane of kind='planar': the loop's joints ({joints}; "
+                             f"world axes at the neutral configuration) {problem}; {ask}")
+        R_WA = self.frame_a[:3, :3]
+        if self.body_a is not None:
+            R_WA = kinematics.forward_kinematics(model, q)[model.body_index(self.body_a), :3, :3] @ R_WA
+        return R_WA.T @ n
+
+    def position_directions(self, system=None):
+        """``(k, 3)``: the directions of the position rows in frame A's axes, along which their multipliers
+        act: frame A's axes, or for ``"planar"`` the two axes of the plane (the class docstring). ``system``
+        is needed only by a planar closure whose plane is inferred."""
+        bound = self.bind(system) if self._plane_unknown else self
+        return bound._turn[:, list(self.position_axes)].T
+
+    def _levels(self, system, q, v, t):
+        if self._plane_unknown:
+            return self.bind(system)._levels(system, q, v, t)
+        return super()._levels(system, q, v, t)
 
     def _frames(self, system, q, v):
         return tuple(_frame(system, self, q, v, body, placement) for body, placement in self.body_frames)
@@ -642,6 +797,8 @@ class LoopClosure(CompiledRows):
         return compiled.LOOP_CLOSURE, parameters, *(frame_index(*frame) for frame in self.body_frames)
 
     def body_forces(self, system, q, lam, t=0.0):
+        if self._plane_unknown:
+            return self.bind(system).body_forces(system, q, lam, t)
         (R_a, _, _, _), (R_b, p_b, _, _) = self._frames(system, q, None)
         k = len(self.position_axes)
         # Position rows: the force R_a Sᵀ λ on B at p_B, and its opposite on A at the same point.
@@ -669,11 +826,18 @@ class JointCoupling(CompiledRows):
     def rows(self, system):
         return 1
 
+    def bind(self, system):
+        self._indices(system)
+        return super().bind(system)
+
     def _indices(self, system):
         model = _require_model(system, self)
         out = []
         for joint in (self.joint_a, self.joint_b):
-            i = model.joint_index(joint)
+            try:
+                i = model.joint_index(joint)
+            except ValueError as error:
+                raise ValueError(f"{self.name}: {error}") from None
             if model.joints[i].nq != 1 or model.joints[i].nv != 1:
                 raise ValueError(f"{self.name}: joint {model.joint_names[i]!r} must have one coordinate")
             out.append((model.idx_q[i], model.idx_v[i]))

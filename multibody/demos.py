@@ -134,7 +134,8 @@ def four_bar_setup(crank=-np.pi / 3):
     The multipliers are the pin force at the closing joint (N, along x and z). ``crank``: its angle
     (rad, about +y; negative lifts it), from which the projection finds the others."""
     model = robots.load("four_bar")
-    # Frame A's x–y plane must be the mechanism's plane x–z: rotate it by +90° about x.
+    # The closure infers its plane (x–z) from the joint axes; frame A turned by +90° about x has its x and y
+    # axes in that plane, along world x and z, which makes the multipliers the pin force along x and z.
     in_plane = spatial.pose_from_xyz_rpy(rpy=(np.pi / 2, 0.0, 0.0))
     closure = LoopClosure("coupler_tip", "rocker_tip", frame_a=in_plane, kind="planar")
     system = ConstrainedSystem(model, [closure])

@@ -13,6 +13,8 @@ numerical derivatives carry the stencil errors estimated next to each test.
 
 from __future__ import annotations
 
+import os
+import warnings
 import zlib
 
 import numpy as np
@@ -313,6 +315,7 @@ def four_bar_states(cs, n, seed):
         yield q, v, rng.standard_normal(3)
 
 
+@pytest.mark.filterwarnings("ignore::multibody.RankDeficientWarning")  # (the redundant y row, below)
 def test_four_bar_matches_pinocchio_constraint_dynamics(pin):
     """Closed four-bar: Pinocchio's CONTACT_3D between the tip of link3 (joint 3, placement ``tip``)
     and the world point (joint 0, placement ``pivot``), LOCAL_WORLD_ALIGNED.
@@ -398,7 +401,10 @@ def test_four_bar_redundant_point_closure_is_minimum_norm():
     for label, frame_a in frames.items():
         cs = mb.ConstrainedSystem(model, [mb.LoopClosure(None, "link3", frame_a=frame_a, frame_b=tip, kind="point")])
         assert cs.num_rows == 3
-        for q, v, tau in four_bar_states(cs, 3, 31):
+        with pytest.warns(mb.RankDeficientWarning, match="rank 2 of 3 rows: 'point loop closure None-link3' has rank 2 "
+                                                         "of its 3 rows"):
+            states = list(four_bar_states(cs, 3, 31))
+        for q, v, tau in states:
             solution = cs.solve(q, v, tau)
             assert solution.rank == 2 and cs.rank(q) == 2, label
             dyn, acc = kkt_residuals(cs, q, v, tau, solution.a, solution.lam)
@@ -414,6 +420,7 @@ def test_four_bar_redundant_point_closure_is_minimum_norm():
                 assert abs(solution.lam[1]) <= 1e-12 * scale
 
 
+@pytest.mark.filterwarnings("ignore::multibody.RankDeficientWarning")  # (the point closure's redundant row)
 def test_four_bar_point_and_planar_closures_agree():
     """kind="planar" keeps the x and y axes of frame A: with frame A rotated by +90° about x its
     x–y plane is the mechanism plane x–z (A's y axis is the world z). Same accelerations; its two
@@ -563,17 +570,23 @@ def _curve_through(x, rng):
     return lambda s: center + 0.7 * (np.cos(np.asarray(s, float)[..., None]) * n1 + np.sin(np.asarray(s, float)[..., None]) * n2)
 
 
+def _normal(kind):
+    """The plane of a planar closure on the random tree, whose loops are not planar: frame A's x–y plane."""
+    return (0.0, 0.0, 1.0) if kind == "planar" else None
+
+
 def builtin_cases():
     """name -> f(model, q, rng) -> constraint; every built-in class, every LoopClosure kind, bodies and
     the world on either side, points off the body origins."""
     cases = {}
     for kind in mb.LoopClosure.KINDS:
         cases[f"loop-{kind}-bodies"] = lambda m, q, rng, k=kind: mb.LoopClosure(
-            "spherical_4", "extra_2", frame_a=random_placement(rng), frame_b=random_placement(rng), kind=k)
+            "spherical_4", "extra_2", frame_a=random_placement(rng), frame_b=random_placement(rng), kind=k,
+            normal=_normal(k))
         cases[f"loop-{kind}-world-a"] = lambda m, q, rng, k=kind: mb.LoopClosure(
-            None, "extra_3", frame_a=random_placement(rng), frame_b=random_placement(rng), kind=k)
+            None, "extra_3", frame_a=random_placement(rng), frame_b=random_placement(rng), kind=k, normal=_normal(k))
         cases[f"loop-{kind}-world-b"] = lambda m, q, rng, k=kind: mb.LoopClosure(
-            "planar_3", None, frame_a=random_placement(rng), frame_b=random_placement(rng), kind=k)
+            "planar_3", None, frame_a=random_placement(rng), frame_b=random_placement(rng), kind=k, normal=_normal(k))
     cases["distance-bodies"] = lambda m, q, rng: mb.Distance(
         "extra_1", "translation_5", 0.7, point_a=0.3 * rng.standard_normal(3), point_b=0.3 * rng.standard_normal(3))
     cases["distance-world"] = lambda m, q, rng: mb.Distance("fixed_tip", None, 0.7, point_a=0.3 * rng.standard_normal(3),
@@ -725,7 +738,8 @@ def test_loop_closure_kinds_leave_the_right_motions_free(kind, free_motions):
     frame_b = random_placement(rng)
     T_body = mb.forward_kinematics(model, q)[0]
     frame_a = T_body @ frame_b
-    cs = mb.ConstrainedSystem(model, [mb.LoopClosure(None, "box", frame_a=frame_a, frame_b=frame_b, kind=kind)])
+    cs = mb.ConstrainedSystem(model, [mb.LoopClosure(None, "box", frame_a=frame_a, frame_b=frame_b, kind=kind,
+                                                     normal=(0.0, 0.0, 1.0) if kind == "planar" else None)])
     A = cs.jacobian(q)
     assert A.shape == (6 - free_motions, 6) and cs.rank(q) == 6 - free_motions
     assert_close(cs.position_error(q), np.zeros(6 - free_motions), 1e-12, scale=1.0, what="closed")
@@ -827,23 +841,25 @@ def test_constraint_constructors_reject_bad_arguments():
 
 
 def test_builtin_constraint_needs_a_model():
-    """Built-in constraints refer to bodies: with a user-defined system they raise TypeError."""
+    """Built-in constraints refer to bodies: with a user-defined system they raise TypeError where they meet it,
+    at the ConstrainedSystem's construction, and when their methods are called with it."""
     minimal = CurveCoordinateSystem(Helix(), 1.0)
-    q, v = np.array([0.1]), np.array([0.2])
+    q = np.array([0.1])
     for constraint in (mb.Distance("p", None, 1.0), mb.LoopClosure("p", None), mb.JointCoupling("a", "b"),
-                       mb.PointOnSurface("p", lambda x: x[..., 0]), mb.PointOnCurve("p", Helix().r)):
-        cs = mb.ConstrainedSystem(minimal, [constraint])
+                       mb.PointOnSurface("p", lambda x: x[..., 0]), mb.PointOnCurve("p", Helix().r),
+                       mb.RollingSphere("p", 0.1), mb.RollingDisc("p", 0.1), mb.KnifeEdge("p")):
+        with pytest.raises(TypeError, match=f"{constraint.name} refers to bodies, so it needs a multibody Model"):
+            mb.ConstrainedSystem(minimal, [constraint])
         with pytest.raises(TypeError, match="needs a multibody Model"):
-            cs.forward_dynamics(q, v)
+            constraint.jacobian(minimal, q)
     with pytest.raises(TypeError, match="not a mechanical system"):
         mb.ConstrainedSystem(object(), [])
 
 
 def test_joint_coupling_rejects_multi_coordinate_joints():
     model = particle_model(1.0, 1.0)
-    cs = mb.ConstrainedSystem(model, [mb.JointCoupling("p1_joint", "p2_joint")])
-    with pytest.raises(ValueError, match="must have one coordinate"):
-        cs.forward_dynamics(np.zeros(6), np.zeros(6))
+    with pytest.raises(ValueError, match="coupling p1_joint-p2_joint: joint 'p1_joint' must have one coordinate"):
+        mb.ConstrainedSystem(model, [mb.JointCoupling("p1_joint", "p2_joint")])
 
 
 def test_point_on_curve_outside_parameter_range():
@@ -901,3 +917,151 @@ def test_a_systems_compiled_rows_and_rank_equal_its_constraints_own():
     q_bad[0] = np.nan
     assert system._compiled_levels(q_bad) is None
     assert system._compiled_rank(q[None]) is None
+
+
+# ============================================================================= the plane of a planar closure, names, rank
+
+FOUR_BAR_GUESS = np.array([-np.pi / 3, 0.9, -1.4])  # robots/four_bar.urdf: crank, coupler, rocker angles (rad)
+
+
+def four_bar_urdf(rocker_axis="0 1 0"):
+    """robots/four_bar.urdf (the mechanism in the x–z plane, every axis along y), the rocker's axis replaced."""
+    with open(mb.robots.path("four_bar")) as file:
+        xml = file.read()
+    rocker = '<joint name="rocker_joint" type="continuous">'
+    head, tail = xml.split(rocker)
+    return mb.load_urdf(head + rocker + tail.replace('<axis xyz="0 1 0"/>', f'<axis xyz="{rocker_axis}"/>', 1))
+
+
+def tip_gap(model, q):
+    """``(n,)`` distance between the coupler's and the rocker's tips (m) at configurations ``q (n, nq)``."""
+    X = mb.forward_kinematics(model, q)
+    return np.linalg.norm(X[:, model.body_index("coupler_tip"), :3, 3] - X[:, model.body_index("rocker_tip"), :3, 3],
+                          axis=-1)
+
+
+def test_planar_closure_of_the_four_bar_urdf_infers_its_plane_and_keeps_the_tips_together():
+    """The four-bar URDF lies in the x–z plane. ``kind="planar"`` without a plane takes the plane normal to the
+    joints' common axis (y): two independent rows, and the tips stay together through a simulation (with the
+    x–y plane they would have one row's rank and drift apart by metres)."""
+    model = four_bar_urdf()
+    closure = mb.LoopClosure("coupler_tip", "rocker_tip", kind="planar")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", mb.RankDeficientWarning)
+        system = mb.ConstrainedSystem(model, [closure])
+        q0, v0 = system.project(FOUR_BAR_GUESS, np.zeros(model.nv))
+        trajectory = mb.simulate(system, q0, v0, 2.0, dt=0.01, method="DOP853", rtol=1e-10, atol=1e-12)
+    bound = system.constraints[0]
+    assert bound.name == closure.name and closure.normal is None
+    assert_close(bound.normal, [0.0, 1.0, 0.0], 1e-15, scale=1.0, what="the plane's normal (frame A = coupler_tip's axes)")
+    # the rows are along A's x and A's z turned onto the plane: x and −z
+    assert_close(bound.position_directions(), [[1.0, 0.0, 0.0], [0.0, 0.0, -1.0]], 1e-15, scale=1.0, what="rows")
+    assert_close(closure.position_directions(model), bound.position_directions(), 0.0, scale=1.0, what="same plane")
+    assert system.num_rows == 2 and system.rank(q0) == 2
+    assert np.ptp(trajectory.q[:, 0]) > 0.5  # the linkage moves
+    assert tip_gap(model, trajectory.q).max() <= 1e-9
+    # the same rows when the plane is given, and when the constraint is evaluated on its own
+    explicit = mb.ConstrainedSystem(model, [mb.LoopClosure("coupler_tip", "rocker_tip", kind="planar", normal=(0, -2, 0))])
+    q, v = trajectory.q[50], trajectory.v[50]
+    assert_close(explicit.jacobian(q), system.jacobian(q), 1e-15, scale=1.0, what="A")
+    assert_close(closure.jacobian(model, q), system.jacobian(q), 0.0, scale=1.0, what="A of the constraint alone")
+    assert_close(explicit.solve(q, v).lam, system.solve(q, v).lam, 1e-12, scale=10.0, what="λ")
+
+
+def test_planar_closure_in_a_plane_that_is_not_the_loops_warns_of_its_rank():
+    """The x–y plane given explicitly for the x–z four-bar: its y row is zero, rank 1 of 2."""
+    model = four_bar_urdf()
+    system = mb.ConstrainedSystem(model, [mb.LoopClosure("coupler_tip", "rocker_tip", kind="planar", normal=(0, 0, 1))])
+    with pytest.warns(mb.RankDeficientWarning, match=r"not independent at the initial state: rank 1 of 2 rows: "
+                                                     r"'planar loop closure coupler_tip-rocker_tip' has rank 1 of its 2 rows"):
+        q0, v0 = system.project(FOUR_BAR_GUESS, np.zeros(model.nv))
+    with warnings.catch_warnings():  # once per system: later projections are silent
+        warnings.simplefilter("error", mb.RankDeficientWarning)
+        system.project(q0, v0)
+    with pytest.warns(mb.RankDeficientWarning, match="rank 1 of 2 rows") as caught:  # simulate's initial state too
+        mb.simulate(mb.ConstrainedSystem(model, system.constraints), q0, v0, 0.05)
+    assert os.path.basename(caught[0].filename) == os.path.basename(__file__)  # points at the caller
+
+
+def test_planar_closure_infers_the_plane_across_a_slider():
+    """The slider–crank (revolute joints about y, a prismatic joint along x): the plane x–z."""
+    model = mb.robots.load("slider_crank")
+    system = mb.ConstrainedSystem(model, [mb.LoopClosure("rod_tip", "slider", kind="planar")])
+    assert_close(system.constraints[0].normal, [0.0, 1.0, 0.0], 1e-15, scale=1.0, what="normal")
+    q0, _ = system.project(np.array([0.3, -0.2, 0.45]), np.zeros(model.nv))
+    assert system.rank(q0) == 2
+
+
+def test_planar_closure_refuses_a_loop_that_is_not_planar():
+    """Axes that are not parallel, a loop that only slides, and no loop at all: ``ValueError`` naming the
+    joints (or the lack of them) and asking for the plane."""
+    model = four_bar_urdf(rocker_axis="0 0 1")
+    with pytest.raises(ValueError, match="planar loop closure coupler_tip-rocker_tip: cannot infer the plane") as info:
+        mb.ConstrainedSystem(model, [mb.LoopClosure("coupler_tip", "rocker_tip", kind="planar")])
+    message = str(info.value)
+    for joint in ("'crank_joint' (continuous about [0.0, 1.0, 0.0])", "'coupler_joint' (continuous about [0.0, 1.0, 0.0])",
+                  "'rocker_joint' (continuous about [0.0, 0.0, 1.0])", "normal=(nx, ny, nz)"):
+        assert joint in message
+    # the plane given: accepted (the constraint says which plane; the mechanism decides what moves)
+    mb.ConstrainedSystem(model, [mb.LoopClosure("coupler_tip", "rocker_tip", kind="planar", normal=(0, 1, 0))])
+    with pytest.raises(ValueError, match="no joint moves frame B relative to frame A; give the plane's normal"):
+        mb.ConstrainedSystem(model, [mb.LoopClosure("coupler", "coupler_tip", kind="planar")])
+    b = mb.ModelBuilder("slides")
+    b.add_body("x", mb.joints.Prismatic([1, 0, 0]), inertia=mb.inertia.point_mass(1.0, [0, 0, 0]))
+    b.add_body("z", mb.joints.Prismatic([0, 0, 1]), parent="x", inertia=mb.inertia.point_mass(1.0, [0, 0, 0]))
+    with pytest.raises(ValueError, match=r"\('x_joint' \(prismatic along \[1.0, 0.0, 0.0\]\), 'z_joint' \(prismatic "
+                                         r"along \[0.0, 0.0, 1.0\]\); .*only slide"):
+        mb.ConstrainedSystem(b.build(), [mb.LoopClosure(None, "z", kind="planar")])
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    (dict(kind="point", normal=(0, 0, 1)), "normal gives the plane of kind='planar'; it does not apply to kind='point'"),
+    (dict(kind="planar", normal=(0, 0, 0)), "normal must be a non-zero, finite 3-vector"),
+    (dict(kind="planar", normal=(0, np.nan, 1)), "normal must be a non-zero, finite 3-vector"),
+    (dict(kind="planar", normal=(0, 1)), "normal must be a non-zero, finite 3-vector"),
+])
+def test_loop_closure_refuses_a_bad_normal(kwargs, message):
+    with pytest.raises(ValueError, match=message):
+        mb.LoopClosure("coupler_tip", "rocker_tip", **kwargs)
+
+
+def test_rank_warning_names_rows_that_repeat_other_constraints():
+    """Two equal couplings: each has full rank alone, together one row repeats the other."""
+    model = mb.robots.load("double_pendulum")
+    coupling = [mb.JointCoupling("shoulder", "elbow", 0.5, name=f"gear {k}") for k in (1, 2)]
+    system = mb.ConstrainedSystem(model, coupling)
+    with pytest.warns(mb.RankDeficientWarning, match=r"rank 1 of 2 rows: 1 row\(s\) repeat rows of other constraints"):
+        system.project(np.array([0.2, 0.1]), np.zeros(2))
+
+
+def test_intended_redundancy_can_be_filtered():
+    model = mb.robots.load("double_pendulum")
+    system = mb.ConstrainedSystem(model, [mb.JointCoupling("shoulder", "elbow", 0.5, name=f"gear {k}") for k in (1, 2)])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        warnings.filterwarnings("ignore", category=mb.RankDeficientWarning)
+        q, v = system.project(np.array([0.2, 0.1]), np.zeros(2))
+    assert system.residual(q, v) <= 1e-15
+
+
+@pytest.mark.parametrize("make", [
+    lambda: mb.RollingSphere("bal", radius=0.1),
+    lambda: mb.RollingDisc("bal", 0.1),
+    lambda: mb.KnifeEdge("bal"),
+    lambda: mb.LoopClosure(None, "bal", kind="planar"),
+    lambda: mb.Distance("bal", None, 1.0),
+    lambda: mb.PointOnSurface("bal", lambda x: x[..., 2]),
+    lambda: mb.PointOnCurve("bal", Helix().r),
+])
+def test_misspelled_body_is_refused_at_the_systems_construction(make):
+    """Every built-in constraint's bodies are checked where it meets the model, with the close matches."""
+    ball = mb.load_urdf(mb.robots.path("ball"), floating_base=True)
+    constraint = make()
+    with pytest.raises(ValueError, match=rf"^{constraint.name}: unknown body 'bal'; did you mean 'ball'\? bodies are"):
+        mb.ConstrainedSystem(ball, [constraint])
+
+
+def test_misspelled_joint_of_a_coupling_is_refused_at_the_systems_construction():
+    model = mb.robots.load("double_pendulum")
+    with pytest.raises(ValueError, match=r"coupling shoulder-elbw: unknown joint 'elbw'; did you mean 'elbow'\?"):
+        mb.ConstrainedSystem(model, [mb.JointCoupling("shoulder", "elbw")])
