@@ -14,6 +14,10 @@ hundred ulps at most; observed ~1e-13); finite differences at 1e-7 relative (see
 
 from __future__ import annotations
 
+import os
+import re
+import warnings
+
 import numpy as np
 import pytest
 
@@ -508,3 +512,21 @@ def test_knife_edge_needs_a_model():
 def test_knife_edge_refuses_a_zero_blade_direction():
     with pytest.raises(ValueError, match="blade direction"):
         mb.KnifeEdge("sleigh", direction=(0.0, 0.0, 0.0))
+
+
+def test_readme_rolling_ball_says_what_the_projection_does_to_its_speed():
+    """The README's rolling ball runs as written, and its comment's numbers are the projection's: a solid
+    ball (I = 2/5 m r²) sliding at 1 m/s keeps its momentum about the contact point, ``m v = (m + I / r²) v'``,
+    so it rolls at 5/7 m/s with the spin ``v' / r`` about y."""
+    readme = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "README.md")
+    with open(readme, encoding="utf-8") as f:
+        block = next(b for b in re.findall(r"```python\n(.*?)```", f.read(), re.S) if "RollingSphere" in b)
+    assert "0.714 m/s" in block and "7.14 rad/s about y" in block
+    namespace = {"mb": mb, "np": np}
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        exec(compile(block, "README.md", "exec"), namespace)
+    v0, trajectory = namespace["v0"], namespace["trajectory"]
+    assert np.allclose(v0, [5 / 7, 0.0, 0.0, 0.0, 50 / 7, 0.0], rtol=0, atol=1e-12)
+    assert round(v0[0], 3) == 0.714 and round(v0[4], 2) == 7.14
+    assert trajectory.residual.max() <= 1e-9
