@@ -8,7 +8,9 @@
     viewer.save_html("ball.html")  # one self-contained page that replays the motion offline
     viewer.close()                 # stops the server and frees the port
 
-The page shows, in world coordinates (z up, metres):
+The page shows, in world coordinates (z up, metres), with the camera on the bodies as they are at the
+first frame (their bounding box then, which also sets the size of frames, arrows and grid cells), not
+on everything the motion reaches:
 
 * every body at its pose from :func:`multibody.forward_kinematics`, computed once for the whole
   trajectory: its visual shapes (URDF ``<visual>`` meshes through trimesh, resolved through
@@ -18,7 +20,7 @@ The page shows, in world coordinates (z up, metres):
   mass along its principal axes. A massive body with no rotational inertia (a point mass) is a small
   sphere; a massless link is drawn as its frame only;
 * each body's frame (x red, y green, z blue), the world frame, and a ground grid at ``z = 0`` (under the
-  lowest point instead when the scene reaches below, as a hanging pendulum does); when the constraints
+  lowest point instead when the motion reaches below, as a hanging pendulum does); when the constraints
   include planes (rolling spheres and discs) those planes are drawn instead of the ground;
 * for a :class:`~multibody.trajectory.Trajectory`: a play/pause button, a time slider spanning the
   trajectory's times, the playback speed, and checkboxes that show or hide each layer;
@@ -42,6 +44,7 @@ from __future__ import annotations
 
 import contextlib
 import io
+import itertools
 import math
 import os
 import threading
@@ -97,7 +100,11 @@ class Scene:
         largest_force: largest force drawn (N).
         no_arrows: names of constraints with no body forces to draw.
         planes: ``(E (3, 3), origin (3,))`` of each constraint plane: columns ``[t₁ t₂ n]`` and a point.
-        low, high: ``(3,)`` corners of the scene's bounding box over the whole motion (m).
+        low, high: ``(3,)`` corners of the bounding box of the bodies (origins and shapes) over the whole
+            motion (m).
+        start_low, start_high: ``(3,)`` corners of their bounding box at the first frame (m): what the
+            camera frames, and the scale of frames, arrows and grid cells, whatever a body does later (a
+            part that flies off in a failed simulation).
     """
 
     body_names: tuple
@@ -115,6 +122,8 @@ class Scene:
     planes: tuple = ()
     low: np.ndarray = field(default_factory=lambda: np.zeros(3))
     high: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    start_low: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    start_high: np.ndarray = field(default_factory=lambda: np.zeros(3))
 
     @property
     def frames(self) -> int:
@@ -123,13 +132,19 @@ class Scene:
 
     @property
     def center(self) -> np.ndarray:
-        """``(3,)`` the centre of the bounding box (m)."""
-        return 0.5 * (self.low + self.high)
+        """``(3,)`` the centre of the bodies' bounding box at the first frame (m), where the camera looks."""
+        return 0.5 * (self.start_low + self.start_high)
 
     @property
     def size(self) -> float:
-        """The bounding box's diagonal (m), at least 0.1: the scale of frames, arrows and the grid."""
-        return max(float(np.linalg.norm(self.high - self.low)), 0.1)
+        """The diagonal of the bodies' bounding box at the first frame (m), at least 0.1: the camera's
+        distance scale and the scale of frames, arrows and grid cells."""
+        return _extent(self.start_low, self.start_high)
+
+
+def _extent(low, high):
+    """The diagonal of the box with corners ``low``, ``high`` (m), at least 0.1."""
+    return max(float(np.linalg.norm(high - low)), 0.1)
 
 
 # ----------------------------------------------------------------------------- shapes of the bodies
@@ -355,18 +370,18 @@ def scene_of(model, q=None, trajectory=None, *, constraints=None, trace=(), forc
     wxyz = np.concatenate([xyzw[..., 3:], xyzw[..., :3]], axis=-1)
     traces = {label: spatial.matvec(X_WB[:, b, :3, :3], point) + X_WB[:, b, :3, 3] for label, b, point in traced}
 
-    # The bounding box of what moves sets the scale of frames, arrows and the grid.
-    lows, highs = [positions.reshape(-1, 3).min(axis=0)], [positions.reshape(-1, 3).max(axis=0)]
-    provisional = max(float(np.linalg.norm(highs[0] - lows[0])), 0.1)
-    shapes = body_shapes(model, point_radius or 0.02 * provisional)
+    # The bodies' origins and the eight corners of each shape's box, in the world at every frame: (n, k, 3).
+    shapes = body_shapes(model, point_radius or 0.02 * _extent(positions[0].min(axis=0), positions[0].max(axis=0)))
+    points = [positions]
     for b, name in enumerate(model.body_names):
         for shape in shapes[name]:
-            corners = np.array([shape.vertices.min(axis=0), shape.vertices.max(axis=0)])
-            world = np.einsum("nij,kj->nki", X_WB[:, b, :3, :3], corners) + X_WB[:, b, None, :3, 3]
-            lows.append(world.reshape(-1, 3).min(axis=0))
-            highs.append(world.reshape(-1, 3).max(axis=0))
-    low, high = np.min(lows, axis=0), np.max(highs, axis=0)
-    size = max(float(np.linalg.norm(high - low)), 0.1)
+            corners = np.array(list(itertools.product(*zip(shape.vertices.min(axis=0), shape.vertices.max(axis=0)))))
+            points.append(np.einsum("nij,kj->nki", X_WB[:, b, :3, :3], corners) + X_WB[:, b, None, :3, 3])
+    points = np.concatenate(points, axis=1)
+    low, high = points.min(axis=(0, 1)), points.max(axis=(0, 1))
+    # The first frame's box sets the view and the scale, so that a body flying off frames nothing.
+    start_low, start_high = points[0].min(axis=0), points[0].max(axis=0)
+    size = _extent(start_low, start_high)
 
     arrows, labels, colors, scale, largest, without = np.zeros((len(times), 0, 2, 3)), (), np.zeros((0, 3)), 0.0, 0.0, ()
     if constraints:
@@ -377,13 +392,14 @@ def scene_of(model, q=None, trajectory=None, *, constraints=None, trace=(), forc
                 raise ValueError(f"force_scale must be a positive length per force (m/N), got {force_scale!r}")
             scale = float(force_scale)
         else:
-            # the largest force a quarter of the scene long, rounded to 1, 2 or 5 × 10^k m/N
+            # the largest force a quarter of the bodies' size long, rounded to 1, 2 or 5 × 10^k m/N
             scale = _nice(0.25 * size / largest) if largest > 0.0 else 1.0
         arrows = np.stack([points, points + scale * forces], axis=2)
         colors = np.array([FORCE_COLORS[k % len(FORCE_COLORS)] for k in owners], dtype=np.uint8).reshape(-1, 3)
     return Scene(body_names=tuple(model.body_names), times=times, positions=positions, wxyz=wxyz, shapes=shapes,
                  traces=traces, arrows=arrows, arrow_labels=tuple(labels), arrow_colors=colors, force_scale=scale,
-                 largest_force=largest, no_arrows=without, planes=_planes(constraints), low=low, high=high)
+                 largest_force=largest, no_arrows=without, planes=_planes(constraints), low=low, high=high,
+                 start_low=start_low, start_high=start_high)
 
 
 # ----------------------------------------------------------------------------- serving it
@@ -459,19 +475,21 @@ class Viewer:
         server.initial_camera.look_at = tuple(scene.center)
         server.initial_camera.position = tuple(scene.center + s * np.array([0.5, -0.7, 0.4]))
         server.scene.add_frame("/world", axes_length=0.12 * s, axes_radius=0.004 * s)
+        # cells on the bodies' scale, the grid around where they start and wide enough for the whole motion
         cell = _nice(s / 10.0)
-        extent = 2.0 * cell * math.ceil(0.6 * s / cell)
+        reach = np.linalg.norm(np.maximum(np.abs(scene.low - scene.center), np.abs(scene.high - scene.center)))
+        extent = 2.0 * cell * math.ceil(max(0.6 * s, reach) / cell)
         if scene.planes:
             ground = []
             for k, (E, point) in enumerate(scene.planes):
-                # centred under the scene: the scene's centre projected onto the plane
+                # centred under the bodies: their centre projected onto the plane
                 normal = E[:, 2]
                 origin = scene.center - ((scene.center - point) @ normal) * normal
                 ground.append(server.scene.add_grid(f"/ground/plane_{k}", extent, extent, cell_size=cell,
                                                     section_size=5 * cell, plane_color=(225, 230, 240),
                                                     plane_opacity=0.6, wxyz=_frame_wxyz(E), position=origin))
         else:
-            # at z = 0, or under the lowest point of a scene that reaches below it (a hanging pendulum)
+            # at z = 0, or under the lowest point of a motion that reaches below it (a hanging pendulum)
             origin = np.array([scene.center[0], scene.center[1], min(0.0, scene.low[2])])
             ground = [server.scene.add_grid("/ground/z0", extent, extent, cell_size=cell, section_size=5 * cell,
                                             position=origin)]
@@ -693,8 +711,8 @@ def view(model, q=None, trajectory=None, *, constraints=None, port=8080, **optio
             the one used.
         **options:
             trace: bodies whose paths are drawn: names, or ``(name, point (3,) in the body frame, m)``.
-            force_scale: arrow length per newton (m/N); default: the largest force a quarter of the scene
-                long, rounded to 1, 2 or 5 × 10^k.
+            force_scale: arrow length per newton (m/N); default: the largest force a quarter as long as
+                the bodies' bounding box at the first frame, rounded to 1, 2 or 5 × 10^k.
             speed: playback speed, a factor of real time (default 1).
             frames: draw each body's frame axes (default ``True``).
             host: the interface to listen on (default ``"127.0.0.1"``, this machine only; ``"0.0.0.0"``:

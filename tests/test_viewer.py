@@ -31,9 +31,11 @@ needs_viser = pytest.mark.skipif(importlib.util.find_spec("viser") is None,
 
 
 def synthetic_trajectory(q, t, lam=None):
-    """A Trajectory of given configurations ``q (n, nq)`` at ``t (n,)`` (no simulation needed)."""
+    """A Trajectory of given configurations ``q (n, nq)`` at ``t (n,)``, at rest (no simulation needed;
+    ``v`` as wide as ``q``, which is ``nv`` for the models without quaternions that it serves)."""
     n = len(t)
-    return mb.Trajectory(t=np.asarray(t, float), q=np.asarray(q, float), v=np.zeros((n, 1)),
+    q = np.asarray(q, float)
+    return mb.Trajectory(t=np.asarray(t, float), q=q, v=np.zeros((n, q.shape[-1])),
                          lam=np.zeros((n, 0)) if lam is None else np.asarray(lam, float), energy=np.zeros(n),
                          residual=np.zeros(n))
 
@@ -122,6 +124,47 @@ def test_rolling_contact_force_is_an_arrow_from_the_contact_point_in_newtons():
     np.testing.assert_allclose(scene.arrows[1, 0, 1], 0.01 * contact.frame @ lam[1], atol=1e-12)
     assert scene.largest_force == pytest.approx(np.linalg.norm(lam[1]))
     assert len(scene.planes) == 1 and np.allclose(scene.planes[0][0], contact.frame)
+
+
+@pytest.fixture(scope="module")
+def gripper():
+    """A 0.4 m palm turning about z and a finger on it sliding along x (inertia boxes, no visuals)."""
+    builder = mb.ModelBuilder("gripper")
+    builder.add_body("palm", joint=mb.joints.Revolute(axis=(0.0, 0.0, 1.0)),
+                     inertia=mb.inertia.box(1.0, [0.4, 0.2, 0.1]))
+    builder.add_body("finger", joint=mb.joints.Prismatic(axis=(1.0, 0.0, 0.0)), parent="palm",
+                     inertia=mb.inertia.box(0.1, [0.02, 0.02, 0.1], center=[0.0, 0.0, 0.1]))
+    return builder.build()
+
+
+def test_the_view_frames_the_bodies_at_the_first_frame_not_a_part_flying_off(gripper):
+    # the finger flies 15 m away in the second half, as in a simulation that blows up
+    t = np.linspace(0.0, 1.0, 11)
+    q = np.stack([0.3 * t, np.where(t > 0.5, 15.0 * t, 0.05)], axis=1)
+    scene = scene_of(gripper, trajectory=synthetic_trajectory(q, t))
+    first = scene_of(gripper, q=q[0])
+    # whole-motion box for the ground, first-frame box for the camera and the scale
+    assert scene.high[0] > 14.0
+    np.testing.assert_allclose(scene.start_low, first.low, atol=1e-12)
+    np.testing.assert_allclose(scene.start_high, first.high, atol=1e-12)
+    assert scene.size == pytest.approx(first.size) and scene.size < 0.6
+    np.testing.assert_allclose(scene.center, 0.5 * (first.low + first.high), atol=1e-12)
+    # the first frame's box: the palm's inertia box and the finger standing 0.1 m on it
+    np.testing.assert_allclose(first.low, [-0.2, -0.1, -0.05], atol=1e-12)
+    np.testing.assert_allclose(first.high, [0.2, 0.1, 0.15], atol=1e-12)
+
+
+@needs_viser
+def test_the_camera_looks_at_the_bodies_where_they_start(gripper):
+    t = np.linspace(0.0, 1.0, 11)
+    q = np.stack([0.0 * t, np.where(t > 0.5, 15.0 * t, 0.05)], axis=1)
+    with mb.view(gripper, trajectory=synthetic_trajectory(q, t), port=0) as viewer:
+        scene = viewer.scene
+        look_at = np.array(viewer.server.initial_camera.look_at)
+        position = np.array(viewer.server.initial_camera.position)
+        np.testing.assert_allclose(look_at, scene.center, atol=1e-6)
+        assert np.all(scene.start_low - 1e-6 <= look_at) and np.all(look_at <= scene.start_high + 1e-6)
+        assert np.linalg.norm(position - look_at) < 3 * scene.size < 2.0
 
 
 def test_point_constraint_forces_act_at_their_point_and_coordinate_ones_are_named():
