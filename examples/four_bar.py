@@ -2,7 +2,10 @@
 
 The URDF describes the open tree ground–crank–coupler and ground–rocker; the constraint makes the
 coupler's tip and the rocker's tip coincide in the mechanism's plane (x–z). The linkage falls under
-gravity from a consistent configuration; the multipliers are the pin force at the closing joint.
+gravity from a consistent configuration. The constraint's two rows are the tips' offset along the
+coupler's x and z axes (its frame A is fixed in the coupler and turns with it), so their multipliers
+are the pin force on the rocker's tip along those two axes, in newtons; the coupler's tip carries the
+opposite force.
 Run: python examples/four_bar.py [output_folder]
 """
 
@@ -24,6 +27,8 @@ print("consistent start q0 =", np.round(q0, 6), " |φ| =", np.abs(system.positio
 
 trajectory = mb.simulate(system, q0, v0, 4.0, dt=0.01, method="DOP853", rtol=1e-10, atol=1e-12)
 print(f"energy drift {np.ptp(trajectory.energy):.2e} J, max residual {trajectory.residual.max():.2e}")
-for path in plot_trajectory(trajectory, out, "four_bar", coordinate_labels=list(model.joint_names),
-                            multiplier_labels=["pin force along x (N)", "pin force along z (N)"]):
+# the system names each curve after its joint with its unit (rad, rad/s) and gives the rows' unit (N)
+for path in plot_trajectory(trajectory, out, "four_bar", system,
+                            multiplier_labels=["pin force on the rocker along the coupler's x",
+                                               "pin force on the rocker along the coupler's z"]):
     print("wrote", path)

@@ -1,19 +1,19 @@
 """A slider–crank driven by a motor, with the loads every joint carries.
 
 The URDF is the open tree ground–crank–rod plus ground–slider (prismatic along x); a planar point
-constraint pins the rod's tip to the slider. A speed-controlled motor drives the crank. At each
-output time the constraint forces go back onto the bodies (``system.body_forces``) and a Newton–Euler
-pass (``mb.joint_reaction_forces``) gives the force each joint's bearing carries.
+constraint pins the rod's tip to the slider. Its frame A is fixed in the rod, so its two multipliers
+are the pin force on the slider along the rod's x and z axes (N). A speed-controlled motor drives the
+crank. At each output time the constraint forces go back onto the bodies (``system.body_forces``) and a
+Newton–Euler pass (``mb.joint_reaction_forces``) gives the force each joint's bearing carries.
 Run: python examples/slider_crank.py [output_folder]
 """
 
-import os
 import sys
 
 import numpy as np
 
 import multibody as mb
-from multibody.plotting import plot_trajectory, pyplot
+from multibody.plotting import new_figure, plot_trajectory, save_figure
 
 out = sys.argv[1] if len(sys.argv) > 1 else "output"
 model = mb.robots.load("slider_crank")
@@ -46,16 +46,18 @@ print(f"mean crank speed over the last second: {crank_speed[trajectory.t >= 2].m
 print(f"peak crank bearing force {np.linalg.norm(bearing[:, crank, :3], axis=-1).max():.2f} N, "
       f"max residual {trajectory.residual.max():.2e}")
 
-for path in plot_trajectory(trajectory, out, "slider_crank", coordinate_labels=list(model.joint_names),
-                            multiplier_labels=["pin force along x (N)", "pin force along z (N)"]):
+# the system names each curve after its joint with its unit (rad for the crank and rod, m for the slider)
+for path in plot_trajectory(trajectory, out, "slider_crank", system,
+                            multiplier_labels=["pin force on the slider along the rod's x",
+                                               "pin force on the slider along the rod's z"]):
     print("wrote", path)
-plt = pyplot()
-figure, ax = plt.subplots(figsize=(7, 4))
+figure = new_figure()
+ax = figure.subplots()
 for j, name in enumerate(model.joint_names):
-    ax.plot(trajectory.t, np.linalg.norm(bearing[:, j, :3], axis=-1), label=f"{name}: |force| (N)")
+    ax.plot(trajectory.t, np.linalg.norm(bearing[:, j, :3], axis=-1), label=name)
 ax.set_xlabel("t (s)")
+ax.set_ylabel("bearing force |f| (N)")
+ax.set_title("Force each joint's bearing carries")
 ax.legend()
-figure.tight_layout()
-path = os.path.join(out, "slider_crank_joint_forces.png")
-figure.savefig(path, dpi=110)
-print("wrote", path)
+ax.grid(True, alpha=0.3)
+print("wrote", save_figure(figure, out, "slider_crank_joint_forces"))

@@ -25,7 +25,7 @@ import griffe
 #: A Sphinx role of the Python domain: ``:kind:`target```, ``:kind:`~target``` or ``:kind:`title <target>```.
 ROLE = re.compile(r":(?:py:)?(?:class|func|meth|mod|data|attr|exc|obj|const):`(?P<body>[^`]+)`")
 #: A fenced code block, left as written.
-FENCE = re.compile(r"^[ \t]*```.*?^[ \t]*```[^\n]*$", re.S | re.M)
+FENCE = re.compile(r"^[ \t]*```.*?^[ \t]*```[^\n]*$", re.DOTALL | re.MULTILINE)
 #: The folder of the pages whose ``::: module`` lines say which modules have a reference page.
 DOCS = Path(__file__).resolve().parent.parent
 
