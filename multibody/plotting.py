@@ -143,7 +143,8 @@ def state_curves(trajectory, system=None, *, coordinate_labels=None, coordinate_
         system: what was simulated: a ``Model``, a ``ConstrainedSystem``, or a mechanical system such as
             ``LagrangianSystem.numeric()`` (its ``coordinate_names``). A model's joints give names,
             units and the drawn form of rotations (table in the module docstring). ``None``: the raw
-            columns ``q[k]``, ``v[k]``, units unknown.
+            columns, units unknown, named after the trajectory's joints (``trajectory.joint_names``)
+            when each has one coordinate, else ``q[k]``, ``v[k]``.
         coordinate_labels: names that replace the derived ones: one per velocity coordinate (``nv``),
             naming both the coordinate curve and the velocity curve of each degree of freedom; without
             a ``system``, one per column of ``q`` (``nq``), naming the coordinate curves only.
@@ -163,9 +164,13 @@ def state_curves(trajectory, system=None, *, coordinate_labels=None, coordinate_
             q_curves += curves[0]
             v_curves += curves[1]
     else:
-        names = list(getattr(mechanical, "coordinate_names", None) or [f"q[{k}]" for k in range(nq)])
-        q_curves = [Curve(names[k], "", q[:, k]) for k in range(nq)]
-        v_curves = [Curve(f"v[{k}]" if system is None else names[k], "", v[:, k]) for k in range(nv)]
+        names = getattr(mechanical, "coordinate_names", None)
+        if system is None:
+            # the joints the trajectory records name its columns when each joint has one coordinate
+            joints = list(getattr(trajectory, "joint_names", None) or ())
+            names = joints if len(joints) == nq == nv else None
+        q_curves = [Curve(names[k] if names else f"q[{k}]", "", q[:, k]) for k in range(nq)]
+        v_curves = [Curve(names[k] if names else f"v[{k}]", "", v[:, k]) for k in range(nv)]
 
     def renamed(curves, names):
         return [Curve(name, c.unit, c.values) for name, c in zip(names, curves)]
@@ -230,11 +235,13 @@ def state_figure(trajectory, system=None, **labels):
     rows = {unit: ([c for c in q_curves if c.unit == unit], [c for c in v_curves if c.unit == (f"{unit}/s" if unit else "")])
             for unit in units}
     t = trajectory.t
+    # where units are unknown, the axis says which argument gives them
+    missing = "pass system=" if system is None else "pass coordinate_units="
     figure = new_figure((10.0, 0.6 + 2.6 * len(rows)))
     axes = figure.subplots(len(rows), 2, sharex=True, squeeze=False)
     for (unit, (qs, vs)), (ax_q, ax_v) in zip(rows.items(), axes):
-        for ax, curves, axis_unit, unknown in ((ax_q, qs, unit, "q (coordinate units)"),
-                                               (ax_v, vs, f"{unit}/s" if unit else "", "v (coordinate units/s)")):
+        for ax, curves, axis_unit, unknown in ((ax_q, qs, unit, f"q (units unknown: {missing})"),
+                                               (ax_v, vs, f"{unit}/s" if unit else "", f"v (units unknown: {missing})")):
             for curve in curves:
                 ax.plot(t, curve.values, label=curve.name)
             ax.set_ylabel(_label(axis_unit, unknown))
@@ -362,7 +369,8 @@ def plot_trajectory(trajectory, out_dir, name, system=None, *, coordinate_labels
         name: the files' common prefix.
         system: what was simulated (``Model``, ``ConstrainedSystem``, or a mechanical system such as
             ``LagrangianSystem.numeric()``): its joints name the curves and give their units, and its
-            constraints the multipliers' units. Without it, raw columns with unknown units.
+            constraints the multipliers' units. Without it, the raw columns, named after the
+            trajectory's joints when each has one coordinate, on axes that say their units are unknown.
         coordinate_labels, coordinate_units: see :func:`state_curves`.
         multiplier_labels, multiplier_units: see :func:`multiplier_figure`.
         tolerance: residual bound to draw (default the trajectory's ``projection_tolerance``).

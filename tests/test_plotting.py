@@ -4,6 +4,7 @@ import os
 import subprocess
 import sys
 import textwrap
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -74,6 +75,21 @@ def test_free_flyer_orientation_is_roll_pitch_yaw():
     # roll grows through ±π to 8 rad instead of wrapping
     np.testing.assert_allclose(drawn["angle (rad)"]["root_joint roll"], 4.0 * trajectory.t, atol=1e-9)
     np.testing.assert_allclose(drawn["angle (rad)"]["root_joint yaw"], 0.0, atol=1e-9)
+
+
+def test_joints_name_the_curves_with_their_units_and_without_the_system_the_axes_say_so():
+    slider_crank = mb.robots.load("slider_crank")  # crank and rod continuous (rad), slider prismatic (m)
+    trajectory = replace(synthetic(slider_crank, np.array([2.0, -1.0, 0.3])), joint_names=list(slider_crank.joint_names))
+    drawn = panels(trajectory_figures(trajectory, slider_crank)["state"])
+    assert {label: list(curves) for label, curves in drawn.items()} == {
+        "angle (rad)": ["crank_joint", "rod_joint"], "angular velocity (rad/s)": ["crank_joint", "rod_joint"],
+        "position (m)": ["slider_joint"], "velocity (m/s)": ["slider_joint"]}
+    np.testing.assert_array_equal(drawn["position (m)"]["slider_joint"], trajectory.q[:, 2])
+    # without the system: the joints the trajectory records name the columns; no unit is made up
+    drawn = panels(trajectory_figures(trajectory)["state"])
+    assert {label: list(curves) for label, curves in drawn.items()} == {
+        "q (units unknown: pass system=)": ["crank_joint", "rod_joint", "slider_joint"],
+        "v (units unknown: pass system=)": ["crank_joint", "rod_joint", "slider_joint"]}
 
 
 def test_roll_pitch_yaw_inverts_urdf_rpy():
