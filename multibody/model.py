@@ -405,7 +405,8 @@ class Model:
         coordinates into their parent frames: ``w = T v`` (block diagonal, the identity elsewhere).
 
         Body-frame velocities turn with a spinning body; aligned ones change only as the motion does,
-        which lets an integrator take steps longer than a revolution. Their rate is
+        which lets an integrator take steps of half a revolution (its charts' rotation vectors are singular
+        at 2π: :data:`multibody.simulation.CHART_TURN`). Their rate is
         ``ẇ = T (a + κ(v))`` (:meth:`velocity_coupling`).
         """
         return self._configuration_map(configuration.velocity_alignment, self._array(q, self.nq, "q"), None,
