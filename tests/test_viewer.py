@@ -423,20 +423,42 @@ def drawn_pixels(image):
     return int(np.sum(scene_pixels(image).min(axis=-1) < 200))
 
 
-def wait_for_page(browser, previous=None, moving=False, timeout=120.0):
+def wait_for_page(browser, previous=None, moving=False, timeout=120.0, settle=0.0):
     """A screenshot once the scene shows (the page loads in ~10 s with software WebGL) and, unless the
-    page is ``moving`` (the offline replay plays), has settled: the same in two consecutive shots. With
+    page is ``moving`` (the offline replay plays), has settled: the same in two consecutive shots, and
+    for at least ``settle`` seconds (meshes appear one by one as the browser parses them). With
     ``previous``, once it differs from that in more than 300 pixels."""
     deadline = time.monotonic() + timeout
-    last = browser.screenshot()
+    last, since = browser.screenshot(), time.monotonic()
     while time.monotonic() < deadline:
         time.sleep(0.3)
         shot = browser.screenshot()
         ready = drawn_pixels(shot) > 1000 and (previous is None or changed_pixels(shot, previous) > 300)
-        if ready and (moving or changed_pixels(shot, last, threshold=10) < 20):
+        if moving and ready:
             return shot
-        last = shot
+        if changed_pixels(shot, last, threshold=10) >= 20:
+            last, since = shot, time.monotonic()
+        elif ready and time.monotonic() - since >= settle:
+            return shot
     return last
+
+
+@pytest.fixture
+def meshed_arm(tmp_path):
+    """Three links hanging in a chain, each drawn from an STL file (the meshes Viser sends as GLB)."""
+    import trimesh
+
+    builder = mb.ModelBuilder("meshed_arm")
+    parent, placement = None, np.eye(4)
+    for k, width in enumerate((0.12, 0.08, 0.05)):
+        name = f"link{k}"
+        builder.add_body(name, joint=mb.joints.Revolute(axis=(0.0, 1.0, 0.0)), parent=parent, placement=placement,
+                         inertia=mb.inertia.box(1.0, [width, width, 0.4], center=[0.0, 0.0, -0.2]))
+        path = str(tmp_path / f"{name}.stl")
+        trimesh.creation.box(extents=[width, width, 0.4]).apply_translation([0.0, 0.0, -0.2]).export(path)
+        builder.add_geometry(mb.model.Geometry(name, "visual", "mesh", np.eye(4), uri=path, filename=path))
+        parent, placement = name, mb.spatial.pose_from_xyz_rpy(xyz=(0.0, 0.0, -0.4))
+    return builder.build()
 
 
 @needs_viser
@@ -467,6 +489,30 @@ def test_the_browser_shows_the_robot_and_its_motion(pendulum, swing, tmp_path):
             browser.navigate("file://" + os.path.abspath(path))
             shots.append(wait_for_page(browser, moving=True))
         assert changed_pixels(*shots) > 300
+    finally:
+        browser.close()
+        viewer.close()
+
+
+@needs_viser
+@pytest.mark.browser
+@pytest.mark.skipif(chromium() is None, reason="no chromium binary on PATH (Debian: apt-get install chromium)")
+def test_a_fresh_browser_shows_every_mesh_on_its_first_load(meshed_arm):
+    # the first page load of a fresh browser draws what a reload draws: every body's mesh, not only the first
+    viewer = mb.view(meshed_arm, q=[0.6, -0.9, 0.7], port=0, frames=False)
+    browser = Chromium()
+    try:
+        browser.navigate(viewer.url)
+        first = wait_for_page(browser, settle=3.0)
+        browser.navigate(viewer.url)
+        reloaded = wait_for_page(browser, settle=3.0)
+        viewer.layers["bodies"].value = False
+        empty = wait_for_page(browser, reloaded)
+        # each link alone covers some hundreds of pixels at this size
+        robot = changed_pixels(reloaded, empty)
+        assert robot > 1500, f"the arm covers {robot} pixels"
+        missing = changed_pixels(first, reloaded)
+        assert missing < 100, f"{missing} pixels of the first load differ from the reload's"
     finally:
         browser.close()
         viewer.close()
