@@ -131,11 +131,13 @@ def bead_on_wire_setup(curve=helix, s_range=(-40.0, 15.0), mass=0.2, gravity=9.8
 def four_bar_setup(crank=-np.pi / 3):
     """The four-bar linkage (``robots/four_bar.urdf``: the open tree ground–crank–coupler and
     ground–rocker) closed by a planar loop closure between the coupler's and the rocker's tips, at rest.
-    The multipliers are the pin force at the closing joint (N, along x and z). ``crank``: its angle
+    The multipliers are the pin force on the rocker's tip (N) along the coupler's x and z axes, which
+    turn with the coupler. ``crank``: its angle
     (rad, about +y; negative lifts it), from which the projection finds the others."""
     model = robots.load("four_bar")
-    # The closure infers its plane (x–z) from the joint axes; frame A turned by +90° about x has its x and y
-    # axes in that plane, along world x and z, which makes the multipliers the pin force along x and z.
+    # The closure infers its plane (x–z) from the joint axes; frame A, fixed in the coupler's tip and turned
+    # by +90° about x, has its x and y axes in that plane along the coupler's x and z, which makes the
+    # multipliers the pin force on the rocker along those two axes of the coupler.
     in_plane = spatial.pose_from_xyz_rpy(rpy=(np.pi / 2, 0.0, 0.0))
     closure = LoopClosure("coupler_tip", "rocker_tip", frame_a=in_plane, kind="planar")
     system = ConstrainedSystem(model, [closure])
@@ -386,7 +388,8 @@ def four_bar(out_dir, duration=4.0):
         "largest pin force (N)": float(np.linalg.norm(trajectory.lam, axis=1).max()),
     }
     paths = plot_trajectory(trajectory, out_dir, "four_bar", setup.system,
-                            multiplier_labels=["pin force along x", "pin force along z"])
+                            multiplier_labels=["pin force on the rocker along the coupler's x",
+                                               "pin force on the rocker along the coupler's z"])
     return DemoResult(summary, paths, setup.model, trajectory, setup.constraints, trace=("coupler_tip",))
 
 
