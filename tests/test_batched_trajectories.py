@@ -105,7 +105,11 @@ def test_four_bar_projected_onto_its_loop():
     guess = np.array([-np.pi / 3, 0.9, -1.4]) + 0.05 * rng.standard_normal((4, 3))
     q0, v0 = system.project(guess, rng.standard_normal((4, 3)))
     batch = assert_equals_single_runs(system, q0, v0, 1.0, 0.01, projection_tolerance=1e-12)
-    assert batch.residual.max() <= 1e-12
+    # A step's end is left unprojected when the projection moves no coordinate by more than 1e-12, so its
+    # residual may reach the rows' largest absolute row sum times that (3.5e-12 here; measured 8.7e-13); margin 10.
+    rows = max(np.abs(system.solve(q, v).A).sum(axis=-1).max() for q, v in zip(batch.q.reshape(-1, 3),
+                                                                                 batch.v.reshape(-1, 3)))
+    assert batch.residual.max() <= 10.0 * rows * 1e-12
 
 
 def test_parallelogram_chains_through_flat_evaluate_their_stages_as_alone():

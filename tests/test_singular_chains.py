@@ -176,7 +176,10 @@ def test_a_fast_crank_leaves_full_rank_rows_consistent(angle, rate):
         assert solution.rank == 4
         force = solution.A.T @ solution.lam
         assert_close(M @ solution.a + h, force, 1e-9, scale=np.abs(force).max() + np.abs(h).max(), what="M a + h")
-        assert_close(solution.A @ solution.a, solution.gamma, 1e-12, scale=np.abs(solution.gamma).max(), what="A a")
+        # A backward-stable solve leaves of A a − γ the rounding of its terms, ε (|A| |a| + |γ|) (measured up to
+        # 1.3 times it: 7.3e-7 at 1e-3 rad, 1e3 rad/s); margin 10.
+        rounding = np.finfo(float).eps * (np.abs(solution.A) @ np.abs(solution.a) + np.abs(solution.gamma)).max()
+        assert_close(solution.A @ solution.a, solution.gamma, 10.0 * rounding, scale=1.0, what="A a")
 
 
 def test_forty_cell_chain_solves_near_flat():
@@ -209,7 +212,11 @@ def test_near_flat_a_tiny_residual_hides_a_velocity_that_the_projection_removes(
     q, v = crank_state(cells, angle, 3.0)
     drift = v.copy()
     drift[[cells, 2 * cells]] += 1e-7  # crank V2 and bar H2 together: cell 2 starts to fold
-    assert system.residual(q, drift) <= 2e-7 * angle
+    # the residual 1e-7 sin φ of the folding rate, and the rounding of the rows' terms ε |A| |v| (measured: the
+    # first term to 1e-3 of it); margin 10
+    A = system.solve(q, drift).A
+    estimate = 1e-7 * np.sin(angle) + np.finfo(float).eps * (np.abs(A) @ np.abs(drift)).max()
+    assert system.residual(q, drift) <= 10.0 * estimate
     q_p, v_p = system.project(q, drift)
     assert np.abs(q_p - q).max() == 0.0
     # a parallelogram motion again: every crank at one rate, every bar turning back by it
@@ -319,9 +326,10 @@ def test_ten_cells_pass_through_flat_as_their_one_degree_of_freedom_reduction(me
     """Ten cells (21 bars, 20 rows) from ``φ = 0.5`` rad at rest swing under gravity through ``φ = 0``, down,
     and up through ``φ = −π`` and back, passing a flat configuration 31 times in 20 s. Every crank must
     follow the reduction's ``φ(t)`` (``θ_Vk = −φ``) and every bar stay horizontal (``θ_V(k−1) + ψ_Hk = 0``) at
-    the 501 output times, to ``max(1e-6, 3 e)``, where ``e`` is the error that the same integrator at the same
+    the 501 output times, to ``max(1e-6, 10 e)``, where ``e`` is the error that the same integrator at the same
     tolerances leaves on the reduction itself (RK45 at rtol 1e-8 leaves 5e-6 on the one equation, so 1e-6
-    cannot be asked of it; for the others ``3 e`` is below 1e-6 or near it).
+    cannot be asked of it). The full system takes other steps than the reduction: its crank error was measured
+    up to 1.25 e (RK45 at rtol 1e-8 and 1e-9), hence the margin of 10.
 
     atol is ``rtol / 100`` (angles and rates of order 1). Runtime of each case: about 1–3 s. They pass because
     ``simulate`` projects a step's end state when the projection moves it, not when the residual is large:
@@ -346,7 +354,7 @@ def test_ten_cells_pass_through_flat_as_their_one_degree_of_freedom_reduction(me
     cranks, bars = trajectory.q[:, : CELLS + 1], trajectory.q[:, CELLS + 1 :]
     crank_error = np.abs(cranks + phi[:, None]).max()
     bar_angle = np.abs(cranks[:, :-1] + bars).max()
-    bound = max(1e-6, 3.0 * reduction_error(method, rtol))
+    bound = max(1e-6, 10.0 * reduction_error(method, rtol))
     assert crank_error <= bound, f"crank angles off the reduction by {crank_error:.3g} (bound {bound:.3g})"
     assert bar_angle <= bound, f"a bar turned by {bar_angle:.3g} rad (bound {bound:.3g})"
 
