@@ -53,6 +53,7 @@ from .robotics import (
 )
 from .rolling import KnifeEdge, RollingDisc, RollingSphere
 from .shooting import StepDerivatives, rk4_step, rk4_step_derivatives
+from .linearization import Linearization, linearize
 from .simulation import JointLimitWarning, SimulationError, simulate
 from .trajectory import Trajectory
 from . import variational
@@ -107,6 +108,8 @@ __all__ = [
     "StepDerivatives",
     "rk4_step",
     "rk4_step_derivatives",
+    "Linearization",
+    "linearize",
     "bias_forces",
     "coriolis_matrix",
     "forward_dynamics",

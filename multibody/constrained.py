@@ -362,6 +362,12 @@ class ConstrainedSystem:
         """Total number of constraint rows ``m``."""
         return int(sum(self._rows))
 
+    @property
+    def position_rows(self) -> np.ndarray:
+        """Which rows have a position level ``φ(q, t) = 0`` (holonomic rows): a boolean mask ``(m,)``; the
+        others restrict velocities only (nonholonomic rows)."""
+        return self._position_mask.copy()
+
     # ------------------------------------------------------------------ stacked constraint levels
 
     def _stack(self, pieces, shape):
@@ -393,6 +399,18 @@ class ConstrainedSystem:
         """``A v + b``: ``(m,)``."""
         A, b = self.velocity_level(q, t)
         return matvec(A, v) + b
+
+    def velocity_error_derivative(self, q, v, t=0.0):
+        """``∂(A v + b)/∂q (..., m, nv)`` at fixed ``v``, in the tangent space (``q ⊕ δq``): how moving the
+        configuration changes what the rows ask of the velocity. By five-point central differences of
+        :meth:`velocity_error` with the step :attr:`DERIVATIVE_STEP` ``· max(1, |q|)``, as the row terms of
+        :meth:`forward_dynamics_derivatives` (about ``1e-11`` relative): the rows give ``A`` and ``γ``
+        analytically, but ``γ = −∂(A v + b)/∂q v − ∂(A v + b)/∂t`` holds only the derivative along ``v``.
+        ``q (..., nq)``, ``v (..., nv)``; leading axes need :attr:`batched`."""
+        q, v = self._check_state(q, v)
+        if not self.num_rows:
+            return np.zeros(q.shape[:-1] + (0, self.nv))
+        return self._central_differences(lambda q_: self.velocity_error(q_, v, t), q, True)
 
     def acceleration_level(self, q, v, t=0.0):
         """``(A, γ)``: the stacked rows of ``A a = γ``, Baumgarte terms included: ``(m, nv)``, ``(m,)``."""
@@ -679,6 +697,18 @@ class ConstrainedSystem:
         return KKTDerivatives(da[..., :nv], da[..., nv : 2 * nv], da[..., 2 * nv :],
                               dlam[..., :nv], dlam[..., nv : 2 * nv], dlam[..., 2 * nv :])
 
+    def linearize(self, q, v, tau=None, t=0.0, *, dt=None, method="RK4"):
+        """The first-order dynamics about ``(q, v, τ)`` restricted to the constraints, in minimal coordinates
+        ``[s; u]``: a :class:`multibody.linearization.Linearization` (see :func:`multibody.linearize` for the
+        derivation). With ``dt`` (s), the map of one step of ``method`` in the same coordinates instead.
+
+        ``q (..., nq)``, ``v (..., nv)``, ``tau (..., nv)`` or ``None`` (zero), a consistent state (see
+        :meth:`project`); leading axes give a batch.
+        """
+        from .linearization import linearize
+
+        return linearize(self, q, v, tau, t, dt=dt, method=method)
+
     def _delassus_pseudo_inverse(self, A, L):
         """``G⁺ (..., m, m)`` of ``G = A M⁻¹ Aᵀ`` from the singular values of ``A L⁻ᵀ``, with the rank rule
         of :meth:`_minimum_norm`."""
@@ -729,15 +759,27 @@ class ConstrainedSystem:
 
         return differences.five_point_jacobian(values, displace, nv, h)
 
-    def rank(self, q, t=0.0) -> int:
+    def rank(self, q, t=0.0, *, rows=None):
         """Rank of the constraint Jacobian at ``q``: the number of independent rows, judged as :meth:`solve`
         judges them, by the singular values of ``A L⁻ᵀ`` (``M = L Lᵀ``) above ``rank_tolerance`` times the
-        largest."""
-        if not self.num_rows:
-            return 0
-        if (rank := self._compiled_rank(q)) is not None:
+        largest.
+
+        ``rows``: a boolean mask ``(m,)`` of the rows to count (e.g. :attr:`position_rows`), or ``None`` for
+        all. An ``int`` for one state; ``(...)`` ints for a batch ``q (..., nq)`` (see :attr:`batched`).
+        """
+        q = np.asarray(q, dtype=float)
+        if rows is not None:
+            rows = np.asarray(rows)
+            if rows.dtype != bool or rows.shape != (self.num_rows,):
+                raise ValueError(f"rows must be a boolean mask of shape ({self.num_rows},), got "
+                                 f"{rows.dtype} of shape {rows.shape}")
+        if not self.num_rows or (rows is not None and not rows.any()):
+            return 0 if q.ndim == 1 else np.zeros(q.shape[:-1], dtype=int)
+        if rows is None and (rank := self._compiled_rank(q)) is not None:
             return rank
-        return int(self._row_rank(self.jacobian(q, t), self._factor(q)))
+        A = self.jacobian(q, t)
+        rank = self._row_rank(A if rows is None else A[..., rows, :], self._factor(q))
+        return int(rank) if np.ndim(rank) == 0 else rank
 
     def _row_rank(self, A, L):
         """The rank ``(...)`` of rows ``A (..., k, nv)`` in the metric of ``M = L Lᵀ``, by the one rank decision
