@@ -41,7 +41,6 @@ Malformed files raise :class:`URDFError` naming the file, the element and the pr
 from __future__ import annotations
 
 import os
-import re
 import warnings
 import xml.etree.ElementTree as ET
 
@@ -51,22 +50,16 @@ from . import joints as jt
 from . import spatial
 from .inertia import Inertia
 from .model import Geometry, Mimic, ModelBuilder, inertia_problems
+from .modelfiles import (LARGEST_MAGNITUDE, is_xml_text, package_directories, parse_numbers, resolve_file,
+                         warn_missing_meshes)
 
 
 class URDFError(ValueError):
     """A URDF that cannot describe a valid model."""
 
 
-#: Largest absolute value accepted for a number in a URDF, joint limits aside (SI units).
-LARGEST_MAGNITUDE = 1e50
-
 #: Joint limits at or beyond this absolute value (``inf`` included) mean "no limit on that side".
 UNBOUNDED_LIMIT = 1e16
-
-# A decimal number as URDF writers produce it (Python's float() would also take "1_0", "inf" and
-# non-ASCII digits, which urdfdom rejects).
-_DECIMAL = re.compile(r"[+-]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]+)?")
-_INFINITY = re.compile(r"[+-]?inf(?:inity)?", re.IGNORECASE)
 
 # Joint types whose configuration is one number: the only ones a <mimic> can relate.
 _ONE_COORDINATE_TYPES = ("revolute", "continuous", "prismatic")
@@ -91,19 +84,14 @@ def _floats(ctx, element, attribute, path, count, default=None, allow_infinite=F
         if default is None:
             raise ctx.error(path, f"missing attribute {attribute!r}")
         return np.array(default, dtype=float)
-    tokens = text.split()
-    for token in tokens:
-        if not (_DECIMAL.fullmatch(token) or (allow_infinite and _INFINITY.fullmatch(token))):
-            raise ctx.error(path, f"attribute {attribute}={text!r}: {token!r} is not a decimal number")
-    if len(tokens) != count:
-        raise ctx.error(path, f"attribute {attribute}={text!r} must be {count} number(s), got {len(tokens)}")
-    values = np.array([float(token) for token in tokens], dtype=float)
-    if not allow_infinite:
-        if not np.all(np.isfinite(values)):
-            raise ctx.error(path, f"attribute {attribute}={text!r} must be {count} finite number(s)")
-        if np.any(np.abs(values) > LARGEST_MAGNITUDE):
-            raise ctx.error(path, f"attribute {attribute}={text!r}: magnitude above {LARGEST_MAGNITUDE:g}, "
-                                  "the largest accepted (no physical robot needs it; the dynamics would overflow)")
+    try:
+        values = parse_numbers(text, allow_infinite)
+    except ValueError as problem:
+        if str(problem) == "numbers must be finite":
+            raise ctx.error(path, f"attribute {attribute}={text!r} must be {count} finite number(s)") from None
+        raise ctx.error(path, f"attribute {attribute}={text!r}: {problem}") from None
+    if len(values) != count:
+        raise ctx.error(path, f"attribute {attribute}={text!r} must be {count} number(s), got {len(values)}")
     return values
 
 
@@ -263,25 +251,6 @@ def _mimic(ctx, mimic, joint_name, joint_type, path):
     )
 
 
-def _resolve_mesh(uri, base_dir, package_dirs):
-    """Absolute path of a mesh reference, or ``None``."""
-    if uri.startswith("package://"):
-        relative = uri[len("package://"):]
-        candidates = [os.path.join(d, relative) for d in package_dirs]
-        # package://name/rest may also be looked up with the package name stripped.
-        package, _, rest = relative.partition("/")
-        candidates += [os.path.join(d, package, rest) for d in package_dirs]
-        candidates += [os.path.join(d, rest) for d in package_dirs if os.path.basename(os.path.normpath(d)) == package]
-    elif uri.startswith("file://"):
-        candidates = [uri[len("file://"):]]
-    else:
-        candidates = [uri if os.path.isabs(uri) else os.path.join(base_dir or os.getcwd(), uri)]
-    for candidate in candidates:
-        if os.path.isfile(candidate):
-            return os.path.abspath(candidate)
-    return None
-
-
 def _sizes(ctx, element, attribute, path, count):
     """Dimensions of a primitive shape: ``count`` non-negative numbers."""
     values = _floats(ctx, element, attribute, path, count)
@@ -303,7 +272,7 @@ def _geometries(ctx, link, path, base_dir, package_dirs):
             shape = shape_element.tag
             if shape == "mesh":
                 uri = shape_element.get("filename", "")
-                filename = _resolve_mesh(uri, base_dir, package_dirs)
+                filename = resolve_file(uri, base_dir, package_dirs)
                 scale = tuple(_floats(ctx, shape_element, "scale", element_path + "/<mesh>", 3, (1.0, 1.0, 1.0)))
                 out.append(Geometry(link.get("name"), kind, "mesh", placement, uri=uri, filename=filename, scale=scale))
             elif shape == "box":
@@ -321,12 +290,11 @@ def _geometries(ctx, link, path, base_dir, package_dirs):
 
 def _parse_source(source):
     """``(root element, display name, base directory)`` from a path or an XML string."""
-    text = str(source)
-    is_xml = text.lstrip().startswith("<")
+    is_xml = is_xml_text(source)
     name = "<URDF string>" if is_xml else os.fspath(source)
     try:
         if is_xml:
-            root = ET.fromstring(text)
+            root = ET.fromstring(source)
             base_dir = None
         else:
             if not os.path.isfile(name):
@@ -372,11 +340,7 @@ def load_urdf(source, *, floating_base=False, package_dirs=None, invalid_inertia
         raise ValueError(f"invalid_inertia must be 'error', 'warn' or 'ignore', got {invalid_inertia!r}")
     root, source_name, base_dir = _parse_source(source)
     ctx = _Context(source_name)
-    if isinstance(package_dirs, (str, os.PathLike)):
-        package_dirs = [package_dirs]
-    package_dirs = [os.fspath(d) for d in (package_dirs or [])]
-    # Like ROS tools and Pinocchio, also look where ROS_PACKAGE_PATH points.
-    package_dirs += [d for d in os.environ.get("ROS_PACKAGE_PATH", "").split(os.pathsep) if d]
+    package_dirs = package_directories(package_dirs)
 
     links = {}
     for link in root.findall("link"):
@@ -475,10 +439,5 @@ def load_urdf(source, *, floating_base=False, package_dirs=None, invalid_inertia
                           "is not defined; the mimic relation is dropped", UserWarning, stacklevel=2)
     model = builder.build(check_inertia=False)
     _check_bodies(ctx, model, invalid_inertia)
-    missing = [g.uri for g in model.geometries if g.shape == "mesh" and g.filename is None]
-    if missing:
-        # One warning per file: the dynamics need no mesh, but the user should know before asking for them.
-        warnings.warn(f"{source_name}: {len(missing)} mesh file(s) not found, e.g. {missing[0]!r} "
-                      "(give package_dirs to resolve package:// paths); the dynamics are unaffected",
-                      UserWarning, stacklevel=2)
+    warn_missing_meshes(model, source_name, "give package_dirs to resolve package:// paths")
     return model
