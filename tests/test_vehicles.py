@@ -130,3 +130,96 @@ def test_a_driven_car_stays_on_its_circle_and_its_turn_rate_grows_as_the_power_b
     assert (rear[driving] > 0.5 * torque / dimensions.wheel_radius).all()
     assert np.abs(rear[~driving]).max() <= 10 * estimate * np.abs(expected).max()
     np.testing.assert_array_equal(car["drive_torque"](trajectory, 2.0, tau)[~driving], 0.0)
+
+
+# ============================================================================= the unicycle
+
+@pytest.fixture(scope="module")
+def unicycle():
+    return example("unicycle")
+
+
+@pytest.fixture(scope="module")
+def pedalled(unicycle):
+    """One second at 6 m/s under the pitch feedback, outputs every 2 ms, and the pedals' torques."""
+    h = 0.002
+    system, feedback, trajectory = unicycle["ride"](unicycle["Unicycle"](), 6.0, 1.0, dt=h, rtol=1e-11)
+    tau = np.array([feedback(t, q, v) for t, q, v in zip(trajectory.t, trajectory.q, trajectory.v)])
+    return system, trajectory, tau, h
+
+
+def simpson(f, h):
+    """∫ f dt from the first sample to every other one, ``f (n,)`` sampled ``h`` apart, by the composite Simpson
+    rule: ``W₂ₖ₊₂ = W₂ₖ + h/3 (f₂ₖ + 4 f₂ₖ₊₁ + f₂ₖ₊₂)``; ``(n // 2 + 1,)`` for odd ``n``, the last sample dropped
+    for even ``n``."""
+    pairs = (len(f) - 1) // 2
+    steps = h / 3 * (f[0 : 2 * pairs : 2] + 4 * f[1 : 2 * pairs : 2] + f[2 : 2 * pairs + 1 : 2])
+    return np.concatenate([[0.0], np.cumsum(steps)])
+
+
+def test_yaw_lean_pitch_reads_the_angles_of_rz_rx_ry(unicycle):
+    yaw, lean, pitch = 0.7, -0.3, 0.2
+    R = (mb.spatial.axis_angle_rotation([0, 0, 1], yaw) @ mb.spatial.axis_angle_rotation([1, 0, 0], lean)
+         @ mb.spatial.axis_angle_rotation([0, 1, 0], pitch))
+    np.testing.assert_allclose(unicycle["yaw_lean_pitch"](mb.spatial.rotation_to_quat(R)), [yaw, lean, pitch],
+                               atol=1e-14)
+
+
+def test_unicycle_motion_satisfies_its_equations_with_the_recorded_contact_forces(pedalled):
+    """Along the pedalled ride, M v̇ + h = τ + Aᵀ λ with v̇ from central differences of the recorded
+    velocities and λ the recorded multipliers: the residual stays within ten times the differences'
+    error, estimated per state by Richardson's comparison with the differences over twice the step
+    (error ≈ |D_h − D_2h| / 3). The KKT solution at each recorded state gives the recorded λ, and
+    satisfies the equations to the rounding of their terms."""
+    system, trajectory, tau, h = pedalled
+    model = system.model
+    M, bias = mb.mass_matrix(model, trajectory.q), mb.bias_forces(model, trajectory.q, trajectory.v)
+    A = system.jacobian(trajectory.q)
+    a_h = (trajectory.v[2:] - trajectory.v[:-2]) / (2 * h)
+    a_2h = (trajectory.v[4:] - trajectory.v[:-4]) / (4 * h)
+    inner = slice(2, -2)                                   # the states with both differences
+    residual = (np.einsum("nij,nj->ni", M[inner], a_h[1:-1]) + bias[inner] - tau[inner]
+                - np.einsum("nji,nj->ni", A[inner], trajectory.lam[inner]))
+    error = np.abs(M[inner]).sum(axis=2).max(axis=1) * np.abs(a_h[1:-1] - a_2h).max(axis=1) / 3
+    assert (np.abs(residual).max(axis=1) <= 10 * error).all()
+    assert np.median(10 * error) < 1e-2                   # a bound well below the forces (~700 N) over most of the ride
+
+    a, lam = system.forward_dynamics(trajectory.q, trajectory.v, tau)
+    np.testing.assert_array_equal(lam, trajectory.lam)
+    kkt = np.einsum("nij,nj->ni", M, a) + bias - tau - np.einsum("nji,nj->ni", A, lam)
+    terms = (np.abs(M).max() * np.abs(a).max() + np.abs(bias).max() + np.abs(tau).max()
+             + np.abs(A).max() * np.abs(lam).max())
+    assert np.abs(kkt).max() <= 10 * EPS * terms
+
+
+def test_unicycle_stays_on_the_ground_and_its_energy_changes_by_the_pedals_work(pedalled, unicycle):
+    """The rolling rows hold to what the step ends' projection leaves (its tolerance, 1e-12 m or m/s per
+    coordinate, times the rows' largest absolute row sum); the contact point stays on the ground with a
+    positive normal force; the rolling forces do no work, so E(t) − E(0) = ∫ τ_axle v_axle dt (Simpson's
+    rule, its error estimated by Richardson's comparison with the rule over twice the step)."""
+    system, trajectory, tau, h = pedalled
+    A = system.jacobian(trajectory.q)
+    assert trajectory.residual.max() <= 10 * trajectory.projection_tolerance * np.abs(A).sum(axis=2).max()
+    (contact,) = system.constraints
+    heights = np.array([contact.contact_point(system.model, q)[2] for q in trajectory.q])
+    assert np.abs(heights).max() <= 10 * trajectory.projection_tolerance * np.abs(A).sum(axis=2).max()
+    assert (trajectory.lam[:, 2] > 0).all()
+    axle = system.model.idx_v[system.model.joint_index("axle")]
+    power = tau[:, axle] * trajectory.v[:, axle]
+    work = simpson(power, h)
+    coarse = simpson(power[::2], 2 * h)
+    error = np.abs(work[::2][: len(coarse)] - coarse).max() / 15 + 100 * EPS * np.abs(trajectory.energy).max()
+    gained = (trajectory.energy - trajectory.energy[0])[::2][: len(work)]
+    assert np.abs(gained - work).max() <= 10 * error
+    assert abs(work[-1]) > 100 * 10 * error                     # the pedals do work worth checking
+
+
+def test_unicycle_falls_to_the_side_slowly_and_weaves_fast(unicycle):
+    """The pedals hold the pitch only: at 2 m/s the lean grows until the ride stops at 0.6 rad; at 6 m/s the
+    lean stays below 0.15 rad while the pitch settles."""
+    slow = unicycle["ride"](unicycle["Unicycle"](), 2.0, 2.0, dt=0.02)[2]
+    fast = unicycle["ride"](unicycle["Unicycle"](), 6.0, 4.0, dt=0.02)[2]
+    slow_angles, fast_angles = (unicycle["yaw_lean_pitch"](t.q[:, 3:7]) for t in (slow, fast))
+    assert slow.t[-1] < 2.0 and 0.5 < np.abs(slow_angles[:, 1]).max() <= 0.6
+    assert fast.t[-1] == pytest.approx(4.0) and np.abs(fast_angles[:, 1]).max() < 0.15
+    assert np.abs(fast_angles[len(fast.t) // 2:, 2]).max() < 0.2 * abs(fast_angles[0, 2])
