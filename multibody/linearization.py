@@ -58,6 +58,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.linalg
 
 from . import derivatives, driver
 from .constrained import ConstrainedSystem, ModelSystem
@@ -252,10 +253,29 @@ def _require_same_dimensions(batch, dimensions):
                          "separately")
 
 
-def _null_space(A, rank):
-    """Orthonormal basis ``(..., n, n − rank)`` of the null space of ``A (..., m, n)``: its right singular
-    vectors beyond the ``rank`` largest singular values."""
-    return np.swapaxes(np.linalg.svd(A, full_matrices=True)[2][..., rank:, :], -1, -2)
+def aligned_null_space(A, rank):
+    """Orthonormal basis ``(..., n, n − rank)`` of the null space of ``A (..., m, n)`` of rank ``rank``, its
+    vectors following the coordinate axes that the rows leave free.
+
+    The null space is spanned by the right singular vectors beyond the ``rank`` largest singular values,
+    an arbitrary rotation of it; its projector ``Π = N Nᵀ`` does not depend on that rotation. Column-pivoted
+    QR of ``Π`` (Golub and Van Loan, *Matrix Computations*, 4th ed., §5.4.2) takes the coordinate axes in the
+    order of their projections' lengths and orthonormalizes them, ``Π E = Q R``: the first ``n − rank``
+    columns of ``Q``, each turned to point along its axis (``R_jj > 0``). The axes come first that the rows
+    restrict least, as coordinate partitioning picks independent coordinates (Wehage and Haug, *J. Mech.
+    Des.* 104, 1982): the sleigh's velocity basis is its forward speed and its turn (with the sideways
+    velocity the blade makes it), not a mixture of them.
+    """
+    n = A.shape[-1]
+    N = np.swapaxes(np.linalg.svd(A, full_matrices=True)[2][..., rank:, :], -1, -2)
+    if rank == 0:
+        return np.broadcast_to(np.eye(n), A.shape[:-2] + (n, n)).copy()
+    projector = N @ np.swapaxes(N, -1, -2)
+    basis = np.empty(N.shape)
+    for index in np.ndindex(A.shape[:-2]):
+        Q, R, _ = scipy.linalg.qr(projector[index], pivoting=True)
+        basis[index] = Q[:, : n - rank] * np.where(np.diag(R)[: n - rank] < 0, -1.0, 1.0)
+    return basis
 
 
 def _bases(constrained, q, v, t, batch, nv):
@@ -279,14 +299,11 @@ def _bases(constrained, q, v, t, batch, nv):
     _require_same_dimensions(batch, zip(dimensions[0].ravel().tolist(), dimensions[1].ravel().tolist()))
     rank, position_rank = int(rank.ravel()[0]), int(position_rank.ravel()[0])
     A = constrained.jacobian(q, t)
-    # P = null(A_h): the identity without position rows
-    P = identity if not position_rank else _null_space(A[..., holonomic, :], position_rank)
+    # P = null(A_h); V = null(A), inside span P since A holds the rows of A_h; V = P when every independent
+    # row has a position level
+    P = aligned_null_space(A[..., holonomic, :], position_rank)
+    V = aligned_null_space(A, rank) if rank > position_rank else P
     p, k = nv - position_rank, nv - rank
-    # V = P W, W = null(A_n P): the rows without a position level restrict the velocities along P further
-    if rank > position_rank:
-        V = P @ _null_space(A[..., ~holonomic, :] @ P, rank - position_rank)
-    else:
-        V = P
     # D = −A⁺ C P with A⁺ = W_r Σ_r⁻¹ U_rᵀ over the rank kept: the minimum-norm solution of A δv = −C P s
     U, sigma, Wh = np.linalg.svd(A, full_matrices=False)
     pseudo_inverse = np.swapaxes(Wh[..., :rank, :], -1, -2) / sigma[..., None, :rank] @ np.swapaxes(U[..., :, :rank], -1, -2)
