@@ -10,7 +10,7 @@ steer and the wheels' angles; the pitch and the height follow from both wheels t
 The parameters are the benchmark's (J. P. Meijaard, J. M. Papadopoulos, A. Ruina and A. L. Schwab,
 "Linearized dynamics equations for the balance and steer of a bicycle: a benchmark and review",
 Proc. R. Soc. A 463 (2007) 1955–1982, Table 1). Linearized about the straight upright motion at speed
-``v``, the lean and steer angles ``q = (φ, δ)`` obey their eq. (5.3),
+``v``, the lean and steer angles ``q = (φ, δ)`` obey their equations
 
     M q̈ + v C₁ q̇ + (g K₀ + v² K₂) q = 0,
 
@@ -132,8 +132,8 @@ def lean_and_steer(q):
 
 # ----------------------------------------------------------------------------- the benchmark's equations
 
-#: The benchmark's coefficient matrices of eq. (5.3) for the parameters of Table 1, as the paper gives
-#: them (coordinates φ, δ; M in kg m², C₁ in kg m, K₀ in kg m, K₂ in kg).
+#: The benchmark's coefficient matrices of ``M q̈ + v C₁ q̇ + (g K₀ + v² K₂) q = 0`` for the parameters of
+#: Table 1, as the paper gives them (coordinates φ, δ; M in kg m², C₁ in kg m, K₀ in kg m, K₂ in kg).
 PUBLISHED_MATRICES = {
     "M": np.array([[80.81722, 2.31941332208709], [2.31941332208709, 0.29784188199686]]),
     "C1": np.array([[0.0, 33.86641391492494], [-0.85035641456978, 1.68540397397560]]),
@@ -147,7 +147,7 @@ WEAVE_SPEED, CAPSIZE_SPEED = 4.29238253634111, 6.02426201538837
 def benchmark_state_matrix(speed, matrices=PUBLISHED_MATRICES, g=BENCHMARK["g"]):
     """The benchmark's first-order matrix ``(4, 4)`` of the state ``(φ, δ, φ̇, δ̇)`` at ``speed`` (m/s).
 
-    From eq. (5.3), ``q̈ = −M⁻¹ ((g K₀ + v² K₂) q + v C₁ q̇)``; its eigenvalues are the roots of
+    From the benchmark's equations, ``q̈ = −M⁻¹ ((g K₀ + v² K₂) q + v C₁ q̇)``; its eigenvalues are the roots of
     ``det(M s² + v C₁ s + g K₀ + v² K₂) = 0`` (1/s).
     """
     M, C1, K0, K2 = (matrices[name] for name in ("M", "C1", "K0", "K2"))
@@ -163,38 +163,33 @@ def benchmark_eigenvalues(speed, matrices=PUBLISHED_MATRICES, g=BENCHMARK["g"]):
 
 # ----------------------------------------------------------------------------- the model's linearization
 
-def steady_motion_directions(linearization, speed, parameters=BENCHMARK):
+def steady_motion_directions(linearization, parameters=BENCHMARK):
     """The six directions ``(p + k, 6)`` of ``[s; u]`` along which a straight upright motion stays one.
 
     Moving the bicycle along x or y, turning it about the vertical through the rear contact, or turning
-    a wheel on its axle changes nothing of what follows (``δq`` of the rear frame's free-flyer in its
-    own axes, or of a wheel's joint, with ``δv = 0``); changing the speed gives another steady motion
-    (``δq = 0``, ``δv`` the rates of 1 m/s more). The first five are a symmetry's: ``A`` maps them to
-    zero, and the speed's to a drift along them, so that they carry the six zero eigenvalues of ``A``.
-    A perturbed state is ``δq = P s``, ``δv = V u + D s`` (``P`` the position basis, ``V`` the velocity
-    basis, ``D`` the dependent rates of ``linearization``).
+    a wheel on its axle (``δq`` of the rear frame's free-flyer in its own axes, or of a wheel's joint, with
+    ``δv = 0``), and rolling faster (``δq = 0``, ``δv`` the rates of 1 m/s more) each give another straight
+    upright motion. ``A`` maps the shifts along x and y and the wheels' turns to zero, the turn about the
+    vertical to a drift along y (``v`` per rad: the bicycle heads elsewhere) and the speed to a drift along
+    x and the wheels' angles: these six span an invariant subspace of ``A`` on which it is nilpotent, and
+    carry its six zero eigenvalues. Their coordinates are those of ``linearization.coordinates``.
     """
-    P, V, D = linearization.position_basis, linearization.velocity_basis, linearization.dependent_rates
-    nv = P.shape[0]
-    shifts = np.zeros((nv, 5))
-    shifts[0, 0] = shifts[1, 1] = shifts[5, 2] = 1.0   # x, y (m) and yaw about z (rad) of the rear frame
-    shifts[6, 3] = shifts[8, 4] = 1.0                  # the wheels' angles (rad)
-    s = np.linalg.lstsq(P, shifts, rcond=None)[0]
-    u = np.linalg.lstsq(V, -D @ s, rcond=None)[0]
-    faster = np.zeros(nv)
-    faster[0], faster[6], faster[8] = 1.0, 1.0 / parameters["r_R"], 1.0 / parameters["r_F"]
-    u_faster = np.linalg.lstsq(V, faster, rcond=None)[0]
-    return np.column_stack([np.vstack([s, u]), np.concatenate([np.zeros(P.shape[1]), u_faster])])
+    nv = linearization.position_basis.shape[0]
+    dq, dv = np.zeros((6, nv)), np.zeros((6, nv))
+    dq[0, 0] = dq[1, 1] = dq[2, 5] = 1.0   # x, y (m) and yaw about z (rad) of the rear frame
+    dq[3, 6] = dq[4, 8] = 1.0              # the wheels' angles (rad)
+    dv[5, [0, 6, 8]] = 1.0, 1.0 / parameters["r_R"], 1.0 / parameters["r_F"]
+    return linearization.coordinates(dq, dv).T
 
 
-def lean_steer_matrix(linearization, speed, parameters=BENCHMARK):
+def lean_steer_matrix(linearization, parameters=BENCHMARK):
     """``A`` of ``linearization`` on the lean and steer alone: ``(4, 4)``, whose eigenvalues are those of
     ``A`` but for the six zeros of the steady-motion directions (:func:`steady_motion_directions`).
 
     Those directions span an invariant subspace ``Z`` of ``A``; in an orthonormal basis ``[Z Q]``, ``A`` is
     block upper triangular, and ``Qᵀ A Q`` is the map ``A`` induces on the rest.
     """
-    Z = steady_motion_directions(linearization, speed, parameters)
+    Z = steady_motion_directions(linearization, parameters)
     Q = null_space(Z.T)
     return Q.T @ linearization.A @ Q
 
@@ -208,7 +203,7 @@ def upright_linearization(system, speed, parameters=BENCHMARK):
 def lean_steer_eigenvalues(system, speed, parameters=BENCHMARK):
     """The four lean and steer eigenvalues (1/s) of the model at ``speed`` (m/s), sorted by real part."""
     linearization = upright_linearization(system, speed, parameters)
-    return np.sort_complex(np.linalg.eigvals(lean_steer_matrix(linearization, speed, parameters)))
+    return np.sort_complex(np.linalg.eigvals(lean_steer_matrix(linearization, parameters)))
 
 
 def stable_speed_range(system, weave_bracket=(3.0, 5.0), capsize_bracket=(5.0, 8.0), xtol=1e-13):
@@ -241,10 +236,10 @@ def benchmark_response(speed, lean_rate, t):
 
 # ----------------------------------------------------------------------------- the figure
 
-def main(out="output", speeds=None, stable=(5.0, 10.0), unstable=(2.0, 1.2), lean_rate=0.5):
-    """Linearize the bicycle at ``speeds`` (m/s; default 0, 0.25, …, 10), simulate the push of ``lean_rate`` (rad/s) at the speed
-    and for the duration of ``stable`` and ``unstable`` (m/s, s), and draw the figure
-    ``whipple_bicycle.png`` into ``out``. Returns the path and a summary dict of what was measured."""
+def main(out="output", speeds=None, pushes=((5.0, 0.5, 10.0), (2.0, 0.1, 1.7))):
+    """Linearize the bicycle at ``speeds`` (m/s; default 0, 0.25, …, 10), simulate two ``pushes``, each
+    ``(speed (m/s), lean rate (rad/s), duration (s))``, and draw the figure ``whipple_bicycle.png`` into
+    ``out``. Returns the path and a dict of what was measured."""
     speeds = np.linspace(0.0, 10.0, 41) if speeds is None else np.asarray(speeds, float)
     _, system = build_bicycle()
     ours = np.array([lean_steer_eigenvalues(system, speed) for speed in speeds])
@@ -260,23 +255,29 @@ def main(out="output", speeds=None, stable=(5.0, 10.0), unstable=(2.0, 1.2), lea
     axes = figure.subplots(1, 3)
     axis = axes[0]
     axis.axvspan(WEAVE_SPEED, CAPSIZE_SPEED, color="tab:green", alpha=0.1, lw=0)
-    axis.plot(fine, published.real, color="0.6", lw=2.5, label="benchmark, real part")
-    axis.plot(fine, np.abs(published.imag), color="0.6", lw=1.5, ls="--", label="benchmark, |imaginary part|")
-    axis.plot(speeds, ours.real, "o", color="tab:blue", ms=3, label="library model, real part")
-    complex_ = np.abs(ours.imag) > 0
-    axis.plot(np.broadcast_to(speeds[:, None], ours.shape)[complex_], np.abs(ours.imag)[complex_], "o",
-              mfc="none", color="tab:orange", ms=4, label="library model, |imaginary part|")
+    # Dots rather than lines: sorted by real part, the roots swap places where two branches cross.
+    along = np.broadcast_to(fine[:, None], published.shape)
+    oscillating = np.abs(published.imag) > 0
+    axis.plot(along.ravel(), published.real.ravel(), ".", color="lightsteelblue", ms=5,
+              label="benchmark (published M, C₁, K₀, K₂): real part")
+    axis.plot(along[oscillating], np.abs(published.imag[oscillating]), ".", color="peachpuff", ms=5,
+              label="benchmark: |imaginary part|")
+    along = np.broadcast_to(speeds[:, None], ours.shape)
+    oscillating = np.abs(ours.imag) > 0
+    axis.plot(along.ravel(), ours.real.ravel(), "o", color="tab:blue", ms=2.5, label="library model: real part")
+    axis.plot(along[oscillating], np.abs(ours.imag[oscillating]), "o", color="tab:orange", ms=2.5,
+              label="library model: |imaginary part|")
     for speed, name in ((weave, "$v_w$"), (capsize, "$v_c$")):
         axis.axvline(speed, color="k", lw=0.8, ls=":")
-        axis.annotate(f"{name} = {speed:.4f} m/s", (speed, 8.5), rotation=90, ha="right", va="top", fontsize=8)
+        axis.annotate(f"{name} = {speed:.4f} m/s", (speed, 9.5), rotation=90, ha="right", va="top", fontsize=8)
     axis.axhline(0.0, color="k", lw=0.5)
     axis.set_ylim(-10.0, 10.0)
     axis.set_xlabel("forward speed v (m/s)")
     axis.set_ylabel("eigenvalue (1/s)")
     axis.set_title("lean and steer eigenvalues (Meijaard et al. 2007)")
-    axis.legend(loc="lower left", fontsize=7)
+    axis.legend(loc="lower right", fontsize=7)
 
-    for axis, (speed, duration) in zip(axes[1:], (stable, unstable)):
+    for axis, (speed, lean_rate, duration) in zip(axes[1:], pushes):
         trajectory = push(system, speed, lean_rate, duration)
         lean, steer = lean_and_steer(trajectory.q)
         linear = benchmark_response(speed, lean_rate, trajectory.t)
@@ -289,12 +290,14 @@ def main(out="output", speeds=None, stable=(5.0, 10.0), unstable=(2.0, 1.2), lea
         axis.plot(trajectory.t, linear[0], color="tab:blue", lw=0.8, ls="--", label="lean, benchmark's linear equations")
         axis.plot(trajectory.t, linear[1], color="tab:red", lw=0.8, ls="--", label="steer, benchmark's linear equations")
         axis.axhline(0.0, color="k", lw=0.5)
+        # the linear response of an unstable motion grows without bound: the nonlinear one sets the scale
+        reach = 1.15 * max(np.abs(lean).max(), np.abs(steer).max())
+        axis.set_ylim(-reach, reach)
         axis.set_xlabel("t (s)")
         axis.set_ylabel("angle (rad)")
         axis.set_title(f"push of φ̇ = {lean_rate:g} rad/s at {speed:g} m/s "
-                       f"({'self-stable' if WEAVE_SPEED < speed < CAPSIZE_SPEED else 'falls'})")
-        axis.legend(loc="upper right", fontsize=7)
-    axes[2].set_ylim(-1.0, 1.0)
+                       f"({'self-stable' if WEAVE_SPEED < speed < CAPSIZE_SPEED else 'weave unstable: falls'})")
+        axis.legend(loc="lower left", fontsize=7)
     path = save_figure(figure, out, "whipple_bicycle", dpi=110)
     return path, summary
 
@@ -302,5 +305,5 @@ def main(out="output", speeds=None, stable=(5.0, 10.0), unstable=(2.0, 1.2), lea
 if __name__ == "__main__":
     path, summary = main(sys.argv[1] if len(sys.argv) > 1 else "output")
     for key, value in summary.items():
-        print(f"{key}: {value:.6g}")
+        print(f"{key}: {value:.15g}" if "speed (m/s)" in key else f"{key}: {value:.3g}")
     print("wrote", path)
