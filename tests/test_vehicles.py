@@ -8,6 +8,7 @@ import warnings
 
 import numpy as np
 import pytest
+import scipy.linalg
 
 import multibody as mb
 
@@ -149,9 +150,9 @@ def pedalled(unicycle):
 
 
 def simpson(f, h):
-    """∫ f dt from the first sample to every other one, ``f (n,)`` sampled ``h`` apart, by the composite Simpson
-    rule: ``W₂ₖ₊₂ = W₂ₖ + h/3 (f₂ₖ + 4 f₂ₖ₊₁ + f₂ₖ₊₂)``; ``(n // 2 + 1,)`` for odd ``n``, the last sample dropped
-    for even ``n``."""
+    """∫ f dt from the first sample to every other one, ``f (n,)`` sampled ``h`` apart, by the composite
+    Simpson rule: ``W₂ₖ₊₂ = W₂ₖ + h/3 (f₂ₖ + 4 f₂ₖ₊₁ + f₂ₖ₊₂)``; ``(n // 2 + 1,)`` for odd ``n``, the last
+    sample dropped for even ``n``."""
     pairs = (len(f) - 1) // 2
     steps = h / 3 * (f[0 : 2 * pairs : 2] + 4 * f[1 : 2 * pairs : 2] + f[2 : 2 * pairs + 1 : 2])
     return np.concatenate([[0.0], np.cumsum(steps)])
@@ -223,3 +224,98 @@ def test_unicycle_falls_to_the_side_slowly_and_weaves_fast(unicycle):
     assert slow.t[-1] < 2.0 and 0.5 < np.abs(slow_angles[:, 1]).max() <= 0.6
     assert fast.t[-1] == pytest.approx(4.0) and np.abs(fast_angles[:, 1]).max() < 0.15
     assert np.abs(fast_angles[len(fast.t) // 2:, 2]).max() < 0.2 * abs(fast_angles[0, 2])
+
+
+# ============================================================================= LQR through linearize
+
+@pytest.fixture(scope="module")
+def lqr():
+    return example("cartpole_lqr")
+
+
+def test_cart_pole_lqr_takes_the_linearization_as_given(lqr):
+    """The cart-pole of the URDF string is linearized by ``mb.linearize`` at its upright equilibrium; the
+    gain is the Riccati gain of exactly that ``A`` and the cart's column of ``B``, and it makes every
+    closed-loop eigenvalue's real part negative."""
+    model = lqr["cart_pole"]()
+    assert model.joint_names == ("slide", "hinge")
+    rest = np.zeros(model.nv)
+    np.testing.assert_array_equal(mb.forward_dynamics(model, model.neutral(), rest, rest), 0.0)   # upright: at rest
+    Q, R = np.diag([10.0, 100.0, 1.0, 10.0]), np.array([[0.1]])
+    linearization, cart, K, closed_loop = lqr["cart_pole_regulator"](model, Q, R)
+    given = mb.linearize(model, model.neutral(), rest, rest)
+    np.testing.assert_array_equal(linearization.A, given.A)
+    np.testing.assert_array_equal(linearization.B, given.B)
+    assert cart == model.idx_v[model.joint_index("slide")]
+    B = given.B[:, [cart]]
+    X = scipy.linalg.solve_continuous_are(given.A, B, Q, R)
+    np.testing.assert_allclose(K, B.T @ X / R[0, 0], rtol=1e-12)
+    np.testing.assert_array_equal(closed_loop, given.A - B @ K)
+    assert np.linalg.eigvals(closed_loop).real.max() < 0
+    assert np.linalg.eigvals(given.A).real.max() > 1.0                 # the upright pole alone falls
+
+
+@pytest.mark.parametrize("tilt", [0.05, 0.3])
+def test_cart_pole_closed_loop_decays_within_its_eigenvalue_bound(lqr, tilt):
+    """The nonlinear closed loop from the pole tipped by ``tilt``: the minimal coordinates' norm stays below
+    the linear closed loop's bound ``κ e^{α t} |x(0)|`` (``α`` the largest real part of its eigenvalues, ``κ``
+    the condition number of its eigenvectors) over 4 s, and the pole ends upright, the cart back, at rest."""
+    model, controller, closed_loop, trajectory, states, forces = lqr["balance_cart_pole"](tilt=tilt, duration=4.0,
+                                                                                          dt=0.02)
+    alpha, kappa = lqr["decay_bound"](closed_loop)
+    assert alpha < 0
+    norms = np.linalg.norm(states, axis=1)
+    assert norms[0] == pytest.approx(tilt, rel=1e-12)
+    assert (norms <= kappa * np.exp(alpha * trajectory.t) * norms[0]).all()
+    assert norms[-1] < 0.1 * norms[0]
+    # the regulator's state is the deviation from the upright at rest in these coordinates
+    np.testing.assert_allclose(states, np.concatenate([trajectory.q, trajectory.v], axis=1), rtol=0, atol=1e-15)
+
+
+def test_regulated_subspace_drops_uncontrollable_modes_and_symmetry_shifts(lqr):
+    """A pendulum (x₁, ẋ₁ = x₂, ẋ₂ = 2 x₁ − u) on a cart (ẋ₄ = x₅, ẋ₅ = u) beside an uncontrollable x₃:
+    the controllable subspace is span(x₁, x₂, x₄, x₅); the cart's place x₄, which A ignores, is dropped
+    from the regulated coordinates, which span x₁, x₂, x₅."""
+    A = np.zeros((5, 5))
+    A[0, 1], A[1, 0], A[2, 2], A[3, 4] = 1.0, 2.0, -1.0, 1.0
+    B = np.array([[0.0], [-1.0], [0.0], [0.0], [1.0]])
+    T_c = lqr["controllable_subspace"](A, B)
+    assert T_c.shape == (5, 4)
+    np.testing.assert_allclose(T_c[2], 0.0, atol=1e-15)
+    T = lqr["regulated_subspace"](A, B)
+    assert T.shape == (5, 3)
+    np.testing.assert_allclose(T.T @ T, np.eye(3), atol=1e-14)
+    np.testing.assert_allclose(T[[2, 3]], 0.0, atol=1e-14)
+
+
+def test_unicycle_modes_and_lqr_pedals(lqr):
+    """``ConstrainedSystem.linearize`` of the unicycle rolling upright: the pitch falls at either speed
+    (a real pair ±7.45 1/s), the lean falls at 2 m/s (a real pair) and weaves at 6 m/s (an imaginary pair):
+    what examples/unicycle.py shows. The LQR pedals regulate three coordinates (pitch, its rate, speed) and
+    make them decay."""
+    rates = {}
+    for speed in (2.0, 6.0):
+        _, system, linearization, T, K, closed_loop, _ = lqr["unicycle_regulator"](speed)
+        assert (linearization.p, linearization.k) == (6, 4)
+        eigenvalues = np.linalg.eigvals(linearization.A)
+        scale = np.abs(eigenvalues).max()
+        rates[speed] = eigenvalues[np.abs(eigenvalues) > 1e-6 * scale]
+        assert T.shape == (10, 3) and np.linalg.eigvals(closed_loop).real.max() < 0
+    assert np.sum(rates[2.0].real > 1e-6) == 2 and np.abs(rates[2.0].imag).max() < 1e-6
+    assert np.sum(rates[6.0].real > 1e-6) == 1 and np.sum(np.abs(rates[6.0].imag) > 1.0) == 2
+
+
+def test_unicycle_lqr_closed_loop_decays_within_its_eigenvalue_bound_without_lean(lqr):
+    """From a pitch of 0.05 rad without lean the motion stays in the plane of the wheel and the regulated
+    coordinates follow the closed loop's bound ``κ e^{α t} |y(0)|``; with a lean of 0.02 rad the lean weaves,
+    its second-order terms stir the pitch, and the pedals hold it within a fifth of its start after 1 s."""
+    controller, closed_loop, trajectory, angles, _ = lqr["ride_with_lqr"](lean=0.0, duration=3.0, dt=0.02)
+    alpha, kappa = lqr["decay_bound"](closed_loop)
+    regulated = np.array([controller.gain_basis.T @ controller.state(t, q, v)
+                          for t, q, v in zip(trajectory.t, trajectory.q, trajectory.v)])
+    norms = np.linalg.norm(regulated, axis=1)
+    assert np.abs(angles[:, 1]).max() == 0.0
+    assert (norms <= kappa * np.exp(alpha * trajectory.t) * norms[0]).all()
+    _, _, trajectory, angles, _ = lqr["ride_with_lqr"](lean=0.02, duration=3.0, dt=0.02)
+    assert np.abs(angles[:, 1]).max() > 0.05                              # the lean is not held
+    assert np.abs(angles[trajectory.t >= 1.0, 2]).max() < 0.2 * abs(angles[0, 2])   # held near upright
