@@ -74,7 +74,7 @@ CONSISTENCY_TOLERANCE = 1e-8
 STEP_METHODS = ("RK4",)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Linearization:
     """The first-order dynamics about a state in minimal coordinates ``x = [s; u]`` (:func:`linearize`).
 
@@ -84,8 +84,9 @@ class Linearization:
     every array leading axes ``(...)``.
 
     Attributes:
-        A: ``(..., p + k, p + k)``; rates (1/s) of ``[s; u]`` per unit of ``[s; u]``, or the step's map.
-        B: ``(..., p + k, nv)``; per unit of joint force ``δτ`` (N, N·m).
+        A: ``(..., p + k, p + k)``: ``d[s; u]/dt`` per unit of ``[s; u]`` (``s`` in the units of ``δq``, m and
+            rad; ``u`` in those of ``δv``, m/s and rad/s), or the step's map ``[s; u]⁺`` per unit of ``[s; u]``.
+        B: ``(..., p + k, nv)``: the same per unit of joint force ``δτ`` (N, N·m).
         position_basis: ``P (..., nv, p)``, orthonormal: tangent directions of the holonomic constraint
             manifold (the null space of the position rows' Jacobian).
         velocity_basis: ``V (..., nv, k)``, orthonormal: the velocities every row admits (the null space of
@@ -235,7 +236,8 @@ def _state(mechanical, q, v, tau):
     except ValueError:
         raise ValueError(f"the leading axes of q {arrays['q'].shape}, v {arrays['v'].shape} and tau "
                          f"{arrays['tau'].shape} do not broadcast to one batch") from None
-    q, v, tau = (np.ascontiguousarray(np.broadcast_to(value, batch + value.shape[-1:])) for value in arrays.values())
+    # (copies: the result keeps them, whatever the caller does to its arrays afterwards)
+    q, v, tau = (np.array(np.broadcast_to(value, batch + value.shape[-1:])) for value in arrays.values())
     return q, v, tau, batch
 
 
