@@ -77,12 +77,14 @@ def test_set_num_threads_takes_an_integer(n):
 
 
 def _recording_batches(monkeypatch):
-    """Record ``(shares, Numba's thread count)`` of every parallel loop the driver runs, in place of the
-    loop (whose numbers the other tests check)."""
+    """Record ``(shares, Numba's thread count)`` of every parallel loop the driver runs, then run the loop
+    (the results are checked for overflow, so they must be computed)."""
     calls = []
+    loop = mb.driver._direct(mb.driver._batch, mb.driver._BATCH_TYPES)
 
     def recorded(*args):
         calls.append((args[-1], numba.get_num_threads()))
+        loop(*args)
 
     monkeypatch.setattr(mb.driver, "_batch", recorded)
     return calls
@@ -102,11 +104,11 @@ def test_the_thread_count_is_the_process_s(monkeypatch):
     q, v = _batch_of_states(model)
     calls = _recording_batches(monkeypatch)
     original = mb.get_num_threads()
-    seen = []
+    seen, energies = [], []
 
     def elsewhere():
         seen.append(mb.get_num_threads())
-        mb.kinetic_energy(model, q, v)
+        energies.append(mb.kinetic_energy(model, q, v))
 
     try:
         for n in (1, most):
@@ -117,6 +119,9 @@ def test_the_thread_count_is_the_process_s(monkeypatch):
             assert seen[-1] == n
             assert calls[-1] == (n, n), f"set_num_threads({n}): a batch of another thread ran on {calls[-1]}"
         assert len(seen) == 2 and len(calls) == 2
+        # the same states on any number of threads: the same numbers
+        np.testing.assert_array_equal(energies[0], energies[1])
+        np.testing.assert_array_equal(energies[0], mb.kinetic_energy(model, q, v))
     finally:
         mb.set_num_threads(original)
 
@@ -209,9 +214,11 @@ def test_a_local_thread_count_is_the_calling_thread_s_only(monkeypatch):
         with mb.driver.local_num_threads(1):
             assert mb.get_num_threads() == 1
             mb.kinetic_energy(model, q, v)
-            other = threading.Thread(target=lambda: mb.kinetic_energy(model, q, v))
+            energies = []
+            other = threading.Thread(target=lambda: energies.append(mb.kinetic_energy(model, q, v)))
             other.start()
             other.join()
+            assert len(energies) == 1, "the other thread's batch failed"
         assert mb.get_num_threads() == most
         mb.kinetic_energy(model, q, v)
         assert calls == [(1, 1), (most, most), (most, most)]
