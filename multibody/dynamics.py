@@ -7,8 +7,12 @@ Recursive Newton–Euler (:mod:`~multibody.kernels.rnea`), Composite Rigid Body
 (:mod:`~multibody.kernels.crba`), Articulated Body (:mod:`~multibody.kernels.aba`), the Coriolis
 matrix (:mod:`~multibody.kernels.coriolis`) and the energies (:mod:`~multibody.kernels.energy`).
 
-The ``method="lagrangian"`` forms check them the textbook way, in NumPy: ``M = Σᵢ Jᵢᵀ Iᵢ Jᵢ`` from
-world body Jacobians and inertias, ``C`` from the Christoffel symbols of ``M``.
+The ``method="lagrangian"`` forms check them the textbook way, in NumPy: ``M = Σᵢ Jᵢᵀ Iᵢ Jᵢ +
+diag(armature)`` from world body Jacobians and inertias, ``C`` from the Christoffel symbols of ``M``.
+
+Every algorithm adds the joints' armature (``model.armature``, rotor inertia) to the diagonal of ``M``,
+as Pinocchio and MuJoCo do: ``τ`` gets ``armature ⊙ a``, the accelerations, ``M⁻¹``, the derivatives and
+the kinetic energy ``½ vᵀ M v`` see it; ``C`` and ``g`` do not depend on it.
 
 Conventions (``docs/conventions.md``): spatial vectors are ``[linear; angular]``; gravity enters as
 a fictitious acceleration ``a₀ = [−g; 0]`` of the world (RBDA §5.3); external forces ``f_ext`` have
@@ -208,9 +212,10 @@ def joint_reaction_forces(model, q, v, a, f_ext=None, *, out=None):
 
     The force ``[f; n]`` (N, N m) the parent exerts on the subtree of joint i through the joint,
     expressed in joint frame i at its origin: the RNEA backward-pass force ``f_i`` (RBDA Table 5.1).
-    Its projection on the motion subspace is the joint force ``τ_i = S_iᵀ f_i``; the rest is what
-    the joint's bearings carry. Constraint forces enter through ``f_ext`` (see
-    ``ConstrainedSystem.body_forces``). Shapes, ``out`` and errors as :func:`inverse_dynamics`.
+    Its projection on the motion subspace, ``S_iᵀ f_i``, is the joint force ``τ_i`` less the armature's
+    share ``armature_i ⊙ a_i`` (the rotor is no body); the rest is what the joint's bearings carry.
+    Constraint forces enter through ``f_ext`` (see ``ConstrainedSystem.body_forces``). Shapes, ``out`` and
+    errors as :func:`inverse_dynamics`.
     """
     q, v, a, _, f_ext, batch = _check(model, q, v, a, f_ext=f_ext)
     return _evaluate(model, rnea.joint_reaction_forces, (q, v, a, f_ext), (model.njoints, 6), batch, out)
@@ -252,9 +257,10 @@ def mass_matrix(model, q, method="crba", *, out=None):
 
     ``method="crba"``: Composite Rigid Body Algorithm (RBDA Table 6.2,
     :func:`multibody.kernels.crba.mass_matrix`).
-    ``method="lagrangian"``: ``M = Σᵢ Jᵢᵀ Iᵢ Jᵢ`` from the world-frame Jacobian ``Jᵢ`` and inertia
-    ``Iᵢ`` of each body, the kinetic energy ``T = ½ vᵀ M v`` made explicit.
-    Pinocchio counterpart: ``crba`` (upper triangle, symmetrised).
+    ``method="lagrangian"``: ``M = Σᵢ Jᵢᵀ Iᵢ Jᵢ + diag(armature)`` from the world-frame Jacobian ``Jᵢ`` and
+    inertia ``Iᵢ`` of each body, the kinetic energy ``T = ½ vᵀ M v`` made explicit.
+    Both hold ``model.armature`` on the diagonal. Pinocchio counterpart: ``crba`` (upper triangle,
+    symmetrised).
     """
     if method not in ("crba", "lagrangian"):
         raise ValueError(f"method must be 'crba' or 'lagrangian', got {method!r}")
@@ -266,9 +272,11 @@ def mass_matrix(model, q, method="crba", *, out=None):
     if method == "crba":
         return _evaluate(model, crba.mass_matrix, (q,), (model.nv, model.nv), q.shape[:-1], out)
     jacobians, inertias = _world_body_jacobians_and_inertias(model, q)
-    # M = Σ_i J_iᵀ I_i J_i
+    # M = Σ_i J_iᵀ I_i J_i + diag(armature)
     M = np.einsum("...ick,...icd,...idl->...kl", jacobians, inertias, jacobians, optimize=True)
-    return _written(out, 0.5 * (M + spatial.transpose(M)))  # exactly symmetric
+    M = 0.5 * (M + spatial.transpose(M))  # exactly symmetric
+    M[..., np.arange(model.nv), np.arange(model.nv)] += model.armature
+    return _written(out, M)
 
 
 def mass_matrix_and_bias(model, q, v):
@@ -371,10 +379,12 @@ def mass_matrix_derivative(model, q):
 
 def _singular(model, where=""):
     """``LinAlgError``: the mass matrix is singular (``where``: at which state of a batch, or ""). The error
-    names the first joint whose subtree carries no inertia at all, the usual cause (at every state)."""
+    names the first joint whose subtree carries no inertia at all and whose coordinates do not all have
+    armature (which alone keeps ``Sᵀ I^A S + diag(armature)`` regular), the usual cause (at every state)."""
     for i in range(model.njoints):
         subtree = [model.joint_inertias[j] for j in range(i, model.njoints) if model.ancestors[j, i]]
-        if not any(inertia.mass or np.any(inertia.rotational) for inertia in subtree):
+        own = model.armature[model.idx_v[i] : model.idx_v[i] + model.joints[i].nv]
+        if not any(inertia.mass or np.any(inertia.rotational) for inertia in subtree) and not np.all(own > 0.0):
             raise np.linalg.LinAlgError(
                 f"the mass matrix is singular: joint {model.joint_names[i]!r} moves no inertia "
                 "(its articulated inertia Sᵀ I^A S is singular); give the bodies it carries mass and inertia")
@@ -423,7 +433,8 @@ def inverse_mass_matrix(model, q, *, out=None):
 # ============================================================================= energies
 
 def kinetic_energy(model, q, v, *, out=None):
-    """``T = ½ vᵀ M(q) v = Σᵢ ½ Vᵢᵀ Iᵢ Vᵢ`` (J), with ``Vᵢ`` each body's spatial velocity. ``-> (...)``
+    """``T = ½ vᵀ M(q) v = Σᵢ ½ Vᵢᵀ Iᵢ Vᵢ + ½ Σₖ armatureₖ vₖ²`` (J), with ``Vᵢ`` each body's spatial velocity
+    and the joints' rotor inertia ``model.armature``. ``-> (...)``
     (a float64 scalar for one state); ``out`` (of shape ``(...)``) and errors as :func:`inverse_dynamics`.
 
     Pinocchio counterpart: ``computeKineticEnergy``.

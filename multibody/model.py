@@ -131,10 +131,20 @@ class Model:
         friction: ``(nv,)`` joint (Coulomb) friction, N·m or N (default zeros); recorded, not applied.
         effort_limit: ``(nv,)`` largest joint force, N·m or N (``inf`` when none is given).
         velocity_limit: ``(nv,)`` largest joint speed, rad/s or m/s (``inf`` when none is given).
+        armature: ``(nv,)`` rotor inertia of each coordinate, kg m² (angles) or kg (displacements), default
+            zeros (a URDF has none): added to the diagonal of the mass matrix ``M`` in every algorithm, so
+            that the equations of motion read ``(M_bodies + diag(armature)) a + h = τ`` and the kinetic
+            energy ``½ vᵀ M v`` counts it too. It belongs to no body: the bodies' momenta, centroidal
+            quantities and the forces :func:`multibody.joint_reaction_forces` reports leave it out (see
+            ``docs/theory.md``).
 
-    The last four are Pinocchio's ``damping``, ``friction``, ``effortLimit`` and ``velocityLimit``;
-    ``lower`` and ``upper`` its ``lowerPositionLimit`` and ``upperPositionLimit`` (see
-    :func:`multibody.load_urdf` for what a URDF gives them).
+        equality_constraints: the model file's own constraints, built-in constraints of
+            :mod:`multibody.constraints` (an MJCF ``<equality>``: see :func:`multibody.load_mjcf`); empty for a
+            URDF. They are data: pass them to :class:`~multibody.ConstrainedSystem` to enforce them.
+
+    Those five are Pinocchio's ``damping``, ``friction``, ``effortLimit``, ``velocityLimit`` and
+    ``armature`` (the last MuJoCo's ``dof_armature``); ``lower`` and ``upper`` its ``lowerPositionLimit``
+    and ``upperPositionLimit`` (see :func:`multibody.load_urdf` for what a URDF gives them).
     """
 
     name: str
@@ -155,6 +165,8 @@ class Model:
     friction: np.ndarray | None = None
     effort_limit: np.ndarray | None = None
     velocity_limit: np.ndarray | None = None
+    armature: np.ndarray | None = None
+    equality_constraints: tuple = ()
 
     def __post_init__(self):
         nj, nb = len(self.joints), len(self.body_names)
@@ -163,6 +175,7 @@ class Model:
         set_("joint_names", tuple(self.joint_names))
         set_("body_names", tuple(self.body_names))
         set_("body_inertias", tuple(self.body_inertias))
+        set_("equality_constraints", tuple(self.equality_constraints))
         set_("parents", _frozen(self.parents, int).reshape(nj))
         set_("body_joints", _frozen(self.body_joints, int).reshape(nb))
         set_("joint_placements", _frozen(self.joint_placements).reshape(nj, 4, 4))
@@ -179,7 +192,8 @@ class Model:
         if self.lower.shape != (self.nq,) or self.upper.shape != (self.nq,):
             raise ValueError(f"Model: lower and upper limits must have shape ({self.nq},)")
         for name, default, bounded in (("damping", 0.0, True), ("friction", 0.0, True),
-                                       ("effort_limit", np.inf, False), ("velocity_limit", np.inf, False)):
+                                       ("effort_limit", np.inf, False), ("velocity_limit", np.inf, False),
+                                       ("armature", 0.0, True)):
             value = getattr(self, name)
             set_(name, _frozen(np.full(self.nv, default) if value is None else value).reshape(-1))
             problem = _per_dof_problem(getattr(self, name), self.nv, bounded)
@@ -330,6 +344,23 @@ class Model:
         if g is None or g.shape != (3,) or not np.all(np.isfinite(g)):
             raise ValueError(f"gravity must be 3 finite numbers (m/s², world frame), got {gravity!r}")
         return dataclasses.replace(self, gravity=g)
+
+    def with_armature(self, armature) -> "Model":
+        """A new model equal to this one but for its :attr:`armature`; this one is unchanged.
+
+        ``armature``: ``(nv,)`` finite, non-negative rotor inertia per velocity coordinate, kg m² or kg
+        (a number for every coordinate), in the model's ``v`` order.
+        """
+        try:
+            values = np.asarray(armature, dtype=float)
+        except (TypeError, ValueError):  # (text, or a ragged sequence)
+            raise ValueError(f"armature must be numbers, one per velocity coordinate ({self.nv}), got "
+                             f"{armature!r}") from None
+        values = np.full(self.nv, float(values)) if values.ndim == 0 else values
+        problem = _per_dof_problem(values, self.nv, True)
+        if problem:
+            raise ValueError(f"armature {problem}")
+        return dataclasses.replace(self, armature=values)
 
     # ------------------------------------------------------------------ configuration space
 
@@ -566,6 +597,7 @@ class _BodySpec:
     friction: np.ndarray
     effort_limit: np.ndarray
     velocity_limit: np.ndarray
+    armature: np.ndarray
 
 
 class ModelBuilder:
@@ -595,7 +627,7 @@ class ModelBuilder:
 
     def add_body(self, name, joint=None, *, parent=None, placement=None, inertia=None, joint_name=None,
                  lower=None, upper=None, damping=0.0, friction=0.0, effort_limit=np.inf,
-                 velocity_limit=np.inf) -> str:
+                 velocity_limit=np.inf, armature=0.0) -> str:
         """Add a body moved by ``joint`` relative to ``parent``.
 
         Args:
@@ -613,6 +645,8 @@ class ModelBuilder:
             friction: joint friction, N·m or N, likewise (default none; recorded, not applied).
             effort_limit, velocity_limit: largest joint force (N·m or N) and speed (rad/s or m/s),
                 likewise; ``inf`` (the default) for none.
+            armature: rotor inertia per velocity coordinate, kg m² or kg, likewise, finite and
+                non-negative (default none): added to the mass matrix's diagonal (:attr:`Model.armature`).
         Returns:
             ``name``.
         """
@@ -636,8 +670,12 @@ class ModelBuilder:
             raise ValueError(f"limits of joint {joint_name!r} must have shape ({joint.nq},)")
         per_dof = {}
         for key, value, finite in (("damping", damping, True), ("friction", friction, True),
-                                   ("effort_limit", effort_limit, False), ("velocity_limit", velocity_limit, False)):
-            value = np.array(value, dtype=float)
+                                   ("effort_limit", effort_limit, False), ("velocity_limit", velocity_limit, False),
+                                   ("armature", armature, True)):
+            try:
+                value = np.array(value, dtype=float)
+            except (TypeError, ValueError):  # (text, or a ragged sequence)
+                raise ValueError(f"{key} of joint {joint_name!r} must be numbers, got {value!r}") from None
             per_dof[key] = np.full(joint.nv, float(value)) if value.ndim == 0 else value.reshape(-1)
             problem = _per_dof_problem(per_dof[key], joint.nv, finite)
             if problem:
@@ -665,7 +703,7 @@ class ModelBuilder:
         properties no real body can have raises ``ValueError`` (see :func:`inertia_problems`).
         """
         joints, joint_names, parents, joint_placements, lower, upper = [], [], [], [], [], []
-        per_dof = {"damping": [], "friction": [], "effort_limit": [], "velocity_limit": []}
+        per_dof = {"damping": [], "friction": [], "effort_limit": [], "velocity_limit": [], "armature": []}
         body_joint, body_placement = {}, {}
         for spec in self._bodies:
             if spec.parent is None:
@@ -736,7 +774,7 @@ def suspicious_inertias(model, placeholder_mass=1e-5):
     Reported per link: impossible numbers (see :meth:`Inertia.problems`), placeholder masses below
     ``placeholder_mass`` kg, and point masses (mass without rotational inertia). Reported per
     moving rigid body: no mass at all with no massive body further down the tree, which makes the
-    mass matrix singular.
+    mass matrix singular, unless armature on each of its coordinates keeps it regular.
     """
     out = []
     for b, (name, inertia) in enumerate(zip(model.body_names, model.body_inertias)):
@@ -751,6 +789,6 @@ def suspicious_inertias(model, placeholder_mass=1e-5):
         if model.parents[i] >= 0:
             subtree_mass[model.parents[i]] += subtree_mass[i]
     for i, mass in enumerate(subtree_mass):
-        if mass == 0.0:
+        if mass == 0.0 and not np.all(model.armature[model.idx_v[i] : model.idx_v[i] + model.joints[i].nv] > 0.0):
             out.append(f"joint {model.joint_names[i]!r} moves no mass: the mass matrix is singular")
     return out

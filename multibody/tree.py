@@ -12,11 +12,13 @@ IQ, IV     start of the joint's block in ``q`` and in ``v``
 NQ, NV     sizes of those blocks
 =========  ==============================================================
 
-``reals (nj + 1, 25) float64``: row ``i < nj`` holds joint i's placement ``X_λ(i),P = (R_T, p_T)``
+``reals (nj + 1, 31) float64``: row ``i < nj`` holds joint i's placement ``X_λ(i),P = (R_T, p_T)``
 (the pose of its pre-joint frame in the parent joint's frame: ``R_T`` row-major at ``ROTATION``,
-``p_T`` at ``POSITION``), its unit ``AXIS`` (revolute and prismatic kinds) and the ``INERTIA`` of the
+``p_T`` at ``POSITION``), its unit ``AXIS`` (revolute and prismatic kinds), the ``INERTIA`` of the
 rigid body it moves, ``(m, h, Ī)`` about the joint frame's origin in its axes (see
-:mod:`multibody.kernels.spatial`). Row ``nj`` is the world: ``GRAVITY`` (m/s², world axes).
+:mod:`multibody.kernels.spatial`), and at ``ARMATURE + k`` the armature of its coordinate ``k``
+(``model.armature``, kg m² or kg; zero past the joint's ``NV``), which the kernels read through
+:func:`multibody.kernels.placement.armature`. Row ``nj`` is the world: ``GRAVITY`` (m/s², world axes).
 
 ``bodies (nb, 13) float64``: per URDF link, the joint that moves it (``-1`` when fixed to the world)
 and its pose ``(R_JB, p_JB)`` in that joint's frame (in the world frame when fixed to it), as
@@ -34,7 +36,9 @@ from . import joints as jt
 from .kernels import joints as kinds
 
 PARENT, KIND, IQ, IV, NQ, NV = range(6)
-ROTATION, POSITION, AXIS, INERTIA = 0, 9, 12, 15
+ROTATION, POSITION, AXIS, INERTIA, ARMATURE = 0, 9, 12, 15, 25
+#: Columns of a row of ``reals``: a joint has at most six coordinates, each with its armature
+REAL_SIZE = ARMATURE + 6
 GRAVITY = 0
 #: Columns of a frame row: the joint that moves it, then its pose in that joint's frame
 FRAME_JOINT, FRAME_ROTATION, FRAME_POSITION = 0, 1, 10
@@ -90,7 +94,7 @@ def compile_tree(model) -> CompiledTree:
     """Flatten ``model`` into a :class:`CompiledTree`."""
     nj = model.njoints
     joints = np.zeros((nj, 6), dtype=np.int64)
-    reals = np.zeros((nj + 1, 25))
+    reals = np.zeros((nj + 1, REAL_SIZE))
     for i, joint in enumerate(model.joints):
         joints[i] = (model.parents[i], kind_code(joint), model.idx_q[i], model.idx_v[i], joint.nq, joint.nv)
         X_T = model.joint_placements[i]
@@ -101,8 +105,9 @@ def compile_tree(model) -> CompiledTree:
         # Ī about the joint frame's origin: Ī_c − m [c]×²
         c = inertia.com
         rotational = inertia.rotational + inertia.mass * (c @ c * np.eye(3) - np.outer(c, c))
-        reals[i, INERTIA:] = (inertia.mass, *(inertia.mass * c), rotational[0, 0], rotational[0, 1],
-                              rotational[0, 2], rotational[1, 1], rotational[1, 2], rotational[2, 2])
+        reals[i, INERTIA:ARMATURE] = (inertia.mass, *(inertia.mass * c), rotational[0, 0], rotational[0, 1],
+                                      rotational[0, 2], rotational[1, 1], rotational[1, 2], rotational[2, 2])
+        reals[i, ARMATURE:ARMATURE + joint.nv] = model.armature[model.idx_v[i] : model.idx_v[i] + joint.nv]
     reals[nj, GRAVITY:GRAVITY + 3] = model.gravity
     bodies = frame_rows(model, [(b, np.eye(4)) if model.body_joints[b] >= 0 else (None, model.body_placements[b])
                                 for b in range(model.nbodies)])

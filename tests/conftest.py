@@ -263,4 +263,5 @@ def pinocchio_twin(pin, model):
             pmodel.appendBodyToJoint(0, pin.Inertia(I.mass, I.com, I.rotational), placement)
         frame_ids.append(pmodel.addFrame(pin.Frame(name, int(j + 1), 0, placement, pin.FrameType.BODY)))
     pmodel.gravity = pin.Motion(np.concatenate([model.gravity, np.zeros(3)]))
+    pmodel.armature = np.array(model.armature)  # per velocity coordinate, the same order in both
     return pmodel, frame_ids

@@ -2,7 +2,10 @@
 
 R. Featherstone, *Rigid Body Dynamics Algorithms* (RBDA), Springer 2008, Table 7.1, in joint
 coordinates: each body's velocity, articulated inertia ``I^A`` and bias force ``p^A`` are expressed
-in its own joint frame and moved to the parent's with the joint's pose, as Pinocchio's ``aba`` does.
+in its own joint frame and moved to the parent's with the joint's pose, as Pinocchio's ``aba`` does. The
+joints' armature enters each joint's ``D = Sᵀ I^A S + diag(armature)`` (Pinocchio's ``aba``, which adds it
+to ``StU``), so that ABA solves ``(M_bodies + diag(armature)) q̈ = τ − h``, the ``M`` of
+:func:`multibody.kernels.crba.mass_matrix`.
 
 Articulated inertias are 6×6 matrices acting on motions to give forces (linear rows and columns
 first), kept as ``(nj, 6, 6)``. A joint's ``U = I^A S`` and ``U D⁻¹`` are kept by columns
@@ -18,7 +21,7 @@ import math
 from ..tree import AXIS, GRAVITY, INERTIA, IV, KIND, NV, PARENT
 from . import joints as kinds
 from .jit import njit
-from .placement import joint_pose
+from .placement import armature, joint_pose
 from .spatial import (add6, compose_rotations, cross, dot6, force_cross, force_to_parent, inertia_times,
                       motion_cross, motion_to_child, nan_unless_finite, row10, row3, row6, row9, scale6, store_row,
                       sub6)
@@ -203,16 +206,17 @@ def invert_symmetric(n, D, D_inv):
 
 
 @njit(cache=True, error_model="numpy")
-def factor_joint(kind, axis, nv, IA, i, U, D, D_inv, U_D_inv):
+def factor_joint(kind, axis, nv, reals, IA, i, U, D, D_inv, U_D_inv):
     """For joint i of articulated inertia ``IA[i]`` (RBDA Table 7.1): ``U = I^A S`` (into ``U``, by
-    columns), ``D = Sᵀ U``, ``D⁻¹`` (into ``D_inv``; ``D`` is overwritten), ``U D⁻¹`` (into
+    columns), ``D = Sᵀ U + diag(armature)`` (the armature of joint i's coordinates in ``reals``), ``D⁻¹`` (into ``D_inv``; ``D`` is overwritten), ``U D⁻¹`` (into
     ``U_D_inv[i]``, by columns), and ``I^a = I^A − U D⁻¹ Uᵀ`` in place of ``IA[i]``."""
     if nv == 1:
         # one coordinate (revolute, prismatic): D is a scalar
         s = kinds.subspace_column(kind, axis, 0)
         # S is the axis in three rows: U = I^A S reads three columns
         U_0 = block_times(IA, i, kinds.axis_rows(kind), axis)
-        D_0 = dot6(s, U_0)
+        # D = Sᵀ U + armature
+        D_0 = dot6(s, U_0) + armature(reals, i, 0)
         d_inv = 1.0 / D_0 if D_0 > 0.0 else math.nan
         UD_0 = scale6(d_inv, U_0)
         for r in range(6):
@@ -232,6 +236,8 @@ def factor_joint(kind, axis, nv, IA, i, U, D, D_inv, U_D_inv):
         for k in range(m + 1):
             # D = Sᵀ U
             D[m, k] = dot6(s, (U[k, 0], U[k, 1], U[k, 2], U[k, 3], U[k, 4], U[k, 5]))
+        # D_mm += armature_m
+        D[m, m] += armature(reals, i, m)
     invert_symmetric(nv, D, D_inv)
     for k in range(nv):
         for r in range(6):
@@ -301,8 +307,8 @@ def forward_dynamics(joints, reals, frames, q, v, tau, f_ext, out, ws):
     for i in range(nj - 1, -1, -1):
         parent, kind, iv, nv = joints[i, PARENT], joints[i, KIND], joints[i, IV], joints[i, NV]
         axis = row3(reals, i, AXIS)
-        # U_i = I^A_i S_i ;  D_i = S_iᵀ U_i ;  I^a_i = I^A_i − U_i D_i⁻¹ U_iᵀ (in place)
-        factor_joint(kind, axis, nv, articulated, i, U, D, D_inv, U_D_inv)
+        # U_i = I^A_i S_i ;  D_i = S_iᵀ U_i + diag(armature_i) ;  I^a_i = I^A_i − U_i D_i⁻¹ U_iᵀ (in place)
+        factor_joint(kind, axis, nv, reals, articulated, i, U, D, D_inv, U_D_inv)
         p_i = row6(pA, i, 0)
         # u_i = τ_i − S_iᵀ p^A_i
         u = subspace_transpose_times(kind, axis, nv, p_i)

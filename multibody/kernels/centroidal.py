@@ -9,7 +9,9 @@ R. Featherstone, *Rigid Body Dynamics Algorithms* (RBDA), Springer 2008; forward
 
 What is counted, as in Pinocchio (``centerOfMass``, ``computeCentroidalMap``): the bodies of the moving
 joints, each the lump of its links; links fixed to the world are left out (their mass never moves).
-The total mass ``M`` is theirs: with none, the centre of mass is ``0 / 0``, NaN.
+The total mass ``M`` is theirs: with none, the centre of mass is ``0 / 0``, NaN. The joints' armature
+(rotor inertia on the diagonal of the mass matrix) is no body's momentum and is left out, as Pinocchio
+leaves it out of ``ccrba``.
 
 Momenta have rows ``[linear; angular]``, world axes, the angular momentum about G. The sums over bodies
 need them in one set of coordinates: world axes, with Plücker coordinates at the reference point O, the

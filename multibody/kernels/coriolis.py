@@ -9,6 +9,9 @@ The sums over bodies need every body in one set of coordinates, so the algorithm
 Pinocchio's does, in world axes; its Plücker coordinates are taken at the first joint's origin
 rather than the world's, which leaves ``C`` unchanged and keeps the moments ``m |p|²`` of distant
 bodies from swamping their rotational inertias (``docs/conventions.md``).
+
+The joints' armature, a constant on the diagonal of ``M``, changes neither ``Ṁ`` nor ``C`` (Pinocchio
+alike): ``Ṁ = C + Cᵀ`` holds with it.
 """
 
 from __future__ import annotations

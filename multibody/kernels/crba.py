@@ -2,7 +2,8 @@
 
 R. Featherstone, *Rigid Body Dynamics Algorithms* (RBDA), Springer 2008, Table 6.2, in joint
 coordinates: each composite inertia and force column is expressed in its own joint frame and moved
-to the parent's with the joint's pose, as Pinocchio's ``crba`` does.
+to the parent's with the joint's pose, as Pinocchio's ``crba`` does, which then adds the joints' armature
+to the diagonal, ``M += diag(armature)`` (as MuJoCo's ``mj_crb`` adds ``dof_armature`` to ``qM``).
 """
 
 from __future__ import annotations
@@ -12,7 +13,7 @@ import numpy as np
 from ..tree import AXIS, INERTIA, IV, KIND, NV, PARENT
 from . import joints as kinds
 from .jit import njit
-from .placement import joint_pose
+from .placement import armature, joint_pose
 from .spatial import (add10, dot6, force_to_parent, inertia_times, inertia_to_parent, nan_unless_finite, row10, row3,
                       row9, store_row)
 
@@ -25,7 +26,8 @@ def workspace_size(nj, nv):
 
 @njit(cache=True, error_model="numpy")
 def mass_matrix(joints, reals, frames, q, x1, x2, x3, out, ws):
-    """``M(q)`` (RBDA Table 6.2) into ``out (nv, nv)``: full and symmetric (kg, kg m, kg m²).
+    """``M(q)`` (RBDA Table 6.2) plus ``diag(armature)`` into ``out (nv, nv)``: full and symmetric (kg, kg m,
+    kg m²).
 
     ``q (nq,)``; ``frames``, ``x1``, ``x2``, ``x3`` are unused. Every entry of ``out`` is written:
     ``M_ij = 0`` where neither joint supports the other.
@@ -62,6 +64,8 @@ def mass_matrix(joints, reals, frames, q, x1, x2, x3, out, ws):
                 h = dot6(kinds.subspace_column(kind, axis, m), F)
                 out[iv + m, col] = h
                 out[col, iv + m] = h
+            # M_kk += armature_k
+            out[col, col] += armature(reals, i, k)
             j = i
             while joints[j, PARENT] >= 0:
                 # F = λ(j)X*_j F

@@ -173,7 +173,8 @@ def torque_derivatives(joints, reals, q, v, a, f_ext, out, ws):
 def inverse_dynamics_derivatives(joints, reals, frames, q, v, a, f_ext, out, ws):
     """``∂τ/∂q`` into ``out[:nv]`` and ``∂τ/∂v`` into ``out[nv:]`` (``out (2 nv, nv)``), or ``∂τ/∂q``
     alone for ``out (nv, nv)``, where ``τ = RNEA(q, v, a, f_ext)`` (Carpentier & Mansard 2018; module
-    docstring). Units: N/m, N, N·m/rad, … per pair of coordinates. ``∂τ/∂a = M(q)``.
+    docstring). Units: N/m, N, N·m/rad, … per pair of coordinates. ``∂τ/∂a = M(q)``, the armature on its
+    diagonal; the armature's term ``armature ⊙ a`` of ``τ`` depends on neither ``q`` nor ``v``.
 
     ``q (nq,)``, ``v, a (nv,)`` (length 0: zero), ``f_ext (6 nj,)`` (one force per joint in its frame)
     or empty; with ``v`` and ``a`` empty, ``∂τ/∂q`` is ``∂g/∂q``. ``frames`` is unused. Pinocchio:
@@ -192,7 +193,7 @@ def forward_dynamics_derivatives(joints, reals, frames, q, v, tau, f_ext, out, w
     ``∂a/∂(q, v) = −M⁻¹ ∂τ/∂(q, v)|_a`` and ``∂a/∂τ = M⁻¹`` (Carpentier & Mansard 2018, §IV), with
     ``∂τ/∂(q, v)`` from :func:`torque_derivatives` at ``(q, v, a)`` and ``M⁻¹`` applied through the
     sparse ``M = Lᵀ L`` of :func:`crba.factor_ltl` on CRBA's ``M`` (RBDA §6.5), which the branches of a
-    tree leave sparse. ``M`` not positive definite leaves NaN in ``out``. Arguments as
+    tree leave sparse; ``M`` holds the armature, as the ABA acceleration does (Pinocchio alike). ``M`` not positive definite leaves NaN in ``out``. Arguments as
     :func:`aba.forward_dynamics`. Pinocchio: ``computeABADerivatives``.
     """
     nv = out.shape[1]

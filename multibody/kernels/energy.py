@@ -2,7 +2,10 @@
 
 R. Featherstone, *Rigid Body Dynamics Algorithms* (RBDA), Springer 2008: the kinetic energy of a
 rigid body ``½ vᵀ I v`` (eq. 2.67) summed over the bodies, with the body velocities of Table 5.1's
-forward pass in joint coordinates; the potential energy ``U = −Σ mᵢ gᵀ cᵢ`` from the world poses of
+forward pass in joint coordinates, plus the joints' armature ``½ Σₖ armatureₖ vₖ²``, so that
+``T = ½ vᵀ M v`` with the ``M`` of :func:`multibody.kernels.crba.mass_matrix` (Pinocchio's
+``computeKineticEnergy`` adds the armature alike; MuJoCo's ``mj_energyVel`` forms ``½ vᵀ qM v``, whose
+``qM`` holds it); the potential energy ``U = −Σ mᵢ gᵀ cᵢ`` from the world poses of
 :func:`multibody.kernels.kinematics.joint_placements`. Bodies fixed to the world are not counted
 (their energy is constant), as in Pinocchio's ``computePotentialEnergy``.
 """
@@ -12,7 +15,7 @@ from __future__ import annotations
 from ..tree import AXIS, GRAVITY, INERTIA, IV, KIND, NV, PARENT
 from . import joints as kinds
 from .jit import njit
-from .placement import joint_pose
+from .placement import armature, joint_pose
 from .kinematics import joint_placements, world_position
 from .spatial import (add3, add6, dot3, dot6, inertia_times, load3, load6, load9, load10, motion_to_child,
                       nan_unless_finite, rotate, scale3, store)
@@ -28,8 +31,9 @@ def workspace_size(nj, nv):
 
 @njit(cache=True, error_model="numpy")
 def kinetic_energy(joints, reals, frames, q, v, x2, x3, out, ws):
-    """``T = Σᵢ ½ vᵢᵀ Iᵢ vᵢ`` (J) into ``out (1, 1)``, with ``vᵢ`` each body's velocity and ``Iᵢ`` its
-    inertia, both in its joint frame (RBDA eq. 2.67, velocities by Table 5.1's forward pass).
+    """``T = Σᵢ ½ vᵢᵀ Iᵢ vᵢ + ½ Σₖ armatureₖ vₖ² = ½ vᵀ M v`` (J) into ``out (1, 1)``, with ``vᵢ`` each body's
+    velocity and ``Iᵢ`` its inertia, both in its joint frame (RBDA eq. 2.67, velocities by Table 5.1's
+    forward pass; the armature as in the module docstring).
 
     ``q (nq,)``, ``v (nv,)``; ``frames``, ``x2``, ``x3`` unused. Pinocchio: ``computeKineticEnergy``.
     """
@@ -47,6 +51,10 @@ def kinetic_energy(joints, reals, frames, q, v, x2, x3, out, ws):
         store(vel[i], 0, v_i)
         # T += ½ v_iᵀ I_i v_i
         T += 0.5 * dot6(v_i, inertia_times(load10(row, INERTIA), v_i))
+        for k in range(joints[i, NV]):
+            # T += ½ armature_k v_k²
+            v_k = v[joints[i, IV] + k]
+            T += 0.5 * armature(reals, i, k) * v_k * v_k
     out[0, 0] = T
     nan_unless_finite(q, v, x2, x3, out)
 

@@ -5,7 +5,7 @@ charts; E. Hairer, C. Lubich and G. Wanner, *Geometric Numerical Integration*, �
 
     q = chart(q_c, δ),   v = T(q)ᵀ w
     a from ABA (chart_derivative: no constraints) or the constrained step (constrained_chart_derivative,
-      :mod:`multibody.kernels.kkt`)
+      :mod:`multibody.kernels.kkt`), both with the joints' armature in ``M``
     ẇ = T(q) (a + κ(v)),   δ̇ = chart_rate(δ, w)
 
 One kernel call per evaluation, with the maps of :mod:`multibody.kernels.configuration`.

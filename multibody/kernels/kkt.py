@@ -16,6 +16,7 @@ orthogonal, ``B = V diag(σ) Pᵀ``, and ``λ = V diag(σ²)⁺ Vᵀ rhs`` drops
 ``σ ≤ rank tolerance · max σ``. :meth:`multibody.ConstrainedSystem.solve`'s NumPy path uses the same
 rotations (:func:`orthogonalize_stack`) and the same rank rule, so both paths give the same
 multipliers near singular configurations.
+``M`` holds the joints' armature on its diagonal (:func:`multibody.kernels.crba.mass_matrix`).
 """
 
 from __future__ import annotations

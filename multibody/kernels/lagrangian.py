@@ -1,6 +1,7 @@
 """The Lagrangian's terms that a variational integrator's step reads at one configuration.
 
-``L = ½ vᵀ M(q) v − U(q)`` has ``∂L/∂v = M(q) v`` and, left-trivialised on the Lie-group joints
+``L = ½ vᵀ M(q) v − U(q)`` (``M`` of :func:`~multibody.kernels.crba.mass_matrix`, the joints' armature on
+its diagonal) has ``∂L/∂v = M(q) v`` and, left-trivialised on the Lie-group joints
 (``d/dε L(q exp(ε η), v)``, ``docs/theory.md``),
 
     ∂L/∂q = C(q, v)ᵀ v − g(q) − ad_vᵀ M(q) v

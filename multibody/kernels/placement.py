@@ -1,8 +1,9 @@
-"""The pose of each joint frame in its parent's, the first step of every pass down the tree."""
+"""What a kernel reads of a joint from the compiled tree: the pose of its frame in its parent's, the
+first step of every pass down the tree, and the armature of its coordinates."""
 
 from __future__ import annotations
 
-from ..tree import AXIS, IQ, KIND, POSITION, ROTATION
+from ..tree import ARMATURE, AXIS, IQ, KIND, POSITION, ROTATION
 from . import joints as kinds
 from .jit import njit
 from .spatial import compose, row3, row9
@@ -14,3 +15,11 @@ def joint_pose(joints, reals, q, i):
     placement ``X_T`` and its joint transform ``X_J``."""
     R_J, p_J = kinds.transform(joints[i, KIND], row3(reals, i, AXIS), q, joints[i, IQ])
     return compose(row9(reals, i, ROTATION), row3(reals, i, POSITION), R_J, p_J)
+
+
+@njit(cache=True, error_model="numpy")
+def armature(reals, i, k):
+    """The armature (rotor inertia, kg m² or kg) of coordinate ``k`` of joint i: the constant that every
+    algorithm adds to the diagonal entry of ``M`` of that coordinate (``model.armature``; Pinocchio's
+    ``model.armature``, MuJoCo's ``dof_armature``)."""
+    return reals[i, ARMATURE + k]

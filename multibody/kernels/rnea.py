@@ -2,7 +2,9 @@
 
 R. Featherstone, *Rigid Body Dynamics Algorithms* (RBDA), Springer 2008, Table 5.1, in joint
 coordinates: each body's velocity, acceleration and force are expressed in its own joint frame.
-Gravity is a fictitious acceleration of the world, ``a₀ = [−g; 0]`` (RBDA §5.3).
+Gravity is a fictitious acceleration of the world, ``a₀ = [−g; 0]`` (RBDA §5.3). The joints' armature
+adds ``armature ⊙ a`` to ``τ``, the term ``diag(armature) a`` of ``M a`` (Pinocchio's ``rnea``; MuJoCo's
+``qM``, whose diagonal holds ``dof_armature``); it moves no body, so the body forces leave it out.
 """
 
 from __future__ import annotations
@@ -10,7 +12,7 @@ from __future__ import annotations
 from ..tree import AXIS, GRAVITY, INERTIA, IV, KIND, NV, PARENT
 from . import joints as kinds
 from .jit import njit
-from .placement import joint_pose
+from .placement import armature, joint_pose
 from .spatial import (add6, force_cross, force_to_parent, inertia_times, load10, load3, load6, load9, motion_cross,
                       motion_to_child, nan_unless_finite, store, sub6)
 
@@ -77,24 +79,31 @@ def forces(joints, reals, q, v, a, f_ext, ws):
 
 @njit(cache=True, error_model="numpy")
 def inverse_dynamics(joints, reals, frames, q, v, a, f_ext, out, ws):
-    """``τ = Sᵢᵀ fᵢ`` for every joint (RBDA Table 5.1) into ``out[0] (nv,)``: N or N m per coordinate.
+    """``τ = Sᵢᵀ fᵢ + armature ⊙ a`` for every joint (RBDA Table 5.1; module docstring) into ``out[0] (nv,)``:
+    N or N m per coordinate.
 
     ``q (nq,)``, ``v, a (nv,)`` (length 0: zero, which gives ``g`` or ``h``), ``f_ext (6 nj,)`` or
     empty. ``frames`` is unused.
     """
     force = forces(joints, reals, q, v, a, f_ext, ws)[3]
     tau = out[0]
+    accelerated = a.shape[0] > 0
     for i in range(joints.shape[0]):
         kind, iv, nv = joints[i, KIND], joints[i, IV], joints[i, NV]
         # τ_i = S_iᵀ f_i
         kinds.project_force(kind, load3(reals[i], AXIS), nv, load6(force[i], 0), tau, iv)
+        if accelerated:
+            for k in range(nv):
+                # τ_i,k += armature_i,k q̈_i,k
+                tau[iv + k] += armature(reals, i, k) * a[iv + k]
     nan_unless_finite(q, v, a, f_ext, out)
 
 
 @njit(cache=True, error_model="numpy")
 def joint_reaction_forces(joints, reals, frames, q, v, a, f_ext, out, ws):
     """The force ``f_i`` each joint transmits to its subtree, in its frame, into ``out (nj, 6)``
-    (RBDA Table 5.1, backward pass). Arguments as :func:`inverse_dynamics`."""
+    (RBDA Table 5.1, backward pass): the bodies' share of ``τ``, without the armature's. Arguments as
+    :func:`inverse_dynamics`."""
     force = forces(joints, reals, q, v, a, f_ext, ws)[3]
     for i in range(joints.shape[0]):
         for k in range(6):

@@ -11,6 +11,7 @@ the parent frame: :func:`multibody.kernels.lagrangian.lagrangian_terms`), and th
 step: the holonomic rows at ``q_{k+1}``, ``φ(q_{k+1}) = 0`` linearised by ``A(q_{k+1}) J_l(−Δ)``, the
 nonholonomic rows at the midpoint, ``A(q̄) ξ = 0`` linearised by ``A(q̄)/h``, both in the group velocities
 (``A T``). The rows are fixed in time (``b = 0``: the compiled rows, :mod:`multibody.kernels.constraints`).
+``M`` holds the joints' armature on its diagonal (:func:`multibody.kernels.crba.mass_matrix`).
 """
 
 from __future__ import annotations
