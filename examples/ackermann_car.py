@@ -90,7 +90,8 @@ def circle_setup(car=Car(), radius=10.0, speed=5.0):
 
     Returns ``(system, q0 (13,), v0 (12,))``; the system's constraints are the four
     ``RollingDisc`` (in the order of :data:`WHEELS`; multipliers: the ground's force on the wheel
-    along the world's −y, x and z, N) and the two steering holds (steering torques, N·m).
+    along the world's −y, x and z, N) and the two steering holds (steering torques, N·m). The projection's
+    ``mb.RankDeficientWarning`` about the wheels' repeated rows, which are intended, is silenced.
     """
     model = car.model()
     r = car.wheel_radius
@@ -115,7 +116,10 @@ def circle_setup(car=Car(), radius=10.0, speed=5.0):
                  "front_right_wheel": np.hypot(car.wheelbase, radius + half)}
     for name, distance in distances.items():
         v[v_index[f"{name}_joint"]] = omega * distance / r
-    q0, v0 = system.project(q, v)
+    with warnings.catch_warnings():
+        # the four wheels' repeated rows are intended (see the module docstring); the first projection says so
+        warnings.simplefilter("ignore", mb.RankDeficientWarning)
+        q0, v0 = system.project(q, v)
     return system, q0, v0
 
 
@@ -162,12 +166,9 @@ def drive(system, q0, v0, torque, drive_time, coast_time, dt=0.02, rtol=1e-10):
     for name in ("rear_left_wheel_joint", "rear_right_wheel_joint"):
         tau[model.idx_v[model.joint_index(name)]] = torque
     options = dict(dt=dt, method="DOP853", rtol=rtol, atol=1e-2 * rtol)
-    with warnings.catch_warnings():
-        # the four wheels' repeated rows are intended (see the module docstring)
-        warnings.simplefilter("ignore", mb.RankDeficientWarning)
-        driven = mb.simulate(system, q0, v0, drive_time, tau=tau, **options)
-        # the torque stops at drive_time: a second run from there, so that no step straddles the switch
-        coasting = mb.simulate(system, driven.q[-1], driven.v[-1], drive_time + coast_time, t0=drive_time, **options)
+    driven = mb.simulate(system, q0, v0, drive_time, tau=tau, **options)
+    # the torque stops at drive_time: a second run from there, so that no step straddles the switch
+    coasting = mb.simulate(system, driven.q[-1], driven.v[-1], drive_time + coast_time, t0=drive_time, **options)
     joined = {name: np.concatenate([getattr(driven, name), getattr(coasting, name)[1:]])
               for name in ("t", "q", "v", "lam", "energy", "residual")}
     return replace(driven, **joined), tau
@@ -181,9 +182,7 @@ def drive_torque(trajectory, drive_time, tau):
 
 def main(out):
     car, radius, torque, drive_time, coast_time = Car(), 10.0, 250.0, 4.0, 12.5
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", mb.RankDeficientWarning)
-        system, q0, v0 = circle_setup(car, radius, speed=0.0)
+    system, q0, v0 = circle_setup(car, radius, speed=0.0)
     trajectory, tau = drive(system, q0, v0, torque, drive_time, coast_time)
     model = system.model
     print(f"constraint rows {system.num_rows}, rank {system.rank(trajectory.q[0])}")
