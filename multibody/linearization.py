@@ -55,6 +55,7 @@ round its rim in the body frame), ``A`` is the instantaneous rate only.
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -184,7 +185,7 @@ def linearize(system, q, v, tau=None, t=0.0, *, dt=None, method="RK4"):
     and ``k`` (``ValueError`` naming the states otherwise).
     """
     constrained, mechanical, model = _parts(system)
-    q, v, tau, batch = _state(mechanical, q, v, tau)
+    q, v, tau, batch = _state(mechanical, model, q, v, tau)
     if dt is not None:
         if method not in STEP_METHODS:
             raise ValueError(f"method must be one of {STEP_METHODS} for a discrete linearization, got {method!r}")
@@ -219,17 +220,29 @@ def _parts(system):
     raise TypeError(f"system must be a Model or a ConstrainedSystem, got {type(system).__name__}")
 
 
-def _state(mechanical, q, v, tau):
-    """``q (..., nq)``, ``v``, ``tau (..., nv)`` as float arrays broadcast to one batch shape, and that shape."""
+def _state(mechanical, model, q, v, tau):
+    """``q (..., nq)``, ``v``, ``tau (..., nv)`` as finite float arrays broadcast to one batch shape, and that
+    shape; ``ValueError`` naming the argument otherwise. A :class:`Model` checks them as its own functions do
+    (real numbers, unit quaternions)."""
     nq, nv = mechanical.nq, mechanical.nv
     arrays = {}
     for name, value, size in (("q", q, nq), ("v", v, nv), ("tau", np.zeros(nv) if tau is None else tau, nv)):
-        try:
-            value = np.asarray(value, dtype=float)
-        except (TypeError, ValueError):
-            raise ValueError(f"{name} must be numbers, got {value!r}") from None
-        if value.ndim == 0 or value.shape[-1] != size:
-            raise ValueError(f"{name} must have shape (..., {size}), got {value.shape}")
+        if model is not None:
+            with warnings.catch_warnings():
+                # (the model warns of non-finite entries; they are refused below, by name)
+                warnings.simplefilter("ignore", RuntimeWarning)
+                value = model.check_configuration(value) if name == "q" else model.check_velocity(value, name)
+        else:
+            try:
+                value = np.asarray(value, dtype=float)
+            except (TypeError, ValueError):
+                raise ValueError(f"{name} must be real numbers, got {value!r}") from None
+            if value.ndim == 0 or value.shape[-1] != size:
+                raise ValueError(f"{name} must have shape (..., {size}), got {value.shape}")
+        bad = np.argwhere(~np.isfinite(value))
+        if len(bad):
+            entries = ", ".join(f"{name}[{', '.join(map(str, index))}] = {value[tuple(index)]}" for index in bad[:5])
+            raise ValueError(f"{name} must be finite: {entries}{' …' if len(bad) > 5 else ''}")
         arrays[name] = value
     try:
         batch = np.broadcast_shapes(*(value.shape[:-1] for value in arrays.values()))

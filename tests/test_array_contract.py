@@ -51,6 +51,9 @@ FUNCTIONS = {
         lambda q, v, tau, f_ext: np.stack(mb.forward_dynamics_derivatives(MODEL, q, v, tau, f_ext=f_ext), axis=-3),
         ("q", "v", "tau", "f_ext")),
     "gravity_derivatives": (lambda q: mb.gravity_derivatives(MODEL, q), ("q",)),
+    # the linearization's [A | B] (it refuses non-finite states, as simulate does)
+    "linearize": (lambda q, v, tau: (lambda lin: np.concatenate([lin.A, lin.B], axis=-1))(mb.linearize(MODEL, q, v, tau)),
+                  ("q", "v", "tau")),
 }
 
 FORMS = ["list", "integer", "strided", "fortran", "read-only", "float32", "unbatched"]
@@ -141,8 +144,8 @@ def test_refused_input_names_the_argument(name, bad):
     function, names = FUNCTIONS[name]
     values = arguments((), np.random.default_rng(1))
     for target in names:
-        if bad == "None" and target in ("point", "f_ext"):
-            continue  # None is a valid value there: the body origin, no external force
+        if bad == "None" and (target in ("point", "f_ext") or (name, target) == ("linearize", "tau")):
+            continue  # None is a valid value there: the body origin, no external force, no joint forces
         args = {n: values[n] for n in names}
         args[target] = BAD[bad](args[target])
         with pytest.raises((ValueError, TypeError), match=target):

@@ -446,6 +446,10 @@ def test_bad_input_is_refused_naming_it():
         system.linearize(q[:2], v)
     with pytest.raises(ValueError, match=r"tau must have shape \(\.\.\., 3\), got \(4,\)"):
         system.linearize(q, v, np.zeros(4))
+    with pytest.raises(ValueError, match=r"tau must be finite: tau\[1\] = nan"):
+        system.linearize(q, v, np.array([0.0, np.nan, 0.0]))
+    with pytest.raises(ValueError, match=r"q must be finite: q\[1, 2\] = inf"):
+        system.linearize(np.stack([q, q + [0.0, 0.0, np.inf]]), np.stack([v, v]))
     with pytest.raises(ValueError, match=r"method must be one of \('RK4',\)"):
         system.linearize(q, v, dt=0.01, method="Euler")
     with pytest.raises(ValueError, match=r"dt must be a positive number of seconds, got 0"):
