@@ -454,5 +454,7 @@ def test_bad_input_is_refused_naming_it():
         system.linearize(q, v, dt=0.01, method="Euler")
     with pytest.raises(ValueError, match=r"dt must be a positive number of seconds, got 0"):
         system.linearize(q, v, dt=0)
+    with pytest.raises(ValueError, match=r"rows must be a boolean mask of shape \(2,\), got int64 of shape \(1,\)"):
+        system.rank(q, rows=np.array([0]))
     with pytest.raises(TypeError, match=r"system must be a Model or a ConstrainedSystem, got str"):
         mb.linearize("four_bar", q, v)
