@@ -10,9 +10,10 @@ nonholonomic ones), hold to first order when
 
 Minimal coordinates parameterise exactly these perturbations. With orthonormal bases
 
-    P = null(A_h) (nv, p),    V = P W,  W = null(A_n P) (p, k)    (A_n: the rows without a position level),
+    P = null(A_h) (nv, p),        V = null(A) (nv, k),        W = Pᵀ V (p, k),
 
-so that ``V`` spans ``null(A)`` inside ``span P`` (``V = P`` when every row has a position level),
+where ``V`` lies inside ``span P`` because ``A`` holds the rows of ``A_h`` (``V = P W``; ``V = P`` when every
+independent row has a position level; :func:`aligned_null_space` picks each basis),
 
     δq = P s,        δv = V u + D s,        D = −A⁺ C P (nv, p),                                     (1)
 
