@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import importlib.util
 import os
+import shutil
 import subprocess
 import sys
 import textwrap
@@ -489,3 +490,38 @@ def test_batched_inputs_that_fit_are_read_in_place():
         assert peak < v.nbytes / 10, (peak, v.nbytes)
         np.testing.assert_array_equal(out, expected if inputs[2].ndim == 2 else mb.inverse_dynamics(model, q, v, a[0]))
     assert list(driver._batch.signatures) == loops and list(rnea.inverse_dynamics.signatures) == kernels
+
+
+@pytest.mark.skipif(os.environ.get("NUMBA_DISABLE_JIT") == "1", reason="no compiled code")
+def test_an_edited_helper_in_another_file_reaches_its_cached_callers(tmp_path):
+    """A kernel's cached machine code holds its helpers from other files, inlined, and Numba checks only the
+    kernel's own file: after an edit of ``spatial.dot3`` (which the potential energy's ``Σ gᵀ mᵢ cᵢ`` calls),
+    a new process must run the edited helper, not the cached kernel. A copy of the package is edited."""
+    package = tmp_path / "copy"
+    shutil.copytree(os.path.dirname(mb.__file__), package / "multibody",
+                    ignore=shutil.ignore_patterns("__pycache__"))
+    script = textwrap.dedent("""
+        import numpy as np
+        import multibody as mb
+        assert mb.__file__.startswith(%r)
+        from multibody.inertia import point_mass
+        from multibody.joints import Revolute
+        builder = mb.ModelBuilder("pendulum")
+        builder.add_body("link", joint=Revolute([0, 1, 0]), inertia=point_mass(2.0, [0, 0, -1]))
+        print(mb.potential_energy(builder.build(), np.zeros(1)).item())
+    """ % str(package))
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "cache"), "PYTHONPATH": str(package)}
+
+    def energy():
+        done = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=300,
+                              cwd=tmp_path)
+        assert done.returncode == 0, done.stderr
+        return float(done.stdout)
+
+    assert energy() == pytest.approx(-2.0 * 9.81 * 1.0, rel=1e-3)  # m g z with z = -1 m
+    spatial = package / "multibody" / "kernels" / "spatial.py"
+    source = spatial.read_text()
+    dot3 = "    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]\n"
+    assert source.count(dot3) == 1
+    spatial.write_text(source.replace(dot3, "    return 2.0 * (a[0] * b[0] + a[1] * b[1] + a[2] * b[2])\n"))
+    assert energy() == pytest.approx(-2.0 * 2.0 * 9.81 * 1.0, rel=1e-3)
