@@ -811,17 +811,49 @@ class LoopClosure(CompiledRows):
 
 
 class JointCoupling(CompiledRows):
-    """Two one-coordinate joints geared together: ``q_b = ratio · q_a + offset`` (a URDF mimic).
+    """Two one-coordinate joints geared together: ``q_b = ratio · q_a + offset`` (a URDF mimic), or by a
+    polynomial of degree up to 4, ``q_b = Σₖ cₖ (q_a − reference)ᵏ`` (``coefficients = (c₀, …, c₄)``:
+    MuJoCo's joint equality, ``q₁ − q₁,ref = Σₖ cₖ (q₂ − q₂,ref)ᵏ``, has ``joint_b = q₁``,
+    ``reference = q₂,ref`` and ``c₀`` raised by ``q₁,ref``). With ``joint_a=None``, joint b is held at
+    ``offset`` (or ``c₀``).
 
-    One row, ``φ = q_b − ratio q_a − offset``; the multiplier is the coupling torque (or force) on
-    joint b, with ``−ratio`` times it on joint a.
+    One row, ``φ = q_b − p(q_a − reference)`` with ``p(x) = Σₖ cₖ xᵏ``; the multiplier is the coupling
+    torque (or force) on joint b, with ``−p′`` times it on joint a. The row is ``e_b − p′ e_a`` and
+    ``γ = p″ v_a²`` (the derivative of ``v_b − p′ v_a`` at ``a = 0``).
+
+    Args:
+        joint_a, joint_b: joint names or indices (joint a may be ``None``); each must have one coordinate.
+        ratio, offset: ``p(x) = offset + ratio x`` (with ``reference`` 0 unless given).
+        coefficients: ``(c₀, …, c₄)``, up to five numbers (missing ones zero), instead of ``ratio`` and
+            ``offset``.
+        reference: the value of ``q_a`` where ``x = 0`` (rad or m).
     """
 
     holonomic = True
+    DEGREE = 4
 
-    def __init__(self, joint_a, joint_b, ratio=1.0, offset=0.0, name=None):
+    def __init__(self, joint_a, joint_b, ratio=1.0, offset=0.0, name=None, *, coefficients=None, reference=0.0):
         super().__init__(name or f"coupling {joint_a}-{joint_b}")
-        self.joint_a, self.joint_b, self.ratio, self.offset = joint_a, joint_b, float(ratio), float(offset)
+        if coefficients is None:
+            coefficients = (offset, ratio)
+        elif (ratio, offset) != (1.0, 0.0):
+            raise ValueError(f"{self.name}: give ratio and offset, or coefficients, not both")
+        values = np.zeros(self.DEGREE + 1)
+        try:
+            given = np.array(coefficients, dtype=float).reshape(-1)
+        except (TypeError, ValueError):
+            raise ValueError(f"{self.name}: coefficients must be numbers, got {coefficients!r}") from None
+        if given.size > values.size or not np.all(np.isfinite(given)) or not np.isfinite(reference):
+            raise ValueError(f"{self.name}: coefficients must be at most {values.size} finite numbers and the "
+                             f"reference finite, got {coefficients!r} and {reference!r}")
+        values[: given.size] = given
+        if joint_a is None:
+            # joint b alone: held at c₀
+            values[1:] = 0.0
+        self.joint_a, self.joint_b = joint_a, joint_b
+        self.ratio, self.offset = float(values[1]), float(values[0])
+        self.coefficients, self.reference = values, float(reference)
+        self.coefficients.setflags(write=False)
 
     def rows(self, system):
         return 1
@@ -834,6 +866,9 @@ class JointCoupling(CompiledRows):
         model = _require_model(system, self)
         out = []
         for joint in (self.joint_a, self.joint_b):
+            if joint is None:
+                out.append((-1, -1))
+                continue
             try:
                 i = model.joint_index(joint)
             except ValueError as error:
@@ -845,7 +880,7 @@ class JointCoupling(CompiledRows):
 
     def program_entry(self, model, frame_index):
         (qa, va), (qb, vb) = self._indices(model)
-        return compiled.JOINT_COUPLING, [self.ratio, self.offset, qa, va, qb, vb], 0, 0
+        return compiled.JOINT_COUPLING, [qa, va, qb, vb, self.reference, *self.coefficients], 0, 0
 
 
 def mimic_constraints(model):

@@ -221,18 +221,33 @@ def loop_closure(entry, motions, v, A, gamma, phi):
 
 
 @njit(cache=True, error_model="numpy")
-def joint_coupling(entry, q, A, gamma, phi):
-    """Two one-coordinate joints geared together (:class:`multibody.JointCoupling`). Parameters:
-    ratio, offset, and the joints' ``q`` and ``v`` indices ``(q_a, v_a, q_b, v_b)``.
-    ``φ = q_b − ratio q_a − offset``; the row ``e_b − ratio e_a``; ``γ = 0``."""
+def joint_coupling(entry, q, v, A, gamma, phi):
+    """One one-coordinate joint geared to another by a polynomial (:class:`multibody.JointCoupling`).
+    Parameters: the joints' ``q`` and ``v`` indices ``(q_a, v_a, q_b, v_b)`` (``q_a < 0``: no joint a),
+    the reference ``r`` of joint a and the coefficients ``c₀ … c₄``. With ``x = q_a − r`` and
+    ``p(x) = Σ cₖ xᵏ``: ``φ = q_b − p(x)``; the row ``e_b − p′(x) e_a``; ``γ = p″(x) v_a²``, since
+    ``d/dt (v_b − p′(x) v_a) = a_b − p′(x) a_a − p″(x) v_a²``. Without joint a, ``φ = q_b − c₀``."""
     first = int(entry[FIRST_ROW])
-    ratio, offset = entry[PARAMETERS], entry[PARAMETERS + 1]
-    qa, va, qb, vb = (int(entry[PARAMETERS + 2]), int(entry[PARAMETERS + 3]), int(entry[PARAMETERS + 4]),
-                      int(entry[PARAMETERS + 5]))
+    qa, va, qb, vb = (int(entry[PARAMETERS]), int(entry[PARAMETERS + 1]), int(entry[PARAMETERS + 2]),
+                      int(entry[PARAMETERS + 3]))
+    c = entry[PARAMETERS + 5 : PARAMETERS + 10]
     clear_rows(A, gamma, phi, first, 1)
     A[first, vb] += 1.0
-    A[first, va] -= ratio
-    phi[first] = q[qb] - ratio * q[qa] - offset
+    if qa < 0:
+        phi[first] = q[qb] - c[0]
+        return 0
+    x = q[qa] - entry[PARAMETERS + 4]
+    # Horner's scheme for p, p′ and p″ together
+    p = c[4]
+    dp = 0.0
+    ddp = 0.0
+    for k in range(3, -1, -1):
+        ddp = ddp * x + 2.0 * dp
+        dp = dp * x + p
+        p = p * x + c[k]
+    A[first, va] -= dp
+    gamma[first] = ddp * v[va] * v[va]
+    phi[first] = q[qb] - p
     return 0
 
 
@@ -254,7 +269,7 @@ def constraint_rows(program, motions, q, v, A, gamma, phi):
         elif kind == LOOP_CLOSURE:
             status = loop_closure(entry, motions, v, A, gamma, phi)
         else:
-            status = joint_coupling(entry, q, A, gamma, phi)
+            status = joint_coupling(entry, q, v, A, gamma, phi)
         if status != 0:
             return status
     return 0
