@@ -8,7 +8,8 @@ constrained-dynamics step of the rolling ball and the wall time of simulating it
 controller simulated for 3 s by RK4 at 1 kHz, next to the same loop written on Pinocchio; one constrained
 evaluation of a closed chain of 40 parallelograms near its singular flat configuration; 4096
 double-pendulum and Panda trajectories by batched RK4 for 1 s at 1 kHz, against batched forward dynamics;
-and, with Dask installed, the overhead of chunks of 1e5 states on two local worker processes.
+with Dask installed, the overhead of chunks of 1e5 states on two local worker processes; and the time to
+load gymnasium's MJCF humanoid against MuJoCo's own compiler.
 The table is printed and saved as JSON and Markdown.
 
     python benchmarks/run.py                      # the full table (several minutes)
@@ -369,6 +370,31 @@ def gpu_line(n=1_000_000, budget=1.0):
     return f"GPU ({cuda.get_current_device().name}), Panda at batch {n:.0e}: " + "; ".join(parts)
 
 
+def mjcf_load_line(budget=0.5):
+    """The benchmark line of ``mb.load_mjcf`` on gymnasium's humanoid against MuJoCo's ``MjModel.from_xml_path``
+    on the same file (each the fastest of repeated loads, interleaved in rounds so that both meet the same
+    load on a shared machine), and their ratio (target ≤ 2)."""
+    import importlib.util
+    import warnings
+
+    spec = importlib.util.find_spec("gymnasium")
+    try:
+        import mujoco
+    except ImportError:
+        return "MJCF loading: MuJoCo not installed (pip install mujoco)"
+    if spec is None:
+        return "MJCF loading: gymnasium not installed (its models are the benchmark's)"
+    path = os.path.join(os.path.dirname(spec.origin), "envs", "mujoco", "assets", "humanoid.xml")
+    ours, theirs = [], []
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # (actuators, tendons and springs that the model leaves out)
+        for _ in range(5):
+            ours.append(best_time(lambda: mb.load_mjcf(path), budget / 10))
+            theirs.append(best_time(lambda: mujoco.MjModel.from_xml_path(path), budget / 10))
+    return (f"loading gymnasium's humanoid.xml: mb.load_mjcf {min(ours) * 1e3:.2f} ms, MuJoCo's "
+            f"MjModel.from_xml_path {min(theirs) * 1e3:.2f} ms (ratio {min(ours) / min(theirs):.2f}; target ≤ 2)")
+
+
 def markdown(rows, sizes):
     largest = max(sizes)
     header = ["robot", "algorithm", "nv", "single µs"] + [f"N={n} µs/state" for n in sizes] + \
@@ -427,6 +453,7 @@ def main(argv=None):
         batched_rk4_line(64 if args.quick else 4096, 0.005 if args.quick else 1.0),
         dask_line(1000 if args.quick else 100_000, 2 if args.quick else 4, 0.01 if args.quick else 1.0),
         gpu_line(1000 if args.quick else 1_000_000, 0.01 if args.quick else 1.0),
+        mjcf_load_line(0.05 if args.quick else args.budget),
         f"threads: {mb.get_num_threads()}",
         "roboticstoolbox rne_python (µs): " + ", ".join(
             f"{k}: {'not installed / no model' if t is None else f'{t:.0f}'}" for k, t in rne.items()),

@@ -80,6 +80,7 @@ def __getattr__(name):
         return viewer if name == "viewer" else viewer.view
     raise AttributeError(f"module 'multibody' has no attribute {name!r}")
 from .urdf import URDFError, load_urdf
+from .mjcf import MJCFError, from_mujoco, load_mjcf, to_mujoco
 
 __version__ = "0.1.0"
 
@@ -149,6 +150,10 @@ __all__ = [
     "jacobian_time_variation",
     "joints",
     "load_urdf",
+    "load_mjcf",
+    "to_mujoco",
+    "from_mujoco",
+    "MJCFError",
     "point_acceleration",
     "point_velocity",
     "robots",

@@ -136,3 +136,108 @@ def compare_with_pinocchio(path, floating_base=False, samples=20, seed=0, packag
     rows = [Row(name, error, solve_tolerance if name in ("forward dynamics (aba, f_ext)", "inverse mass matrix") else TOLERANCE)
             for name, error in errors.items()]
     return model, rows, condition
+
+
+#: Largest accepted relative error against MuJoCo, for quantities computed without solving a linear system.
+MUJOCO_TOLERANCE = 1e-10
+
+
+def mujoco_reference(source, package_dirs=None):
+    """MuJoCo's model of the MJCF ``source`` (a path or XML text) with everything our model leaves out turned
+    off: contacts, joint limits, equalities and friction loss (its constraints), springs and dampers,
+    actuators, fluid forces and gravity compensation. What remains are the equations of motion of the
+    tree, ``M(q) qacc + qfrc_bias = qfrc_applied``, with armature."""
+    import mujoco
+
+    from .modelfiles import is_xml_text
+
+    if is_xml_text(source):
+        reference = mujoco.MjModel.from_xml_string(source)
+    else:
+        reference = mujoco.MjModel.from_xml_path(str(source))
+    for name in ("mjDSBL_CONSTRAINT", "mjDSBL_CONTACT", "mjDSBL_LIMIT", "mjDSBL_EQUALITY", "mjDSBL_FRICTIONLOSS",
+                 "mjDSBL_PASSIVE", "mjDSBL_SPRING", "mjDSBL_DAMPER", "mjDSBL_ACTUATION"):
+        flag = getattr(mujoco.mjtDisableBit, name, None)
+        if flag is not None:
+            reference.opt.disableflags |= int(flag)
+    reference.opt.density, reference.opt.viscosity = 0.0, 0.0
+    reference.opt.wind[:] = 0.0
+    reference.body_gravcomp[:] = 0.0
+    return reference
+
+
+def _full_mass_matrix(mujoco, model, data, out):
+    """``mj_fullM`` into ``out``: its arguments are ``(m, d, dst)`` from MuJoCo 4, ``(m, dst, d.qM)`` before."""
+    try:
+        mujoco.mj_fullM(model, data, out)
+    except TypeError:
+        mujoco.mj_fullM(model, out, data.qM)
+
+
+def compare_with_mujoco(source, samples=20, seed=0, package_dirs=None):
+    """Largest relative errors of the model :func:`multibody.load_mjcf` makes of ``source`` against MuJoCo's
+    (:func:`mujoco_reference`) over ``samples`` random states: ``M`` (``mj_fullM``), the bias forces
+    (``qfrc_bias``), inverse dynamics (``mj_inverse``), forward dynamics (``qacc`` of ``mj_forward`` with
+    ``qfrc_applied``), the bodies' and sites' placements (``xpos``, ``xmat``, ``site_xpos``, ``site_xmat``)
+    and the bodies' Jacobians (``mj_jacBody``), MuJoCo's free-joint coordinates mapped to ours
+    (:func:`multibody.mjcf.velocity_to_mujoco`).
+
+    Returns ``(model, rows, largest cond(M))``; forward dynamics solves a linear system, so its tolerance
+    is ``max(MUJOCO_TOLERANCE, 10 κ(M) ε)``.
+    """
+    import mujoco
+
+    from . import mjcf
+
+    model = mjcf.load_mjcf(source, package_dirs=package_dirs)
+    reference = mujoco_reference(source, package_dirs)
+    if reference.nq != model.nq or reference.nv != model.nv or reference.nbody - 1 > model.nbodies:
+        raise RuntimeError(f"sizes differ from MuJoCo's: nq {model.nq} vs {reference.nq}, nv {model.nv} vs "
+                           f"{reference.nv}, {model.nbodies} bodies and sites vs {reference.nbody - 1} bodies")
+    data = mujoco.MjData(reference)
+    rng = np.random.default_rng(seed)
+    errors, condition = {}, 1.0
+    sites = [(k, model.body_index(name)) for k in range(reference.nsite)
+             if (name := mujoco.mj_id2name(reference, mujoco.mjtObj.mjOBJ_SITE, k)) and name in model.body_names]
+
+    def record(name, ours, theirs, floor=1.0):
+        errors[name] = max(errors.get(name, 0.0), _relative(ours, theirs, floor))
+
+    for _ in range(samples):
+        q = model.random_configuration(rng)
+        v, a, tau = rng.standard_normal((3, model.nv))
+        data.qpos[:], data.qvel[:] = mjcf.to_mujoco(model, q, v)
+        data.qacc[:] = mjcf.acceleration_to_mujoco(model, q, v, a)
+        T = mjcf.velocity_to_mujoco(model, q)
+        mujoco.mj_inverse(reference, data)
+        tau_inverse = T.T @ data.qfrc_inverse
+        data.qfrc_applied[:] = T @ tau
+        data.ctrl[:] = 0.0
+        mujoco.mj_forward(reference, data)
+        M_mj = np.zeros((model.nv, model.nv))
+        _full_mass_matrix(mujoco, reference, data, M_mj)
+        M_ref = T.T @ M_mj @ T
+        condition = max(condition, np.linalg.cond(M_ref))
+        force = np.abs(M_ref).max() * (np.abs(a).max() + np.abs(tau).max() + np.abs(v).max() ** 2) \
+            + model.total_mass * np.linalg.norm(model.gravity)
+        placements = kinematics.forward_kinematics(model, q)
+        for b in range(1, reference.nbody):
+            record("body placements", placements[b - 1, :3], np.column_stack(
+                [data.xmat[b].reshape(3, 3), data.xpos[b]]))
+            jacp, jacr = np.zeros((3, model.nv)), np.zeros((3, model.nv))
+            mujoco.mj_jacBody(reference, data, jacp, jacr, b)
+            record("jacobian", kinematics.jacobian(model, q, b - 1), np.vstack([jacp, jacr]) @ T)
+        for k, b in sites:
+            record("site placements", placements[b, :3], np.column_stack(
+                [data.site_xmat[k].reshape(3, 3), data.site_xpos[k]]))
+        record("mass matrix (crba)", dynamics.mass_matrix(model, q), M_ref, 0.0)
+        # at a = 0 our free joints' qacc is Ṫ v, whose forces MuJoCo's bias leaves out
+        qacc_of_rest = mjcf.acceleration_to_mujoco(model, q, v, np.zeros(model.nv))
+        record("bias h(q, v)", dynamics.bias_forces(model, q, v), T.T @ (data.qfrc_bias + M_mj @ qacc_of_rest), force)
+        record("inverse dynamics", dynamics.inverse_dynamics(model, q, v, a), tau_inverse, force)
+        a_ref = T.T @ (data.qacc - qacc_of_rest)
+        record("forward dynamics", dynamics.forward_dynamics(model, q, v, tau), a_ref, 0.0)
+    solve_tolerance = max(MUJOCO_TOLERANCE, 10.0 * condition * np.finfo(float).eps)
+    rows = [Row(name, error, solve_tolerance if name == "forward dynamics" else MUJOCO_TOLERANCE)
+            for name, error in errors.items()]
+    return model, rows, condition

@@ -28,6 +28,7 @@ raised. ``integrate`` always returns normalised values.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from functools import cached_property
 from typing import ClassVar
@@ -43,9 +44,11 @@ _DEFAULT_TRANSLATION_RANGE = 1.0
 
 def _unit(axis, what):
     axis = np.array(axis, dtype=float).reshape(-1)
-    if axis.shape != (3,) or not np.all(np.isfinite(axis)):
-        raise ValueError(f"{what} axis must be 3 finite numbers, got {axis.tolist()}")
-    norm = np.linalg.norm(axis)
+    # three numbers: Python's arithmetic costs less than NumPy's reductions (model loaders make many joints)
+    values = axis.tolist()
+    if len(values) != 3 or not all(math.isfinite(x) for x in values):
+        raise ValueError(f"{what} axis must be 3 finite numbers, got {values}")
+    norm = math.sqrt(values[0] * values[0] + values[1] * values[1] + values[2] * values[2])
     if norm < 1e-12:
         raise ValueError(f"{what} axis must be non-zero, got {axis.tolist()}")
     axis = axis / norm

@@ -1,0 +1,450 @@
+"""``mb.load_mjcf``: MuJoCo's model format, checked against MuJoCo itself (and Pinocchio as a third opinion).
+
+Every comparison goes through :func:`multibody.check.compare_with_mujoco`: MuJoCo's model with contacts,
+limits, equalities, friction loss, springs, dampers and actuators off, at random states, its free joints'
+coordinates mapped to ours; ``M``, ``h``, inverse and forward dynamics, placements of bodies and sites and
+the bodies' Jacobians must agree to ``MUJOCO_TOLERANCE`` (1e-10 relative; forward dynamics
+``max(1e-10, 10 κ(M) ε)``).
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import os
+import textwrap
+import warnings
+
+import numpy as np
+import pytest
+
+import multibody as mb
+from multibody.check import MUJOCO_TOLERANCE, compare_with_mujoco
+from multibody.mjcf import MJCFError, load_mjcf
+
+mujoco = pytest.importorskip("mujoco")
+
+GYMNASIUM_MODELS = ("ant", "half_cheetah", "hopper", "humanoid", "humanoidstandup", "inverted_pendulum",
+                    "inverted_double_pendulum", "pusher", "reacher", "swimmer", "walker2d")
+
+
+def gymnasium_model(name):
+    spec = importlib.util.find_spec("gymnasium")
+    if spec is None:
+        pytest.skip("gymnasium is not installed")
+    return os.path.join(os.path.dirname(spec.origin), "envs", "mujoco", "assets", f"{name}.xml")
+
+
+def gym_hil_panda():
+    """gym-hil's Panda with the Robotiq 2F-85 gripper (found without importing gym_hil, whose dependencies
+    are heavy and not installed with it)."""
+    spec = importlib.util.find_spec("gym_hil")
+    if spec is None:
+        pytest.skip("gym-hil is not installed (pip install --no-deps gym-hil)")
+    path = os.path.join(spec.submodule_search_locations[0], "assets", "panda.xml")
+    if not os.path.isfile(path):
+        pytest.skip(f"gym-hil has no {path}")
+    return path
+
+
+@pytest.fixture(autouse=True)
+def _in_tmp_path(tmp_path, monkeypatch):
+    # MuJoCo writes its warnings (settotalmass is deprecated) to MUJOCO_LOG.TXT in the working directory
+    monkeypatch.chdir(tmp_path)
+
+
+def quietly(function, *args, **kwargs):
+    """``function(*args, **kwargs)`` without the warnings about what the model leaves out (actuators, springs)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        return function(*args, **kwargs)
+
+
+def assert_agrees_with_mujoco(source, samples=10, seed=0):
+    model, rows, _ = quietly(compare_with_mujoco, source, samples=samples, seed=seed)
+    failed = [f"{row.quantity}: {row.error:.2e} > {row.tolerance:.1e}" for row in rows if not row.ok]
+    assert not failed, "; ".join(failed)
+    names = {row.quantity for row in rows}
+    assert {"body placements", "jacobian", "mass matrix (crba)", "bias h(q, v)", "inverse dynamics",
+            "forward dynamics"} <= names
+    return model, rows
+
+
+def mujoco_names(reference, kind, count, first=0):
+    return [mujoco.mj_id2name(reference, kind, k) for k in range(first, count)]
+
+
+# ============================================================================= the gymnasium models
+
+
+@pytest.mark.parametrize("name", GYMNASIUM_MODELS)
+def test_gymnasium_model_agrees_with_mujoco(name):
+    """Each of gymnasium's MuJoCo models: the dynamics (armature included) at random states, the joints'
+    and bodies' names in MuJoCo's order, and the joint parameters (limits in radians, damping, friction
+    loss, armature) as MuJoCo compiles them."""
+    path = gymnasium_model(name)
+    model, _ = assert_agrees_with_mujoco(path)
+    reference = mujoco.MjModel.from_xml_path(path)
+    assert list(model.joint_names) == mujoco_names(reference, mujoco.mjtObj.mjOBJ_JOINT, reference.njnt)
+    bodies = [n or f"body_{k + 1}" for k, n in enumerate(mujoco_names(reference, mujoco.mjtObj.mjOBJ_BODY,
+                                                                        reference.nbody, 1))]
+    assert list(model.body_names[: reference.nbody - 1]) == bodies
+    assert np.allclose(model.armature, reference.dof_armature, rtol=0, atol=0)
+    assert np.array_equal(model.damping, reference.dof_damping)
+    assert np.array_equal(model.friction, reference.dof_frictionloss)
+    assert np.allclose(model.gravity, reference.opt.gravity, rtol=0, atol=0)
+    for j in range(reference.njnt):
+        if reference.jnt_type[j] in (mujoco.mjtJoint.mjJNT_HINGE, mujoco.mjtJoint.mjJNT_SLIDE):
+            iq = reference.jnt_qposadr[j]
+            expected = reference.jnt_range[j] if reference.jnt_limited[j] else (-np.inf, np.inf)
+            np.testing.assert_allclose((model.lower[iq], model.upper[iq]), expected, rtol=1e-15, atol=0)
+
+
+@pytest.mark.parametrize("name", GYMNASIUM_MODELS)
+def test_gymnasium_actuators_do_nothing_at_zero_control(name):
+    """The comparison turns MuJoCo's actuators off; with their flag on and zero control they add no force
+    either (all of gymnasium's are motors), so nothing is hidden by turning them off."""
+    reference = mujoco.MjModel.from_xml_path(gymnasium_model(name))
+    data = mujoco.MjData(reference)
+    rng = np.random.default_rng(1)
+    data.qpos[:] = reference.qpos0 + 0.1 * rng.standard_normal(reference.nq)
+    data.qvel[:] = rng.standard_normal(reference.nv)
+    data.ctrl[:] = 0.0
+    mujoco.mj_forward(reference, data)
+    assert reference.nu > 0
+    assert np.all(data.qfrc_actuator == 0.0)
+
+
+PINOCCHIO_DIFFERS = {
+    "half_cheetah": "Pinocchio does not apply the compiler's settotalmass",
+    "swimmer": "Pinocchio gives the geoms of swimmer.xml no mass (density on the geoms)",
+    "pusher": "Pinocchio keeps only the first of the file's kinematic trees",
+    "reacher": "Pinocchio keeps only the first of the file's kinematic trees",
+}
+
+
+@pytest.mark.parametrize("name", GYMNASIUM_MODELS)
+def test_mass_matrix_agrees_with_pinocchio(name, pin):
+    """Pinocchio's ``buildModelFromMJCF`` as a third opinion where it reads the file as MuJoCo does: the mass
+    matrix at random states (Pinocchio's armature set to ours: its parser does not read every file's)."""
+    if name in PINOCCHIO_DIFFERS:
+        pytest.skip(PINOCCHIO_DIFFERS[name])
+    path = gymnasium_model(name)
+    try:
+        reference = pin.buildModelFromMJCF(path)
+    except Exception as error:  # noqa: BLE001 (whatever Pinocchio's parser raises)
+        pytest.skip(f"Pinocchio cannot load {name}: {error}")
+    model = quietly(load_mjcf, path)
+    assert (reference.nq, reference.nv) == (model.nq, model.nv)
+    reference.armature[:] = model.armature
+    data = reference.createData()
+    rng = np.random.default_rng(2)
+    for _ in range(5):
+        q = model.random_configuration(rng)
+        M_pin = pin.crba(reference, data, q)
+        M_pin = np.triu(M_pin) + np.triu(M_pin, 1).T
+        M = mb.mass_matrix(model, q)
+        assert np.abs(M - M_pin).max() <= MUJOCO_TOLERANCE * np.abs(M_pin).max()
+
+
+# ============================================================================= the format, feature by feature
+
+
+def write_model(tmp_path, text, name="model.xml"):
+    path = tmp_path / name
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(textwrap.dedent(text))
+    return str(path)
+
+
+def write_meshes(tmp_path):
+    """``meshes/block.stl`` (a box, binary STL) and ``meshes/ell.obj`` (an L-shaped prism: not convex, and
+    not star-shaped about its faces' centroid, so that MuJoCo's four mesh inertias differ)."""
+    import trimesh
+
+    folder = tmp_path / "meshes"
+    folder.mkdir(exist_ok=True)
+    trimesh.creation.box(extents=(0.1, 0.06, 0.04)).export(folder / "block.stl")
+    # the L (counter-clockwise) at z = 0 and z = 0.08; caps split into four triangles inside the L, sides
+    # wound so that every normal points out
+    profile = [(0.0, 0.0), (0.3, 0.0), (0.3, 0.05), (0.05, 0.05), (0.05, 0.2), (0.0, 0.2)]
+    vertices = [(x, y, 0.0) for x, y in profile] + [(x, y, 0.08) for x, y in profile]
+    fan = [(0, 1, 2), (0, 2, 3), (0, 3, 4), (0, 4, 5)]
+    faces = [(a + 6, b + 6, c + 6) for a, b, c in fan] + [(a, c, b) for a, b, c in fan]
+    for i in range(6):
+        j = (i + 1) % 6
+        faces += [(i, j, j + 6), (i, j + 6, i + 6)]
+    ell = trimesh.Trimesh(vertices, faces, process=False)
+    assert ell.is_watertight and ell.volume > 0.0
+    ell.export(folder / "ell.obj")
+    return folder
+
+
+FEATURES = """\
+    <mujoco model="features">
+      <compiler angle="degree" eulerseq="zyx" meshdir="meshes"/>
+      <option gravity="0.5 -0.3 -9.7"/>
+      <default>
+        <joint damping="0.3" armature="0.02"/>
+        <geom density="800"/>
+        <default class="light">
+          <geom density="300" rgba="1 0 0 1"/>
+          <joint frictionloss="0.1" armature="0.05"/>
+          <default class="lighter">
+            <geom density="100"/>
+          </default>
+        </default>
+      </default>
+      <asset>
+        <mesh name="block" file="block.stl" scale="1 2 0.5"/>
+        <mesh name="ell" file="ell.obj"/>
+        <mesh name="ell_exact" file="ell.obj" inertia="exact"/>
+        <mesh name="ell_convex" file="ell.obj" inertia="convex"/>
+        <mesh name="ell_shell" file="ell.obj" inertia="shell"/>
+      </asset>
+      <worldbody>
+        <geom type="plane" size="5 5 0.1"/>
+        <site name="world_site" pos="0.1 0.2 0.3" euler="10 20 30"/>
+        <frame pos="0.1 0 0.2" euler="0 0 30" childclass="light">
+          <body name="base" pos="0 0 1" quat="0.9 0.1 -0.2 0.3">
+            <freejoint name="root"/>
+            <geom type="box" size="0.2 0.1 0.05"/>
+            <geom type="ellipsoid" size="0.1 0.05 0.08" pos="0.1 0 0" axisangle="1 1 0 30"/>
+            <site name="base_site" pos="0.1 0.1 0" xyaxes="0 1 0 -1 0 0.2"/>
+            <body name="arm" pos="0.2 0 0" zaxis="1 1 1">
+              <joint name="shoulder_x" axis="1 0 0" pos="0 0 0.05" range="-60 60" ref="10"/>
+              <joint name="shoulder_y" axis="0 1 0.2" pos="0.02 0 0" ref="-5"/>
+              <joint type="slide" axis="0 0 1" pos="0 0.01 0" ref="0.03" range="-0.1 0.2"/>
+              <geom type="capsule" fromto="0 0 0 0.3 0 0" size="0.03" class="lighter"/>
+              <geom type="cylinder" size="0.02 0.1" pos="0.15 0 0.05" euler="10 20 30"/>
+              <frame pos="0.3 0 0" quat="0 0 0 1">
+                <body name="hand">
+                  <joint name="wrist" type="ball" pos="0.01 0 0"/>
+                  <geom type="sphere" size="0.04"/>
+                  <geom type="box" fromto="0 0 0 0 0 0.1" size="0.02"/>
+                  <geom type="ellipsoid" fromto="0 0 0 0.1 0.05 0" size="0.02"/>
+                  <geom type="mesh" mesh="block" pos="0 0 0.2" euler="5 10 15"/>
+                  <site name="tool" pos="0 0 0.25" zaxis="0 -1 0"/>
+                </body>
+              </frame>
+            </body>
+            <body name="plate" pos="-0.2 0 0">
+              <joint name="plate_hinge" axis="0 0 1"/>
+              <inertial pos="0.01 0.02 0.03" mass="0.7" fullinertia="0.02 0.03 0.04 0.001 -0.002 0.003"/>
+              <geom type="mesh" mesh="ell"/>
+            </body>
+            <body>
+              <joint axis="0 1 0" pos="0 0 -0.1"/>
+              <inertial pos="0 0 -0.2" mass="1.5" diaginertia="0.01 0.02 0.025" euler="10 0 40"/>
+            </body>
+          </body>
+        </frame>
+        <body name="ells" pos="1 0 0">
+          <joint name="ells_x" type="slide" axis="1 0 0"/>
+          <geom type="mesh" mesh="ell"/>
+          <body name="ell_exact" pos="0 0.5 0">
+            <joint name="exact_z" axis="0 0 1"/>
+            <geom type="mesh" mesh="ell_exact" euler="30 0 0"/>
+          </body>
+          <body name="ell_convex" pos="0 1 0">
+            <joint name="convex_y" axis="0 1 0"/>
+            <geom type="mesh" mesh="ell_convex" pos="0.1 0 0"/>
+          </body>
+          <body name="ell_shell" pos="0 1.5 0">
+            <joint name="shell_x" axis="1 0 0"/>
+            <geom type="mesh" mesh="ell_shell" mass="0.3"/>
+          </body>
+        </body>
+        <include file="parts/pendulum.xml"/>
+      </worldbody>
+    </mujoco>
+"""
+
+PENDULUM = """\
+    <mujoco>
+      <body name="pendulum" pos="1 1 1">
+        <joint name="swing" axis="0 1 0"/>
+        <geom type="capsule" fromto="0 0 0 0 0 -0.5" size="0.05" mass="2"/>
+        <site name="bob" pos="0 0 -0.5"/>
+      </body>
+    </mujoco>
+"""
+
+
+@pytest.fixture
+def features(tmp_path):
+    write_meshes(tmp_path)
+    write_model(tmp_path, PENDULUM, "parts/pendulum.xml")
+    return write_model(tmp_path, FEATURES)
+
+
+def test_every_feature_agrees_with_mujoco(features):
+    """Defaults (nested, ``childclass``), ``<frame>``, ``<include>``, every orientation form with
+    ``eulerseq``, ``fromto`` capsules, boxes and ellipsoids, each primitive's and mesh's mass from a
+    density (MuJoCo's legacy, exact, convex and shell mesh inertias; a mesh's scale), ``<inertial>`` with
+    ``diaginertia`` (turned) and ``fullinertia``, several joints in one body about their own points with
+    ``ref``, ball and free joints, sites, an unnamed body and joint, and gravity: the model is MuJoCo's."""
+    model, rows = assert_agrees_with_mujoco(features)
+    assert "site placements" in {row.quantity for row in rows}
+    reference = mujoco.MjModel.from_xml_path(features)
+    for k in range(1, reference.nbody):
+        assert model.body_inertias[k - 1].mass == pytest.approx(reference.body_mass[k], rel=1e-12)
+    assert [type(joint).__name__ for joint in model.joints] == [
+        "FreeFlyer", "Revolute", "Revolute", "Prismatic", "Spherical", "Revolute", "Revolute", "Prismatic",
+        "Revolute", "Revolute", "Revolute", "Revolute"]
+    assert model.joint_names[3] == "joint_3" and model.body_names[4] == "body_5"
+    assert list(model.body_names[reference.nbody - 1:]) == ["world_site", "base_site", "tool", "bob"]
+
+
+def test_mesh_inertias_follow_mujocos_four_rules(features):
+    """The L-shaped mesh's mass and inertia under MuJoCo's legacy, exact, convex and shell rules, against MuJoCo
+    (single-precision vertices on both sides), and the four rules give four different bodies."""
+    model = quietly(load_mjcf, features)
+    reference = mujoco.MjModel.from_xml_path(features)
+    masses = []
+    for name in ("ells", "ell_exact", "ell_convex", "ell_shell"):
+        k = reference.body(name).id
+        inertia = model.body_inertias[model.body_index(name)]
+        R = np.zeros(9)
+        mujoco.mju_quat2Mat(R, reference.body_iquat[k])
+        R = R.reshape(3, 3)
+        expected = R @ np.diag(reference.body_inertia[k]) @ R.T
+        assert inertia.mass == pytest.approx(reference.body_mass[k], rel=1e-12)
+        np.testing.assert_allclose(inertia.com, reference.body_ipos[k], rtol=0, atol=1e-12)
+        np.testing.assert_allclose(inertia.rotational, expected, rtol=0, atol=1e-12 * np.abs(expected).max())
+        masses.append(inertia.mass)
+    assert len(set(np.round(masses[:3], 9))) == 3
+
+
+COMPILER_OPTIONS = """\
+    <mujoco>
+      <compiler angle="radian" eulerseq="XYZ" settotalmass="7.5" boundmass="0.2" boundinertia="0.003"
+                balanceinertia="true" inertiagrouprange="0 2" autolimits="false"/>
+      <worldbody>
+        <body name="a" euler="0.1 0.2 0.3">
+          <joint name="a" axis="1 0 0" limited="true" range="-1 1.5" ref="0.2"/>
+          <geom type="box" size="0.1 0.2 0.3"/>
+          <geom type="sphere" size="0.5" group="3"/>
+          <body name="b" pos="0 0 -0.5">
+            <joint name="b" axis="0 1 0" limited="false" range="-3 3"/>
+            <inertial pos="0 0 -0.1" mass="0.05" diaginertia="0.001 0.001 0.004"/>
+            <body name="c" pos="0 0 -0.3">
+              <joint name="c" type="slide" axis="0 0 1"/>
+            </body>
+          </body>
+        </body>
+      </worldbody>
+    </mujoco>
+"""
+
+
+def test_compiler_mass_options_agree_with_mujoco():
+    """``settotalmass``, ``boundmass``, ``boundinertia``, ``balanceinertia`` (an inertia that breaks A + B ≥ C),
+    ``inertiagrouprange`` (a geom of group 3 left out), ``angle="radian"``, extrinsic ``eulerseq`` and
+    ``autolimits="false"``: MuJoCo's masses and dynamics."""
+    model, _ = assert_agrees_with_mujoco(COMPILER_OPTIONS)
+    reference = mujoco.MjModel.from_xml_string(COMPILER_OPTIONS)
+    np.testing.assert_allclose([inertia.mass for inertia in model.body_inertias], reference.body_mass[1:], rtol=1e-13)
+    assert model.total_mass == pytest.approx(7.5, rel=1e-14)
+    assert (model.lower[0], model.upper[0]) == (-1.0, 1.5)
+    assert np.isinf(model.upper[1])
+
+
+@pytest.mark.parametrize("setting", ["true", "false", "auto"])
+def test_inertia_from_geoms_setting(setting):
+    """``inertiafromgeom``: ``"true"`` replaces an ``<inertial>`` by the body's geoms (a body without geoms
+    keeps its own), ``"false"`` ignores the geoms (a body with geoms alone is massless), ``"auto"`` uses them
+    where there is no ``<inertial>``; each as MuJoCo compiles it."""
+    text = f"""
+    <mujoco>
+      <compiler inertiafromgeom="{setting}"/>
+      <worldbody>
+        <body name="a">
+          <joint axis="0 1 0"/>
+          <inertial pos="0 0 -0.2" mass="1" diaginertia="0.01 0.01 0.01"/>
+          <geom type="capsule" fromto="0 0 0 0 0 -0.4" size="0.05"/>
+          <body name="b" pos="0 0 -0.4">
+            <geom type="sphere" size="0.1"/>
+            <body name="c" pos="0 0 -0.1">
+              <joint axis="1 0 0"/>
+              <inertial pos="0 0 -0.1" mass="0.5" diaginertia="0.002 0.002 0.001"/>
+            </body>
+          </body>
+        </body>
+      </worldbody>
+    </mujoco>"""
+    model, _ = assert_agrees_with_mujoco(text)
+    reference = mujoco.MjModel.from_xml_string(text)
+    masses = [inertia.mass for inertia in model.body_inertias]
+    np.testing.assert_allclose(masses, reference.body_mass[1:], rtol=1e-13)
+    capsule = 1000.0 * np.pi * 0.05**2 * (0.4 + 4.0 / 3.0 * 0.05)
+    assert masses[0] == pytest.approx(capsule if setting == "true" else 1.0, rel=1e-14)
+    assert (masses[1] == 0.0) == (setting == "false")
+    assert masses[2] == 0.5
+
+
+def test_gravity_flag_and_geometries(features, tmp_path):
+    """``<flag gravity="disable"/>`` zeroes gravity; the geoms are the viewer's shapes, each placed where
+    MuJoCo places it (primitives; a mesh's frame is MuJoCo's after it re-centres the mesh) with its
+    dimensions (full lengths, radii), groups 0–2 visual, the world's plane left out."""
+    text = open(features).read().replace('<option gravity="0.5 -0.3 -9.7"/>',
+                                         '<option gravity="0.5 -0.3 -9.7"><flag gravity="disable"/></option>')
+    path = write_model(tmp_path, text, "no_gravity.xml")
+    assert np.array_equal(quietly(load_mjcf, path).gravity, np.zeros(3))
+    model = quietly(load_mjcf, features)
+    reference = mujoco.MjModel.from_xml_path(features)
+    data = mujoco.MjData(reference)
+    mujoco.mj_kinematics(reference, data)
+    placements = mb.forward_kinematics(model, quietly(mb.mjcf.from_mujoco, model, reference.qpos0,
+                                                      np.zeros(reference.nv))[0])
+    primitives = [g for g in model.geometries if g.shape != "mesh"]
+    geoms = [k for k in range(reference.ngeom) if reference.geom_bodyid[k] > 0
+             and reference.geom_type[k] != mujoco.mjtGeom.mjGEOM_MESH]
+    assert len(primitives) == len(geoms)
+    assert all(g.kind == "visual" for g in model.geometries)
+    full = {"sphere": lambda s: s[:1], "capsule": lambda s: (s[0], 2 * s[1]), "cylinder": lambda s: (s[0], 2 * s[1]),
+            "ellipsoid": lambda s: s, "box": lambda s: 2 * s}
+    for geometry, k in zip(primitives, geoms):
+        world = placements[model.body_index(geometry.body)] @ geometry.placement
+        np.testing.assert_allclose(world[:3, 3], data.geom_xpos[k], rtol=0, atol=1e-14)
+        np.testing.assert_allclose(world[:3, :3], data.geom_xmat[k].reshape(3, 3), rtol=0, atol=1e-14)
+        np.testing.assert_allclose(geometry.size, full[geometry.shape](reference.geom_size[k]), rtol=1e-15)
+    meshes = [g for g in model.geometries if g.shape == "mesh"]
+    assert [os.path.basename(g.filename) for g in meshes] == ["block.stl"] + ["ell.obj"] * 5
+    assert meshes[0].scale == (1.0, 2.0, 0.5)
+
+
+def test_sites_are_frames(features):
+    """A site is a named frame of the model: its placement and Jacobian by name, as MuJoCo's site."""
+    model = quietly(load_mjcf, features)
+    reference = mujoco.MjModel.from_xml_path(features)
+    data = mujoco.MjData(reference)
+    rng = np.random.default_rng(4)
+    q = model.random_configuration(rng)
+    data.qpos[:], data.qvel[:] = mb.mjcf.to_mujoco(model, q, np.zeros(model.nv))
+    mujoco.mj_kinematics(reference, data)
+    mujoco.mj_comPos(reference, data)
+    k = reference.site("tool").id
+    X = mb.frame_placement(model, q, "tool")
+    np.testing.assert_allclose(X[:3, 3], data.site_xpos[k], rtol=0, atol=1e-14)
+    np.testing.assert_allclose(X[:3, :3], data.site_xmat[k].reshape(3, 3), rtol=0, atol=1e-14)
+    jacp, jacr = np.zeros((3, model.nv)), np.zeros((3, model.nv))
+    mujoco.mj_jacSite(reference, data, jacp, jacr, k)
+    T = mb.mjcf.velocity_to_mujoco(model, q)
+    np.testing.assert_allclose(mb.jacobian(model, q, "tool"), np.vstack([jacp, jacr]) @ T, rtol=0, atol=1e-14)
+
+
+def test_string_source_resolves_meshes_and_includes_in_package_dirs(features, tmp_path, monkeypatch):
+    """An XML string has no folder: its ``<include>``, ``meshdir`` and meshes resolve in ``package_dirs`` (or,
+    without them, in the working directory)."""
+    text = open(features).read()
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    monkeypatch.chdir(elsewhere)
+    model = quietly(load_mjcf, text, package_dirs=[str(tmp_path)])
+    assert model.nv == quietly(load_mjcf, features).nv
+    assert all(g.filename is not None for g in model.geometries if g.shape == "mesh")
+    with pytest.raises(MJCFError, match=r"<MJCF string>:\d+: <include>: included file 'parts/pendulum.xml' not "
+                                        r"found"):
+        quietly(load_mjcf, text)
+    monkeypatch.chdir(tmp_path)
+    assert quietly(load_mjcf, text).nv == model.nv
