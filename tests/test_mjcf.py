@@ -448,3 +448,178 @@ def test_string_source_resolves_meshes_and_includes_in_package_dirs(features, tm
         quietly(load_mjcf, text)
     monkeypatch.chdir(tmp_path)
     assert quietly(load_mjcf, text).nv == model.nv
+
+
+# ============================================================================= equalities
+
+EQUALITIES = """\
+    <mujoco model="equalities">
+      <worldbody>
+        <body name="crank" pos="0 0 1">
+          <joint name="crank" axis="0 1 0"/>
+          <geom type="capsule" fromto="0 0 0 0.3 0 0" size="0.03"/>
+          <body name="coupler" pos="0.3 0 0" euler="0 -30 0">
+            <joint name="coupler" axis="0 1 0"/>
+            <geom type="capsule" fromto="0 0 0 0.8 0 0" size="0.03"/>
+            <site name="coupler_tip" pos="0.8 0 0" euler="10 20 30"/>
+          </body>
+        </body>
+        <body name="rocker" pos="0.9 0 1">
+          <joint name="rocker" axis="0 1 0" ref="20"/>
+          <geom type="capsule" fromto="0 0 0 0 0 0.5" size="0.03"/>
+        </body>
+        <body name="box" pos="0.2 0.8 1.2" quat="0.9 0.1 0.3 0.2">
+          <freejoint/>
+          <geom type="box" size="0.1 0.2 0.3"/>
+          <site name="box_corner" pos="0.1 0.2 0.3" quat="0 1 0 0"/>
+        </body>
+        <body name="arm" pos="0 -0.8 1">
+          <joint name="arm" axis="1 0 0" ref="15"/>
+          <geom type="capsule" fromto="0 0 0 0 0.4 0" size="0.03"/>
+          <body name="slider" pos="0 0.4 0">
+            <joint name="slide" type="slide" axis="0 1 0" ref="0.05"/>
+            <geom type="box" size="0.05 0.05 0.05"/>
+          </body>
+        </body>
+        <body name="hand" pos="0.3 -0.5 1.5">
+          <joint name="hx" axis="1 0 0"/>
+          <joint name="hy" axis="0 1 0" pos="0.1 0 0"/>
+          <joint name="hz" axis="0 0 1" pos="0 0.1 0"/>
+          <geom type="sphere" size="0.05"/>
+        </body>
+        <body name="target" mocap="true" pos="0.3 -0.3 1.5"/>
+      </worldbody>
+      <equality>
+        <connect name="four-bar" body1="coupler" body2="rocker" anchor="0.8 0 0"/>
+        <weld name="box to world" body1="box" torquescale="2"/>
+        <joint name="gear" joint1="slide" joint2="arm" polycoef="0.01 0.05 -0.02 0.003 0.001"/>
+        <weld name="sites" site1="box_corner" site2="coupler_tip"/>
+        <connect name="hand" body1="hand" body2="target" anchor="0 0.2 0"/>
+        <weld name="relpose" body1="crank" body2="box" relpose="0.1 0.2 0.3 0.8 0.1 0.2 0.3" anchor="0.01 0.02 0.03"/>
+        <joint name="lock" joint1="hx"/>
+        <connect body1="arm" anchor="0 0.4 0" active="false"/>
+      </equality>
+    </mujoco>
+"""
+
+
+def mujoco_equality_residuals(reference, model, q):
+    """MuJoCo's position error ``efc_pos`` of each equality at our ``q`` (all its constraints on but contacts)."""
+    data = mujoco.MjData(reference)
+    data.qpos[:], data.qvel[:] = mb.to_mujoco(model, q, np.zeros(model.nv))
+    mujoco.mj_forward(reference, data)
+    rows = data.efc_type == mujoco.mjtConstraint.mjCNSTR_EQUALITY
+    return {k: data.efc_pos[rows][data.efc_id[rows] == k] for k in range(reference.neq)}
+
+
+def reference_configuration(model, reference):
+    """Our ``q`` at MuJoCo's ``qpos0``, where the file places every body."""
+    return mb.from_mujoco(model, reference.qpos0, np.zeros(reference.nv))[0]
+
+
+def with_frames_together(model, q, closure, free_body):
+    """``q`` with ``free_body`` (on a free joint) moved so that the two frames of ``closure`` coincide."""
+    def world(body, frame):
+        return frame if body is None else mb.frame_placement(model, q, body) @ frame
+
+    if closure.body_b == free_body:
+        X = world(closure.body_a, closure.frame_a) @ np.linalg.inv(closure.frame_b)
+    else:
+        X = world(closure.body_b, closure.frame_b) @ np.linalg.inv(closure.frame_a)
+    joint = model.body_joints[model.body_index(free_body)]
+    start = model.idx_q[joint]
+    q = q.copy()
+    q[start : start + 3] = X[:3, 3]
+    q[start + 3 : start + 7] = mb.spatial.rotation_to_quat(X[:3, :3])
+    return q
+
+
+def test_equalities_become_built_in_constraints():
+    """connect → a point loop closure, weld → a weld closure, joint → a coupling by MuJoCo's polynomial; a
+    missing body2 or a mocap body is the world's side (a body fixed to it); inactive ones are left out
+    with a warning."""
+    with pytest.warns(UserWarning, match=r"<MJCF string>:\d+: <connect>: inactive equalities"):
+        model = quietly_except_inactive(EQUALITIES)
+    kinds = [(type(c).__name__, getattr(c, "kind", None), c.name) for c in model.equality_constraints]
+    assert kinds == [("LoopClosure", "point", "four-bar"), ("LoopClosure", "weld", "box to world"),
+                     ("JointCoupling", None, "gear"), ("LoopClosure", "weld", "sites"),
+                     ("LoopClosure", "point", "hand"), ("LoopClosure", "weld", "relpose"),
+                     ("JointCoupling", None, "lock")]
+    box, hand, gear, lock = (model.equality_constraints[k] for k in (1, 4, 2, 6))
+    assert (box.body_a, box.body_b) == ("box", None)
+    assert hand.body_b == "target" and model.body_joints[model.body_index("target")] == -1
+    # q_slide − 0.05 = 0.01 + 0.05 x − 0.02 x² + 0.003 x³ + 0.001 x⁴ with x = q_arm − 15°
+    assert (gear.joint_a, gear.joint_b) == ("arm", "slide")
+    np.testing.assert_allclose(gear.coefficients, [0.06, 0.05, -0.02, 0.003, 0.001], rtol=1e-15)
+    assert gear.reference == pytest.approx(np.radians(15.0), rel=1e-15)
+    assert (lock.joint_a, lock.joint_b, lock.offset) == (None, "hx", 0.0)
+    assert mb.load_urdf(mb.robots.path("double_pendulum")).equality_constraints == ()
+
+
+def quietly_except_inactive(text):
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message=".*(actuator|spring|tendon)")
+        return load_mjcf(text)
+
+
+def held(model, q, constraint):
+    """``q`` changed so that ``constraint`` holds: the free box moved to make a weld's frames meet, or the
+    coupled joint set to its polynomial of the other (the rest hold where the file places the bodies)."""
+    if constraint.name in ("sites", "relpose"):
+        return with_frames_together(model, q, constraint, "box")
+    if isinstance(constraint, mb.JointCoupling):
+        q = q.copy()
+        q[model.idx_q[model.joint_index(constraint.joint_b)]] -= constraint.position(model, q)[0]
+    return q
+
+
+# a planar loop closed by a point constraint: three rows of rank two, by design
+@pytest.mark.filterwarnings("ignore::multibody.RankDeficientWarning")
+@pytest.mark.parametrize("index", range(7))
+def test_each_equality_holds_where_mujocos_does(index):
+    """Each equality's rows vanish exactly where MuJoCo's do: at a state where it holds (the file's own
+    placement, adjusted by :func:`held`), and after a disturbance and our projection onto it, MuJoCo's
+    residual of that equality is at rounding, where it was large before the projection."""
+    model = quietly(load_mjcf, EQUALITIES)
+    reference = mujoco.MjModel.from_xml_string(EQUALITIES)
+    reference.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_CONTACT)
+    constraint = model.equality_constraints[index]
+    rng = np.random.default_rng(index)
+    q = held(model, reference_configuration(model, reference), constraint)
+    assert np.abs(constraint.position(model, q)).max() < 1e-12
+    assert np.abs(mujoco_equality_residuals(reference, model, q)[index]).max() < 1e-12
+    q = model.integrate(q, 0.2 * rng.standard_normal(model.nv))
+    assert np.abs(mujoco_equality_residuals(reference, model, q)[index]).max() > 1e-3
+    q, _ = mb.ConstrainedSystem(model, [constraint]).project(q, np.zeros(model.nv))
+    assert np.abs(constraint.position(model, q)).max() < 1e-10
+    assert np.abs(mujoco_equality_residuals(reference, model, q)[index]).max() < 1e-10
+
+
+@pytest.mark.filterwarnings("ignore::multibody.RankDeficientWarning")
+def test_robotiq_gripper_closes_like_mujoco():
+    """gym-hil's Panda with the Robotiq 2F-85: two connect equalities close the four-bars of the fingers and a
+    joint equality couples the drivers. At MuJoCo's qpos0 every constraint holds on both sides, and the
+    constrained degrees of freedom (nv minus the rank of the rows) are MuJoCo's: 15 − 5 = 10; after a
+    disturbance our projection leaves MuJoCo's residuals at rounding."""
+    path = gym_hil_panda()
+    model = quietly(load_mjcf, path)
+    reference = mujoco.MjModel.from_xml_path(path)
+    reference.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_CONTACT) | int(mujoco.mjtDisableBit.mjDSBL_LIMIT)
+    reference.opt.jacobian = mujoco.mjtJacobian.mjJAC_DENSE
+    assert [type(c).__name__ for c in model.equality_constraints] == ["LoopClosure", "LoopClosure", "JointCoupling"]
+    q = reference_configuration(model, reference)
+    A = np.vstack([c.jacobian(model, q) for c in model.equality_constraints])
+    assert max(np.abs(c.position(model, q)).max() for c in model.equality_constraints) < 1e-15
+    data = mujoco.MjData(reference)
+    data.qpos[:] = reference.qpos0
+    mujoco.mj_forward(reference, data)
+    rows = data.efc_type == mujoco.mjtConstraint.mjCNSTR_EQUALITY
+    J = data.efc_J.reshape(data.nefc, reference.nv)[rows]
+    assert rows.sum() == A.shape[0] == 7
+    assert np.abs(data.efc_pos[rows]).max() < 1e-15
+    assert model.nv - np.linalg.matrix_rank(A) == reference.nv - np.linalg.matrix_rank(J) == 10
+    system = mb.ConstrainedSystem(model, model.equality_constraints)
+    q = model.integrate(q, 0.05 * np.random.default_rng(5).standard_normal(model.nv))
+    q, _ = system.project(q, np.zeros(model.nv))
+    residuals = mujoco_equality_residuals(reference, model, q)
+    assert max(np.abs(r).max() for r in residuals.values()) < 1e-10
