@@ -1,9 +1,9 @@
-"""Command line: ``multibody demo NAME`` (``--list``, ``--view``), ``multibody info URDF|ROBOT``,
-``multibody check URDF|ROBOT``, ``multibody view URDF|ROBOT [--trajectory FILE.npz]``,
+"""Command line: ``multibody demo NAME`` (``--list``, ``--view``), ``multibody info URDF|MJCF|ROBOT``,
+``multibody check URDF|MJCF|ROBOT``, ``multibody view URDF|MJCF|ROBOT [--trajectory FILE.npz]``,
 ``multibody compile [--all]``, ``multibody --version``. See ``multibody --help``.
 
 Exit status: 0 on success; 1 when ``check`` finds a quantity that disagrees with Pinocchio; 2 on any
-failure (a missing file, a directory, an unknown robot name, a malformed URDF, a file that is not a
+failure (a missing file, a directory, an unknown robot name, a malformed URDF or MJCF, a file that is not a
 trajectory of the model, ...), which prints one line on standard error, ``multibody COMMAND: what is
 wrong``, and no traceback; 141 (128 + SIGPIPE, what the shell reports for a program that a closed pipe
 stops) when the reader of standard output goes away early (``multibody info talos | head``), quietly.
@@ -44,11 +44,17 @@ def _urdf_path(source):
 
 
 def _load(source, floating_base, package_dirs):
-    """The model of a URDF file or a robot name (see :func:`_urdf_path`)."""
+    """The model of a URDF or MJCF file (its root element ``<mujoco>``) or a robot name (see
+    :func:`_urdf_path`)."""
     from . import robots
+    from .mjcf import is_mjcf_file, load_mjcf
     from .urdf import load_urdf
 
     path, robot = _urdf_path(source)
+    if not robot and is_mjcf_file(path):
+        if floating_base:
+            raise InputError("--floating-base is for URDF files: an MJCF file gives its bodies their free joints")
+        return load_mjcf(path, package_dirs=package_dirs)
     if not robot:
         return load_urdf(path, floating_base=floating_base, package_dirs=package_dirs, invalid_inertia="warn")
     # A robot keeps the base and mesh folders robots.load gives it unless the command line says otherwise.
@@ -104,24 +110,54 @@ def cmd_info(args):
         print("mimic relations (kept as independent coordinates):")
         for mimic in model.mimic:
             print(f"  {mimic.joint} = {mimic.multiplier:g} * {mimic.mimicked} + {mimic.offset:g}")
+    if model.equality_constraints:
+        print("equality constraints (model.equality_constraints; pass them to mb.ConstrainedSystem):")
+        for constraint in model.equality_constraints:
+            print(f"  {constraint.name}: {_describe_constraint(constraint)}")
     messages = [str(w.message) for w in caught] + suspicious_inertias(model)
     for message in messages:
         print(f"warning: {message}")
     return 0
 
 
+def _describe_constraint(constraint):
+    """One line on a built-in constraint of a model file: its kind and what it joins."""
+    from .constraints import JointCoupling, LoopClosure
+
+    if isinstance(constraint, LoopClosure):
+        return f"{constraint.kind} loop closure of {constraint.body_a or 'the world'} and {constraint.body_b or 'the world'}"
+    if isinstance(constraint, JointCoupling):
+        if constraint.joint_a is None:
+            return f"{constraint.joint_b} held at {constraint.offset:g}"
+        terms = " + ".join(f"{c:g}" if k == 0 else f"{c:g} x" if k == 1 else f"{c:g} x^{k}"
+                           for k, c in enumerate(constraint.coefficients) if c)
+        x = f"{constraint.joint_a} - {constraint.reference:g}" if constraint.reference else constraint.joint_a
+        return f"{constraint.joint_b} = {terms or '0'} with x = {x}"
+    return type(constraint).__name__
+
+
 def cmd_check(args):
+    from .mjcf import is_mjcf_file
+
     path, _ = _urdf_path(args.urdf)
+    mjcf = is_mjcf_file(path)
+    reference = "MuJoCo" if mjcf else "Pinocchio"
     try:
-        import pinocchio  # noqa: F401
+        __import__("mujoco" if mjcf else "pinocchio")
     except ImportError:
-        print("multibody check: needs Pinocchio: pip install pin", file=sys.stderr)
+        print(f"multibody check: needs {reference}: pip install {'mujoco' if mjcf else 'pin'}", file=sys.stderr)
         return 2
-    from .check import compare_with_pinocchio
+    if mjcf and args.floating_base:
+        raise InputError("--floating-base is for URDF files: an MJCF file gives its bodies their free joints")
+    from .check import compare_with_mujoco, compare_with_pinocchio
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        model, rows, condition = compare_with_pinocchio(path, args.floating_base, args.samples, args.seed, args.package_dir)
+        if mjcf:
+            model, rows, condition = compare_with_mujoco(path, args.samples, args.seed, args.package_dir)
+        else:
+            model, rows, condition = compare_with_pinocchio(path, args.floating_base, args.samples, args.seed,
+                                                            args.package_dir)
     print(f"{model.name}: nq = {model.nq}, nv = {model.nv}, {args.samples} random states, "
           f"largest cond(M) = {condition:.3g}")
     width = max(len(row.quantity) for row in rows)
@@ -132,7 +168,7 @@ def cmd_check(args):
     if failed:
         print(f"FAILED: {', '.join(failed)}")
         return 1
-    print("all quantities agree with Pinocchio")
+    print(f"all quantities agree with {reference}")
     return 0
 
 
@@ -264,8 +300,8 @@ def build_parser():
     commands = parser.add_subparsers(dest="command", metavar="COMMAND")
 
     info = commands.add_parser("info", help="print a model's tree, sizes, mass and suspicious inertias")
-    info.add_argument("urdf", metavar="URDF|ROBOT",
-                      help="URDF file, or a robot name (e.g. double_pendulum; example-robot-data's when installed)")
+    info.add_argument("urdf", metavar="URDF|MJCF|ROBOT",
+                      help="URDF or MJCF (.xml) file, or a robot name (e.g. double_pendulum; example-robot-data's when installed)")
     info.add_argument("--floating-base", action="store_true", help="add a free-flyer joint at the root")
     info.add_argument("--package-dir", action="append", default=[], help="where package:// meshes live (repeatable)")
     info.set_defaults(run=cmd_info)
@@ -281,8 +317,8 @@ def build_parser():
     demo.set_defaults(run=cmd_demo)
 
     view = commands.add_parser("view", help="show a model, or a saved trajectory of it, in the 3-D viewer (browser)")
-    view.add_argument("urdf", metavar="URDF|ROBOT",
-                      help="URDF file, or a robot name (e.g. double_pendulum; example-robot-data's when installed)")
+    view.add_argument("urdf", metavar="URDF|MJCF|ROBOT",
+                      help="URDF or MJCF (.xml) file, or a robot name (e.g. double_pendulum; example-robot-data's when installed)")
     view.add_argument("--trajectory", metavar="FILE.npz", help="a trajectory saved by Trajectory.save, to play")
     view.add_argument("--port", type=int, default=8080, help="port to serve on (default 8080; the next free one if taken)")
     view.add_argument("--trace", action="append", default=[], metavar="BODY",
@@ -293,9 +329,10 @@ def build_parser():
     view.add_argument("--package-dir", action="append", default=[], help="where package:// meshes live (repeatable)")
     view.set_defaults(run=cmd_view)
 
-    check = commands.add_parser("check", help="compare kinematics and dynamics with Pinocchio at random states")
-    check.add_argument("urdf", metavar="URDF|ROBOT",
-                       help="URDF file, or a robot name (e.g. double_pendulum; example-robot-data's when installed)")
+    check = commands.add_parser("check", help="compare kinematics and dynamics with Pinocchio (MJCF: MuJoCo) at random "
+                                              "states")
+    check.add_argument("urdf", metavar="URDF|MJCF|ROBOT",
+                       help="URDF or MJCF (.xml) file, or a robot name (e.g. double_pendulum; example-robot-data's when installed)")
     check.add_argument("--floating-base", action="store_true", help="add a free-flyer joint at the root")
     check.add_argument("--samples", type=int, default=20, help="number of random states (default 20)")
     check.add_argument("--seed", type=int, default=0, help="random seed (default 0)")

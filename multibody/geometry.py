@@ -38,7 +38,14 @@ def _primitive(trimesh, geometry):
         return trimesh.creation.box(extents=geometry.size)
     if geometry.shape == "sphere":
         return trimesh.creation.icosphere(radius=geometry.size[0])
+    if geometry.shape == "ellipsoid":
+        # the unit sphere stretched along its axes by the semi-axes
+        mesh = trimesh.creation.icosphere(radius=1.0)
+        mesh.apply_scale(np.asarray(geometry.size, dtype=float))
+        return mesh
     radius, length = geometry.size
+    if geometry.shape == "capsule":
+        return trimesh.creation.capsule(height=length, radius=radius)
     return trimesh.creation.cylinder(radius=radius, height=length)
 
 

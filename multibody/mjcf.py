@@ -136,6 +136,29 @@ def _read_file(path, where=None):
     return _parse_xml(data, path)
 
 
+class _FirstElement(Exception):
+    pass
+
+
+def is_mjcf_file(path) -> bool:
+    """Whether the file at ``path`` is MJCF: its root element is ``<mujoco>`` (read up to that element only;
+    ``False`` for a file that is not XML)."""
+    parser = xml.parsers.expat.ParserCreate()
+
+    def start(tag, attrib):
+        raise _FirstElement(tag)
+
+    parser.StartElementHandler = start
+    try:
+        with open(path, "rb") as stream:
+            parser.ParseFile(stream)
+    except _FirstElement as first:
+        return first.args[0] == "mujoco"
+    except xml.parsers.expat.ExpatError:
+        return False
+    return False
+
+
 def _expand_includes(root, main_dir, package_dirs):
     """Replace every ``<include file>`` under ``root`` by the children of that file's ``<mujoco>``, looked up
     next to the including file, then next to the main file, then in ``package_dirs``; a file that

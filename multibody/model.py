@@ -49,10 +49,12 @@ def all_finite(x) -> bool:
 class Geometry:
     """A visual or collision shape attached to a body (loaded on demand, see :mod:`multibody.geometry`).
 
-    ``shape`` is ``"mesh"``, ``"box"``, ``"sphere"`` or ``"cylinder"``; ``placement`` the 4×4 pose of the
-    shape in the body frame; ``filename`` the resolved mesh path (``None`` if it could not be found),
-    ``uri`` the mesh reference as written; ``scale`` (3,); ``size`` the primitive's dimensions
-    (box: edge lengths; sphere: radius; cylinder: radius, length).
+    ``shape`` is ``"mesh"``, ``"box"``, ``"sphere"``, ``"cylinder"``, ``"capsule"`` or ``"ellipsoid"``;
+    ``placement`` the 4×4 pose of the shape in the body frame; ``filename`` the resolved mesh path (``None``
+    if it could not be found), ``uri`` the mesh reference as written; ``scale`` (3,); ``size`` the
+    primitive's dimensions in m (box: edge lengths; sphere: radius; cylinder: radius, length along z;
+    capsule: radius, length of its cylinder along z between the centres of its hemispheres; ellipsoid:
+    semi-axes).
     """
 
     body: str

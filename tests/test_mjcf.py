@@ -623,3 +623,216 @@ def test_robotiq_gripper_closes_like_mujoco():
     q, _ = system.project(q, np.zeros(model.nv))
     residuals = mujoco_equality_residuals(reference, model, q)
     assert max(np.abs(r).max() for r in residuals.values()) < 1e-10
+
+
+# ============================================================================= MuJoCo's state conventions
+
+
+FREE_BODY = """\
+    <mujoco>
+      <worldbody>
+        <body name="brick" pos="0.3 -0.2 1.1" euler="20 -30 45">
+          <freejoint/>
+          <geom type="box" size="0.1 0.2 0.05"/>
+          <body name="lid" pos="0 0 0.05">
+            <joint type="ball"/>
+            <geom type="box" size="0.1 0.2 0.01" pos="0 0 0.01"/>
+          </body>
+        </body>
+      </worldbody>
+    </mujoco>
+"""
+
+
+def test_conversions_round_trip_batched(features):
+    """``from_mujoco(to_mujoco(q, v)) = (q, v)`` for a batch of states (one ``q`` broadcast against many
+    ``v`` too), the free joint's and ball joint's quaternions reordered to MuJoCo's ``[w, x, y, z]``."""
+    model = quietly(load_mjcf, features)
+    rng = np.random.default_rng(6)
+    q = model.random_configuration(rng, (4, 3))
+    v = rng.standard_normal((4, 3, model.nv))
+    qpos, qvel = mb.to_mujoco(model, q, v)
+    assert qpos.shape == q.shape and qvel.shape == v.shape
+    np.testing.assert_array_equal(qpos[..., 3:7], q[..., [6, 3, 4, 5]])
+    back_q, back_v = mb.from_mujoco(model, qpos, qvel)
+    np.testing.assert_allclose(back_q, q, rtol=0, atol=1e-15)
+    np.testing.assert_allclose(back_v, v, rtol=0, atol=1e-15)
+    single_q, many_v = mb.to_mujoco(model, q[0, 0], v[0])
+    assert single_q.shape == (3, model.nq) and np.array_equal(single_q[1], qpos[0, 0])
+    assert np.array_equal(many_v, mb.to_mujoco(model, np.broadcast_to(q[0, 0], (3, model.nq)), v[0])[1])
+
+
+def test_free_body_state_agrees_with_mujocos_kinematics():
+    """A free body and a ball joint: MuJoCo's ``mj_kinematics`` at ``to_mujoco(q, v)`` puts the bodies where our
+    forward kinematics does, and its body velocities (``mj_objectVelocity`` of the body frame, world axes)
+    are ours, the free joint's linear velocity turned from the body's axes to the world's."""
+    model = load_mjcf(FREE_BODY)
+    reference = mujoco.MjModel.from_xml_string(FREE_BODY)
+    data = mujoco.MjData(reference)
+    rng = np.random.default_rng(7)
+    for _ in range(5):
+        q, v = model.random_configuration(rng), rng.standard_normal(model.nv)
+        data.qpos[:], data.qvel[:] = mb.to_mujoco(model, q, v)
+        mujoco.mj_forward(reference, data)
+        placements = mb.forward_kinematics(model, q)
+        for b, name in enumerate(model.body_names):
+            k = reference.body(name).id
+            np.testing.assert_allclose(placements[b, :3, 3], data.xpos[k], rtol=0, atol=1e-14)
+            np.testing.assert_allclose(placements[b, :3, :3], data.xmat[k].reshape(3, 3), rtol=0, atol=1e-14)
+            velocity = np.zeros(6)
+            mujoco.mj_objectVelocity(reference, data, mujoco.mjtObj.mjOBJ_XBODY, k, velocity, 0)
+            ours = mb.frame_velocity(model, q, v, name)
+            np.testing.assert_allclose(ours, np.concatenate([velocity[3:], velocity[:3]]), rtol=0, atol=1e-13)
+        np.testing.assert_allclose(data.qvel[:3], placements[0, :3, :3] @ v[:3], rtol=0, atol=1e-15)
+
+
+def test_conversions_refuse_what_mujoco_lacks():
+    """A planar joint has no MuJoCo counterpart; a zero quaternion in ``qpos`` has no rotation."""
+    builder = mb.ModelBuilder("planar")
+    builder.add_body("puck", mb.joints.Planar(), inertia=mb.inertia.sphere(1.0, 0.1))
+    planar = builder.build()
+    with pytest.raises(ValueError, match="joint 'puck_joint' is planar: MuJoCo has hinge, slide, ball and free"):
+        mb.to_mujoco(planar, planar.neutral(), np.zeros(3))
+    model = load_mjcf(FREE_BODY)
+    with pytest.raises(ValueError, match=r"qpos\[3:7\] holds a zero quaternion"):
+        mb.from_mujoco(model, np.zeros(model.nq), np.zeros(model.nv))
+    qpos, _ = mb.to_mujoco(model, model.neutral(), np.zeros(model.nv))
+    q, _ = mb.from_mujoco(model, 2.0 * qpos, np.zeros(model.nv))
+    np.testing.assert_allclose(q[3:7], [0.0, 0.0, 0.0, 1.0], rtol=0, atol=0)
+
+
+# ============================================================================= the parser's messages
+
+
+def test_unsupported_elements_and_attributes_warn_once_each_with_their_line(tmp_path):
+    """One warning per kind of thing left out, naming the file, the line of its first occurrence and how many
+    there are; attributes that change nothing in the equations of motion (colours, contact) stay silent."""
+    path = write_model(tmp_path, """\
+        <mujoco>
+          <worldbody>
+            <body name="a">
+              <joint axis="0 1 0" stiffness="3"/>
+              <geom size="0.1" sparkle="1" rgba="1 0 0 1" friction="1 0.1 0.1"/>
+              <geom size="0.1" sparkle="2" pos="0 0 -0.1"/>
+              <geom size="0.1" sparkle="3" pos="0 0 -0.2"/>
+              <composite type="particle" count="2 2 2" spacing="0.1"/>
+            </body>
+          </worldbody>
+          <tendon/>
+        </mujoco>""")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        load_mjcf(path)
+    messages = sorted(str(w.message) for w in caught)
+    assert messages == sorted([
+        f"{path}:5: <geom>: attribute 'sparkle' of <geom> is not supported; it is ignored (3 elements)",
+        f"{path}:4: <joint>: joint springs (stiffness, springdamper) are not modelled",
+        f"{path}:8: <composite>: composite bodies are not supported",
+        f"{path}:11: <tendon>: tendons are not modelled",
+    ])
+
+
+def test_malformed_xml_names_the_file_and_line(tmp_path):
+    path = write_model(tmp_path, """\
+        <mujoco>
+          <worldbody>
+            <body name="a">
+              <geom size="0.1">
+            </body>
+          </worldbody>
+        </mujoco>""")
+    with pytest.raises(MJCFError, match=rf"^{path}:5: XML syntax error: mismatched tag \(column \d+\)$"):
+        load_mjcf(path)
+    with pytest.raises(MJCFError, match=r"^<MJCF string>:1: XML syntax error"):
+        load_mjcf("<mujoco><worldbody></mujoco>")
+
+
+def test_include_cycle_is_refused(tmp_path):
+    write_model(tmp_path, "<mujoco><include file='b.xml'/></mujoco>", "a.xml")
+    write_model(tmp_path, "<mujoco><include file='a.xml'/></mujoco>", "b.xml")
+    a, b = str(tmp_path / "a.xml"), str(tmp_path / "b.xml")
+    with pytest.raises(MJCFError, match=rf"{b}:1: <include>: include cycle: {a} -> {b} -> {a}"):
+        load_mjcf(a)
+
+
+@pytest.mark.parametrize("body, message", [
+    ('<body><joint type="screw"/></body>', r"<joint>: unknown joint type 'screw'"),
+    ('<body><joint axis="0 0 0"/><geom size="1"/></body>', r"<joint>: attribute axis='0 0 0': the axis is zero"),
+    ('<body><geom size="1" class="nope"/></body>', r"<geom>: unknown default class 'nope'"),
+    ('<body><geom type="mesh" mesh="nope"/></body>', r"<geom>: unknown mesh 'nope'"),
+    ('<body euler="0 0 1" quat="1 0 0 0"/>', r"<body>: several orientations \(quat, euler\): give one"),
+    ('<body quat="0 0 0 0"/>', r"<body>: the quaternion is zero"),
+    ('<body><inertial pos="0 0 0" mass="-1" diaginertia="1 1 1"/></body>', r"<inertial>: negative mass -1"),
+    ('<body><inertial pos="0 0 0" mass="1" diaginertia="1 1 3"/></body>', r"<inertial>: the principal moments break"),
+    ('<body><geom size="abc"/></body>', r"<geom>: attribute size='abc': 'abc' is not a decimal number"),
+    ('<body><body><freejoint/><geom size="1"/></body></body>', r"<freejoint>: a free joint belongs to a body whose"),
+    ('<body><geom type="capsule" size="0.1"/></body>', r"<geom>: a capsule needs 2 positive size\(s\)"),
+])
+def test_invalid_models_name_the_element_and_line(body, message):
+    with pytest.raises(MJCFError, match=r"^<MJCF string>:1: " + message):
+        load_mjcf(f"<mujoco><worldbody>{body}</worldbody></mujoco>")
+
+
+def test_refusals_of_whole_files(tmp_path):
+    with pytest.raises(MJCFError, match=r"<MJCF string>:1: <robot name='r'>: the root element must be <mujoco>, got <robot>"):
+        load_mjcf("<robot name='r'/>")
+    with pytest.raises(MJCFError, match=r"<compiler>: global coordinates are not supported"):
+        load_mjcf("<mujoco><compiler coordinate='global'/></mujoco>")
+    with pytest.raises(MJCFError, match=r"<connect name='c'>: attribute body1='nope': no such body"):
+        load_mjcf("<mujoco><worldbody/><equality><connect name='c' body1='nope' anchor='0 0 0'/></equality></mujoco>")
+    with pytest.raises(FileNotFoundError, match="MJCF file not found"):
+        load_mjcf(str(tmp_path / "missing.xml"))
+
+
+# ============================================================================= the command line and the viewer
+
+
+def test_command_line_accepts_mjcf(features, capsys):
+    """``multibody info``, ``check`` (against MuJoCo) on an MJCF file; ``--floating-base`` is for URDF."""
+    from multibody.cli import main
+
+    assert main(["info", features]) == 0
+    out = capsys.readouterr().out
+    assert "model 'features'" in out and "nq = 21, nv = 19, 12 moving joints" in out
+    assert "shoulder_x [revolute axis" in out
+    assert main(["check", features, "--samples", "3"]) == 0
+    out = capsys.readouterr().out
+    assert "all quantities agree with MuJoCo" in out and "site placements" in out
+    assert main(["info", features, "--floating-base"]) == 2
+    assert "--floating-base is for URDF files" in capsys.readouterr().err
+
+
+def test_command_line_lists_equalities(capsys):
+    from multibody.cli import main
+
+    path = os.path.join(os.getcwd(), "equalities.xml")
+    with open(path, "w") as stream:
+        stream.write(textwrap.dedent(EQUALITIES))
+    assert main(["info", path]) == 0
+    out = capsys.readouterr().out
+    assert "  four-bar: point loop closure of coupler and rocker" in out
+    assert "  box to world: weld loop closure of box and the world" in out
+    assert "  gear: slide = 0.06 + 0.05 x + -0.02 x^2 + 0.003 x^3 + 0.001 x^4 with x = arm - 0.261799" in out
+    assert "  lock: hx held at 0" in out
+    assert f"warning: {path}:45: <connect>: inactive equalities (active='false') are left out" in out
+
+
+def test_viewer_shapes_of_every_geom(features):
+    """The viewer's meshes of the geoms: each primitive's extent is MuJoCo's size (capsules with their caps,
+    ellipsoids by their semi-axes), each mesh the file's, scaled."""
+    from multibody.geometry import load_meshes
+
+    model = quietly(load_mjcf, features)
+    shapes = load_meshes(model, "visual")
+    assert len(shapes) == len(model.geometries) and all(mesh is not None for _, mesh in shapes)
+    for geometry, mesh in shapes:
+        local = mesh.copy()
+        local.apply_transform(np.linalg.inv(geometry.placement))
+        extent = local.bounds[1] - local.bounds[0]
+        if geometry.shape == "capsule":
+            radius, length = geometry.size
+            np.testing.assert_allclose(extent, [2 * radius, 2 * radius, length + 2 * radius], rtol=1e-3)
+        elif geometry.shape == "ellipsoid":
+            np.testing.assert_allclose(extent, 2 * np.asarray(geometry.size), rtol=1e-3)
+        elif geometry.shape == "mesh" and geometry.filename.endswith("block.stl"):
+            np.testing.assert_allclose(extent, [0.1, 0.12, 0.02], rtol=1e-6)
