@@ -22,15 +22,16 @@ loader reads, after the MuJoCo XML reference (mujoco.readthedocs.io, "XML Refere
   body's geoms in ``inertiagrouprange``: spheres, capsules (a cylinder and two hemispheres), cylinders,
   boxes, ellipsoids and meshes (read with trimesh; MuJoCo's ``legacy``, ``exact``, ``convex`` and
   ``shell`` mesh inertia), from ``mass`` or ``density`` (default 1000 kg/m³), ``fromto`` included;
-  then ``balanceinertia``, ``boundmass``/``boundinertia`` and ``settotalmass``.
+  then, in MuJoCo's order, ``boundmass``/``boundinertia``, ``balanceinertia`` and ``settotalmass``.
 * Joints ``hinge``, ``slide``, ``ball`` and ``free`` (also ``<freejoint>``). The joints of one body
   form a chain in the file's order, each about its ``pos``; a hinge's or slide's ``q`` is MuJoCo's
   ``qpos``: at ``q = ref`` the body is where the file puts it (MuJoCo's ``qpos0``), so the model's
   zero configuration turns each joint by ``−ref``. ``range`` with ``limited`` (or ``autolimits``)
   gives ``model.lower``/``model.upper``; ``damping``, ``frictionloss`` and ``armature`` give
   ``model.damping``, ``model.friction`` and ``model.armature`` (per velocity coordinate).
-* Sites are named frames (bodies without mass fixed to theirs), usable by name in
-  :func:`multibody.frame_placement`, :func:`multibody.jacobian` and the constraints.
+* Named sites are frames (bodies without mass fixed to theirs, or to the world), usable by name in
+  :func:`multibody.frame_placement`, :func:`multibody.jacobian` and the constraints; a site named as a
+  body is not (a warning says so).
 * Geoms are the viewer's shapes (``model.geometries``): those of groups 0–2, which MuJoCo's viewer
   shows, as ``"visual"``, the others as ``"collision"``; the world's geoms (a floor) are not kept.
 * ``<option gravity>`` (and ``<flag gravity="disable"/>``).
@@ -1159,6 +1160,7 @@ def load_mjcf(source, *, package_dirs=None):
 
 
 def _read_compiler(node, reader, compiler, report):
+    """A ``<compiler>`` element's settings into ``compiler`` (a later element overrides an earlier one)."""
     attrs = node.attrib
     report.attributes(node, attrs)
     if reader.flag(node, attrs, "coordinate", "local", ("local", "global")) == "global":
