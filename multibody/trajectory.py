@@ -194,6 +194,11 @@ class Trajectory:
         arrays, or what differs from ``model``)."""
         path = os.fspath(path)
         not_ours = f"{path!r} is not a trajectory saved by Trajectory.save"
+        with open(path, "rb") as file:  # (FileNotFoundError, IsADirectoryError as they are)
+            start = file.read(len(_NPY_SIGNATURE))
+        if not start.startswith((_ZIP_SIGNATURE, _EMPTY_ZIP_SIGNATURE, _NPY_SIGNATURE)):
+            # (NumPy would read any other file as a pickle, and answer by suggesting to load it unsafely)
+            raise ValueError(f"{not_ours}: it is not a .npz archive ({'empty' if not start else f'it starts with {start!r}'})")
         try:
             archive = np.load(path, allow_pickle=False)
         except (ValueError, EOFError, OSError, zipfile.BadZipFile) as error:
@@ -229,6 +234,9 @@ class Trajectory:
             _check_model(trajectory, model, repr(path))
         return trajectory
 
+
+# The first bytes of a .npz file (a zip archive; an empty one) and of a single .npy array.
+_ZIP_SIGNATURE, _EMPTY_ZIP_SIGNATURE, _NPY_SIGNATURE = b"PK\x03\x04", b"PK\x05\x06", b"\x93NUMPY"
 
 # The entry that marks a file written by Trajectory.save, holding (format name, version).
 _FILE_FORMAT_KEY = "__multibody_format__"

@@ -68,8 +68,14 @@ def test_loading_other_files_fails_clearly(tmp_path):
         mb.Trajectory.load(tmp_path / "absent.npz")
     text = tmp_path / "notes.npz"
     text.write_text("not an archive")
-    with pytest.raises(ValueError, match="is not a trajectory saved by Trajectory.save"):
+    # (NumPy reads such a file as a pickle and suggests loading it unsafely: the message says what it is)
+    with pytest.raises(ValueError, match=r"is not a trajectory saved by Trajectory.save: it is not a \.npz archive "
+                                         r"\(it starts with b'not an'\)$"):
         mb.Trajectory.load(text)
+    empty = tmp_path / "empty.npz"
+    empty.write_bytes(b"")
+    with pytest.raises(ValueError, match=r"it is not a \.npz archive \(empty\)$"):
+        mb.Trajectory.load(empty)
     one_array = tmp_path / "array.npy"
     np.save(one_array, np.zeros(3))
     with pytest.raises(ValueError, match="holds one array, not a .npz archive"):
