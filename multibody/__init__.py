@@ -54,6 +54,7 @@ from .robotics import (
 from .rolling import KnifeEdge, RollingDisc, RollingSphere
 from .shooting import StepDerivatives, rk4_step, rk4_step_derivatives
 from .linearization import Linearization, linearize
+from .integrators import PD
 from .simulation import JointLimitWarning, SimulationError, simulate
 from .trajectory import Trajectory
 from . import variational
@@ -106,6 +107,7 @@ __all__ = [
     "Trajectory",
     "mimic_constraints",
     "simulate",
+    "PD",
     "StepDerivatives",
     "rk4_step",
     "rk4_step_derivatives",

@@ -39,7 +39,7 @@ from numba.core.dispatcher import Dispatcher
 from numba.core.types.function_type import CompileResultWAP
 
 from .kernels import (aba, centroidal, configuration, constraints, coriolis, crba, derivatives, energy, ik, integration,
-                      kinematics, kkt, lagrangian, rnea, variational)
+                      kinematics, kkt, lagrangian, rnea, stepping, variational)
 
 #: Every kernel the driver runs (``multibody compile --all`` compiles them).
 ALL_KERNELS = (
@@ -53,7 +53,8 @@ ALL_KERNELS = (
     derivatives.inverse_dynamics_derivatives, derivatives.forward_dynamics_derivatives, centroidal.center_of_mass,
     centroidal.centroidal_momentum, centroidal.centroidal_map, centroidal.centroidal_map_time_variation,
     ik.inverse_kinematics, lagrangian.lagrangian_terms, variational.midpoint_iterate, kkt.project,
-    configuration.exponential_terms, configuration.coadjoint)
+    configuration.exponential_terms, configuration.coadjoint, stepping.pd_kernel, stepping.aligned_velocity,
+    stepping.chart_state)
 _WORKSPACE = {kernel: module.workspace_size for module in (rnea, crba, aba, coriolis, energy, kinematics, configuration,
                                                            derivatives, centroidal, lagrangian)
               for kernel in ALL_KERNELS if getattr(kernel, "py_func", kernel).__module__ == module.__name__}
@@ -242,11 +243,20 @@ def _loop_kernel(kernel):
     body and the loop). Under ``NUMBA_DISABLE_JIT=1``: the Python function."""
     function = _LOOP_KERNELS.get(kernel)
     if function is None:
-        if not isinstance(kernel, Dispatcher):
-            return kernel
         _direct(kernel)
-        function = _LOOP_KERNELS[kernel] = CompileResultWAP(kernel.overloads[_SINGLE_CALL_TYPES])
+        function = _LOOP_KERNELS[kernel] = first_class(kernel, _SINGLE_CALL_TYPES)
     return function
+
+
+def first_class(function, types):
+    """``function`` (a Numba dispatcher) compiled for the argument ``types``, as a first-class function: a value
+    that compiled code whose argument is ``numba.types.FunctionType`` of that signature calls through a pointer,
+    so that one compiled loop serves every such function (:func:`_loop_kernel`; a compiled controller of
+    :mod:`multibody.integrators`). Under ``NUMBA_DISABLE_JIT=1``: the Python function."""
+    if not isinstance(function, Dispatcher):
+        return function
+    function.compile(types)
+    return CompileResultWAP(function.overloads[types])
 
 
 #: Fewest states a batch gives each thread (the results do not depend on it).
@@ -330,6 +340,12 @@ _BATCH_TYPES = (numba.types.FunctionType(numba.types.none(*_SINGLE_CALL_TYPES)),
                 numba.types.int64)
 
 
+def entry_point(function, types):
+    """The compiled entry point of ``function`` for the argument ``types`` (:func:`_direct`): a run loop's, called
+    from Python with arguments of those types (read-only arrays where they say writable)."""
+    return _direct(function, types)
+
+
 def _direct(kernel, types=_SINGLE_CALL_TYPES):
     """``kernel``'s compiled entry point for ``types`` (a kernel's: :data:`_SINGLE_CALL_TYPES`), compiled
     (or loaded from Numba's cache) on first use: a call that skips the dispatcher's look at every
@@ -406,21 +422,29 @@ def evaluate(kernel, tree, inputs, out_shape, batch=(), frames=None, workspace=N
     elif n:
         # A small batch runs on fewer threads: waking a sleeping thread costs more than it would compute.
         shares = max(1, min(get_num_threads(), n // STATES_PER_THREAD))
-        with _BATCH_LOCK if _one_at_a_time else _ANY_TIME:
-            # Numba's count is this Python thread's: set from the process's for this batch, then put back
-            # (inside the try, so that an interrupt cannot leave it changed).
-            numba_threads = numba.get_num_threads()
-            try:
-                if shares != numba_threads:
-                    numba.set_num_threads(shares)
-                rows = (_rows(x0, batch, n), _rows(x1, batch, n), _rows(x2, batch, n), _rows(x3, batch, n))
-                _direct(_batch, _BATCH_TYPES)(_loop_kernel(kernel), tree.joints, tree.reals, frames, *rows, out,
-                                              workspace.size, shares)
-            finally:
-                if shares != numba_threads:
-                    numba.set_num_threads(numba_threads)
-            _threading_layer_seen()
+        with parallel_shares(shares):
+            rows = (_rows(x0, batch, n), _rows(x1, batch, n), _rows(x2, batch, n), _rows(x3, batch, n))
+            _direct(_batch, _BATCH_TYPES)(_loop_kernel(kernel), tree.joints, tree.reals, frames, *rows, out,
+                                          workspace.size, shares)
     return result
+
+
+@contextlib.contextmanager
+def parallel_shares(shares):
+    """Within the block, the parallel loops this Python thread runs use ``shares`` of Numba's threads (a batch's
+    loop gives each its own share of the states), one batch at a time where Numba's threading layer needs it."""
+    with _BATCH_LOCK if _one_at_a_time else _ANY_TIME:
+        # Numba's count is this Python thread's: set from the process's for this batch, then put back
+        # (inside the try, so that an interrupt cannot leave it changed).
+        numba_threads = numba.get_num_threads()
+        try:
+            if shares != numba_threads:
+                numba.set_num_threads(shares)
+            yield
+        finally:
+            if shares != numba_threads:
+                numba.set_num_threads(numba_threads)
+        _threading_layer_seen()
 
 
 #: Held by a running batch while batches run one at a time: under Numba's ``workqueue`` threading layer

@@ -13,9 +13,15 @@ to ``t_final``, the output states at the requested times coming from its dense o
 (continuous extension) inside each step, so a high output rate does not restrict the step size;
 on a curved configuration space it restarts in a new chart at the end of every step, with the
 step size it proposed next, measuring the error of ``δ`` against the configuration's size
-(:meth:`multibody.model.Model.chart_magnitude`), as for ``q`` itself. ``"RK4"`` is the classical fixed-step method with step ``dt``, one
-chart per step; it also integrates ``N`` trajectories in lockstep from ``q0 (N, nq)``, ``v0 (N, nv)``,
-each stage's derivatives of all of them in one compiled call (:func:`multibody.driver.evaluate`).
+(:meth:`multibody.model.Model.chart_magnitude`), as for ``q`` itself. The fixed-step methods (``"Euler"``,
+``"semi-implicit Euler"``, ``"RK4"``: :data:`multibody.integrators.TABLEAUS`) take one step of ``dt`` per output
+interval, one chart per step. Where the system's step is compiled (a ``Model``, or built-in constraints) and the
+joint forces are ``None``, an array, :class:`multibody.PD` or a ``numba.njit`` function, every step runs in compiled
+calls (:mod:`multibody.kernels.stepping`); a Python callable is called from there once per stage. A step that the
+compiled run leaves (one that starts near a singular configuration, a stage or a projection its compiled step does
+not solve) is taken by the Python loop, whose numbers it shares. They also integrate ``N`` trajectories from
+``q0 (N, nq)``, ``v0 (N, nv)``: each on its own in compiled calls on all cores, or, with a Python callable, in
+lockstep, each stage's derivatives of all of them in one compiled call (:func:`multibody.driver.evaluate`).
 With ``project=True``, a step's end state is projected onto ``φ = 0`` and ``A v + b = 0`` when that
 moves a coordinate by more than ``projection_tolerance``, and the integrator restarts from it. The move,
 not the residual, decides: near a singular configuration of a closed chain, a row of size ``ε`` leaves
@@ -37,15 +43,19 @@ from dataclasses import fields, replace
 import numpy as np
 from scipy.integrate import BDF, DOP853, LSODA, RK23, RK45, Radau
 
-from .constrained import ConstrainedSystem, ConstraintError, ModelSystem
+from . import driver
+from .constrained import ConstrainedSystem, ConstraintError, ModelSystem, as_system
 from .constraints import CompiledRows
+from .integrators import TABLEAUS, CompiledController, CompiledRun, PDController, as_controller, tableau_step
+from .kernels import aba, kkt, stepping
 from .model import all_finite
 from .spatial import matvec, transpose
 from .trajectory import Trajectory, recorded_names
 
 METHODS = {"RK45": RK45, "DOP853": DOP853, "Radau": Radau, "RK23": RK23, "BDF": BDF, "LSODA": LSODA}
 ADAPTIVE_METHODS = tuple(METHODS)
-FIXED_STEP_METHODS = ("RK4",)
+#: The fixed-step methods (:data:`multibody.integrators.TABLEAUS`): one step of ``dt`` per output interval.
+FIXED_STEP_METHODS = tuple(TABLEAUS)
 #: What ``simulate(..., limits=...)`` does with positions outside ``[model.lower, model.upper]``.
 LIMIT_MODES = ("warn", "error", "ignore")
 
@@ -157,21 +167,27 @@ def simulate(system, q0, v0, t_final, *, dt=None, method="RK45", tau=None, rtol=
             joint). An inconsistent state is projected onto the constraints with a warning giving the distance
             moved; if that fails, ``ConstraintError``.
             ``q0 (N, nq)``, ``v0 (N, nv)`` (or one of them a single state, shared) integrate ``N`` trajectories
-            in lockstep with ``"RK4"``, each stage of all of them in one compiled call on all cores: a
+            with a fixed-step method, in compiled calls on all cores: a
             ``Model``, or a ``ConstrainedSystem`` on one with built-in constraints (compiled rows); other
             systems, and the adaptive methods, raise ``ValueError``. The trajectories equal those simulated
             one at a time; one that fails (a non-finite state, a step without solution) stops and is marked
             in ``Trajectory.status``, and the others go on (one ``RuntimeWarning`` says how many stopped).
         t_final: end time (s).
-        dt: output interval (s), and the step of ``"RK4"``; default ``(t_final − t0) / 500``.
-        method: ``"RK45"``, ``"DOP853"``, ``"Radau"`` (or ``"RK23"``, ``"BDF"``, ``"LSODA"``), ``"RK4"``, or
-            ``"variational"``: the discrete Hamilton's principle with step ``dt``, constraints by discrete
-            multipliers (:func:`multibody.variational.simulate`, one state; Lie-group joints included).
-        tau: joint forces: ``None``, an array ``(nv,)``, or a callable ``tau(t, q, v) -> (nv,)``. For ``N``
-            trajectories also an array ``(N, nv)``, and the callable takes the batch, ``q (N, nq)``, ``v (N, nv)
-            -> (N, nv)`` (a stopped trajectory's row holds its last state). An array must be finite
-            (``ValueError``); a callable's non-finite result stops the run (a batch: the trajectories of its
-            non-finite rows) with :class:`SimulationError` naming the time it was called at and the joints.
+        dt: output interval (s), and the step of the fixed-step methods; default ``(t_final − t0) / 500``.
+        method: ``"RK45"``, ``"DOP853"``, ``"Radau"`` (or ``"RK23"``, ``"BDF"``, ``"LSODA"``); the fixed-step
+            ``"Euler"`` (explicit, order 1), ``"semi-implicit Euler"`` (velocities first, then positions with the new
+            velocities: symplectic, order 1) or ``"RK4"`` (classical, order 4); or ``"variational"``: the discrete
+            Hamilton's principle with step ``dt``, constraints by discrete multipliers
+            (:func:`multibody.variational.simulate`, one state; Lie-group joints included).
+        tau: joint forces (N·m or N per coordinate of ``v``): ``None``; an array ``(nv,)``; :class:`multibody.PD`, a
+            joint-space PD law as data, run inside the compiled step; a ``numba.njit`` function ``f(t, q, v, out)``
+            that writes them into ``out (nv,)`` (zeros on entry), also run inside it
+            (:class:`multibody.integrators.CompiledController`); or a callable ``tau(t, q, v) -> (nv,)``, called once
+            per stage. For ``N`` trajectories also an array ``(N, nv)``, a PD with ``(N, …)`` gains or references,
+            and the callable takes the batch, ``q (N, nq)``, ``v (N, nv) -> (N, nv)`` (a stopped trajectory's row
+            holds its last state). An array must be finite (``ValueError``); a controller's non-finite result stops
+            the run (a batch: the trajectories of its non-finite rows) with :class:`SimulationError` naming the time
+            it was called at and the joints.
         rtol, atol: tolerances of the adaptive methods.
         project: keep the state on the constraints (default ``True``): after an integrator step whose
             end state's projection onto them (:meth:`ConstrainedSystem.project`) moves it by more than
@@ -218,6 +234,7 @@ def simulate(system, q0, v0, t_final, *, dt=None, method="RK45", tau=None, rtol=
     """
     if method == "variational":  # the discrete Hamilton's principle, in its own module
         from . import variational
+        tau = as_controller(tau, system.system if isinstance(system, ConstrainedSystem) else as_system(system))
         options = {name: value for name, value in (("rule", rule), ("order", order)) if value is not None}
         return variational.simulate(system, q0, v0, t_final, dt=dt, tau=tau, t0=t0, joint_damping=joint_damping,
                                     limits=limits, progress=progress, **options)
@@ -239,17 +256,28 @@ def simulate(system, q0, v0, t_final, *, dt=None, method="RK45", tau=None, rtol=
         raise ValueError(f"q0 and v0 must have shapes ({nq},) and ({nv},), got {q.shape} and {v.shape}")
     _require_finite(mechanical, "q0", q)
     _require_finite(mechanical, "v0", v, rate=True)
+    tau = as_controller(tau, mechanical, batch)
+    # the joint forces as the compiled run takes them, before the damping joins them
+    controller = tau if tau is None or callable(tau) else np.asarray(_torque_function(tau, nv, batch, mechanical)(
+        t0, None, None))
+    damping = None
     if joint_damping:
         if model is None:
             raise ValueError(f"joint_damping=True needs a system built on a Model (model.damping); "
                              f"{type(mechanical).__name__} has none: give the damping as tau(t, q, v) instead")
         if np.any(model.damping):
+            damping = np.array(model.damping, dtype=float)
             tau = _with_joint_damping(_torque_function(tau, nv, batch, mechanical), model.damping)
     torque = _torque_function(tau, nv, batch, mechanical)
     charts = _Charts(mechanical)
     if batch is not None:
+        times = _output_times(t0, t_final, dt)
+        # (a Python callable takes a batch at each stage, in lockstep)
+        data = controller is None or isinstance(controller, (np.ndarray, PDController, CompiledController))
+        run = _compiled_run(constrained, charts, TABLEAUS[method], controller, damping, project, projection_tolerance,
+                            times) if data else None
         return _simulate_batch(constrained, charts, np.broadcast_to(q, (batch, nq)), np.broadcast_to(v, (batch, nv)),
-                               _output_times(t0, t_final, dt), torque, callable(tau), project=project,
+                               times, torque, callable(tau), TABLEAUS[method], run, project=project,
                                projection_tolerance=projection_tolerance, limits=limits, progress=progress)
 
     q_projected, v_projected, conditioning = constrained._projection(q, v, t0)
@@ -264,7 +292,7 @@ def simulate(system, q0, v0, t_final, *, dt=None, method="RK45", tau=None, rtol=
 
     # The integrator's state is y = [δ, w] in the chart around a configuration q_c: q = chart(q_c, δ),
     # w the aligned velocity (see Model.chart). A new chart starts from each step's end state.
-    unchart, to_chart, from_chart = charts.unchart, charts.to_chart, charts.from_chart
+    to_chart, from_chart = charts.to_chart, charts.from_chart
 
     # With a compiled step, each evaluation is one compiled call (after the joint forces, when they
     # depend on the state); the NumPy composition is the fallback that raises the right error.
@@ -273,14 +301,14 @@ def simulate(system, q0, v0, t_final, *, dt=None, method="RK45", tau=None, rtol=
 
     def on_constraints(t, y, q_chart):
         """``ẏ`` at the projection of the chart state ``y`` onto the constraints, in the same chart."""
-        q_t, _, v_t = unchart(q_chart, y)
+        q_t, v_t = charts.state(q_chart, y)
         q_t, v_t = constrained.project(q_t, v_t, t)
         return derivative(t, charts.coordinates(q_chart, q_t, v_t), q_chart)
 
     def derivative(t, y, q_chart):
         if compiled:
             if callable(tau):
-                q_t, _, v_t = unchart(q_chart, y)
+                q_t, v_t = charts.state(q_chart, y)
                 tau_t = torque(t, q_t, v_t)
                 tau_t = None if tau_t is None else constrained._tau(tau_t)
             else:
@@ -318,16 +346,39 @@ def simulate(system, q0, v0, t_final, *, dt=None, method="RK45", tau=None, rtol=
         constrained.solve(q, v, torque(t0, q, v), t0)  # the initial state has a KKT solution
         done = 1
         near = _near_singular(conditioning, project, constrained, charts)
-        if method == "RK4":
+        if method in FIXED_STEP_METHODS:
+            tableau = TABLEAUS[method]
             instants = times.tolist()  # Python floats: the stages' time arithmetic is scalar
-            for k in range(1, len(times)):
+            run = _compiled_run(constrained, charts, tableau, controller, damping, project, projection_tolerance,
+                                times) if compiled else None
+            joint_forces = _joint_forces(constrained)
+            chunk = _FIRST_CHUNK
+            k = 1
+            while k < len(times):
+                if run is not None and not near:
+                    # the steps up to the next one Python takes, in compiled calls of about CHUNK_SECONDS each
+                    started = time.perf_counter()
+                    try:
+                        k, status = run.advance(states, k, min(len(times), k + chunk), controller, joint_forces)
+                    finally:
+                        # (also where a Python controller raised: the steps before its stage's are done)
+                        done = int(run.io[stepping.IO_STEP])
+                    chunk = _next_chunk(chunk, time.perf_counter() - started)
+                    bar.update(instants[k - 1])
+                    if status in (stepping.COMPLETED, stepping.NEAR_SINGULAR):
+                        near = status == stepping.NEAR_SINGULAR
+                        continue
+                    failure = _RUN_FAILURES.get(status)
+                    if failure is not None:
+                        raise failure(mechanical, run.io, run.plan)
+                    # (a stage or a projection the compiled step did not solve: the step below takes it)
                 q_chart = states[k - 1, :nq]
                 stage = on_constraints if near else derivative
-                y = _rk4_step(lambda t, y: stage(t, y, q_chart), instants[k - 1], to_chart(states[k - 1]),
-                              instants[k] - instants[k - 1])
+                y = tableau_step(lambda t, y: stage(t, y, q_chart), lambda y: charts.chart_rate(y[:nv], y[nv:]),
+                                 instants[k - 1], to_chart(states[k - 1]), instants[k] - instants[k - 1], tableau)
                 states[k], _, near = settle(instants[k], from_chart(q_chart, y))
-                done = k + 1
-                bar.update(instants[k])
+                k = done = k + 1
+                bar.update(instants[k - 1])
         else:
             solver_class = METHODS[method]
 
@@ -396,7 +447,7 @@ def simulate(system, q0, v0, t_final, *, dt=None, method="RK45", tau=None, rtol=
         message = f"simulation stopped at t = {t_fail:.6g} s: {_grown(mechanical, states[:done], nq, v) or exc}"
         try:
             partial = _trajectory(constrained, times[:done], states[:done], torque, message, tolerance,
-                                  settled=method == "RK4")
+                                  settled=method in FIXED_STEP_METHODS)
         except _FAILURES:
             # states so far out that their multipliers cannot be computed (or joint forces that are not finite
             # at them): the states alone
@@ -408,10 +459,70 @@ def simulate(system, q0, v0, t_final, *, dt=None, method="RK45", tau=None, rtol=
         raise SimulationError(message, partial) from exc
     finally:
         bar.close()
-    trajectory = _trajectory(constrained, times, states, torque, "completed", tolerance, settled=method == "RK4")
+    trajectory = _trajectory(constrained, times, states, torque, "completed", tolerance,
+                             settled=method in FIXED_STEP_METHODS)
     if model is not None and limits != "ignore":
         _report_limits(mechanical, trajectory, limits)
     return trajectory
+
+
+def _compiled_run(constrained, charts, tableau, controller, damping, project, projection_tolerance, times):
+    """The :class:`~multibody.integrators.CompiledRun` of ``constrained`` (its step compiled) with ``tableau``, the
+    ``controller`` (``None``, constant joint forces, a bound PD, a compiled or a Python controller) and ``damping``
+    (``(nv,)`` or ``None``), at the output ``times``: the steps :func:`simulate`'s Python loop would take, with the
+    projection at each step's end as ``settle`` makes it (:meth:`ConstrainedSystem._projection`'s tolerance and
+    iterations) and the rule of :func:`_near_singular`."""
+    model = constrained.system.model
+    nq, nv, m = constrained.nq, constrained.nv, constrained.num_rows
+    if m:
+        program, frames, step_workspace = constrained._compiled_step
+        projection_columns, projection_workspace, _ = constrained._projection_call
+        settings = np.concatenate(([_PROJECTION_TOLERANCE, _PROJECTION_ITERATIONS],
+                                   constrained._position_mask.astype(float)))
+        projection = (settings, projection_columns[1], projection_workspace)
+        step_columns = kkt.output_columns(nv, m)
+    else:
+        program, frames, projection = np.zeros(0), model.tree.bodies, None
+        step_columns, step_workspace = nv, aba.workspace_size(model.njoints, nv)
+    near = NEAR_SINGULAR if bool(_near_singular(0.0, project, constrained, charts)) else -np.inf
+    return CompiledRun(model.tree, frames, program, step_columns, step_workspace, projection,
+                       not constrained._by_aba_alone, tableau, controller, damping,
+                       projection_tolerance if project and m else None, near, times, nq, nv)
+
+
+#: The tolerance and iterations of the projection at a step's end (those :meth:`ConstrainedSystem._projection`
+#: takes by default, which ``settle`` calls).
+_PROJECTION_TOLERANCE, _PROJECTION_ITERATIONS = 1e-12, 50
+
+#: A compiled run's first call takes this many steps; the next ones about :data:`CHUNK_SECONDS` of wall time
+#: each, so that the progress bar moves and an interrupt is answered.
+_FIRST_CHUNK, CHUNK_SECONDS = 16, 0.2
+
+
+def _next_chunk(chunk, seconds):
+    """The steps of a compiled run's next call, after ``chunk`` steps took ``seconds``."""
+    return max(_FIRST_CHUNK, min(int(chunk * CHUNK_SECONDS / max(seconds, 1e-9)), 64 * chunk, 1 << 30))
+
+
+def _joint_forces(constrained):
+    """What a Python controller's value (joint forces) is to a compiled run: a float64 array ``(nv,)`` (zeros for
+    ``None``), or the ``ValueError`` of :meth:`ConstrainedSystem._tau` for another shape."""
+    zeros = np.zeros(constrained.nv)
+    return lambda value: zeros if value is None else constrained._tau(value)
+
+
+#: The failures a compiled run reports (:mod:`multibody.kernels.stepping`), each as the error the Python loop raises
+#: for it, from the system, the run's ``io`` and its plan; the statuses not listed (a stage or a projection the
+#: compiled step did not solve) hand the step to the Python loop.
+_RUN_FAILURES = {
+    stepping.NON_FINITE_STATE: lambda system, io, plan: SimulationError(
+        f"the state became non-finite at t = {io[stepping.IO_TIME]:.6g} s", None),
+    stepping.NON_FINITE_TORQUE: lambda system, io, plan: SimulationError(_non_finite_torque(
+        system, io[stepping.IO_TIME], io[stepping.IO_HEADER + system.nq + system.nv :].copy()), None),
+    stepping.NOT_CONVERGED: lambda system, io, plan: ConstraintError(
+        f"projection onto the position constraints did not converge: |φ| = {io[stepping.IO_VALUE]:.3g} after "
+        f"{int(plan[int(plan[stepping.PLAN_SETTINGS]) + 1])} iterations"),
+}
 
 
 def _output_times(t0, t_final, dt):
@@ -574,6 +685,9 @@ class _Charts:
         self.invertible = self.chart_coordinates is not None
         # the rotation vectors of a Model's charts (free-flyer and spherical joints): (k, 3) indices in v
         model = getattr(system, "model", None) if self.curved else None
+        # a Model's charts take their states by the kernels a compiled run takes them by, so that both give the
+        # same numbers (multibody.kernels.stepping.chart_state and aligned_velocity)
+        self.tree = None if model is None else model.tree
         starts = [] if model is None else [start + (3 if joint.kind == "free-flyer" else 0)
                                            for joint, start in zip(model.joints, model.idx_v)
                                            if joint.kind in ("free-flyer", "spherical")]
@@ -589,11 +703,22 @@ class _Charts:
 
     def unchart(self, q_chart, y):
         """``(q, T(q), v)`` of chart states ``y = [δ, w] (..., 2 nv)``: ``q = chart(q_c, δ)``, ``v = Tᵀ w``."""
+        q, v = self.state(q_chart, y)
+        return q, self.velocity_alignment(q), v
+
+    def state(self, q_chart, y):
+        """``(q, v)`` of chart states ``y = [δ, w] (..., 2 nv)``: ``q = chart(q_c, δ)``, ``v = T(q)ᵀ w``."""
         nv = self.nv
+        if self.tree is not None:
+            batch = np.broadcast_shapes(np.shape(q_chart)[:-1], y.shape[:-1])
+            nq = self.nq
+            state = driver.evaluate(stepping.chart_state, self.tree, (q_chart, y), (1, nq + nv), batch,
+                                    workspace=nq + 2 * nv + nv * nv).reshape(batch + (nq + nv,))
+            return state[..., :nq], state[..., nq:]
         q = self.chart(q_chart, y[..., :nv])
         T = self.velocity_alignment(q)
         w = y[..., nv:]
-        return q, T, (w if T is None else matvec(transpose(T), w))
+        return q, (w if T is None else matvec(transpose(T), w))
 
     def coordinates(self, q_chart, q, v):
         """``y = [δ, w] (..., 2 nv)`` of the states ``(q, v)`` in the charts around ``q_chart``: the inverse of
@@ -609,8 +734,13 @@ class _Charts:
             y = state.copy()
             y[..., :nq] = 0.0
             return y
-        T = self.velocity_alignment(state[..., :nq])
-        w = state[..., nq:] if T is None else matvec(T, state[..., nq:])
+        if self.tree is not None:
+            nv = self.nv
+            w = driver.evaluate(stepping.aligned_velocity, self.tree, (state[..., :nq], state[..., nq:]), (1, nv),
+                                state.shape[:-1], workspace=nv * nv).reshape(state.shape[:-1] + (nv,))
+        else:
+            T = self.velocity_alignment(state[..., :nq])
+            w = state[..., nq:] if T is None else matvec(T, state[..., nq:])
         return np.concatenate([np.zeros_like(w), w], axis=-1)
 
     def from_chart(self, q_chart, y):
@@ -620,8 +750,7 @@ class _Charts:
             state = y.copy()
             state[..., : self.nq] += q_chart
             return state
-        q, _, v = self.unchart(q_chart, y)
-        return np.concatenate([q, v], axis=-1)
+        return np.concatenate(self.state(q_chart, y), axis=-1)
 
 
 def _numpy_chart_derivative(constrained, charts, t, q_chart, y, torque):
@@ -894,11 +1023,15 @@ def _by_state(f, arrays, shape):
     return out, errors
 
 
-def _simulate_batch(constrained, charts, q0, v0, times, torque, state_dependent, *, project, projection_tolerance,
-                    limits, progress):
-    """:func:`simulate` from ``N`` initial states ``q0 (N, nq)``, ``v0 (N, nv)`` at the output ``times (n,)`` (s):
-    the trajectories in lockstep, one classical RK4 step per output interval, each stage's chart derivatives
-    of all of them in one compiled call on all cores (:meth:`ConstrainedSystem._chart_derivatives`).
+def _simulate_batch(constrained, charts, q0, v0, times, torque, state_dependent, tableau, run, *, project,
+                    projection_tolerance, limits, progress):
+    """:func:`simulate` from ``N`` initial states ``q0 (N, nq)``, ``v0 (N, nv)`` at the output ``times (n,)`` (s),
+    one step of ``tableau`` per output interval. With a compiled ``run`` (:class:`~multibody.integrators.CompiledRun`:
+    joint forces that are data or compiled), each trajectory runs on its own in compiled calls on all cores, and a
+    step that the run leaves to Python (rows near a singular configuration, a stage the compiled step did not
+    solve) is taken by the lockstep step below, for the trajectories at that step. Without one, the trajectories
+    run in lockstep, each stage's chart derivatives of all of them in one compiled call on all cores
+    (:meth:`ConstrainedSystem._chart_derivatives`).
 
     A trajectory that fails (a non-finite state or joint forces, a constrained step without solution, a projection
     that does not converge) stops: its status says when and why, its outputs from the next output time on are NaN,
@@ -947,8 +1080,9 @@ def _simulate_batch(constrained, charts, q0, v0, times, torque, state_dependent,
     v_start = last[:, nq:].copy()
     for r, message in errors.items():
         fail(r, 0, message)
-    q_out, v_out = np.full((count, n, nq), np.nan), np.full((count, n, nv), np.nan)
-    q_out[good, 0], v_out[good, 0] = last[good, :nq], last[good, nq:]
+    states = np.full((count, n, nq + nv), np.nan)
+    q_out, v_out = states[..., :nq], states[..., nq:]
+    states[good, 0] = last[good]
 
     constant = None if state_dependent else torque(t0, None, None)
 
@@ -960,14 +1094,14 @@ def _simulate_batch(constrained, charts, q0, v0, times, torque, state_dependent,
         first."""
         close = rows[near[rows]]
         if close.size:
-            q_t, _, v_t = charts.unchart(q_chart[close], y[close])
+            q_t, v_t = charts.state(q_chart[close], y[close])
             on, errors = _by_state(projection(t), (q_t, v_t), (nq + nv + 1,))
             y = y.copy()
             y[close] = charts.coordinates(q_chart[close], on[:, :nq], on[:, nq : nq + nv])
             failed.update({int(close[i]): message for i, message in errors.items()})
         tau = constant
         if state_dependent:
-            q_t, _, v_t = charts.unchart(q_chart, y)
+            q_t, v_t = charts.state(q_chart, y)
             tau = torque(t, q_t, v_t)
             if tau is not None:
                 # a trajectory whose joint forces are not finite stops at the first stage that meets them
@@ -993,36 +1127,45 @@ def _simulate_batch(constrained, charts, q0, v0, times, torque, state_dependent,
         full[rows] = y_dot
         return full
 
+    def python_step(k, rows):
+        """Step ``k`` (from ``times[k − 1]`` to ``times[k]``) of the trajectories ``rows`` from their last states, in
+        lockstep; those that fail stop."""
+        q_chart = np.ascontiguousarray(last[:, :nq])
+        failed = {}
+        y = tableau_step(lambda t, y: derivative(t, y, q_chart, rows, failed),
+                         lambda y: charts.chart_rate(y[..., :nv], y[..., nv:]), times[k - 1], charts.to_chart(last),
+                         times[k] - times[k - 1], tableau)
+        end = charts.from_chart(q_chart[rows], y[rows])
+        reasons = {rows[j]: f"the state became non-finite at t = {times[k]:.6g} s"
+                   for j in np.flatnonzero(~np.isfinite(end).all(axis=-1))}
+        reasons.update(failed)
+        if project and m:
+            # the states that their projection onto the constraints moves by more than the tolerance,
+            # projected (as settle does for one trajectory)
+            at = np.flatnonzero(~np.isin(rows, list(reasons)))
+            settled, errors = _by_state(projection(times[k]), (end[at, :nq], end[at, nq:]), (nq + nv + 1,))
+            near[rows[at]] = _near_singular(settled[:, -1], project, constrained, charts)
+            settled = settled[:, :-1]
+            off = np.abs(settled - end[at]).max(axis=-1, initial=0.0) > projection_tolerance
+            end[at[off]] = settled[off]
+            reasons.update({rows[at[i]]: message for i, message in errors.items()})
+        ok = ~np.isin(rows, list(reasons))
+        last[rows[ok]] = end[ok]
+        states[rows[ok], k] = end[ok]
+        for r, reason in reasons.items():
+            fail(r, k, reason)
+
     bar = _Progress(progress, t0, times[-1])
     try:
-        for k in range(1, n):
-            rows = np.flatnonzero(stop == n)
-            if not rows.size:
-                break
-            q_chart = np.ascontiguousarray(last[:, :nq])
-            failed = {}
-            y = _rk4_step(lambda t, y: derivative(t, y, q_chart, rows, failed), times[k - 1], charts.to_chart(last),
-                          times[k] - times[k - 1])
-            end = charts.from_chart(q_chart[rows], y[rows])
-            reasons = {rows[j]: f"the state became non-finite at t = {times[k]:.6g} s"
-                       for j in np.flatnonzero(~np.isfinite(end).all(axis=-1))}
-            reasons.update(failed)
-            if project and m:
-                # the states that their projection onto the constraints moves by more than the tolerance,
-                # projected (as settle does for one trajectory)
-                at = np.flatnonzero(~np.isin(rows, list(reasons)))
-                settled, errors = _by_state(projection(times[k]), (end[at, :nq], end[at, nq:]), (nq + nv + 1,))
-                near[rows[at]] = _near_singular(settled[:, -1], project, constrained, charts)
-                settled = settled[:, :-1]
-                off = np.abs(settled - end[at]).max(axis=-1, initial=0.0) > projection_tolerance
-                end[at[off]] = settled[off]
-                reasons.update({rows[at[i]]: message for i, message in errors.items()})
-            ok = ~np.isin(rows, list(reasons))
-            last[rows[ok]] = end[ok]
-            q_out[rows[ok], k], v_out[rows[ok], k] = end[ok, :nq], end[ok, nq:]
-            for r, reason in reasons.items():
-                fail(r, k, reason)
-            bar.update(times[k])
+        if run is None:
+            for k in range(1, n):
+                rows = np.flatnonzero(stop == n)
+                if not rows.size:
+                    break
+                python_step(k, rows)
+                bar.update(times[k])
+        else:
+            _run_batch(run, mechanical, states, last, stop, near, fail, python_step, times, bar)
     finally:
         bar.close()
     trajectory = _batch_trajectory(constrained, times, q_out, v_out, stop, last, torque, state_dependent, status,
@@ -1032,6 +1175,53 @@ def _simulate_batch(constrained, charts, q0, v0, times, torque, state_dependent,
         trajectory = _report_batch_limits(mechanical, trajectory, limits)
     _warn_if_stopped(trajectory, stacklevel=4)
     return trajectory
+
+
+def _run_batch(run, system, states, last, stop, near, fail, python_step, times, bar):
+    """The steps of a batch by its compiled ``run`` (:meth:`~multibody.integrators.CompiledRun.advance_batch`), each
+    trajectory on its own from its next step, in calls of about :data:`CHUNK_SECONDS`. A step that a trajectory's run
+    leaves to Python (it starts near a singular configuration, or a stage or a projection the compiled step did not
+    solve) is taken by ``python_step(k, rows)`` for the trajectories at that step, which then go on compiled.
+    ``states (N, n, nq + nv)``, ``last (N, nq + nv)``, ``stop (N,)``, ``near (N,)`` and the failures (``fail(r, k,
+    reason)``) as :func:`_simulate_batch` keeps them; ``system``: the mechanical system (for messages)."""
+    count, n = states.shape[:2]
+    io = np.zeros((count, run.io.size))
+    following = np.ones(count, dtype=np.int64)  # each trajectory's next step
+    handed = np.zeros(count, dtype=bool)  # whose next step the run left to Python
+    chunk = _FIRST_CHUNK
+    while True:
+        going = (stop == n) & (following < n)
+        rows = np.flatnonzero(going & ~near & ~handed)
+        if rows.size:
+            io[rows, stepping.IO_STEP] = following[rows]
+            io[rows, stepping.IO_STOP] = np.minimum(n, following[rows] + chunk)
+            started = time.perf_counter()
+            run.advance_batch(states, io, rows)
+            chunk = _next_chunk(chunk, time.perf_counter() - started)
+            following[rows] = io[rows, stepping.IO_STEP]
+            last[rows] = states[rows, following[rows] - 1]
+            for r in rows:
+                status = int(io[r, stepping.IO_STATUS])
+                if status == stepping.NEAR_SINGULAR:
+                    near[r] = True
+                elif status in _RUN_FAILURES:
+                    states[r, following[r]] = np.nan
+                    fail(r, following[r], str(_RUN_FAILURES[status](system, io[r], run.plan)))
+                elif status != stepping.COMPLETED:
+                    handed[r] = True
+        going = (stop == n) & (following < n)
+        bar.update(times[int(following[stop == n].min(initial=n)) - 1])
+        waiting = np.flatnonzero(going & (near | handed))
+        if not waiting.size:
+            if not going.any():
+                return
+            continue
+        # the earliest step left to Python, for all the trajectories at it
+        k = int(following[waiting].min())
+        at = waiting[following[waiting] == k]
+        python_step(k, at)
+        following[at] = k + 1
+        handed[at] = False
 
 
 def _warn_if_stopped(trajectory, stacklevel):

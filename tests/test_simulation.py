@@ -581,7 +581,8 @@ def test_joint_forces_that_turn_non_finite_stop_every_method_naming_time_and_joi
                       r"N·m\) = nan$", message)
     assert found and float(found.group(1)) > 0.5, message
     partial = info.value.trajectory
-    assert 0 < len(partial) and partial.t[-1] <= 0.5 + 1e-12 and partial.status == message
+    # the last output is the start of the step that failed (an explicit Euler step evaluates the torque there)
+    assert 0 < len(partial) and partial.t[-1] <= float(found.group(1)) and partial.status == message
     assert np.isfinite(partial.q).all() and np.isfinite(partial.v).all()
     reference = mb.simulate(model, q0, v0, 1.0, dt=0.05, method=method)
     assert_close(partial.q, reference.q[: len(partial)], 1e-12, scale=1.0, what="states before the failure")
@@ -640,7 +641,8 @@ def test_non_finite_joint_forces_of_a_system_without_a_model_name_the_coordinate
     with pytest.raises(mb.SimulationError, match=r"the joint forces tau\(t, q, v\) are not finite at t = \S+ s: "
                                                  r"tau\[1\] = nan$") as info:
         mb.simulate(system, np.zeros(2), np.ones(2), 1.0, dt=0.01, method=method, tau=tau)
-    assert info.value.trajectory.t[-1] <= 0.5 and np.isfinite(info.value.trajectory.q).all()
+    failed_at = float(re.search(r"are not finite at t = (\S+) s", str(info.value)).group(1))
+    assert failed_at > 0.5 and info.value.trajectory.t[-1] <= failed_at and np.isfinite(info.value.trajectory.q).all()
 
 
 def test_a_non_finite_initial_state_of_a_system_without_a_model_is_named_by_index():
@@ -703,7 +705,7 @@ def test_simulate_rejects_bad_arguments():
     cs = pendulum_system()
     q0, v0 = pendulum_state(L_PEND, 0.3, 0.0)
     with pytest.raises(ValueError, match="method must be one of"):
-        mb.simulate(cs, q0, v0, 1.0, method="Euler")
+        mb.simulate(cs, q0, v0, 1.0, method="Verlet")
     with pytest.raises(ValueError, match="must be after t0"):
         mb.simulate(cs, q0, v0, 0.0)
     with pytest.raises(ValueError, match="must be after t0"):

@@ -1,0 +1,513 @@
+"""Fixed-step methods and controllers of :func:`multibody.simulate`, and the compiled run that takes every step.
+
+A fixed-step method is a table of coefficients (:class:`Tableau`): an explicit partitioned Runge–Kutta method on
+the chart state ``y = [δ, w]`` (E. Hairer, C. Lubich and G. Wanner, *Geometric Numerical Integration*, 2nd ed.,
+Springer 2006, §II.2.2). :func:`tableau_step` takes one step of it in Python, with the rates as a function;
+:class:`CompiledRun` takes all the steps of a trajectory (or of ``N`` of them, on all cores) in one call of
+:mod:`multibody.kernels.stepping`, with the same arithmetic, where the system's step is compiled and the joint
+forces are data (:class:`PD`), compiled (a ``numba.njit`` function ``f(t, q, v, out)``) or Python (one call
+per stage).
+"""
+
+from __future__ import annotations
+
+import inspect
+from dataclasses import dataclass
+
+import numba
+import numpy as np
+from numba import prange, types
+from numba.core.errors import NumbaError
+
+from . import driver
+from .kernels import joints as kinds
+from .kernels import stepping
+from .model import Model
+from .tree import FRAME_SIZE, REAL_SIZE, CompiledTree
+
+
+# ============================================================================= methods
+
+
+@dataclass(frozen=True)
+class Tableau:
+    """An explicit partitioned Runge–Kutta method of ``s`` stages (Hairer, Lubich & Wanner, *Geometric Numerical
+    Integration*, §II.2.2) on ``y = [δ, w]``: stage ``i`` at ``t₀ + c_i h`` has ``δ_i = δ₀ + h Σ_j
+    a_position[i][j] δ̇_j`` and ``w_i = w₀ + h Σ_j a_velocity[i][j] ẇ_j`` (``j < i``), and the step ends at
+    ``δ⁺ = δ₀ + h Σ_i b_position[i] δ̇_i``, ``w⁺ = w₀ + h Σ_i b_velocity[i] ẇ_i``. ``order``: its order of
+    accuracy."""
+
+    c: tuple
+    a_position: tuple
+    a_velocity: tuple
+    b_position: tuple
+    b_velocity: tuple
+    order: int
+
+    @property
+    def stages(self) -> int:
+        return len(self.c)
+
+    @property
+    def needs_acceleration(self) -> tuple:
+        """Whether each stage's ``ẇ`` enters a later stage or the end; a stage whose does not evaluates only
+        ``δ̇ = chart_rate(δ, w)``, without the dynamics."""
+        s = self.stages
+        return tuple(self.b_velocity[i] != 0.0 or any(self.a_velocity[j][i] != 0.0 for j in range(i + 1, s))
+                     for i in range(s))
+
+    def block(self) -> np.ndarray:
+        """The coefficients as :mod:`multibody.kernels.stepping` reads them: ``c``, ``a_position``,
+        ``a_velocity`` (row-major), ``b_position``, ``b_velocity``, :attr:`needs_acceleration`."""
+        return np.concatenate([np.ravel(x) for x in (self.c, self.a_position, self.a_velocity, self.b_position,
+                                                     self.b_velocity, self.needs_acceleration)]).astype(float)
+
+
+def _runge_kutta(c, a, b, order):
+    """The :class:`Tableau` of a Runge–Kutta method: one table for both halves of the state."""
+    return Tableau(c, a, a, b, b, order)
+
+
+#: The fixed-step methods of :func:`multibody.simulate` by name.
+TABLEAUS = {
+    # explicit Euler: y⁺ = y₀ + h f(t₀, y₀) (Hairer, Nørsett & Wanner, Solving ODEs I, §I.7, eq. (7.3))
+    "Euler": _runge_kutta((0.0,), ((0.0,),), (1.0,), 1),
+    # semi-implicit Euler: w⁺ = w₀ + h ẇ(t₀, δ₀, w₀), then δ⁺ = h chart_rate(0, w⁺) = h w⁺: the symplectic Euler
+    # method of Hairer, Lubich & Wanner, GNI §I.1.2, eq. (1.9), for q̇ = v (symplectic for a separable
+    # Hamiltonian, GNI Theorem VI.3.3); two stages, the second of which evaluates δ̇ only
+    "semi-implicit Euler": Tableau((0.0, 1.0), ((0.0, 0.0), (0.0, 0.0)), ((0.0, 0.0), (1.0, 0.0)), (0.0, 1.0),
+                                   (1.0, 0.0), 1),
+    # the classical Runge–Kutta method (Hairer, Nørsett & Wanner, Solving ODEs I, §II.1, Table 1.2, left)
+    "RK4": _runge_kutta((0.0, 0.5, 0.5, 1.0),
+                        ((0.0, 0.0, 0.0, 0.0), (0.5, 0.0, 0.0, 0.0), (0.0, 0.5, 0.0, 0.0), (0.0, 0.0, 1.0, 0.0)),
+                        (1.0 / 6.0, 1.0 / 3.0, 1.0 / 3.0, 1.0 / 6.0), 4),
+}
+
+
+def tableau_step(rates, position_rates, t, y, h, tableau):
+    """One step of ``tableau`` from the chart state ``y = [δ, w] (..., 2 nv)`` at ``t`` (s) with step ``h`` (s):
+    ``y⁺ (..., 2 nv)``. ``rates(t, y) -> ẏ (..., 2 nv)``, ``position_rates(y) -> δ̇ (..., nv)`` (the stages whose
+    ``ẇ`` no coefficient uses). The sums are those of :func:`multibody.kernels.stepping.weighted_sum`, term by
+    term in the order of the stages, so that both give the same numbers."""
+    nv = y.shape[-1] // 2
+    K = []
+    for i, needed in enumerate(tableau.needs_acceleration):
+        y_i = y if i == 0 else _weighted(y, h, tableau.a_position[i][:i], tableau.a_velocity[i][:i], K, nv)
+        if needed:
+            K.append(rates(t + tableau.c[i] * h, y_i))
+        else:
+            K_i = np.zeros_like(y)
+            K_i[..., :nv] = position_rates(y_i)
+            K.append(K_i)
+    return _weighted(y, h, tableau.b_position, tableau.b_velocity, K, nv)
+
+
+def _weighted(y, h, position_weights, velocity_weights, K, nv):
+    """``[δ₀ + h Σ_j position_weights_j δ̇_j, w₀ + h Σ_j velocity_weights_j ẇ_j]`` of the rates ``K`` (a list of
+    ``(..., 2 nv)``), the terms of non-zero weight summed in order."""
+    out = y.copy()
+    for half, weights in ((np.s_[..., :nv], position_weights), (np.s_[..., nv:], velocity_weights)):
+        terms = [(weight, K_j[half]) for weight, K_j in zip(weights, K) if weight != 0.0]
+        if terms:
+            total = terms[0][0] * terms[0][1]
+            for weight, K_j in terms[1:]:
+                total = total + weight * K_j
+            out[half] = y[half] + h * total
+    return out
+
+
+# ============================================================================= controllers
+
+
+def _real(x, name):
+    """``x`` as a float array, or ``TypeError`` naming ``name`` (strings, objects, complex numbers)."""
+    array = np.asarray(x)
+    if array.dtype.kind not in "biuf":
+        raise TypeError(f"mb.PD: {name} must be real numbers, got {array.dtype} ({type(x).__name__})")
+    return array.astype(float)
+
+
+def _require_finite(x, name):
+    """``ValueError`` naming ``name`` and its first non-finite entries unless ``x`` is finite."""
+    if np.isfinite(x).all():
+        return
+    bad = np.argwhere(~np.isfinite(np.atleast_1d(x)))
+    where = ", ".join(f"{name}{index.tolist() if x.ndim else ''} = {np.atleast_1d(x)[tuple(index)]}"
+                      for index in bad[:5])
+    raise ValueError(f"mb.PD: {name} must be finite: {where}" + (f" and {len(bad) - 5} more" if len(bad) > 5 else ""))
+
+
+class PD:
+    """A joint-space PD controller as data, which :func:`multibody.simulate` runs inside its compiled step:
+
+        τ = k_p ⊙ (q_ref ⊖ q) + k_d ⊙ (v_ref − v) + τ_ff
+
+    with ``q_ref ⊖ q = model.difference(q, q_ref)``, the velocity (tangent space, ``(nv,)``) that takes ``q`` to
+    ``q_ref`` in unit time: ``q_ref − q`` for angles and displacements, rotation vectors for quaternions. Joint
+    forces in N·m or N per coordinate of ``v``.
+
+    Args:
+        kp, kd: gains, a number or ``(nv,)`` (N·m/rad or N/m, and N·m·s/rad or N·s/m), or ``(N, nv)`` for ``N``
+            trajectories; finite.
+        q_ref: the reference configuration ``(nq,)``; with ``t_ref``, a table ``(n, nq)`` of references at the
+            times ``t_ref``. ``(N, nq)`` or ``(N, n, nq)`` for ``N`` trajectories.
+        v_ref: the reference velocity ``(nv,)`` (default zero); with ``t_ref``, a table ``(n, nv)``; ``(N, …)`` as
+            ``q_ref``.
+        tau_ff: feed-forward joint forces, a number or ``(nv,)`` (default zero), or ``(N, nv)``.
+        t_ref: strictly increasing times ``(n,)`` (s) of the reference tables. Between two of them the reference
+            moves linearly: ``v_ref`` entry by entry and ``q_ref`` as ``q_i ⊕ s (q_{i+1} ⊖ q_i)`` (linear for
+            angles and displacements, along the great circle for quaternions); before the first time and after
+            the last the end rows hold.
+
+    Shapes against the model (``nq``, ``nv``), the number of trajectories and unit quaternions are checked when
+    :func:`multibody.simulate` binds the controller to its system (:meth:`bind`). Called with a bound
+    controller's ``(t, q, v)`` the law gives ``τ (nv,)``, or ``(N, nv)`` for a batch of states.
+    """
+
+    def __init__(self, kp, kd, q_ref, v_ref=None, tau_ff=None, *, t_ref=None):
+        self.kp, self.kd = _real(kp, "kp"), _real(kd, "kd")
+        self.tau_ff = None if tau_ff is None else _real(tau_ff, "tau_ff")
+        self.q_ref = _real(q_ref, "q_ref")
+        self.v_ref = None if v_ref is None else _real(v_ref, "v_ref")
+        self.t_ref = None if t_ref is None else _real(t_ref, "t_ref")
+        for name in ("kp", "kd", "tau_ff"):
+            value = getattr(self, name)
+            if value is not None and value.ndim > 2:
+                raise ValueError(f"mb.PD: {name} must be a number, (nv,) or (N, nv) for N trajectories, got shape "
+                                 f"{value.shape}")
+        table = self.t_ref is not None
+        if table and (self.t_ref.ndim != 1 or not self.t_ref.size):
+            raise ValueError(f"mb.PD: t_ref must be the times (n,) of the reference tables, n >= 1, got shape "
+                             f"{self.t_ref.shape}")
+        for name, size in (("q_ref", "nq"), ("v_ref", "nv")):
+            value = getattr(self, name)
+            if value is None:
+                continue
+            if table and value.ndim not in (2, 3):
+                raise ValueError(f"mb.PD: with t_ref, {name} must be a table (n, {size}) of references at the n = "
+                                 f"{self.t_ref.size} times t_ref (or (N, n, {size}) for N trajectories), got shape "
+                                 f"{value.shape}")
+            if table and value.shape[-2] != self.t_ref.size:
+                raise ValueError(f"mb.PD: {name} has {value.shape[-2]} rows but t_ref has {self.t_ref.size} times "
+                                 f"(shape {value.shape} against t_ref {self.t_ref.shape})")
+            if not table and value.ndim not in (1, 2):
+                raise ValueError(f"mb.PD: {name} must be ({size},) (or (N, {size}) for N trajectories; a table of "
+                                 f"references needs t_ref), got shape {value.shape}")
+        for name in ("kp", "kd", "tau_ff", "q_ref", "v_ref", "t_ref"):
+            value = getattr(self, name)
+            if value is not None:
+                _require_finite(value, name)
+        if table and np.any(np.diff(self.t_ref) <= 0.0):
+            k = int(np.argmax(np.diff(self.t_ref) <= 0.0))
+            raise ValueError(f"mb.PD: t_ref must be strictly increasing: t_ref[{k}] = {self.t_ref[k]} is followed by "
+                             f"t_ref[{k + 1}] = {self.t_ref[k + 1]}")
+
+    def __repr__(self):
+        table = "" if self.t_ref is None else f", t_ref ({self.t_ref.size},)"
+        return f"PD(kp {self.kp.shape}, kd {self.kd.shape}, q_ref {self.q_ref.shape}{table})"
+
+    def bind(self, system, batch=None):
+        """The controller on ``system`` (``nq``, ``nv``; a ``Model`` or a mechanical system whose configurations
+        are a vector space) for one trajectory (``batch`` ``None``) or ``batch`` of them: a
+        :class:`PDController`. ``ValueError`` names the argument whose shape does not fit."""
+        nq, nv = system.nq, system.nv
+        model = system if isinstance(system, Model) else getattr(system, "model", None)
+        if model is None and (nq != nv or (hasattr(system, "chart") and not getattr(system, "vector_space", False))):
+            raise ValueError(f"mb.PD needs a Model, or a system whose configurations are a vector space (q̇ = v), to "
+                             f"take q_ref ⊖ q; {type(system).__name__} has nq = {nq}, nv = {nv} and charts")
+        table = self.t_ref is not None
+        n = 1 if not table else self.t_ref.size
+        sizes = {}  # the number of trajectories each argument gives
+        for name, size, unbatched in (("kp", nv, 1), ("kd", nv, 1), ("tau_ff", nv, 1), ("q_ref", nq, 1 + table),
+                                      ("v_ref", nv, 1 + table)):
+            value = getattr(self, name)
+            if value is None or value.ndim == 0:
+                continue
+            if value.shape[-1] != size:
+                expected = f"({size},)" if unbatched == 1 else f"(n, {size})"
+                raise ValueError(f"mb.PD: {name} must have shape {expected} (or (N, ...) for N trajectories) for this "
+                                 f"system (nq = {nq}, nv = {nv}), got {value.shape}")
+            if value.ndim > unbatched:
+                sizes[name] = value.shape[0]
+        if sizes and batch is None:
+            name, count = next(iter(sizes.items()))
+            raise ValueError(f"mb.PD: {name} has shape {getattr(self, name).shape}, for {count} trajectories, but the "
+                             "simulation has one initial state")
+        for name, count in sizes.items():
+            if count != batch:
+                raise ValueError(f"mb.PD: {name} has shape {getattr(self, name).shape}, for {count} trajectories, but "
+                                 f"the simulation has {batch} initial states")
+        count = batch if sizes else 1
+        q_ref = np.broadcast_to(self.q_ref.reshape((-1, n, nq)) if self.q_ref.ndim > 1 + table
+                                else self.q_ref.reshape((1, n, nq)), (count, n, nq))
+        if model is not None:
+            try:
+                model.check_configuration(q_ref, "q_ref")
+            except ValueError as error:
+                raise ValueError(f"mb.PD: q_ref: {error}") from None
+        v_ref = (np.zeros((1, n, nv)) if self.v_ref is None else
+                 self.v_ref.reshape((-1, n, nv)) if self.v_ref.ndim > 1 + table else self.v_ref.reshape((1, n, nv)))
+
+        def per_trajectory(value):
+            return np.broadcast_to(0.0 if value is None else value, (count, nv))
+
+        rows = np.concatenate([per_trajectory(self.kp), per_trajectory(self.kd), per_trajectory(self.tau_ff),
+                               np.full((count, 1), float(n)), np.broadcast_to(self.t_ref if table else [0.0], (count, n)),
+                               q_ref.reshape(count, n * nq), np.broadcast_to(v_ref, (count, n, nv)).reshape(count, n * nv)],
+                              axis=1)
+        tree = model.tree if model is not None else vector_space_tree(nq)
+        return PDController(tree, np.ascontiguousarray(rows), nq, nv)
+
+
+class PDController:
+    """A :class:`PD` bound to a system: ``controller(t, q, v)`` gives ``τ (nv,)`` for ``q (nq,)``, ``v (nv,)``, or
+    ``(N, nv)`` for a batch ``(N, nq)``, ``(N, nv)`` (with ``N`` rows of gains and references, each state its
+    own), by :func:`multibody.kernels.stepping.pd_torque`: the code the compiled step runs.
+
+    Attributes:
+        rows: ``(1 or N, L)`` the law's data, one row per trajectory (layout of :func:`~multibody.kernels.stepping.pd_torque`).
+    """
+
+    def __init__(self, tree, rows, nq, nv):
+        self.tree, self.rows, self.nq, self.nv = tree, rows, nq, nv
+
+    def __call__(self, t, q, v):
+        q, v = np.asarray(q, dtype=float), np.asarray(v, dtype=float)
+        t = np.array([t], dtype=float)
+        if q.ndim == 1 and v.ndim == 1 and len(self.rows) == 1:
+            return driver.evaluate_one(stepping.pd_kernel, self.tree, (1, self.nv), driver.contiguous(q),
+                                       driver.contiguous(v), self.rows[0], t, workspace=self.nq + self.nv)[0]
+        batch = np.broadcast_shapes(q.shape[:-1], v.shape[:-1], self.rows.shape[:-1])
+        return driver.evaluate(stepping.pd_kernel, self.tree, (q, v, self.rows, t), (1, self.nv), batch,
+                               workspace=self.nq + self.nv).reshape(batch + (self.nv,))
+
+    def trajectory(self, r):
+        """The controller of trajectory ``r`` of a batch alone."""
+        return self if len(self.rows) == 1 else PDController(self.tree, self.rows[r : r + 1], self.nq, self.nv)
+
+
+def vector_space_tree(n):
+    """A compiled tree of ``n`` one-coordinate joints (:func:`multibody.kernels.joints.difference` and
+    ``integrate`` add and subtract), for the configuration maps of a system without a Model whose
+    configurations are a vector space. Its inertias are zero: no dynamics runs on it."""
+    joints = np.zeros((n, 6), dtype=np.int64)
+    joints[:, 0] = np.arange(n) - 1
+    joints[:, 1] = kinds.REVOLUTE
+    joints[:, 2] = joints[:, 3] = np.arange(n)
+    joints[:, 4] = joints[:, 5] = 1
+    frozen = [np.ascontiguousarray(x) for x in (joints, np.zeros((n + 1, REAL_SIZE)), np.zeros((0, FRAME_SIZE)),
+                                                 np.zeros((0, FRAME_SIZE)))]
+    for x in frozen:
+        x.setflags(write=False)
+    return CompiledTree(*frozen, n, n, n)
+
+
+#: The argument types of a compiled controller ``f(t, q, v, out)``.
+CONTROLLER_TYPES = (types.float64, types.float64[::1], types.float64[::1], types.float64[::1])
+
+
+def is_compiled_controller(tau) -> bool:
+    """Whether ``tau`` is a ``numba.njit`` function of four parameters ``f(t, q, v, out)``."""
+    if not numba.extending.is_jitted(tau):
+        return False
+    try:
+        return len(inspect.signature(tau.py_func).parameters) == 4
+    except (TypeError, ValueError):
+        return False
+
+
+class CompiledController:
+    """A ``numba.njit`` function ``f(t, q, v, out)`` that writes the joint forces ``τ (nv,)`` into ``out``
+    (zeros on entry) and returns nothing, compiled for ``t`` a float (s) and C-contiguous float64 vectors
+    ``q (nq,)``, ``v (nv,)``, ``out (nv,)``: the compiled step calls it at every stage. Called as
+    ``controller(t, q, v)`` it gives ``τ (nv,)``, or ``(N, nv)`` for a batch of states, from the same code.
+
+    ``TypeError`` names ``tau`` when the function does not compile for those types or returns a value."""
+
+    def __init__(self, function, nv):
+        self.function, self.nv = function, nv
+        name = getattr(function, "__name__", repr(function))
+        try:
+            function.compile(CONTROLLER_TYPES)
+        except NumbaError as error:
+            raise TypeError(f"tau: the numba.njit controller {name}(t, q, v, out) does not compile for t a float and "
+                            f"q, v, out float64 vectors: {error}") from error
+        returned = function.overloads[CONTROLLER_TYPES].signature.return_type
+        if returned != types.none:
+            raise TypeError(f"tau: the numba.njit controller {name}(t, q, v, out) must write the joint forces into "
+                            f"out and return nothing; it returns {returned}")
+        #: the function as the compiled run takes it (a first-class function)
+        self.pointer = driver.first_class(function, CONTROLLER_TYPES)
+
+    def __call__(self, t, q, v):
+        q, v = driver.contiguous(np.asarray(q, dtype=float)), driver.contiguous(np.asarray(v, dtype=float))
+        if q.ndim == 1 and v.ndim == 1:
+            out = np.zeros(self.nv)
+            self.function(float(t), q, v, out)
+            return out
+        batch = np.broadcast_shapes(q.shape[:-1], v.shape[:-1])
+        n = int(np.prod(batch))
+        q = driver.contiguous(np.broadcast_to(q, batch + q.shape[-1:]).reshape(n, -1))
+        v = driver.contiguous(np.broadcast_to(v, batch + v.shape[-1:]).reshape(n, -1))
+        out = np.empty((n, self.nv))
+        driver.entry_point(stepping.controller_rows, _CONTROLLER_ROWS_TYPES)(self.pointer, float(t), q, v, out)
+        return out.reshape(batch + (self.nv,))
+
+    def trajectory(self, r):
+        return self
+
+
+_CONTROLLER_FUNCTION = types.FunctionType(types.none(*CONTROLLER_TYPES))
+_CONTROLLER_ROWS_TYPES = (_CONTROLLER_FUNCTION, types.float64, types.float64[:, ::1], types.float64[:, ::1],
+                          types.float64[:, ::1])
+
+
+def as_controller(tau, system, batch=None):
+    """``tau`` as :func:`multibody.simulate` runs it: a :class:`PD` bound to ``system`` (:class:`PDController`),
+    a ``numba.njit`` function ``f(t, q, v, out)`` as a :class:`CompiledController`, anything else unchanged."""
+    if isinstance(tau, PD):
+        return tau.bind(system, batch)
+    if is_compiled_controller(tau):
+        return CompiledController(tau, system.nv)
+    return tau
+
+
+# ============================================================================= the compiled run
+
+#: The argument types of :func:`multibody.kernels.stepping.run` (one trajectory): the tree's arrays and the constraint
+#: frames read-only, then the program, times, plan, control row, states, io and workspace; and of
+#: :func:`~multibody.kernels.stepping.advance`, which takes a compiled controller first.
+_TREE_INTS, _TREE_FLOATS = (types.Array(types.int64, 2, "C", readonly=True), types.Array(types.float64, 2, "C", readonly=True))
+_RUN_TYPES = (_TREE_INTS, _TREE_FLOATS, _TREE_FLOATS, types.float64[::1], types.float64[::1], types.float64[::1],
+              types.float64[::1], types.float64[:, ::1], types.float64[::1], types.float64[::1])
+_ADVANCE_TYPES = (_CONTROLLER_FUNCTION,) + _RUN_TYPES
+_TRAJECTORIES_TYPES = (types.FunctionType(types.none(*_ADVANCE_TYPES)), _CONTROLLER_FUNCTION, _TREE_INTS, _TREE_FLOATS,
+                       _TREE_FLOATS, types.float64[::1], types.float64[::1], types.float64[::1], types.float64[:, ::1],
+                       types.float64[:, :, ::1], types.float64[:, ::1], types.int64[::1], types.int64, types.int64)
+
+
+@numba.njit(cache=True, parallel=True, error_model="numpy")
+def _trajectories(advance, controller, joints, reals, frames, program, times, plan, control, states, io, rows, workspace,
+                  shares):
+    # ``advance`` (multibody.kernels.stepping.advance) is a first-class function, so that this loop's cached machine
+    # code holds none of the kernels' (whose cache multibody.kernels renews when their sources change)
+    n = rows.shape[0]
+    for share in prange(shares):
+        ws = np.empty(workspace)
+        for j in range(share * n // shares, (share + 1) * n // shares):
+            r = rows[j]
+            advance(controller, joints, reals, frames, program, times, plan, control[r if control.shape[0] > 1 else 0],
+                    states[r], io[r], ws)
+
+
+class CompiledRun:
+    """The fixed-step run of one system, method and controller at the output ``times (n,)`` (s), one step per
+    interval, compiled (:mod:`multibody.kernels.stepping`).
+
+    Args:
+        tree: the model's compiled tree; ``frames``: the constraint frames' rows (``tree.bodies`` without
+            constraints); ``program``: the constraints' program (length 0 without constraints).
+        step_columns, step_workspace: the output columns and workspace of the step (ABA's ``nv`` and its
+            workspace without constraints, the KKT step's with them).
+        projection: ``(settings, output columns, workspace)`` of :func:`multibody.kernels.kkt.project` with
+            constraints, ``None`` without; ``settings = [tolerance, max_iterations, position mask (m)]``.
+        charts: whether the stages go through the chart maps (a curved configuration space, or constraints);
+            else ``q = q₀ + δ``, ``v = w``.
+        tableau: the method (:data:`TABLEAUS`).
+        controller: ``None``; constant joint forces ``(nv,)`` (or ``(N, nv)``); a :class:`PDController`; a
+            :class:`CompiledController`; or any other callable ``(t, q, v)``, called from Python at each stage
+            (one trajectory only).
+        damping: ``(nv,)`` viscous damping subtracted from the joint forces (``τ − D v``), or ``None``.
+        projection_tolerance: the largest move left unprojected at a step's end (``None``: no projection).
+        near_singular: the conditioning below which a step's end stops the run (the next step evaluates its
+            stages on the constraints), or ``-inf``.
+    """
+
+    def __init__(self, tree, frames, program, step_columns, step_workspace, projection, charts, tableau, controller,
+                 damping, projection_tolerance, near_singular, times, nq, nv):
+        self.tree, self.frames, self.program = tree, frames, np.ascontiguousarray(program, dtype=float)
+        self.times, self.nq, self.nv = np.ascontiguousarray(times, dtype=float), nq, nv
+        self.constrained = self.program.size > 0
+        settings, projection_columns, projection_workspace = projection or (np.zeros(2), 0, 0)
+        kind, control = self._control(controller, nv)
+        self.kind, self.control, self.controller = kind, control, controller
+        self.pointer = controller.pointer if kind == stepping.FUNCTION else driver.first_class(
+            stepping.no_controller, CONTROLLER_TYPES)
+        tableau_block = tableau.block()
+        header = np.zeros(stepping.PLAN_HEADER)
+        header[[stepping.PLAN_NQ, stepping.PLAN_NV, stepping.PLAN_CHARTS, stepping.PLAN_STAGES, stepping.PLAN_CONTROL,
+                stepping.PLAN_PROJECT, stepping.PLAN_PROJECTION_TOLERANCE, stepping.PLAN_NEAR_SINGULAR,
+                stepping.PLAN_DAMPED]] = (nq, nv, charts, tableau.stages, kind, projection_tolerance is not None,
+                                         projection_tolerance or 0.0, near_singular, damping is not None)
+        start = stepping.PLAN_HEADER
+        header[[stepping.PLAN_TABLEAU, stepping.PLAN_DAMPING, stepping.PLAN_SETTINGS]] = (
+            start, start + tableau_block.size, start + tableau_block.size + nv)
+        header[[stepping.PLAN_STEP_COLUMNS, stepping.PLAN_STEP_WORKSPACE, stepping.PLAN_PROJECTION_COLUMNS,
+                stepping.PLAN_PROJECTION_WORKSPACE]] = (step_columns, step_workspace, projection_columns,
+                                                        projection_workspace)
+        self.plan = np.concatenate([header, tableau_block, np.zeros(nv) if damping is None else damping, settings])
+        self.workspace = stepping.workspace_size(nq, nv, tableau.stages, step_columns, step_workspace,
+                                                 projection_columns, projection_workspace)
+        self.ws = np.empty(self.workspace)
+        self.io = np.zeros(stepping.io_size(nq, nv))
+
+    @staticmethod
+    def _control(controller, nv):
+        """``(kind, control rows (1 or N, L))`` of a controller (:data:`multibody.kernels.stepping.PD` ...)."""
+        if controller is None:
+            return stepping.NO_CONTROL, np.zeros((1, nv))
+        if isinstance(controller, np.ndarray):
+            return stepping.CONSTANT, np.ascontiguousarray(controller.reshape(-1, nv), dtype=float)
+        if isinstance(controller, PDController):
+            rows = controller.rows
+            return stepping.PD, np.ascontiguousarray(np.concatenate([np.zeros((len(rows), nv)), rows], axis=1))
+        if isinstance(controller, CompiledController):
+            return stepping.FUNCTION, np.zeros((1, nv))
+        return stepping.PYTHON, np.zeros((1, nv))
+
+    def advance(self, states, k, stop, torque=None, joint_forces=None):
+        """Steps ``k`` up to ``stop`` (exclusive) of one trajectory, ``states (n, nq + nv)`` filled in place:
+        ``(the first step not taken, status)``. A Python controller ``torque(t, q, v)`` gives the joint forces of
+        each stage, a float64 array ``(nv,)`` or anything ``joint_forces(value)`` turns into one (or raises for).
+        The status's report: :attr:`io` (``IO_TIME``, ``IO_VALUE``, ``τ``)."""
+        io = self.io
+        io[stepping.IO_STEP], io[stepping.IO_STOP] = k, stop
+        io[stepping.IO_STAGE] = io[stepping.IO_TORQUE_GIVEN] = 0.0
+        tree = self.tree
+        if self.kind == stepping.FUNCTION:
+            self.advance_batch(states[None], io[None], np.zeros(1, dtype=np.int64), threads=1)
+            return int(io[stepping.IO_STEP]), int(io[stepping.IO_STATUS])
+        entry = driver.entry_point(stepping.run, _RUN_TYPES)
+        arguments = (tree.joints, tree.reals, self.frames, self.program, self.times, self.plan, self.control[0], states,
+                     io, self.ws)
+        entry(*arguments)
+        if io[stepping.IO_STATUS] == stepping.NEED_TORQUE:
+            # a Python controller: the stage's t, q, v out, τ in, and the run goes on from that stage
+            nq, nv, start = self.nq, self.nv, stepping.IO_HEADER
+            q, v, tau = io[start : start + nq], io[start + nq : start + nq + nv], io[start + nq + nv :]
+            shape, waiting, given = (nv,), float(stepping.NEED_TORQUE), stepping.IO_TORQUE_GIVEN
+            while True:
+                value = torque(io.item(stepping.IO_TIME), q.copy(), v.copy())
+                if type(value) is not np.ndarray or value.dtype != np.float64 or value.shape != shape:
+                    value = joint_forces(value)
+                tau[:] = value
+                io[given] = 1.0
+                entry(*arguments)
+                if io[stepping.IO_STATUS] != waiting:
+                    break
+        return int(io[stepping.IO_STEP]), int(io[stepping.IO_STATUS])
+
+    def advance_batch(self, states, io, rows, threads=None):
+        """The steps ``io[r, IO_STEP]`` up to ``io[r, IO_STOP]`` of the trajectories ``rows`` (int64) of ``states (N,
+        n, nq + nv)``, each on its own (its status in its ``io`` row, :func:`multibody.kernels.stepping.io_size`),
+        on ``threads`` threads (default :func:`multibody.get_num_threads`, at most one per trajectory)."""
+        if self.kind == stepping.PYTHON:
+            raise ValueError("a batch of trajectories runs a Python controller through simulate's lockstep loop")
+        tree = self.tree
+        # each thread its own contiguous share of the trajectories, with its own workspace
+        shares = max(1, min(driver.get_num_threads() if threads is None else threads, len(rows)))
+        entry = driver.entry_point(_trajectories, _TRAJECTORIES_TYPES)
+        with driver.parallel_shares(shares):
+            entry(driver.first_class(stepping.advance, _ADVANCE_TYPES), self.pointer, tree.joints, tree.reals,
+                  self.frames, self.program, self.times, self.plan, self.control, states, io, rows, self.workspace,
+                  shares)
