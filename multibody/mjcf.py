@@ -33,7 +33,8 @@ loader reads, after the MuJoCo XML reference (mujoco.readthedocs.io, "XML Refere
   :func:`multibody.frame_placement`, :func:`multibody.jacobian` and the constraints; a site named as a
   body is not (a warning says so).
 * Geoms are the viewer's shapes (``model.geometries``): those of groups 0–2, which MuJoCo's viewer
-  shows, as ``"visual"``, the others as ``"collision"``; the world's geoms (a floor) are not kept.
+  shows, as ``"visual"``, the others as ``"collision"``; the world's geoms (a floor) and meshes given by
+  their vertices (no file) are not kept.
 * ``<option gravity>`` (and ``<flag gravity="disable"/>``).
 * ``<equality>``: ``connect`` → :class:`~multibody.LoopClosure` ``kind="point"``, ``weld`` →
   ``kind="weld"``, ``joint`` → :class:`~multibody.JointCoupling` with MuJoCo's ``polycoef``, in
@@ -71,7 +72,14 @@ from . import spatial
 from .constraints import JointCoupling, LoopClosure
 from .inertia import Inertia
 from .model import Geometry, ModelBuilder
-from .modelfiles import is_xml_text, package_directories, parse_numbers, resolve_file, warn_missing_meshes
+from .modelfiles import (
+    LARGEST_MAGNITUDE,
+    is_xml_text,
+    package_directories,
+    parse_numbers,
+    resolve_file,
+    warn_missing_meshes,
+)
 
 
 class MJCFError(ValueError):
@@ -346,6 +354,15 @@ class _Reader:
             return default
         return float(self.numbers(node, attrs, key, 1)[0])
 
+    def integers(self, node, attrs, key, count, default):
+        """``attrs[key]`` as ``count`` integers (``default``, a tuple, when absent); MuJoCo reads them as C ints."""
+        if key not in attrs:
+            return default
+        values = self.numbers(node, attrs, key, count)
+        if not all(value == math.floor(value) and abs(value) < 2**31 for value in values):
+            raise node.error(f"attribute {key}={attrs[key]!r} must be {count} integer(s)")
+        return tuple(int(value) for value in values)
+
     def flag(self, node, attrs, key, default, choices=("true", "false")):
         value = attrs.get(key, default)
         if value not in choices:
@@ -488,18 +505,27 @@ class _Defaults:
             self._add(section, self.classes["main"], report)
 
     def _add(self, section, values, report):
-        for child in section.children:
-            if child.tag == "default":
-                name = child.attrib.get("class")
-                if not name:
-                    raise child.error("a nested <default> needs attribute 'class'")
-                if name in self.classes:
-                    raise child.error(f"default class {name!r} is defined twice")
-                inherited = {tag: dict(attrs) for tag, attrs in values.items()}
-                self.classes[name] = inherited
-                self._add(child, inherited, report)
-            else:
-                values.setdefault(child.tag, {}).update(child.attrib)
+        # (a <default> element, its class's values), iteratively, so that deep nesting keeps off the recursion
+        # limit; a class takes all its own elements before its nested classes inherit them, wherever in it they
+        # are written, as MuJoCo reads them
+        stack = [(section, values)]
+        while stack:
+            section, values = stack.pop()
+            for child in section.children:
+                if child.tag != "default":
+                    values.setdefault(child.tag, {}).update(child.attrib)
+            nested = []
+            for child in section.children:
+                if child.tag == "default":
+                    name = child.attrib.get("class")
+                    if not name:
+                        raise child.error("a nested <default> needs attribute 'class'")
+                    if name in self.classes:
+                        raise child.error(f"default class {name!r} is defined twice")
+                    inherited = {tag: dict(attrs) for tag, attrs in values.items()}
+                    self.classes[name] = inherited
+                    nested.append((child, inherited))
+            stack.extend(reversed(nested))
         return values
 
     def attributes(self, node, childclass, tag=None):
@@ -683,7 +709,7 @@ class _Tree:
         if needed and np.any(size[:needed] <= 0.0):
             raise node.error(f"a {kind} needs {needed} positive size(s), got size={attrs.get('size', '0 0 0')!r}")
         geom.size, geom.pose = size, frame @ pose if frame is not _IDENTITY else pose
-        geom.group = int(reader.number(node, attrs, "group", 0.0))
+        geom.group, = reader.integers(node, attrs, "group", 1, (0,))
         geom.mass = reader.number(node, attrs, "mass", math.nan) if "mass" in attrs else None
         geom.density = reader.number(node, attrs, "density", 1000.0)
         if (geom.mass is not None and geom.mass < 0.0) or geom.density < 0.0:
@@ -722,10 +748,10 @@ def _primitive_inertia(kind, size):
         return 4.0 / 3.0 * math.pi * a**3, np.full(3, 0.4 * a * a)
     if kind == "capsule":
         height = 2.0 * b
-        sphere = 4.0 / 3.0 * math.pi * a**3
-        cylinder = math.pi * a * a * height
-        volume = sphere + cylinder
-        s, k = sphere / volume, cylinder / volume
+        volume = 4.0 / 3.0 * math.pi * a**3 + math.pi * a * a * height
+        # the hemispheres' and the cylinder's shares of the volume, from the lengths: defined where the
+        # volumes underflow
+        s, k = 4.0 * a / (4.0 * a + 3.0 * height), 3.0 * height / (4.0 * a + 3.0 * height)
         # hemispheres of radius a centred ±h from the middle: I = 2/5 m a² + m h (2h + 3a)/8 (h: the length)
         across = k * (3.0 * a * a + height * height) / 12.0 + s * (0.4 * a * a + height * (2.0 * height + 3.0 * a) / 8.0)
         return volume, np.array([across, across, k * 0.5 * a * a + s * 0.4 * a * a])
@@ -849,8 +875,11 @@ class _Meshes:
             return self._solids[name]
         mesh_node, attrs, file, path, mode, scale, refpos, refquat = self._get(name, node)
         if "vertex" in attrs:
-            vertices = self.reader.numbers(mesh_node, attrs, "vertex").reshape(-1, 3)
-            faces = self.reader.numbers(mesh_node, attrs, "face").astype(int).reshape(-1, 3) if "face" in attrs else None
+            vertices = self.reader.numbers(mesh_node, attrs, "vertex")
+            if len(vertices) % 3:
+                raise mesh_node.error(f"attribute vertex holds {len(vertices)} numbers, not a multiple of 3")
+            vertices = vertices.reshape(-1, 3)
+            faces = self._faces(mesh_node, attrs, len(vertices)) if "face" in attrs else None
         else:
             if path is None:
                 raise node.error(f"the mass of this geom needs mesh {name!r}, whose file {file!r} is not found "
@@ -861,22 +890,43 @@ class _Meshes:
                 loaded = trimesh.load(path, force="mesh", process=False)
             except Exception as exc:  # trimesh raises many types for unreadable files
                 raise mesh_node.error(f"cannot read mesh file {path!r}: {exc}") from None
-            # MuJoCo keeps mesh vertices in single precision
-            vertices = np.asarray(loaded.vertices, dtype=np.float32).astype(float)
-            faces = np.asarray(loaded.faces)
+            vertices, faces = np.asarray(loaded.vertices, dtype=float), np.asarray(loaded.faces)
+        # MuJoCo keeps mesh vertices in single precision, a file's and those of attribute vertex alike
+        with np.errstate(over="ignore", invalid="ignore"):
+            single = vertices.astype(np.float32)
+        if not np.all(np.isfinite(single)):
+            raise mesh_node.error("vertices beyond single precision (3.4e38), in which MuJoCo keeps them")
+        vertices = single.astype(float)
         # MuJoCo's order: move by refpos, turn by refquat⁻¹, then scale
         vertices = (vertices - refpos) @ _quat_rotation(refquat, mesh_node) * scale
         if faces is None or mode == "convex":
             # MuJoCo takes the convex hull of a mesh given by its vertices alone
             import trimesh
 
-            hull = trimesh.convex.convex_hull(vertices)
+            try:
+                # (trimesh divides by the zero volume of a flat hull; mesh_mass_properties says so below)
+                with np.errstate(all="ignore"):
+                    hull = trimesh.convex.convex_hull(vertices)
+            except Exception as exc:  # qhull refuses fewer than four points and some degenerate sets
+                first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+                raise mesh_node.error(f"no convex hull of its {len(vertices)} vertices: {first}") from None
             vertices, faces = np.asarray(hull.vertices), np.asarray(hull.faces)
         try:
             self._solids[name] = mesh_mass_properties(vertices, faces, "exact" if mode == "convex" else mode)
         except ValueError as error:
             raise mesh_node.error(str(error)) from None
         return self._solids[name]
+
+    def _faces(self, node, attrs, count):
+        """The ``face`` attribute as ``(f, 3)`` indices of the ``count`` vertices; any other number is refused,
+        as MuJoCo refuses it."""
+        values = self.reader.numbers(node, attrs, "face")
+        if len(values) % 3:
+            raise node.error(f"attribute face holds {len(values)} numbers, not a multiple of 3")
+        wrong = (values != np.floor(values)) | (values < 0) | (values >= count)
+        if wrong.any():
+            raise node.error(f"attribute face: {values[wrong][0]:g} is not the index of one of the {count} vertices")
+        return values.astype(int).reshape(-1, 3)
 
 
 def _body_inertia(body, reader, meshes, from_geoms):
@@ -1027,6 +1077,8 @@ def _equalities(sections, reader, defaults, report, tree, names, sites, joints):
                 report.add(("inactive",), node, "inactive equalities (active='false') are left out")
                 continue
             if tag == "joint":
+                if "joint1" not in attrs:
+                    raise node.error("missing attribute 'joint1'")
                 first = joints.get(attrs.get("joint1"))
                 if first is None:
                     raise node.error(f"attribute joint1={attrs.get('joint1')!r}: no such joint")
@@ -1044,11 +1096,18 @@ def _equalities(sections, reader, defaults, report, tree, names, sites, joints):
                                          coefficients=c, reference=0.0 if second is None else second.ref, name=label))
                 continue
             kind = "point" if tag == "connect" else "weld"
+            if ("site1" in attrs or "site2" in attrs) and ("body1" in attrs or "body2" in attrs):
+                raise node.error("give sites (site1, site2) or bodies (body1, body2), not both")
             if "site1" in attrs or "site2" in attrs:
                 # the two site frames coincide (in position for connect, in pose for weld)
                 (b1, frame_a), (b2, frame_b) = site(node, attrs, "site1"), site(node, attrs, "site2")
+                if attrs["site1"] == attrs["site2"]:
+                    raise node.error(f"site {attrs['site1']!r} is on both sides of the equality")
             else:
                 b1, b2 = body(node, attrs, "body1"), body(node, attrs, "body2", required=False)
+                if b1 == b2:
+                    # (a missing body2 is the world)
+                    raise node.error(f"body {attrs['body1']!r} is on both sides of the equality")
                 W1 = _IDENTITY if b1 < 0 else world[b1]
                 W2 = _IDENTITY if b2 < 0 else world[b2]
                 anchor = reader.numbers(node, attrs, "anchor", 3, _ZERO3)
@@ -1098,8 +1157,9 @@ def load_mjcf(source, *, package_dirs=None):
 
     Raises:
         MJCFError: malformed XML (with its line), unknown element types, classes, bodies, joints, sites or
-            meshes, impossible numbers (non-decimal, infinite, a zero axis or quaternion, a negative mass),
-            and mass properties that no body can have.
+            meshes, impossible numbers (non-decimal, infinite, a zero axis or quaternion, a negative mass, a
+            fractional index or group), mass properties that no body can have or past ``1e50`` (a sphere of
+            radius 1e20 m), a free joint beside others, and equalities of a body or site with itself.
         FileNotFoundError: ``source`` is neither an existing file nor XML text.
     """
     package_dirs = package_directories(package_dirs)
@@ -1176,8 +1236,7 @@ def _read_compiler(node, reader, compiler, report):
     compiler.autolimits = reader.flag(node, attrs, "autolimits", "true" if compiler.autolimits else "false") == "true"
     compiler.inertiafromgeom = reader.flag(node, attrs, "inertiafromgeom", compiler.inertiafromgeom,
                                            ("true", "false", "auto"))
-    low, high = reader.numbers(node, attrs, "inertiagrouprange", 2, np.array(compiler.group_range, dtype=float))
-    compiler.group_range = (int(low), int(high))
+    compiler.group_range = reader.integers(node, attrs, "inertiagrouprange", 2, compiler.group_range)
     for key in ("boundmass", "boundinertia", "settotalmass"):
         setattr(compiler, key, reader.number(node, attrs, key, getattr(compiler, key)))
     compiler.balanceinertia = reader.flag(node, attrs, "balanceinertia",
@@ -1207,6 +1266,9 @@ def _build(root, tree, reader, meshes, gravity):
     compiler = reader.compiler
     bodies = tree.bodies
     taken = {body.name for body in bodies if body.name} | {"world"}
+    for body in bodies:
+        if body.name == "world":
+            raise body.node.error("the name 'world' is the world body's")
     names = []
     for k, body in enumerate(bodies):
         names.append(body.name if body.name else _unique(f"body_{k + 1}", taken))
@@ -1230,6 +1292,13 @@ def _build(root, tree, reader, meshes, gravity):
     inertias = _adjust_inertias(bodies, [_body_inertia(body, reader, meshes, body.inertial is None or (
         setting == "true" and any(_has_mass(geom, low, high) for geom in body.geoms)))
         if setting != "false" else _body_inertia(body, reader, meshes, False) for body in bodies], compiler)
+    for body, inertia in zip(bodies, inertias):
+        # sizes and densities within the accepted magnitude can still make masses past it (a sphere of
+        # radius 1e20 m), where the dynamics would overflow
+        if not np.abs(np.append(inertia.rotational, inertia.mass)).max() <= LARGEST_MAGNITUDE:
+            raise body.node.error(f"mass {inertia.mass:.3g} kg, largest inertia {np.abs(inertia.rotational).max():.3g} "
+                                  f"kg m^2: magnitude above {LARGEST_MAGNITUDE:g}, the largest accepted (the dynamics "
+                                  "would overflow)")
 
     builder = ModelBuilder(root.attrib.get("model", "MuJoCo Model"), gravity=gravity)
     # the bodies that carry a joint before the last of their body's: internal, dropped after the build
@@ -1248,6 +1317,8 @@ def _build(root, tree, reader, meshes, gravity):
             builder.add_body(name, jt.FreeFlyer(), parent=None, placement=_IDENTITY, inertia=inertia,
                              joint_name=joint.model_name, **_per_dof(joint))
         else:
+            if any(joint.kind == "free" for joint in body.joints):
+                raise body.node.error("a body with a free joint has no other joints")
             # B_k = B_{k−1} T(p_k) M_k(q_k − ref_k) T(−p_k): joint k's pre-joint frame is T(p_k − p_{k−1}) R_k(−ref_k)
             # in the frame of joint k − 1 (the body's frame for k = 1), and the body hangs T(−p_n) from the last
             previous, placement = _ZERO3, body.pose
@@ -1327,11 +1398,14 @@ def _per_dof(joint):
 
 
 def _geometry(geom, body, meshes):
-    """The viewer's :class:`Geometry` of a geom (``None`` for planes, height fields and SDFs)."""
+    """The viewer's :class:`Geometry` of a geom (``None`` for planes, height fields, SDFs and meshes given by
+    their vertices, which have no file for the viewer to read)."""
     kind = "visual" if geom.group <= 2 else "collision"
     a, b, c = geom.size
     if geom.kind == "mesh":
         uri, filename, scale, placement = meshes.visual(geom.mesh, geom.node)
+        if uri is None:
+            return None
         return Geometry(body, kind, "mesh", geom.pose @ placement, uri=uri, filename=filename, scale=scale)
     sizes = {"sphere": (a,), "capsule": (a, 2.0 * b), "cylinder": (a, 2.0 * b), "ellipsoid": (a, b, c),
              "box": (2.0 * a, 2.0 * b, 2.0 * c)}
