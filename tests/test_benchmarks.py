@@ -3,6 +3,7 @@ measured by benchmarks/run.py, never asserted here."""
 
 import json
 import os
+import re
 import runpy
 
 import pytest
@@ -19,6 +20,25 @@ def test_benchmark_script_smoke(tmp_path):
     assert all(row["single_us"] > 0 and row["pinocchio_us"] > 0 for row in results["rows"])
     assert results["rolling_ball"]["max_residual"] < 1e-9
     assert results["rolling_ball"]["variational_step_us"] > 0 and results["rolling_ball"]["rk4_step_us"] > 0
+    # the Panda under a PD: mb.PD, the njit controller and the Python callable give the same run, and the Pinocchio
+    # loop (and MuJoCo's, where installed) the same final state
+    pd = results["panda_pd"]
+    assert pd["controllers_final_difference"] <= 1e-12 and pd["final_state_difference"] <= 1e-10
+    assert pd["pd_s"] > 0 and pd["njit_s"] > 0 and pd["python_s"] > 0
+    if "mujoco_s" in pd:
+        assert pd["mujoco_final_difference"] <= 1e-10 and pd["mujoco_acceleration_difference"] <= 1e-9
     report = (tmp_path / "results.md").read_text()
     assert report.startswith("| robot |")
     assert "closed chain of 4 parallelograms (9 bars, 8 rows)" in report
+
+
+def test_benchmark_prints_the_mjcf_load_time_against_mujocos():
+    """The benchmark's line of ``mb.load_mjcf`` on gymnasium's humanoid against ``MjModel.from_xml_path`` (its
+    numbers are measured, not asserted)."""
+    pytest.importorskip("mujoco")
+    pytest.importorskip("gymnasium")
+    script = os.path.join(os.path.dirname(__file__), "..", "benchmarks", "run.py")
+    line = runpy.run_path(script)["mjcf_load_line"](0.01)
+    number = r"\d+\.\d+"
+    assert re.fullmatch(rf"loading gymnasium's humanoid\.xml: mb\.load_mjcf {number} ms, MuJoCo's "
+                        rf"MjModel\.from_xml_path {number} ms \(ratio {number}; target ≤ 2\)", line), line
