@@ -12,13 +12,13 @@ the right one. Eight joints less five independent rows leave three degrees of fr
 The model leaves out what is not rigid-body dynamics. The spring links' springs (``stiffness``
 towards ``springref``) are added back as joint torques, ``τ = −k (q − q_spring)``, read from the file
 (:func:`joint_springs`). Those springs press each coupler onto the upper end of its range (MuJoCo's own
-simulation of this stroke has both coupler limits active throughout), which keeps the finger's pad
-parallel until it touches something; the model enforces no limits, so the stroke holds each coupler
-there with a ``mb.JointCoupling(None, coupler, offset=upper)``, whose multiplier is the torque of the
-stop (N·m). That leaves one degree of freedom, the drivers' angle, which a PD controller on the right
-driver joint (a Python callable ``tau(t, q, v)``) takes from open (0 rad) to closed along a
-minimum-jerk ramp; the joint equality carries the left finger's share to it, and its multiplier is
-that torque (N·m, on the right driver joint). Joint damping and armature are the file's.
+simulation of this stroke has both coupler limits active from its second 0.1 ms step to the end), which
+keeps the finger's pad parallel until it touches something; the model enforces no limits, so the stroke
+holds each coupler there with a ``mb.JointCoupling(None, coupler, offset=upper)``, whose multiplier is
+the torque of the stop (N·m). That leaves one degree of freedom, the drivers' angle, which a PD
+controller on the right driver joint (a Python callable ``tau(t, q, v)``) takes from open (0 rad) to
+closed along a minimum-jerk ramp; the joint equality carries the left finger's share to it, and its
+multiplier is that torque (N·m, on the right driver joint). Joint damping and armature are the file's.
 
 The figure (``robotiq_gripper.png``) shows, against time: the opening between the pads and the driver
 angle (with MuJoCo's simulation of the same stroke when ``mujoco`` is installed: the same torques,
