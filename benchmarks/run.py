@@ -5,9 +5,11 @@ batches of N states (on every thread, and for the largest N on one thread too), 
 per call from Python, and their ratios; then the peak memory of a large batched CRBA, one
 constrained-dynamics step of the rolling ball and the wall time of simulating it for 10 s with
 1 kHz output (adaptive DOP853 with dense output, and fixed-step RK4), and a Panda under a PD
-controller simulated for 3 s by RK4 at 1 kHz, next to the same loop written on Pinocchio; one constrained
+controller simulated for 3 s by RK4 at 1 kHz on one thread (mb.PD, a numba.njit controller and a Python callable),
+next to the same loop written on Pinocchio and MuJoCo's RK4 mj_step in C on the same ODE; one constrained
 evaluation of a closed chain of 40 parallelograms near its singular flat configuration; 4096
-double-pendulum and Panda trajectories by batched RK4 for 1 s at 1 kHz, against batched forward dynamics;
+double-pendulum and Panda trajectories by batched RK4 for 1 s at 1 kHz, against batched forward dynamics, and
+4096 Panda trajectories under mb.PD against mujoco.rollout on the same threads;
 with Dask installed, the overhead of chunks of 1e5 states on two local worker processes; and the time to
 load gymnasium's MJCF humanoid against MuJoCo's own compiler.
 The table is printed and saved as JSON and Markdown.
@@ -221,46 +223,218 @@ def rolling_ball(duration, rate, budget, adaptive=("DOP853", 1e-8)):
     return result
 
 
-def panda_pd_loop(duration=3.0, rate=1000.0):
-    """Wall time (s) of a Panda under a joint-space PD controller, ``τ = −K_p (q − q_ref) − K_d v``,
-    simulated for ``duration`` s by fixed-step RK4 at ``rate`` Hz: by ``mb.simulate`` and by the same
-    loop written on Pinocchio's ``aba``, and the largest difference of their final states."""
+#: The Panda's joint-space PD of the controller benchmarks: gains stiff and damped enough to track, within RK4's
+#: stability at 1 kHz for the fingers' small masses, towards the neutral pose + 0.3 rad (m for the fingers).
+PD_GAINS = (50.0, 2.0)
+
+
+def mujoco_panda(path, gains, rate):
+    """MuJoCo's model of example-robot-data's Panda URDF (``MjModel`` from the file's text without its ``<visual>``
+    and ``<collision>`` meshes: contacts are off) for the ODE that ``mb.simulate`` integrates: the PD as one affine
+    actuator per joint (``τ = k_p ctrl − k_p q − k_d v`` with ``ctrl = q_ref``, so that ``mj_step``'s loop runs in C),
+    joint damping (MuJoCo reads the URDF's; ``simulate`` applies it only with ``joint_damping=True``) set to zero,
+    the URDF's effort limits on the actuators' force lifted, contacts, joint limits and the fingers' mimic equality
+    disabled, RK4 with step ``1/rate``. ``None`` without MuJoCo."""
+    try:
+        import mujoco
+    except ImportError:
+        return None
+    import re
+
+    with open(path) as handle:
+        text = handle.read()
+    text = re.sub(r"<(visual|collision)>.*?</\1>", "", text, flags=re.S)
+    spec = mujoco.MjSpec.from_string(text)
+    kp, kd = gains
+    for joint in spec.joints:
+        actuator = spec.add_actuator()
+        actuator.trntype, actuator.target = mujoco.mjtTrn.mjTRN_JOINT, joint.name
+        actuator.gaintype, actuator.biastype = mujoco.mjtGain.mjGAIN_FIXED, mujoco.mjtBias.mjBIAS_AFFINE
+        actuator.gainprm[0] = kp
+        actuator.biasprm[:3] = (0.0, -kp, -kd)
+    model = spec.compile()
+    # (MuJoCo reads the URDF's effort limits as limits of the actuators' force at each joint; simulate applies none)
+    model.jnt_actfrclimited[:] = 0
+    model.dof_damping[:] = 0.0
+    # (the fingers' URDF <mimic> is an equality constraint in MuJoCo; simulate's model keeps them independent)
+    model.opt.disableflags |= (mujoco.mjtDisableBit.mjDSBL_CONTACT | mujoco.mjtDisableBit.mjDSBL_LIMIT
+                               | mujoco.mjtDisableBit.mjDSBL_EQUALITY)
+    model.opt.integrator = mujoco.mjtIntegrator.mjINT_RK4
+    model.opt.timestep = 1.0 / rate
+    return model
+
+
+def panda_pd_loop(duration=3.0, rate=1000.0, repeats=5):
+    """A Panda under the joint-space PD ``τ = K_p (q_ref − q) − K_d v`` for ``duration`` s by RK4 at ``rate`` Hz on
+    one thread: the wall time (s, best of ``repeats`` interleaved rounds) of ``mb.simulate`` with ``mb.PD`` (the
+    controller inside the compiled step), with the same law as a ``numba.njit`` function and as a Python callable;
+    of the same RK4 loop written in Python on Pinocchio's ``aba`` (its final state must equal ours to 1e-10); and of
+    MuJoCo's ``mj_step`` in C on the same ODE (:func:`mujoco_panda`), with the accelerations of both at a random
+    state and the final states compared. Ratios: ours against MuJoCo's C loop (targets ≤ 0.5 with the PD, ≤ 0.6 with
+    the njit controller) and the Python callable against the Pinocchio loop (≤ 1)."""
+    import numba
+
     path = os.path.join(example_robot_data(), ROBOTS["panda"][0])
     model = load(path)
     q_ref = model.neutral() + 0.3
-    gains = (50.0, 2.0)  # stiff and damped enough to track, within RK4's stability at 1 kHz for the fingers' small masses
+    kp, kd = PD_GAINS
 
     def controller(t, q, v):
-        return -gains[0] * (q - q_ref) - gains[1] * v
+        return kp * (q_ref - q) - kd * v
+
+    @numba.njit
+    def compiled(t, q, v, out):
+        for c in range(q.shape[0]):
+            out[c] = kp * (q_ref[c] - q[c]) - kd * v[c]
 
     q0, v0, dt = model.neutral(), np.zeros(model.nv), 1.0 / rate
-    start = time.perf_counter()
-    # the Pinocchio loop checks no joint limits (and the neutral pose is outside joint 4's): neither does this
-    trajectory = mb.simulate(model, q0, v0, duration, dt=dt, method="RK4", tau=controller, limits="ignore")
-    result = {"ours_s": time.perf_counter() - start}
+    steps = int(round(duration * rate))
+    runs = {"pd": mb.PD(kp, kd, q_ref), "njit": compiled, "python": controller}
+    # the Pinocchio loop checks no joint limits (and the neutral pose is outside joint 4's): neither do these
+    options = dict(dt=dt, method="RK4", limits="ignore")
+    timings, finals = {name: [] for name in (*runs, "pinocchio", "mujoco")}, {}
     try:
         import pinocchio as pin
     except ImportError:
-        return result
-    reference = pin.buildModelFromUrdf(path)
-    data = reference.createData()
+        pin = None
+    if pin is not None:
+        reference = pin.buildModelFromUrdf(path)
+        data = reference.createData()
 
-    def derivative(q, v):
-        return v, pin.aba(reference, data, q, v, controller(0.0, q, v))
+        def pinocchio_loop():
+            def derivative(q, v):
+                return v, pin.aba(reference, data, q, v, controller(0.0, q, v))
 
-    start = time.perf_counter()
-    q, v = q0.copy(), v0.copy()
-    for _ in range(int(round(duration * rate))):
-        k1q, k1v = derivative(q, v)
-        k2q, k2v = derivative(q + 0.5 * dt * k1q, v + 0.5 * dt * k1v)
-        k3q, k3v = derivative(q + 0.5 * dt * k2q, v + 0.5 * dt * k2v)
-        k4q, k4v = derivative(q + dt * k3q, v + dt * k3v)
-        q = q + dt / 6.0 * (k1q + 2.0 * k2q + 2.0 * k3q + k4q)
-        v = v + dt / 6.0 * (k1v + 2.0 * k2v + 2.0 * k3v + k4v)
-    result["pinocchio_s"] = time.perf_counter() - start
-    result["ratio"] = result["ours_s"] / result["pinocchio_s"]
-    result["final_state_difference"] = float(max(np.abs(trajectory.q[-1] - q).max(), np.abs(trajectory.v[-1] - v).max()))
+            q, v = q0.copy(), v0.copy()
+            for _ in range(steps):
+                k1q, k1v = derivative(q, v)
+                k2q, k2v = derivative(q + 0.5 * dt * k1q, v + 0.5 * dt * k1v)
+                k3q, k3v = derivative(q + 0.5 * dt * k2q, v + 0.5 * dt * k2v)
+                k4q, k4v = derivative(q + dt * k3q, v + dt * k3v)
+                q = q + dt / 6.0 * (k1q + 2.0 * k2q + 2.0 * k3q + k4q)
+                v = v + dt / 6.0 * (k1v + 2.0 * k2v + 2.0 * k3v + k4v)
+            return q, v
+    mujoco_model = mujoco_panda(path, PD_GAINS, rate)
+    if mujoco_model is not None:
+        import mujoco
+
+        mujoco_data = mujoco.MjData(mujoco_model)
+
+        def mujoco_loop():
+            mujoco.mj_resetData(mujoco_model, mujoco_data)
+            mujoco_data.qpos[:], mujoco_data.qvel[:], mujoco_data.ctrl[:] = q0, v0, q_ref
+            mujoco.mj_step(mujoco_model, mujoco_data, nstep=steps)
+            return mujoco_data.qpos.copy(), mujoco_data.qvel.copy()
+    threads = mb.get_num_threads()
+    mb.set_num_threads(1)
+    try:
+        for name, tau in runs.items():  # compiled (or loaded) before timing
+            mb.simulate(model, q0, v0, 3 * dt, tau=tau, **options)
+        for _ in range(repeats):
+            for name, tau in runs.items():
+                start = time.perf_counter()
+                trajectory = mb.simulate(model, q0, v0, duration, tau=tau, **options)
+                timings[name].append(time.perf_counter() - start)
+                finals[name] = trajectory.q[-1], trajectory.v[-1]
+            if pin is not None:
+                start = time.perf_counter()
+                finals["pinocchio"] = pinocchio_loop()
+                timings["pinocchio"].append(time.perf_counter() - start)
+            if mujoco_model is not None:
+                start = time.perf_counter()
+                finals["mujoco"] = mujoco_loop()
+                timings["mujoco"].append(time.perf_counter() - start)
+    finally:
+        mb.set_num_threads(threads)
+    result = {f"{name}_s": min(values) for name, values in timings.items() if values}
+    result["ours_s"] = result["python_s"]
+    q_pd, v_pd = finals["pd"]
+    result["controllers_final_difference"] = float(max(np.abs(np.concatenate(finals[name]) - np.concatenate(finals["pd"])).max()
+                                                       for name in runs))
+    if pin is not None:
+        result["ratio"] = result["python_s"] / result["pinocchio_s"]
+        result["final_state_difference"] = float(max(np.abs(finals["pinocchio"][0] - q_pd).max(),
+                                                     np.abs(finals["pinocchio"][1] - v_pd).max()))
+    if mujoco_model is not None:
+        result["pd_vs_mujoco"] = result["pd_s"] / result["mujoco_s"]
+        result["njit_vs_mujoco"] = result["njit_s"] / result["mujoco_s"]
+        result["mujoco_final_difference"] = float(max(np.abs(finals["mujoco"][0] - q_pd).max(),
+                                                      np.abs(finals["mujoco"][1] - v_pd).max()))
+        # the same ODE: MuJoCo's accelerations (the actuators' forces included) against ours at a random state
+        state = model.random_configuration(np.random.default_rng(5)), np.random.default_rng(6).standard_normal(model.nv)
+        mujoco.mj_resetData(mujoco_model, mujoco_data)
+        mujoco_data.qpos[:], mujoco_data.qvel[:], mujoco_data.ctrl[:] = state[0], state[1], q_ref
+        mujoco.mj_forward(mujoco_model, mujoco_data)
+        ours = mb.forward_dynamics(model, *state, controller(0.0, *state))
+        result["mujoco_acceleration_difference"] = float(np.abs(mujoco_data.qacc - ours).max())
     return result
+
+
+def panda_pd_lines(pd, duration):
+    """The benchmark lines of :func:`panda_pd_loop`'s result ``pd``."""
+    nan = float("nan")
+    return [
+        f"Panda with a PD controller, {duration:g} s by RK4 at 1 kHz, one thread: mb.simulate with mb.PD "
+        f"{pd['pd_s'] * 1e3:.1f} ms, with a numba.njit controller {pd['njit_s'] * 1e3:.1f} ms, with a Python callable "
+        f"{pd['python_s'] * 1e3:.1f} ms (final states of the three agree to {pd['controllers_final_difference']:.1e})",
+        f"  against MuJoCo's RK4 mj_step loop in C on the same ODE {pd.get('mujoco_s', nan) * 1e3:.1f} ms: mb.PD "
+        f"{pd.get('pd_vs_mujoco', nan):.2f}× (target ≤ 0.5), njit {pd.get('njit_vs_mujoco', nan):.2f}× (target ≤ 0.6); "
+        f"accelerations agree to {pd.get('mujoco_acceleration_difference', nan):.1e}, final states to "
+        f"{pd.get('mujoco_final_difference', nan):.1e}",
+        f"  against the same RK4 loop in Python on Pinocchio {pd.get('pinocchio_s', nan) * 1e3:.1f} ms: the Python "
+        f"callable {pd.get('ratio', nan):.2f}× (target ≤ 1.0); final states differ by "
+        f"{pd.get('final_state_difference', nan):.1e} (required ≤ 1e-10)",
+    ]
+
+
+def batched_pd_line(n=4096, duration=1.0, rate=1000.0, repeats=2):
+    """The benchmark line of ``n`` Panda trajectories under the PD of :func:`panda_pd_loop` (random starts within
+    0.3 of the neutral pose, at rest) for ``duration`` s by RK4 at ``rate`` Hz on every thread: one ``mb.simulate``
+    call with ``mb.PD`` against ``mujoco.rollout`` of :func:`mujoco_panda` with one ``MjData`` per thread, each
+    its wall time (best of ``repeats``) per trajectory-step, and the largest difference of their final states."""
+    path = os.path.join(example_robot_data(), ROBOTS["panda"][0])
+    model = load(path)
+    q_ref = model.neutral() + 0.3
+    rng = np.random.default_rng(7)
+    q0 = model.neutral() + rng.uniform(-0.3, 0.3, (n, model.nq))
+    v0 = np.zeros((n, model.nv))
+    steps = int(round(duration * rate))
+    tau = mb.PD(*PD_GAINS, q_ref)
+    options = dict(dt=1.0 / rate, method="RK4", tau=tau, limits="ignore")
+    mb.simulate(model, q0[:2], v0[:2], 3.0 / rate, **options)  # compiled (or loaded) before timing
+    ours = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        trajectory = mb.simulate(model, q0, v0, duration, **options)
+        ours.append((time.perf_counter() - start) / (n * steps))
+    threads = mb.get_num_threads()
+    line = (f"batched PD, {n} Panda trajectories for {duration:g} s by RK4 at {rate:g} Hz on {threads} threads: "
+            f"mb.simulate {min(ours) * 1e6:.2f} µs per trajectory-step ({int(trajectory.completed.sum())} of {n} "
+            "completed)")
+    mujoco_model = mujoco_panda(path, PD_GAINS, rate)
+    if mujoco_model is None:
+        return line + "; MuJoCo not installed"
+    import mujoco
+    from mujoco import rollout
+
+    datas = [mujoco.MjData(mujoco_model) for _ in range(threads)]
+    full = mujoco.mjtState.mjSTATE_FULLPHYSICS
+    initial = np.zeros((n, mujoco.mj_stateSize(mujoco_model, full)))
+    for r in range(n):
+        mujoco.mj_resetData(mujoco_model, datas[0])
+        datas[0].qpos[:], datas[0].qvel[:] = q0[r], v0[r]
+        mujoco.mj_getState(mujoco_model, datas[0], initial[r], full)
+    control = np.broadcast_to(q_ref, (1, 1, mujoco_model.nu))
+    theirs = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        states, _ = rollout.rollout(mujoco_model, datas, initial, control, nstep=steps)
+        theirs.append((time.perf_counter() - start) / (n * steps))
+    # the state's layout: time, qpos, qvel, ...
+    final = states[:, -1, 1 : 1 + model.nq]
+    difference = float(np.abs(final - trajectory.q[:, -1]).max())
+    return (line + f"; mujoco.rollout {min(theirs) * 1e6:.2f} µs per trajectory-step; ratio "
+            f"{min(ours) / min(theirs):.2f}; final positions agree to {difference:.1e}")
 
 
 def inverse_kinematics_line(n=1000, poses=20):
@@ -432,7 +606,8 @@ def main(argv=None):
     table = markdown(rows, args.sizes)
     memory = crba_peak_memory(args.memory_states, rng)
     ball = rolling_ball(args.sim_duration, 1000.0, args.budget)
-    pd = panda_pd_loop(3.0 if not args.quick else 0.01)
+    pd_duration = 3.0 if not args.quick else 0.01
+    pd = panda_pd_loop(pd_duration, repeats=5 if not args.quick else 1)
     rne = {row["robot"]: row.get("rne_python_us") for row in rows if row["algorithm"] == "rnea"}
     extra = [
         f"peak memory of the batched Panda CRBA at N = {args.memory_states}: {memory:.0f} MB",
@@ -444,13 +619,11 @@ def main(argv=None):
         f"energy drift {ball['rk4_energy_drift_j']:.1e} J)",
         f"rolling ball, one step through simulate at 1 kHz: variational {ball['variational_step_us']:.0f} µs, "
         f"RK4 {ball['rk4_step_us']:.0f} µs ({ball['variational_step_us'] / ball['rk4_step_us']:.1f}×; target ≤ 3×)",
-        f"Panda with a PD controller, {3.0 if not args.quick else 0.01:g} s by RK4 at 1 kHz: mb.simulate "
-        f"{pd['ours_s']:.2f} s, the same loop on Pinocchio {pd.get('pinocchio_s', float('nan')):.2f} s "
-        f"(ratio {pd.get('ratio', float('nan')):.2f}; final states differ by "
-        f"{pd.get('final_state_difference', float('nan')):.1e})",
+        *panda_pd_lines(pd, pd_duration),
         inverse_kinematics_line(16 if args.quick else 1000, 2 if args.quick else 20),
         closed_chain_line(4 if args.quick else 40, 0.01 if args.quick else args.budget),
         batched_rk4_line(64 if args.quick else 4096, 0.005 if args.quick else 1.0),
+        batched_pd_line(64 if args.quick else 4096, 0.005 if args.quick else 1.0, repeats=1 if args.quick else 2),
         dask_line(1000 if args.quick else 100_000, 2 if args.quick else 4, 0.01 if args.quick else 1.0),
         gpu_line(1000 if args.quick else 1_000_000, 0.01 if args.quick else 1.0),
         mjcf_load_line(0.05 if args.quick else args.budget),
