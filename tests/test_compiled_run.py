@@ -21,7 +21,7 @@ import multibody as mb
 from multibody import integrators, simulation
 from multibody.kernels import stepping
 
-from constraint_helpers import crank_state, parallelogram_chain, planar_closures
+from constraint_helpers import crank_state, parallelogram_chain, particle_model, planar_closures
 from test_simulation_batched import ball_system, random_states
 
 FIXED = ("Euler", "semi-implicit Euler", "RK4")
@@ -479,6 +479,22 @@ def test_a_projection_that_does_not_converge_stops_with_the_python_loops_message
     assert re.fullmatch(r"projection onto the position constraints did not converge: \|φ\| = \S+ after 1 iterations",
                         str(error))
     assert float(str(error).split("= ")[1].split()[0]) == float(f"{run.io[stepping.IO_VALUE]:.3g}") > 0.0
+
+
+def test_a_projection_the_compiled_step_cannot_make_hands_the_step_to_python():
+    """A particle held by a rod of 0.5 m to the origin, one explicit Euler step from off the rod straight into the
+    origin, where the rod has no direction: the run stops before that step with PROJECTION_UNSOLVED, which is no
+    failure of its own (the table has none for it): simulate's Python loop takes such a step, as it takes a stage
+    the run cannot (test above)."""
+    model = particle_model(1.0)
+    system = mb.ConstrainedSystem(model, [mb.Distance("p1", None, 0.5)])
+    times = np.array([0.0, 0.1, 0.2])
+    run = simulation._compiled_run(system, simulation._Charts(system.system), integrators.TABLEAUS["Euler"], None,
+                                   None, True, 1e-12, times)
+    states = np.zeros((3, 6))
+    states[0] = [0.1, 0.0, 0.0, -1.0, 0.0, 0.0]  # (q⁺ = q + h v = 0)
+    assert run.advance(states, 1, 3) == (1, stepping.PROJECTION_UNSOLVED)
+    assert stepping.PROJECTION_UNSOLVED not in simulation._RUN_FAILURES
 
 
 def test_a_python_controller_that_raises_keeps_the_steps_before_its_stage(python_loop):
