@@ -400,6 +400,32 @@ def test_a_batch_through_singular_configurations_hands_those_steps_to_python(sta
         assert_same(batch.select(r), alone, tol=0.0)
 
 
+def test_a_trajectory_of_a_batch_whose_controller_fails_stops_alone_with_its_message():
+    """A compiled controller that turns NaN once the shoulder passes 0.4 rad: of three double pendulums, the one
+    that swings past it stops there (NaN after its last good state, its status the message of its run alone), the
+    others complete as alone."""
+    model = mb.robots.load("double_pendulum")
+
+    @numba.njit
+    def guarded(t, q, v, out):
+        out[0] = np.nan if q[0] > 0.4 else 0.0
+
+    q0 = np.array([[0.1, 0.0], [0.3, 0.0], [-0.2, 0.1]])
+    v0 = np.array([[0.0, 0.0], [2.0, 0.0], [0.0, 0.0]])
+    with pytest.warns(RuntimeWarning, match="1 of 3 trajectories stopped early"):
+        batch = mb.simulate(model, q0, v0, 0.5, dt=0.01, method="RK4", tau=guarded, limits="ignore")
+    assert batch.completed.tolist() == [True, False, True]
+    with pytest.raises(mb.SimulationError) as alone:
+        mb.simulate(model, q0[1], v0[1], 0.5, dt=0.01, method="RK4", tau=guarded, limits="ignore")
+    assert batch.status[1] == str(alone.value)
+    good = len(alone.value.trajectory)
+    np.testing.assert_array_equal(batch.q[1, :good], alone.value.trajectory.q)
+    assert np.isnan(batch.q[1, good:]).all()
+    for r in (0, 2):
+        assert_same(batch.select(r), mb.simulate(model, q0[r], v0[r], 0.5, dt=0.01, method="RK4", tau=guarded,
+                                                 limits="ignore"), tol=0.0)
+
+
 # ============================================================================= where a run stops
 
 
