@@ -70,11 +70,11 @@ def _runge_kutta(c, a, b, order):
 
 #: The fixed-step methods of :func:`multibody.simulate` by name.
 TABLEAUS = {
-    # explicit Euler: y⁺ = y₀ + h f(t₀, y₀) (Hairer, Nørsett & Wanner, Solving ODEs I, §I.7, eq. (7.3))
+    # explicit Euler: y⁺ = y₀ + h f(t₀, y₀) (Euler's polygons: Hairer, Nørsett & Wanner, Solving ODEs I, §I.7)
     "Euler": _runge_kutta((0.0,), ((0.0,),), (1.0,), 1),
     # semi-implicit Euler: w⁺ = w₀ + h ẇ(t₀, δ₀, w₀), then δ⁺ = h chart_rate(0, w⁺) = h w⁺: the symplectic Euler
-    # method of Hairer, Lubich & Wanner, GNI §I.1.2, eq. (1.9), for q̇ = v (symplectic for a separable
-    # Hamiltonian, GNI Theorem VI.3.3); two stages, the second of which evaluates δ̇ only
+    # method of Hairer, Lubich & Wanner, GNI eq. (I.1.9), for q̇ = v (symplectic for a separable Hamiltonian,
+    # GNI Theorem VI.3.3); two stages, the second of which evaluates δ̇ only
     "semi-implicit Euler": Tableau((0.0, 1.0), ((0.0, 0.0), (0.0, 0.0)), ((0.0, 0.0), (1.0, 0.0)), (0.0, 1.0),
                                    (1.0, 0.0), 1),
     # the classical Runge–Kutta method (Hairer, Nørsett & Wanner, Solving ODEs I, §II.1, Table 1.2, left)
@@ -143,8 +143,8 @@ class PD:
         τ = k_p ⊙ (q_ref ⊖ q) + k_d ⊙ (v_ref − v) + τ_ff
 
     with ``q_ref ⊖ q = model.difference(q, q_ref)``, the velocity (tangent space, ``(nv,)``) that takes ``q`` to
-    ``q_ref`` in unit time: ``q_ref − q`` for angles and displacements, rotation vectors for quaternions. Joint
-    forces in N·m or N per coordinate of ``v``.
+    ``q_ref`` in unit time: ``q_ref − q`` for angles and displacements, the logarithm of SO(3), SE(3) or SE(2) for
+    spherical, free-flyer and planar joints. Joint forces in N·m or N per coordinate of ``v``.
 
     Args:
         kp, kd: gains, a number or ``(nv,)`` (N·m/rad or N/m, and N·m·s/rad or N·s/m), or ``(N, nv)`` for ``N``
@@ -251,10 +251,10 @@ class PD:
         def per_trajectory(value):
             return np.broadcast_to(0.0 if value is None else value, (count, nv))
 
+        times = np.broadcast_to(self.t_ref if table else [0.0], (count, n))
         rows = np.concatenate([per_trajectory(self.kp), per_trajectory(self.kd), per_trajectory(self.tau_ff),
-                               np.full((count, 1), float(n)), np.broadcast_to(self.t_ref if table else [0.0], (count, n)),
-                               q_ref.reshape(count, n * nq), np.broadcast_to(v_ref, (count, n, nv)).reshape(count, n * nv)],
-                              axis=1)
+                               np.full((count, 1), float(n)), times, q_ref.reshape(count, n * nq),
+                               np.broadcast_to(v_ref, (count, n, nv)).reshape(count, n * nv)], axis=1)
         tree = model.tree if model is not None else vector_space_tree(nq)
         return PDController(tree, np.ascontiguousarray(rows), nq, nv)
 
@@ -265,7 +265,8 @@ class PDController:
     own), by :func:`multibody.kernels.stepping.pd_torque`: the code the compiled step runs.
 
     Attributes:
-        rows: ``(1 or N, L)`` the law's data, one row per trajectory (layout of :func:`~multibody.kernels.stepping.pd_torque`).
+        rows: ``(1 or N, L)`` the law's data, one row per trajectory (layout of
+            :func:`~multibody.kernels.stepping.pd_torque`).
     """
 
     def __init__(self, tree, rows, nq, nv):
@@ -377,7 +378,8 @@ def as_controller(tau, system, batch=None):
 #: The argument types of :func:`multibody.kernels.stepping.run` (one trajectory): the tree's arrays and the constraint
 #: frames read-only, then the program, times, plan, control row, states, io and workspace; and of
 #: :func:`~multibody.kernels.stepping.advance`, which takes a compiled controller first.
-_TREE_INTS, _TREE_FLOATS = (types.Array(types.int64, 2, "C", readonly=True), types.Array(types.float64, 2, "C", readonly=True))
+_TREE_INTS = types.Array(types.int64, 2, "C", readonly=True)
+_TREE_FLOATS = types.Array(types.float64, 2, "C", readonly=True)
 _RUN_TYPES = (_TREE_INTS, _TREE_FLOATS, _TREE_FLOATS, types.float64[::1], types.float64[::1], types.float64[::1],
               types.float64[::1], types.float64[:, ::1], types.float64[::1], types.float64[::1])
 _ADVANCE_TYPES = (_CONTROLLER_FUNCTION,) + _RUN_TYPES
@@ -387,8 +389,8 @@ _TRAJECTORIES_TYPES = (types.FunctionType(types.none(*_ADVANCE_TYPES)), _CONTROL
 
 
 @numba.njit(cache=True, parallel=True, error_model="numpy")
-def _trajectories(advance, controller, joints, reals, frames, program, times, plan, control, states, io, rows, workspace,
-                  shares):
+def _trajectories(advance, controller, joints, reals, frames, program, times, plan, control, states, io, rows,
+                  workspace, shares):
     # ``advance`` (multibody.kernels.stepping.advance) is a first-class function, so that this loop's cached machine
     # code holds none of the kernels' (whose cache multibody.kernels renews when their sources change)
     n = rows.shape[0]

@@ -229,7 +229,8 @@ def test_pd_and_compiled_controllers_equal_the_same_law_in_python():
             out[c] = kp[c] * (q_ref[c] - q[c]) + kd[c] * (v_ref[c] - v[c]) + tau_ff[c]
 
     options = dict(dt=1e-3, method="RK4", limits="ignore")
-    python = mb.simulate(model, q0, v0, 0.3, tau=lambda t, q, v: kp * (q_ref - q) + kd * (v_ref - v) + tau_ff, **options)
+    python = mb.simulate(model, q0, v0, 0.3, tau=lambda t, q, v: kp * (q_ref - q) + kd * (v_ref - v) + tau_ff,
+                         **options)
     for tau in (mb.PD(kp, kd, q_ref, v_ref, tau_ff), law):
         assert_same(mb.simulate(model, q0, v0, 0.3, tau=tau, **options), python)
 
