@@ -265,13 +265,13 @@ def _compiled_by_default():
 def cmd_compile(args):
     import time
 
-    from numba.core.dispatcher import Dispatcher
+    from numba.extending import is_jitted
 
     from . import driver
 
     which = "every kernel" if args.all else "the kernels of the demos and the common dynamics calls"
     kernels = driver.ALL_KERNELS if args.all else _compiled_by_default()
-    if not all(isinstance(kernel, Dispatcher) for kernel in kernels):
+    if not all(is_jitted(kernel) for kernel in kernels):
         print("nothing to compile: NUMBA_DISABLE_JIT=1 runs the kernels as Python")
         return 0
     missing = [kernel for kernel in kernels if not driver.compiled_before((kernel,))]

@@ -34,9 +34,10 @@ import warnings
 import numba
 import numpy as np
 from numba import njit, prange
-from numba.core import event
-from numba.core.dispatcher import Dispatcher
-from numba.core.types.function_type import CompileResultWAP
+from numba.extending import is_jitted
+
+from . import numba_hooks
+from .numba_hooks import event
 
 from .kernels import (aba, centroidal, configuration, constraints, coriolis, crba, derivatives, energy, ik, integration,
                       kinematics, kkt, lagrangian, rnea, stepping, variational)
@@ -62,12 +63,10 @@ _WORKSPACE = {kernel: module.workspace_size for module in (rnea, crba, aba, cori
 
 def compiled_before(kernels=None) -> bool:
     """Whether this machine has the compiled code of ``kernels`` (default: every kernel) on disk
-    already (Numba's cache index of each), so that a first run can say it is compiling."""
-    for kernel in ALL_KERNELS if kernels is None else kernels:
-        cache_file = getattr(getattr(kernel, "_cache", None), "_cache_file", None)
-        if cache_file is None or not os.path.isfile(cache_file._index_path):
-            return False
-    return True
+    already (:func:`multibody.numba_hooks.cached_on_disk` of each), so that a first run can say it is
+    compiling. ``False`` under ``NUMBA_DISABLE_JIT=1``, where nothing is compiled."""
+    return all(is_jitted(kernel) and numba_hooks.cached_on_disk(kernel, _SINGLE_CALL_TYPES)
+               for kernel in (ALL_KERNELS if kernels is None else kernels))
 
 
 def compile_kernels(kernels=None, processes=None) -> None:
@@ -81,7 +80,7 @@ def compile_kernels(kernels=None, processes=None) -> None:
     compile more than once; a worker that fails leaves its kernels to be compiled on first use, as
     without this call. Does nothing under ``NUMBA_DISABLE_JIT=1``."""
     missing = [kernel for kernel in (ALL_KERNELS if kernels is None else kernels)
-               if isinstance(kernel, Dispatcher) and not compiled_before((kernel,))]
+               if is_jitted(kernel) and not compiled_before((kernel,))]
     if processes is None:
         processes = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
     processes = max(1, min(int(processes), len(missing)))
@@ -252,11 +251,9 @@ def first_class(function, types):
     """``function`` (a Numba dispatcher) compiled for the argument ``types``, as a first-class function: a value
     that compiled code whose argument is ``numba.types.FunctionType`` of that signature calls through a pointer,
     so that one compiled loop serves every such function (:func:`_loop_kernel`; a compiled controller of
-    :mod:`multibody.integrators`). Under ``NUMBA_DISABLE_JIT=1``: the Python function."""
-    if not isinstance(function, Dispatcher):
-        return function
-    function.compile(types)
-    return CompileResultWAP(function.overloads[types])
+    :mod:`multibody.integrators`; :func:`multibody.numba_hooks.first_class`). Under ``NUMBA_DISABLE_JIT=1``: the
+    Python function."""
+    return numba_hooks.first_class(function, types)
 
 
 #: Fewest states a batch gives each thread (the results do not depend on it).
@@ -350,16 +347,12 @@ def _direct(kernel, types=_SINGLE_CALL_TYPES):
     """``kernel``'s compiled entry point for ``types`` (a kernel's: :data:`_SINGLE_CALL_TYPES`), compiled
     (or loaded from Numba's cache) on first use: a call that skips the dispatcher's look at every
     argument's type, a third of a small robot's single call, and that takes a read-only array where
-    the types say writable (Numba's dispatch would compile the function again for it). Under
+    the types say writable (Numba's dispatch would compile the function again for it);
+    :func:`multibody.numba_hooks.entry_point`, the dispatcher where Numba has no such entry. Under
     ``NUMBA_DISABLE_JIT=1``: the Python function."""
     entry = _DIRECT.get(kernel)
     if entry is None:
-        if isinstance(kernel, Dispatcher):
-            kernel.compile(types)
-            entry = kernel.overloads[types].entry_point
-        else:
-            entry = kernel
-        _DIRECT[kernel] = entry
+        entry = _DIRECT[kernel] = numba_hooks.entry_point(kernel, types)
     return entry
 
 

@@ -17,9 +17,9 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 from numba import prange, types
-from numba.core.errors import NumbaError
 
-from . import driver
+from . import driver, numba_hooks
+from .numba_hooks import NumbaError
 from .kernels import joints as kinds
 from .kernels import stepping
 from .model import Model
@@ -333,7 +333,7 @@ class CompiledController:
         except NumbaError as error:
             raise TypeError(f"tau: the numba.njit controller {name}(t, q, v, out) does not compile for t a float and "
                             f"q, v, out float64 vectors: {error}") from error
-        returned = function.overloads[CONTROLLER_TYPES].signature.return_type
+        returned = numba_hooks.return_type(function, CONTROLLER_TYPES)
         if returned != types.none:
             raise TypeError(f"tau: the numba.njit controller {name}(t, q, v, out) must write the joint forces into "
                             f"out and return nothing; it returns {returned}")

@@ -14,15 +14,9 @@ def _machine_code_directory():
     """The folder where Numba caches the kernels' machine code, as Numba picks it for a function of this
     package (``NUMBA_CACHE_DIR``, else ``__pycache__`` beside the sources, else the user-wide cache);
     ``None`` where none is writable."""
-    try:
-        from numba.core.caching import InTreeCacheLocator, UserProvidedCacheLocator, UserWideCacheLocator
-    except ImportError:  # a Numba without these names: the folder beside the sources
-        return os.path.join(os.path.dirname(__file__), "__pycache__")
-    for locator in (UserProvidedCacheLocator, InTreeCacheLocator, UserWideCacheLocator):
-        found = locator.from_function(_machine_code_directory, __file__)
-        if found is not None:
-            return found.get_cache_path()
-    return None
+    from ..numba_hooks import cache_directory
+
+    return cache_directory(_machine_code_directory, __file__)
 
 
 def _forget_stale_machine_code():
@@ -35,7 +29,8 @@ def _forget_stale_machine_code():
     mass matrix from the cache. One digest of all those sources, kept beside the cache, tells."""
     package = os.path.dirname(os.path.abspath(__file__))
     sources = sorted(os.path.join(package, name) for name in os.listdir(package) if name.endswith(".py"))
-    sources.append(os.path.join(os.path.dirname(package), "tree.py"))
+    # (and numba_hooks.py, whose options and typing the kernels compile with)
+    sources += [os.path.join(os.path.dirname(package), name) for name in ("tree.py", "numba_hooks.py")]
     digest = hashlib.sha256()
     for path in sources:
         with open(path, "rb") as source:

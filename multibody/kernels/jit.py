@@ -9,13 +9,14 @@ helper is inlined into its caller. So a call with constant arguments is typed by
 types (``int64``, ``bool``), as Numba's ``@overload`` functions are typed by default, and by the
 constants themselves only where the function does not compile for their types. The compiled
 arithmetic, and so every number, is the same; the rolling-ball demo's first run compiles 125 functions instead of 155.
+
+Both the typing by types and the compiling without the runtime reach into Numba's internals, which
+:mod:`multibody.numba_hooks` holds with their fallbacks (typing by value; the runtime kept).
 """
 
 from __future__ import annotations
 
-import numba
-from numba.core import errors, types
-from numba.core.dispatcher import Dispatcher
+from ..numba_hooks import njit_without_runtime, typed_by_types
 
 
 def njit(**options):
@@ -36,24 +37,6 @@ def njit(**options):
 
     Under ``NUMBA_DISABLE_JIT=1``: the Python function, as ``numba.njit`` gives it."""
     def decorate(function):
-        dispatcher = numba.njit(_nrt=False, **options)(function)
-        if isinstance(dispatcher, Dispatcher):
-            dispatcher.get_call_template = _typed_by_types(dispatcher.get_call_template)
-        return dispatcher
+        return typed_by_types(njit_without_runtime(**options)(function))
 
     return decorate
-
-
-def _typed_by_types(get_call_template):
-    """A dispatcher's ``get_call_template`` (Numba's typing of a call from compiled code, which compiles
-    the function for the call's argument types) that tries the arguments' types before their values."""
-    def typed(args, kws):
-        plain = tuple(types.unliteral(a) for a in args)
-        if plain != tuple(args):
-            try:
-                return get_call_template(plain, kws)
-            except errors.TypingError:
-                pass  # the function needs the values
-        return get_call_template(args, kws)
-
-    return typed
