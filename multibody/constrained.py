@@ -376,10 +376,24 @@ class ConstrainedSystem:
         return np.concatenate(pieces, axis=-1 if len(shape) == 1 else -2) if pieces else np.zeros(shape)
 
     def position_error(self, q, t=0.0):
-        """``φ(q, t)`` of the rows with a position level, zeros for the others: ``(m,)``."""
+        """``φ(q, t)`` of the rows with a position level, zeros for the others: ``(m,)``. Raises
+        :class:`ConstraintError` where ``q`` is on a wrong branch of a constraint's rows (:meth:`_check_branches`)."""
+        self._check_branches(q)
+        return self._position_error(q, t)
+
+    def _position_error(self, q, t):
+        """:meth:`position_error` without the check of the branch (the Baumgarte terms, at any state)."""
         pieces = [c.position(self.system, q, t) if has_position else np.zeros(np.shape(q)[:-1] + (m,))
                   for c, m, has_position in zip(self.constraints, self._rows, self._has_position)]
         return self._stack(pieces, (0,))
+
+    def _check_branches(self, q):
+        """:class:`ConstraintError` naming the constraint where ``q (..., nq)`` lies on another zero of its
+        position rows than the pose it stands for
+        (:meth:`~multibody.constraints.Constraint.branch_error`): ``φ = 0`` there, so only this check tells."""
+        for c, has_position in zip(self.constraints, self._has_position):
+            if has_position and (message := c.branch_error(self.system, q)) is not None:
+                raise ConstraintError(f"{c.name}: {message}")
 
     def velocity_level(self, q, t=0.0):
         """Stacked ``(A, b)`` of ``A v + b = 0``: ``(m, nv)``, ``(m,)``."""
@@ -425,7 +439,7 @@ class ConstrainedSystem:
         if self.baumgarte is not None and self.num_rows:
             alpha, beta = self.baumgarte
             velocity_error = matvec(A, v) + self._stack([level[1] for level in levels], (0,))
-            gamma = gamma - 2.0 * alpha * velocity_error - beta**2 * self.position_error(q, t)
+            gamma = gamma - 2.0 * alpha * velocity_error - beta**2 * self._position_error(q, t)
         return A, gamma
 
     def acceleration_rhs(self, q, v, t=0.0):
@@ -436,10 +450,13 @@ class ConstrainedSystem:
         """Largest constraint violation: ``max(|φ|, |A v + b|)`` over all rows (0 without constraints).
 
         A float for one state; ``(...)`` for a batch ``q (..., nq)``, ``v (..., nv)`` (see :attr:`batched`).
+        Raises :class:`ConstraintError` where ``q`` is on a wrong branch of a constraint's rows, where ``φ = 0``
+        does not mean closed (:meth:`_check_branches`).
         """
         q, v = self._check_state(q, v)
         if not self.num_rows:
             return 0.0 if q.ndim == 1 else np.zeros(q.shape[:-1])
+        self._check_branches(q)
         phi, A, b = self._position_and_velocity_levels(q, t)
         worst = np.maximum(np.abs(phi).max(axis=-1), np.abs(matvec(A, v) + b).max(axis=-1))
         return float(worst) if q.ndim == 1 else worst
@@ -834,8 +851,10 @@ class ConstrainedSystem:
         Positions by Gauss–Newton steps ``δ = −M⁻¹Aᵀ (A M⁻¹ Aᵀ)⁺ φ`` on the rows with a position level (the
         smallest move in the kinetic-energy metric), then velocities by the ``M``-orthogonal
         projection ``v' = v − M⁻¹Aᵀ (A M⁻¹ Aᵀ)⁺ (A v + b)``. Raises :class:`ConstraintError` when the
-        positions do not converge. ``q``, ``v`` may carry leading batch axes when :attr:`batched`; each state of
-        a batch stops at its own tolerance, so that it equals its projection alone.
+        positions do not converge, or when they converge on a wrong branch of a constraint's rows (a loop
+        closure's frames a half turn apart: :meth:`~multibody.constraints.Constraint.branch_error`). ``q``, ``v``
+        may carry leading batch axes when :attr:`batched`; each state of a batch stops at its own tolerance, so
+        that it equals its projection alone.
 
         The first projection of this system (here, or at the initial state of :func:`multibody.simulate`)
         gives a :class:`RankDeficientWarning` when the rows at the projected state are not independent.
@@ -846,9 +865,11 @@ class ConstrainedSystem:
         """:meth:`project`, and the conditioning of the rows at the projected state ``(...)``: the
         smallest singular value of ``A L⁻ᵀ`` above rounding (``m ε σ_max``, which leaves out redundant rows)
         over the largest, or (compiled, where the LQ factor decides) a lower bound on it within a factor
-        ``m``; 1 without rows. The first projection of the system checks the rank of the rows at its state
+        ``m``; 1 without rows. Every projected state is checked for a wrong branch (:meth:`_check_branches`),
+        and the first projection of the system checks the rank of the rows at its state
         (:meth:`_warn_if_rank_deficient`)."""
         projected = self._projected(q, v, t, tolerance, max_iterations)
+        self._check_branches(projected[0])
         if not self._rank_checked:
             self._rank_checked = True
             self._warn_if_rank_deficient(projected[0], t)

@@ -141,6 +141,14 @@ class Constraint:
         phi = self.position(system, q, t) if mask.any() else np.zeros(np.shape(q)[:-1] + (mask.size,))
         return (phi * mask, *self.velocity_level(system, q, t))
 
+    def branch_error(self, system, q):
+        """Why ``q (..., nq)`` lies on a wrong branch of the position rows, a configuration where ``φ`` can vanish
+        away from the pose the constraint stands for, or ``None`` (always here: rows without such zeros).
+        A :class:`~multibody.constrained.ConstrainedSystem` raises
+        :class:`~multibody.constrained.ConstraintError` with it after each projection and where it reports
+        ``φ`` (``position_error``, ``residual``); :class:`LoopClosure` gives one for its orientation rows."""
+        return None
+
     def body_forces(self, system, q, lam, t=0.0):
         """Spatial forces the constraint exerts on the bodies for multipliers ``lam (m,)``.
 
@@ -675,6 +683,19 @@ class LoopClosure(CompiledRows):
     The multipliers of the position rows are the reaction force on body B at B's origin, along those
     axes of frame A (N); those of the orientation rows are the moments (N m) about ``e_i^A × e_j^B``.
 
+    The orientation rows vanish at other relative rotations ``R = R_WAᵀ R_WB`` too. The weld's hold every ``R``
+    with zeros at (y, z), (z, x), (x, y): besides ``I``, the half turns about an axis of A (``diag(1, −1, −1)``
+    and its permutations) and the 120° turns about (1, 1, 1), (1, −1, −1), (−1, 1, −1) and (−1, −1, 1) in
+    A's axes (B's axes the cyclic permutation x → y → z → x of A's, with signs). The revolute's hold B's z
+    along A's z or against it. No three smooth rows on SO(3) vanish at ``I`` alone (the local degrees of a map from a
+    closed 3-manifold to R³ sum to zero), so these other zeros are detected rather than removed:
+    :meth:`branch_error` checks that the paired axes point the same way, ``e_k^A · e_k^B > BRANCH_COSINE``
+    for k = x, y, z (weld) or for z (revolute); on the closed pose's branch these cosines are 1 to first
+    order, on the other zeros −1 or 0. A :class:`~multibody.constrained.ConstrainedSystem` raises
+    :class:`~multibody.constrained.ConstraintError` where they fail, after a projection (``project``,
+    ``simulate``'s initial state) and in ``position_error`` and ``residual``: a projection started far from
+    the closed pose can settle on another zero, where ``φ = 0``.
+
     Args:
         body_a, body_b: body names or indices (``None``: the world).
         frame_a, frame_b: 4×4 poses of A and B in their bodies (world poses for ``None``).
@@ -694,6 +715,14 @@ class LoopClosure(CompiledRows):
     #: Largest sine of the angle between axes counted as parallel (and cosine counted as perpendicular)
     #: when the plane is inferred: URDF axes and rotations are exact to rounding.
     PARALLEL_TOLERANCE = 1e-9
+
+    #: Smallest cosine ``e_k^A · e_k^B`` between paired axes on the closed pose's branch (:meth:`branch_error`).
+    #: The rows' other zeros have cosines of −1 or 0, the latter only to the rows' tolerance (of either sign),
+    #: so the threshold sits between 0 and 1: 1/2 passes any state within 60° of the closed pose.
+    BRANCH_COSINE = 0.5
+
+    #: The axes whose cosines :meth:`branch_error` checks, for each kind with orientation rows (z; x, y, z).
+    BRANCH_AXES = {"revolute": slice(2, 3), "weld": slice(0, 3)}
 
     def __init__(self, body_a, body_b, *, frame_a=None, frame_b=None, kind="point", normal=None, name=None):
         super().__init__(name or f"{kind} loop closure {body_a}-{body_b}")
@@ -789,6 +818,42 @@ class LoopClosure(CompiledRows):
 
     def _frames(self, system, q, v):
         return tuple(_frame(system, self, q, v, body, placement) for body, placement in self.body_frames)
+
+    def branch_error(self, system, q):
+        """Where frame B's axes point away from frame A's at ``q (..., nq)``, on another zero of the orientation
+        rows (the class docstring): the message naming the axis, the angle and the turn between the frames
+        (for a batch, of the state with the smallest cosine); ``None`` on the closed pose's branch, for a
+        kind without orientation rows, or where ``q`` is not finite."""
+        axes = self.BRANCH_AXES.get(self.kind)
+        if axes is None:
+            return None
+        model = _require_model(system, self)
+        q = model.check_configuration(q)
+        # World placements (..., 2, 4, 4) of frames A and B: one compiled pass for both.
+        X = kinematics._placements(model, q, self._program_on(model)[1], q.shape[:-1])
+        # e_k^A · e_k^B: the sum over world axes of the products of the columns k of R_WA and R_WB
+        cosines = (X[..., 0, :3, axes] * X[..., 1, :3, axes]).sum(axis=-2)
+        wrong = cosines <= self.BRANCH_COSINE  # (NaN states compare False: they have no branch)
+        if not wrong.any():
+            return None
+        worst = np.unravel_index(np.argmin(np.where(wrong, cosines, np.inf)), cosines.shape)
+        state = worst[:-1]
+        cosine, name = float(cosines[worst]), "xyz"[axes.start + worst[-1]]
+        where = f"at state {tuple(int(i) for i in state) if len(state) > 1 else int(state[0])}: " if state else ""
+        if self.kind == "revolute":
+            found = (f"frame B's z axis is {np.degrees(np.arccos(np.clip(cosine, -1.0, 1.0))):.1f}° from frame A's "
+                     f"(e_z^A · e_z^B = {cosine:.3g}); the orientation rows also vanish with the z axes antiparallel")
+        else:
+            turn = spatial.so3_log(X[state][0, :3, :3].T @ X[state][1, :3, :3])
+            angle = float(np.linalg.norm(turn))
+            # (+ 0.0 turns a rounded −0.0 into 0.0)
+            about = (np.round(turn / angle, 3) + 0.0).tolist() if angle > 0.0 else [0.0, 0.0, 1.0]
+            found = (f"frame B is turned {np.degrees(angle):.1f}° from frame A about {about} (frame A's axes), its "
+                     f"{name} axis at e_{name}^A · e_{name}^B = {cosine:.3g}; the orientation rows also vanish at "
+                     "half turns about an axis of A and at 120° turns about four diagonals of its axes")
+        held = "e_z^A · e_z^B" if self.kind == "revolute" else "each e_k^A · e_k^B"
+        return (f"{where}{found}, away from the closed pose; start the projection nearer the closed pose "
+                f"({held} > {self.BRANCH_COSINE:g})")
 
     def program_entry(self, model, frame_index):
         axes = list(self.position_axes) + [0] * (3 - len(self.position_axes))

@@ -1065,3 +1065,109 @@ def test_misspelled_joint_of_a_coupling_is_refused_at_the_systems_construction()
     model = mb.robots.load("double_pendulum")
     with pytest.raises(ValueError, match=r"coupling shoulder-elbw: unknown joint 'elbw'; did you mean 'elbow'\?"):
         mb.ConstrainedSystem(model, [mb.JointCoupling("shoulder", "elbw")])
+
+
+# ============================================================================= the branch of a weld or revolute closure
+
+def anchored_box(kind, seed=80):
+    """A free box held to the world by ``LoopClosure(None, "box", kind=kind)`` with random frames A (world) and
+    B (in the box), and ``pose(R_AB)``: the configuration where frame B is turned by ``R_AB`` from frame A
+    (their origins together)."""
+    b = mb.ModelBuilder("box")
+    b.add_body("box", mb.joints.FreeFlyer(), inertia=mb.inertia.box(2.0, [0.3, 0.2, 0.1]))
+    model = b.build()
+    rng = np.random.default_rng(seed)
+    frame_a, frame_b = random_placement(rng), random_placement(rng)
+    closure = mb.LoopClosure(None, "box", frame_a=frame_a, frame_b=frame_b, kind=kind)
+
+    def pose(R_AB):
+        X = frame_a @ pose_matrix(R_AB, np.zeros(3)) @ np.linalg.inv(frame_b)
+        q = model.neutral()
+        q[:3], q[3:7] = X[:3, 3], mb.spatial.rotation_to_quat(X[:3, :3])
+        return q
+
+    return model, closure, mb.ConstrainedSystem(model, [closure]), pose
+
+
+DIAGONAL = np.ones(3) / np.sqrt(3.0)
+
+#: Relative rotations other than I where the closure's rows vanish, and what the refusal says of them.
+WRONG_BRANCHES = {
+    "weld, half turn about x": (
+        "weld", np.diag([1.0, -1.0, -1.0]),
+        (r"frame B is turned 180\.0° from frame A about \[-?1\.0, 0\.0, 0\.0\] \(frame A's axes\), its [yz] axis at "
+         r"e_[yz]\^A · e_[yz]\^B = -1;")),
+    "weld, 120° about (1, 1, 1)": (
+        "weld", axis_angle_rotation(DIAGONAL, 2.0 * np.pi / 3.0),
+        (r"frame B is turned 120\.0° from frame A about \[0\.577, 0\.577, 0\.577\] \(frame A's axes\), its [xyz] "
+         r"axis at e_[xyz]\^A · e_[xyz]\^B = ")),
+    "revolute, z antiparallel": (
+        "revolute", axis_angle_rotation([1.0, 0.0, 0.0], np.pi) @ axis_angle_rotation([0.0, 0.0, 1.0], 0.7),
+        (r"frame B's z axis is 180\.0° from frame A's \(e_z\^A · e_z\^B = -1\); the orientation rows also vanish "
+         r"with the z axes antiparallel")),
+}
+
+
+@pytest.mark.parametrize("case", list(WRONG_BRANCHES))
+def test_closure_on_another_zero_of_its_rows_is_refused(case):
+    """A weld's rows ``e_i^A · e_j^B`` for (y, z), (z, x), (x, y) vanish with frame B a half turn about an axis
+    of A or 120° about (1, 1, 1) from it, a revolute's (x, z), (y, z) with the z axes antiparallel: ``φ = 0``
+    there, and a projection started near such a pose stays on it. The projection, ``residual`` and
+    ``position_error`` refuse the state, naming the constraint, the axis and the angle, and ``simulate``
+    refuses to start from it."""
+    kind, R_AB, found = WRONG_BRANCHES[case]
+    model, closure, system, pose = anchored_box(kind)
+    q = pose(R_AB)
+    assert np.abs(closure.position(model, q)).max() < 1e-15  # every row vanishes, orientation rows included
+    message = rf"^{closure.name}: {found}.*away from the closed pose; start the projection nearer the closed pose"
+    with pytest.raises(mb.ConstraintError, match=message):
+        system.project(q, np.zeros(6))
+    with pytest.raises(mb.ConstraintError, match=message):
+        system.residual(q, np.zeros(6))
+    with pytest.raises(mb.ConstraintError, match=message):
+        system.position_error(q)
+    with pytest.raises(mb.ConstraintError, match=message):
+        mb.simulate(system, q, np.zeros(6), 0.1, dt=0.01, method="RK4")
+    # from a start near the wrong pose, Gauss–Newton converges to it: the rows alone do not tell
+    rng = np.random.default_rng(81)
+    start = model.integrate(q, 0.1 * rng.standard_normal(6))
+    settled = system._projected(start, np.zeros(6), 0.0, 1e-12, 50)[0]
+    assert np.abs(closure.position(model, settled)).max() < 1e-12
+    with pytest.raises(mb.ConstraintError, match=message):
+        system.project(start, np.zeros(6))
+
+
+def test_every_projection_onto_the_120_degree_zero_is_refused():
+    """At the 120° zero the cosines ``e_k^A · e_k^B`` are zero, known only to the rows' tolerance and of either
+    sign; the check asks more than a positive cosine of each axis, so that none of these states passes."""
+    model, _, system, pose = anchored_box("weld")
+    q = pose(axis_angle_rotation(DIAGONAL, 2.0 * np.pi / 3.0))
+    rng = np.random.default_rng(82)
+    for _ in range(100):
+        with pytest.raises(mb.ConstraintError, match="120.0° from frame A"):
+            system.project(model.integrate(q, 0.1 * rng.standard_normal(6)), np.zeros(6))
+
+
+@pytest.mark.parametrize("kind", ["weld", "revolute"])
+def test_closure_started_near_its_pose_projects_and_passes_the_check(kind):
+    """From starts a few tenths of a radian off the closed pose, the projection closes the loop on the pose's
+    branch, one state and a batch alike, and ``residual`` and ``position_error`` report it; a batch with one
+    state on a wrong zero is refused, naming that state."""
+    model, closure, system, pose = anchored_box(kind)
+    rng = np.random.default_rng(83)
+    q = np.stack([model.integrate(pose(np.eye(3)), 0.3 * rng.standard_normal(6)) for _ in range(3)])
+    v = rng.standard_normal((3, 6))
+    q_batch, v_batch = system.project(q, v)
+    for k in range(3):
+        q_k, v_k = system.project(q[k], v[k])
+        assert np.abs(q_k - q[k]).max() > 1e-2  # the positions moved
+        assert system.residual(q_k, v_k) <= 1e-12
+        assert np.abs(system.position_error(q_k)).max() <= 1e-12
+        R_A, R_B = closure.frame_a[:3, :3], mb.frame_placement(model, q_k, "box")[:3, :3] @ closure.frame_b[:3, :3]
+        axes = [2] if kind == "revolute" else [0, 1, 2]
+        assert_close(np.diag(R_A.T @ R_B)[axes], np.ones(len(axes)), 1e-12, scale=1.0, what="cosines on the branch")
+    assert (system.residual(q_batch, v_batch) <= 1e-12).all()
+    flipped = q_batch.copy()
+    flipped[1] = pose(np.diag([1.0, -1.0, -1.0]))
+    with pytest.raises(mb.ConstraintError, match=rf"^{closure.name}: at state 1: frame B"):
+        system.residual(flipped, v_batch)
