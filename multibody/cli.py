@@ -251,7 +251,7 @@ def _compiled_by_default():
     """The kernels ``multibody compile`` compiles without ``--all``: those of the demos
     (:data:`multibody.demos.KERNELS`), then those of the common dynamics calls (inverse and forward
     dynamics, mass and Coriolis matrices, body placements and Jacobians) and of configuration arithmetic
-    (integrate, difference, normalize)."""
+    (integrate, difference, normalize); then the compiled loops (:func:`_loops`)."""
     from .demos import KERNELS
     from .kernels import aba, configuration, coriolis, crba, kinematics, rnea
 
@@ -259,7 +259,16 @@ def _compiled_by_default():
               kinematics.frame_placements, kinematics.frame_jacobian, configuration.integrate,
               configuration.difference, configuration.normalize)
     # (the demos' kernels first: heaviest first, so that compile_kernels deals them out evenly)
-    return tuple(dict.fromkeys(KERNELS + common))
+    return tuple(dict.fromkeys(KERNELS + common)) + _loops()
+
+
+def _loops():
+    """The compiled loops that ``multibody compile`` compiles with or without ``--all``, as ``(function, argument
+    types)``: the batches' (:data:`multibody.driver.ENTRY_POINTS`) and the fixed-step run's
+    (:data:`multibody.integrators.ENTRY_POINTS`), which a first batch or fixed-step simulation would compile."""
+    from . import driver, integrators
+
+    return driver.ENTRY_POINTS + integrators.ENTRY_POINTS
 
 
 def cmd_compile(args):
@@ -269,9 +278,10 @@ def cmd_compile(args):
 
     from . import driver
 
-    which = "every kernel" if args.all else "the kernels of the demos and the common dynamics calls"
-    kernels = driver.ALL_KERNELS if args.all else _compiled_by_default()
-    if not all(is_jitted(kernel) for kernel in kernels):
+    which = ("every kernel and the loops of batches and fixed-step runs" if args.all else
+             "the kernels of the demos and the common dynamics calls, and the loops of batches and fixed-step runs")
+    kernels = driver.ALL_KERNELS + _loops() if args.all else _compiled_by_default()
+    if not all(is_jitted(kernel) for kernel in driver.ALL_KERNELS):
         print("nothing to compile: NUMBA_DISABLE_JIT=1 runs the kernels as Python")
         return 0
     missing = [kernel for kernel in kernels if not driver.compiled_before((kernel,))]
@@ -285,10 +295,10 @@ def cmd_compile(args):
     elapsed = time.perf_counter() - start
     failed = [kernel for kernel in missing if not driver.compiled_before((kernel,))]
     if failed:
-        print(f"multibody compile: {len(failed)} of {len(missing)} kernels did not compile (each compiles on its "
+        print(f"multibody compile: {len(failed)} of {len(missing)} functions did not compile (each compiles on its "
               f"first use instead): {', '.join(driver._qualified_name(kernel) for kernel in failed)}", file=sys.stderr)
         return 2
-    print(f"compiled {len(missing)} kernels in {elapsed:.1f} s; later processes load them from Numba's cache")
+    print(f"compiled {len(missing)} functions in {elapsed:.1f} s; later processes load them from Numba's cache")
     return 0
 
 
@@ -345,7 +355,8 @@ def build_parser():
                     "worker processes (one per core), so that later runs start without compiling. Without "
                     "--all: the kernels the demos run, and those of the common dynamics calls (inverse and "
                     "forward dynamics, mass and Coriolis matrices, placements, Jacobians, configuration "
-                    "arithmetic). Kernels compiled already are skipped.")
+                    "arithmetic). With or without --all: the loops of batches and of fixed-step simulations. "
+                    "Functions compiled already are skipped.")
     compile_.add_argument("--all", action="store_true", help="every kernel (derivatives, centroidal quantities, "
                           "inverse kinematics, the variational integrator, ...)")
     compile_.set_defaults(run=cmd_compile)

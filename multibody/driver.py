@@ -26,6 +26,7 @@ import contextlib
 import importlib
 import math
 import os
+import pickle
 import subprocess
 import sys
 import threading
@@ -64,23 +65,32 @@ _WORKSPACE = {kernel: module.workspace_size for module in (rnea, crba, aba, cori
 def compiled_before(kernels=None) -> bool:
     """Whether this machine has the compiled code of ``kernels`` (default: every kernel) on disk
     already (:func:`multibody.numba_hooks.cached_on_disk` of each), so that a first run can say it is
-    compiling. ``False`` under ``NUMBA_DISABLE_JIT=1``, where nothing is compiled."""
-    return all(is_jitted(kernel) and numba_hooks.cached_on_disk(kernel, _SINGLE_CALL_TYPES)
-               for kernel in (ALL_KERNELS if kernels is None else kernels))
+    compiling. Each entry is a kernel (its single call, :data:`_SINGLE_CALL_TYPES`) or a pair ``(function,
+    argument types)`` of a compiled loop (:data:`ENTRY_POINTS`). ``False`` under ``NUMBA_DISABLE_JIT=1``,
+    where nothing is compiled."""
+    return all(is_jitted(function) and numba_hooks.cached_on_disk(function, types)
+               for function, types in map(_signature, ALL_KERNELS if kernels is None else kernels))
+
+
+def _signature(entry):
+    """``(function, argument types)`` of an entry of :func:`compile_kernels`: a kernel, or such a pair already."""
+    return entry if isinstance(entry, tuple) else (entry, _SINGLE_CALL_TYPES)
 
 
 def compile_kernels(kernels=None, processes=None) -> None:
-    """Compile the single-call machine code (:func:`_direct`) of those ``kernels`` (default: every kernel)
-    that Numba's on-disk cache lacks, sharing them among ``processes`` (default: the cores this process
-    may use), so that later processes load them in a fraction of a second.
+    """Compile the machine code of those ``kernels`` (default: every kernel) that Numba's on-disk cache lacks,
+    sharing them among ``processes`` (default: the cores this process may use), so that later processes load
+    them in a fraction of a second. An entry is a kernel, compiled for its single call (:func:`_direct`), or a
+    pair ``(function, argument types)``, compiled for those types: a loop that Python calls (:data:`ENTRY_POINTS`,
+    :data:`multibody.integrators.ENTRY_POINTS`) or a function passed to one as a first-class function.
 
     Numba compiles in one thread, so a cold cache on a machine with several cores compiles faster this
     way: this process takes every ``processes``-th kernel of the list and a worker process each of the
     other shares, then this process waits for them. Kernels share helpers, which the workers may
     compile more than once; a worker that fails leaves its kernels to be compiled on first use, as
     without this call. Does nothing under ``NUMBA_DISABLE_JIT=1``."""
-    missing = [kernel for kernel in (ALL_KERNELS if kernels is None else kernels)
-               if is_jitted(kernel) and not compiled_before((kernel,))]
+    missing = [entry for entry in (ALL_KERNELS if kernels is None else kernels)
+               if is_jitted(_signature(entry)[0]) and not compiled_before((entry,))]
     if processes is None:
         processes = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
     processes = max(1, min(int(processes), len(missing)))
@@ -88,14 +98,16 @@ def compile_kernels(kernels=None, processes=None) -> None:
     # (the workers import this very package, wherever it was imported from here)
     package_root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, (package_root, os.environ.get("PYTHONPATH"))))}
-    workers = [subprocess.Popen([sys.executable, "-c", f"from multibody.driver import _compile_named; "
-                                 f"_compile_named({[_qualified_name(kernel) for kernel in share]!r})"],
+    # (a worker gets the functions by name and their argument types pickled: Numba's types pickle, and a function
+    # is found again in its module, whose dispatcher holds the cache)
+    workers = [subprocess.Popen([sys.executable, "-c", "import pickle; from multibody.driver import _compile_named; "
+                                 f"_compile_named(pickle.loads(bytes.fromhex({_named(share).hex()!r})))"],
                                 env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL) for share in shares[1:]]
     # (the caller says that it compiles, for every share: no line per kernel of this one)
-    _COMPILE_NOTICES.said.update(kernel.py_func for kernel in shares[0])
+    _COMPILE_NOTICES.said.update(function.py_func for function, _ in map(_signature, shares[0]))
     try:
-        for kernel in shares[0]:
-            _direct(kernel)
+        for entry in shares[0]:
+            _compile(*_signature(entry))
     except BaseException:
         for worker in workers:  # (interrupted: the workers' compiling is no longer wanted)
             worker.kill()
@@ -142,15 +154,32 @@ event.register("numba:compile", _COMPILE_NOTICES)
 
 
 def _qualified_name(kernel) -> str:
-    """``"module:function"`` of a kernel, the name a worker process of :func:`compile_kernels` imports."""
-    return f"{kernel.py_func.__module__}:{kernel.py_func.__qualname__}"
+    """``"module:function"`` of a kernel (or of the function of a pair ``(function, types)``), the name a worker
+    process of :func:`compile_kernels` imports."""
+    function = _signature(kernel)[0].py_func
+    return f"{function.__module__}:{function.__qualname__}"
 
 
-def _compile_named(names) -> None:
-    """A worker of :func:`compile_kernels`: compile the kernels named ``"module:function"``."""
-    for name in names:
+def _named(entries) -> bytes:
+    """The pickled ``[("module:function", argument types), ...]`` of entries of :func:`compile_kernels`."""
+    return pickle.dumps([(_qualified_name(function), types) for function, types in map(_signature, entries)])
+
+
+def _compile_named(entries) -> None:
+    """A worker of :func:`compile_kernels`: compile the functions named ``"module:function"`` for their argument
+    types, ``[(name, types), ...]``."""
+    for name, types in entries:
         module, function = name.split(":")
-        _direct(getattr(importlib.import_module(module), function))
+        _compile(getattr(importlib.import_module(module), function), types)
+
+
+def _compile(function, types) -> None:
+    """Compile ``function`` for ``types`` (or load it from Numba's cache): a kernel's single call as
+    :func:`_direct` keeps it, any other function as Numba keeps it (:func:`_direct` keeps one entry per function)."""
+    if types == _SINGLE_CALL_TYPES:
+        _direct(function)
+    else:
+        function.compile(types)
 
 
 def set_num_threads(n: int) -> None:
@@ -335,6 +364,10 @@ _SINGLE_CALL_TYPES = (_TREE_INTS, _TREE_FLOATS, _TREE_FLOATS, _VECTOR, _VECTOR, 
 _BATCH_TYPES = (numba.types.FunctionType(numba.types.none(*_SINGLE_CALL_TYPES)), _TREE_INTS, _TREE_FLOATS,
                 _TREE_FLOATS, _MATRIX, _MATRIX, _MATRIX, _MATRIX, numba.types.float64[:, :, ::1], numba.types.int64,
                 numba.types.int64)
+
+#: The compiled loops the driver calls from Python, as ``(function, argument types)``: a batch's loop compiles
+#: once for every kernel, so ``multibody compile`` compiles it beside them (:func:`compile_kernels`).
+ENTRY_POINTS = ((_batch, _BATCH_TYPES),)
 
 
 def entry_point(function, types):

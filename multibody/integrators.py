@@ -402,6 +402,13 @@ def _trajectories(advance, controller, joints, reals, frames, program, times, pl
                     states[r], io[r], ws)
 
 
+#: The compiled run's functions that Python calls or passes as first-class functions, as ``(function, argument
+#: types)``: ``multibody compile`` compiles them beside the kernels (:func:`multibody.driver.compile_kernels`), so
+#: that a first fixed-step :func:`multibody.simulate` loads them from Numba's cache instead of compiling them.
+ENTRY_POINTS = ((stepping.run, _RUN_TYPES), (stepping.advance, _ADVANCE_TYPES), (_trajectories, _TRAJECTORIES_TYPES),
+                (stepping.no_controller, CONTROLLER_TYPES), (stepping.controller_rows, _CONTROLLER_ROWS_TYPES))
+
+
 class CompiledRun:
     """The fixed-step run of one system, method and controller at the output ``times (n,)`` (s), one step per
     interval, compiled (:mod:`multibody.kernels.stepping`).

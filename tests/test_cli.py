@@ -204,28 +204,37 @@ def fake_cache(monkeypatch):
 
 @pytest.mark.skipif(os.environ.get("NUMBA_DISABLE_JIT") == "1", reason="no compiled code")
 def test_compile_compiles_what_the_cache_lacks(capsys, fake_cache):
-    from multibody import driver
+    from multibody import driver, integrators
     from multibody.cli import _compiled_by_default
     from multibody.demos import KERNELS
+    from multibody.kernels import stepping
 
     cache, calls = fake_cache
     default = _compiled_by_default()
-    # the demos' kernels (first) and the common dynamics calls', a part of every kernel
-    assert default[: len(KERNELS)] == KERNELS and len(set(default)) == len(default) < len(driver.ALL_KERNELS)
-    assert set(default) <= set(driver.ALL_KERNELS) and mb.kernels.aba.forward_dynamics in default
+    loops = driver.ENTRY_POINTS + integrators.ENTRY_POINTS
+    kernels = default[: len(default) - len(loops)]
+    # the demos' kernels (first) and the common dynamics calls', a part of every kernel, then the loops of batches
+    # and of the fixed-step run (a first RK4 simulation compiles no_controller, run and _batch)
+    assert kernels[: len(KERNELS)] == KERNELS and len(set(kernels)) == len(kernels) < len(driver.ALL_KERNELS)
+    assert set(kernels) <= set(driver.ALL_KERNELS) and mb.kernels.aba.forward_dynamics in kernels
+    assert default[len(kernels):] == loops and len(set(loops)) == len(loops) == 6
+    assert {(stepping.run, integrators._RUN_TYPES), (driver._batch, driver._BATCH_TYPES),
+            (stepping.no_controller, integrators.CONTROLLER_TYPES)} <= set(loops)
+    which = "the kernels of the demos and the common dynamics calls, and the loops of batches and fixed-step runs"
     cache.add(KERNELS[0])
     assert main(["compile"]) == 0
     assert calls == [list(default[1:])]
     out = capsys.readouterr().out.splitlines()
-    assert out[0] == (f"the kernels of the demos and the common dynamics calls: compiling {len(default) - 1} of "
-                      f"{len(default)} on every core (1 compiled already)")
-    assert out[1].startswith(f"compiled {len(default) - 1} kernels in ") and len(out) == 2
+    assert out[0] == f"{which}: compiling {len(default) - 1} of {len(default)} on every core (1 compiled already)"
+    assert out[1].startswith(f"compiled {len(default) - 1} functions in ") and len(out) == 2
     assert main(["compile"]) == 0 and len(calls) == 1
-    assert capsys.readouterr().out == (f"the kernels of the demos and the common dynamics calls: all {len(default)} "
-                                       "compiled already, in Numba's cache on disk\n")
+    assert capsys.readouterr().out == f"{which}: all {len(default)} compiled already, in Numba's cache on disk\n"
+    cache.difference_update(loops[:2])  # (with --all too: the loops the cache lacks)
     assert main(["compile", "--all"]) == 0
-    assert set(calls[1]) == set(driver.ALL_KERNELS) - set(default) and len(calls[1]) == len(set(calls[1]))
-    assert f"every kernel: compiling {len(calls[1])} of {len(driver.ALL_KERNELS)}" in capsys.readouterr().out
+    assert set(calls[1]) == (set(driver.ALL_KERNELS) - set(default)) | set(loops[:2])
+    assert len(calls[1]) == len(set(calls[1]))
+    assert (f"every kernel and the loops of batches and fixed-step runs: compiling {len(calls[1])} of "
+            f"{len(driver.ALL_KERNELS) + len(loops)}") in capsys.readouterr().out
 
 
 @pytest.mark.skipif(os.environ.get("NUMBA_DISABLE_JIT") == "1", reason="no compiled code")
@@ -238,8 +247,9 @@ def test_compile_reports_kernels_that_did_not_compile(capsys, monkeypatch, fake_
     assert main(["compile"]) == 2
     err = capsys.readouterr().err
     count = len(_compiled_by_default())
-    assert err.startswith(f"multibody compile: {count} of {count} kernels did not compile (each compiles on its "
+    assert err.startswith(f"multibody compile: {count} of {count} functions did not compile (each compiles on its "
                           "first use instead): multibody.kernels.kkt:project, ") and err.count("\n") == 1
+    assert ", multibody.driver:_batch, multibody.kernels.stepping:run, " in err  # (the loops by their functions)
 
 
 def test_compile_fills_the_cache():
@@ -254,4 +264,5 @@ def test_compile_fills_the_cache():
         assert done.stdout == "nothing to compile: NUMBA_DISABLE_JIT=1 runs the kernels as Python\n"
     else:
         assert driver.compiled_before(_compiled_by_default())
-        assert "the kernels of the demos and the common dynamics calls: " in done.stdout
+        assert ("the kernels of the demos and the common dynamics calls, and the loops of batches and fixed-step "
+                "runs: ") in done.stdout

@@ -420,6 +420,42 @@ def test_compile_kernels_shares_a_cold_cache_among_processes(tmp_path):
     assert done.stdout.split() == ["True", "1", "0"]
 
 
+@pytest.mark.skipif(os.environ.get("NUMBA_DISABLE_JIT") == "1", reason="no compiled code")
+def test_compile_kernels_compiles_loops_for_their_argument_types(tmp_path):
+    """``compile_kernels`` takes ``(function, argument types)`` beside kernels: on an empty cache the compiled
+    run's controller loop goes to a worker process and the empty controller is compiled here, both are on disk
+    afterwards, and a later process's first batch of a compiled controller says nothing of compiling them."""
+    script = textwrap.dedent("""
+        from multibody import driver, integrators
+        from multibody.kernels import stepping
+        entries = ((stepping.no_controller, integrators.CONTROLLER_TYPES),
+                   (stepping.controller_rows, integrators._CONTROLLER_ROWS_TYPES))
+        assert set(entries) <= set(integrators.ENTRY_POINTS) and not driver.compiled_before(entries)
+        driver.compile_kernels(entries, processes=2)
+        print(driver.compiled_before(entries), len(stepping.no_controller.overloads),
+              len(stepping.controller_rows.overloads))
+    """)
+    env = {name: value for name, value in os.environ.items() if name != "MULTIBODY_QUIET"}
+    env["NUMBA_CACHE_DIR"] = str(tmp_path)
+    done = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.split() == ["True", "1", "0"] and done.stderr == ""
+    first_use = textwrap.dedent("""
+        import numba
+        import numpy as np
+        from multibody import integrators
+
+        @numba.njit
+        def spring(t, q, v, out):
+            out[:] = -q
+
+        print(integrators.CompiledController(spring, 2)(0.0, np.ones((3, 2)), np.zeros((3, 2))).sum())
+    """)
+    done = subprocess.run([sys.executable, "-c", first_use], env=env, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.split() == ["-6.0"] and "multibody: compiling" not in done.stderr
+
+
 def test_compile_kernels_does_nothing_when_the_cache_has_them(monkeypatch):
     """Kernels already on disk start no process and compile nothing here."""
     def no_process(*args, **kwargs):
