@@ -94,13 +94,21 @@ def _leading(arrays, names):
     return next(iter(lengths.values()))
 
 
+def _chunk(x, start, stop):
+    """The rows ``[start:stop]`` of an array, or of an ``mb.PD``'s arguments given per trajectory."""
+    from .integrators import PD
+
+    return x.trajectories(start, stop) if isinstance(x, PD) else x[start:stop]
+
+
 def _map_chunks(client, fn, model, arrays, chunks):
-    """The results of ``fn(model, *chunk)`` for the chunks of ``arrays``, in order."""
+    """The results of ``fn(model, *chunk)`` for the chunks of ``arrays`` (arrays, or an ``mb.PD`` after the first), in
+    order."""
     bounds = _split(len(arrays[0]), chunks, client)
     # Keys of this call's own (hash=False): a key named by content would be shared with an earlier call
     # whose data the cluster may be releasing at this moment.
     [shipped] = client.scatter([model], broadcast=True, hash=False)
-    pieces = client.scatter([tuple(x[start:stop] for x in arrays) for start, stop in bounds], hash=False)
+    pieces = client.scatter([tuple(_chunk(x, start, stop) for x in arrays) for start, stop in bounds], hash=False)
     host_threads = _host_threads(client)
     futures = [client.submit(_run, fn, shipped, piece, host_threads, pure=False) for piece in pieces]
     return client.gather(futures)
@@ -162,7 +170,8 @@ def _simulate_chunk(system, q0, v0, tau, t_final, options):
 
 def simulate_many(system, q0, v0, t_final, *, chunks=None, client=None, **kw):
     """:func:`multibody.simulate` of ``N`` initial states in chunks on a Dask cluster: each chunk a batch of
-    trajectories integrated in lockstep (``method="RK4"``) on one worker, the trajectories joined in order.
+    trajectories that ``simulate`` integrates with a fixed-step method (``method="RK4"`` by default) on one worker,
+    the trajectories joined in order.
 
     Args:
         system: a ``Model`` or a ``ConstrainedSystem`` with built-in constraints, sent once to every worker.
@@ -170,15 +179,18 @@ def simulate_many(system, q0, v0, t_final, *, chunks=None, client=None, **kw):
         t_final: end time (s).
         chunks: trajectories per chunk; default ``N`` divided among the cluster's Dask threads.
         client: a ``distributed.Client``; default the current one, else a ``LocalCluster`` for this call.
-        kw: :func:`~multibody.simulate`'s options (``dt``, ``method``, here ``"RK4"`` by default, the method
-            that integrates batches; ``tau``, ...). An array ``tau (N, nv)`` is split with the states; a callable
-            ``tau(t, q, v)`` is sent to every worker and sees the states of its chunk, ``q (n, nq)`` with ``n``
-            at most ``chunks`` (give values per trajectory as an array, or compute them from the state).
+        kw: :func:`~multibody.simulate`'s options (``dt``, ``method``, here ``"RK4"`` by default, a method that
+            integrates batches; ``tau``, ...). An array ``tau (N, nv)`` is split with the states, and so are the
+            arguments of an ``mb.PD`` given per trajectory, ``(N, …)`` (:meth:`~multibody.integrators.PD.trajectories`;
+            checked against the system and the ``N`` states before anything is sent); a callable ``tau(t, q, v)``
+            is sent to every worker and sees the states of its chunk, ``q (n, nq)`` with ``n`` at most ``chunks``
+            (give values per trajectory as an array or an ``mb.PD``, or compute them from the state).
     Returns:
         a :class:`~multibody.trajectory.Trajectory` with a leading axis ``N``, as ``simulate`` returns for the
         whole batch; one ``RuntimeWarning`` when some trajectories stopped early (``trajectory.status``).
     """
     from .constrained import ConstrainedSystem
+    from .integrators import PD
     from .simulation import _batch_size, _check_batchable, _warn_if_stopped
 
     constrained = system if isinstance(system, ConstrainedSystem) else ConstrainedSystem(system)
@@ -197,10 +209,14 @@ def simulate_many(system, q0, v0, t_final, *, chunks=None, client=None, **kw):
 
         return simulate(constrained, q0, v0, t_final, **kw)
     tau = kw.pop("tau", None)
-    per_state = tau is not None and not callable(tau) and np.ndim(tau) == 2
-    arrays = (q0, v0, np.asarray(tau, dtype=float)) if per_state else (q0, v0)
-    if per_state:
-        _leading(arrays, ("q0", "v0", "tau"))
+    if isinstance(tau, PD):
+        tau.bind(constrained.system, n)  # (its shapes against the system and the N states, before anything is sent)
+        arrays = (q0, v0, tau)
+    else:
+        per_state = tau is not None and not callable(tau) and np.ndim(tau) == 2
+        arrays = (q0, v0, np.asarray(tau, dtype=float)) if per_state else (q0, v0)
+        if per_state:
+            _leading(arrays, ("q0", "v0", "tau"))
 
     def run(shipped, q_chunk, v_chunk, tau_chunk=tau):
         return _simulate_chunk(shipped, q_chunk, v_chunk, tau_chunk, t_final, kw)

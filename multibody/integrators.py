@@ -11,6 +11,7 @@ per stage).
 
 from __future__ import annotations
 
+import copy
 import inspect
 from dataclasses import dataclass
 
@@ -206,6 +207,37 @@ class PD:
         table = "" if self.t_ref is None else f", t_ref ({self.t_ref.size},)"
         return f"PD(kp {self.kp.shape}, kd {self.kd.shape}, q_ref {self.q_ref.shape}{table})"
 
+    def _per_trajectory(self):
+        """``{name: N}`` of the arguments given per trajectory, ``(N, …)``: ``kp``, ``kd``, ``tau_ff`` of two axes,
+        ``q_ref``, ``v_ref`` of one more than a reference (or a table of them, with ``t_ref``)."""
+        table = self.t_ref is not None
+        unbatched = {"kp": 1, "kd": 1, "tau_ff": 1, "q_ref": 1 + table, "v_ref": 1 + table}
+        return {name: getattr(self, name).shape[0] for name, ndim in unbatched.items()
+                if getattr(self, name) is not None and getattr(self, name).ndim > ndim}
+
+    def trajectories(self, start, stop):
+        """The controller of the trajectories ``start`` to ``stop`` (exclusive) of a batch: a :class:`PD` whose
+        arguments given per trajectory, ``(N, …)``, keep their rows ``[start:stop]``, and whose others are shared
+        as they are (this PD itself when none is per trajectory). A chunk of a batch
+        (:func:`multibody.distributed.simulate_many`) simulates with it.
+
+        Raises:
+            ValueError: not ``0 <= start <= stop <= N`` (integers) for the ``N`` trajectories of the rows.
+        """
+        sizes = self._per_trajectory()
+        if not sizes:
+            return self
+        count = next(iter(sizes.values()))
+        integers = all(isinstance(x, (int, np.integer)) and not isinstance(x, bool) for x in (start, stop))
+        if not integers or not 0 <= start <= stop <= count:
+            name = next(iter(sizes))
+            raise ValueError(f"mb.PD.trajectories: start and stop must be integers with 0 <= start <= stop <= {count} "
+                             f"(the trajectories of {name} {getattr(self, name).shape}), got {start!r} and {stop!r}")
+        part = copy.copy(self)
+        for name in sizes:
+            setattr(part, name, getattr(self, name)[start:stop])
+        return part
+
     def bind(self, system, batch=None):
         """The controller on ``system`` (``nq``, ``nv``; a ``Model`` or a mechanical system whose configurations
         are a vector space) for one trajectory (``batch`` ``None``) or ``batch`` of them: a
@@ -217,18 +249,15 @@ class PD:
                              f"take q_ref ⊖ q; {type(system).__name__} has nq = {nq}, nv = {nv} and charts")
         table = self.t_ref is not None
         n = 1 if not table else self.t_ref.size
-        sizes = {}  # the number of trajectories each argument gives
-        for name, size, unbatched in (("kp", nv, 1), ("kd", nv, 1), ("tau_ff", nv, 1), ("q_ref", nq, 1 + table),
-                                      ("v_ref", nv, 1 + table)):
+        for name, size in (("kp", nv), ("kd", nv), ("tau_ff", nv), ("q_ref", nq), ("v_ref", nv)):
             value = getattr(self, name)
             if value is None or value.ndim == 0:
                 continue
             if value.shape[-1] != size:
-                expected = f"({size},)" if unbatched == 1 else f"(n, {size})"
+                expected = f"(n, {size})" if table and name in ("q_ref", "v_ref") else f"({size},)"
                 raise ValueError(f"mb.PD: {name} must have shape {expected} (or (N, ...) for N trajectories) for this "
                                  f"system (nq = {nq}, nv = {nv}), got {value.shape}")
-            if value.ndim > unbatched:
-                sizes[name] = value.shape[0]
+        sizes = self._per_trajectory()
         if sizes and batch is None:
             name, count = next(iter(sizes.items()))
             raise ValueError(f"mb.PD: {name} has shape {getattr(self, name).shape}, for {count} trajectories, but the "

@@ -371,6 +371,34 @@ def test_a_batch_with_pd_rows_per_trajectory_equals_its_trajectories_alone(statu
         assert_same(batch.select(r), alone, tol=0.0)
 
 
+def test_pd_trajectories_keep_the_rows_of_a_part_of_the_batch():
+    """``PD.trajectories(start, stop)``: the arguments given per trajectory keep their rows ``[start:stop]``, the
+    shared ones stay; the part drives the trajectories ``start:stop`` of a batch as the whole PD drives them."""
+    model = mb.robots.load("double_pendulum")
+    rng = np.random.default_rng(5)
+    n, t_ref = 5, np.array([0.0, 0.05, 0.1])
+    kp, tau_ff = rng.uniform(5.0, 20.0, (n, 2)), rng.standard_normal((n, 2))
+    q_ref, v_ref = rng.uniform(-1.0, 1.0, (n, 3, 2)), rng.standard_normal((3, 2))
+    pd = mb.PD(kp, 1.5, q_ref, v_ref, tau_ff, t_ref=t_ref)
+    part = pd.trajectories(1, 4)
+    np.testing.assert_array_equal(part.kp, kp[1:4])
+    np.testing.assert_array_equal(part.tau_ff, tau_ff[1:4])
+    np.testing.assert_array_equal(part.q_ref, q_ref[1:4])
+    assert part.kd is pd.kd and part.v_ref is pd.v_ref and part.t_ref is pd.t_ref
+    assert pd.kp.shape == (n, 2)  # (the whole PD unchanged)
+    starts, options = rng.uniform(-1.0, 1.0, (n, 2)), dict(dt=0.01, method="RK4")
+    whole = mb.simulate(model, starts, np.zeros(2), 0.1, tau=pd, **options)
+    some = mb.simulate(model, starts[1:4], np.zeros(2), 0.1, tau=part, **options)
+    np.testing.assert_array_equal(some.q, whole.q[1:4])
+    np.testing.assert_array_equal(some.v, whole.v[1:4])
+    shared = mb.PD(1.0, 1.0, np.zeros(2))
+    assert shared.trajectories(3, 7) is shared  # nothing per trajectory: shared by every part
+    for start, stop in ((2, 6), (-1, 2), (3, 2), (0.0, 2)):
+        with pytest.raises(ValueError, match=r"mb.PD.trajectories: start and stop must be integers with 0 <= start "
+                                             r"<= stop <= 5 \(the trajectories of kp \(5, 2\)\)"):
+            pd.trajectories(start, stop)
+
+
 def test_a_batch_with_a_compiled_controller_equals_its_trajectories_alone():
     ball, system = ball_system()
     q0, v0 = system.project(*random_states(ball, system, 3, seed=4))

@@ -78,6 +78,27 @@ def test_simulate_many_equals_one_batch(client):
         np.testing.assert_array_equal(getattr(many, name), getattr(one, name))
 
 
+def test_simulate_many_splits_pd_rows_per_trajectory_with_the_states(client):
+    """An ``mb.PD`` whose gains, feed-forward forces and reference tables are per trajectory, ``(N, …)``, goes to
+    each chunk with the rows of its trajectories: the trajectories equal one batch's bit for bit."""
+    model = mb.robots.load("double_pendulum")
+    rng = np.random.default_rng(4)
+    n, t_ref = 9, np.array([0.0, 0.1, 0.2])
+    pd = mb.PD(rng.uniform(5.0, 20.0, (n, 2)), 1.5, rng.uniform(-1.0, 1.0, (n, 3, 2)), tau_ff=rng.standard_normal(
+        (n, 2)), t_ref=t_ref)
+    q0, v0 = rng.uniform(-1.0, 1.0, (n, 2)), rng.standard_normal((n, 2))
+    options = dict(dt=0.02, method="RK4")
+    many = mb.distributed.simulate_many(model, q0, v0, 0.2, tau=pd, chunks=4, client=client, **options)
+    one = mb.simulate(model, q0, v0, 0.2, tau=pd, **options)
+    assert many.q.shape == one.q.shape == (n, 11, 2) and many.status == one.status
+    np.testing.assert_array_equal(many.q, one.q)
+    np.testing.assert_array_equal(many.v, one.v)
+    # rows for another number of trajectories: refused here, before anything is sent
+    with pytest.raises(ValueError, match=r"mb.PD: kp has shape \(9, 2\), for 9 trajectories, but the simulation has "
+                                         r"8 initial states"):
+        mb.distributed.simulate_many(model, q0[:8], v0[:8], 0.2, tau=pd, client=client, **options)
+
+
 def test_simulate_many_reports_stopped_trajectories(client):
     model = mb.robots.load("double_pendulum")
     v0 = np.array([[0.5, 0.0], [1e150, -1e150], [0.0, 0.5]])
