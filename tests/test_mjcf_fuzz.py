@@ -49,6 +49,8 @@ from hypothesis.errors import InvalidArgument
 import multibody as mb
 from multibody.check import _full_mass_matrix
 from multibody.mjcf import MJCFError
+
+from fuzz_helpers import NUMERICALLY_SINGULAR, check_forward_dynamics
 from multibody.modelfiles import LARGEST_MAGNITUDE
 
 try:
@@ -351,8 +353,6 @@ MAX_WARNINGS = 8
 # Relative error of our mass matrix against MuJoCo's, max|ours − theirs| / max(1, max|theirs|), above the
 # rounding that the sizes in the document allow (rounding_scale).
 MUJOCO_TOLERANCE = 1e-9
-NUMERICALLY_SINGULAR = 1e13
-OUT_OF_RANGE_INERTIA = 1e-250
 
 
 def event(text):
@@ -447,17 +447,7 @@ def check_dynamics(model, system, rng):
         for constraint in system.constraints:
             assert np.all(np.isfinite(constraint.position(model, q))), constraint
             assert np.all(np.isfinite(constraint.jacobian(model, q))), constraint
-    try:
-        a = mb.forward_dynamics(model, q, v, tau)
-    except np.linalg.LinAlgError as error:
-        event("loaded; forward dynamics: LinAlgError")
-        names_a_joint = any(f"joint {name!r}" in str(error) for name in model.joint_names)
-        singular_values = np.linalg.svd(M, compute_uv=False)
-        numerically_singular = (singular_values.min() <= singular_values.max() / NUMERICALLY_SINGULAR
-                                or singular_values.min() < OUT_OF_RANGE_INERTIA)
-        assert names_a_joint or numerically_singular, (str(error), singular_values)
-    else:
-        assert np.all(np.isfinite(a)), a
+    check_forward_dynamics(model, q, v, tau, M, event)
     return q
 
 

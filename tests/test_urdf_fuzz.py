@@ -43,6 +43,7 @@ from multibody.check import to_pinocchio_configuration
 from multibody.urdf import LARGEST_MAGNITUDE, UNBOUNDED_LIMIT, URDFError
 
 from conftest import ERD_DIR
+from fuzz_helpers import check_forward_dynamics
 
 try:
     import pinocchio as pin
@@ -335,12 +336,6 @@ MAX_WARNINGS = 3
 # Relative error of our mass matrix against Pinocchio's: max|ours − theirs| / max(1, max|theirs|),
 # as in test_dynamics_pinocchio.py.
 PINOCCHIO_TOLERANCE = 1e-10
-# Beyond this condition number the mass matrix is singular in double precision, and the Articulated
-# Body Algorithm may meet a zero pivot.
-NUMERICALLY_SINGULAR = 1e13
-# Below this smallest singular value of the mass matrix (a subnormal mass such as 5e-324 kg), the
-# accelerations M⁻¹ τ for |τ| ≈ 1 lie beyond the range of double precision.
-OUT_OF_RANGE_INERTIA = 1e-250
 
 
 def _element_names(root):
@@ -404,17 +399,7 @@ def check_dynamics(model, rng):
     assert np.all(np.isfinite(M)), M
     h = mb.bias_forces(model, q, v)
     assert np.all(np.isfinite(h)), h
-    try:
-        a = mb.forward_dynamics(model, q, v, tau)
-    except np.linalg.LinAlgError as error:
-        event("loaded; forward dynamics: LinAlgError")
-        names_a_joint = any(f"joint {name!r}" in str(error) for name in model.joint_names)
-        singular_values = np.linalg.svd(M, compute_uv=False)
-        numerically_singular = (singular_values.min() <= singular_values.max() / NUMERICALLY_SINGULAR
-                                or singular_values.min() < OUT_OF_RANGE_INERTIA)
-        assert names_a_joint or numerically_singular, (str(error), singular_values)
-    else:
-        assert np.all(np.isfinite(a)), a
+    check_forward_dynamics(model, q, v, tau, M, event)
     return q, M
 
 
