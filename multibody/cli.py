@@ -191,7 +191,8 @@ def cmd_demo(args):
 
     print(f"demo {args.name}: {DEMOS[args.name].__doc__.strip().splitlines()[0]}", flush=True)
     if not compiled_before(KERNELS):
-        print("compiling multibody's kernels for this machine (first run only; about half a minute)", flush=True)
+        print("compiling multibody's kernels for this machine, on every core (first run only; about 25 s on two idle "
+              "cores, longer on fewer or busy ones)", flush=True)
         compile_kernels(KERNELS)
     result = DEMOS[args.name](args.out)
     for key, value in result.summary.items():
