@@ -95,46 +95,49 @@ def _batch_of_states(model):
     return model.random_configuration(rng, (N_STATES,)), rng.standard_normal((N_STATES, model.nv))
 
 
-def test_the_thread_count_is_the_process_s(monkeypatch):
-    """A batch run from a second Python thread uses what ``set_num_threads`` set in the first."""
+@pytest.fixture
+def threaded_batch():
+    """``(most, model, q, v)``: ``NUMBA_NUM_THREADS``, the double pendulum and a batch of its states
+    that every thread gets a share of; skipped where Numba has one thread only (no count to tell apart).
+    The process's thread count is put back afterwards."""
     most = numba.config.NUMBA_NUM_THREADS
     if most < 2:
         pytest.skip("Numba has one thread only (NUMBA_NUM_THREADS=1): no count to tell apart")
     model = mb.robots.load("double_pendulum")
-    q, v = _batch_of_states(model)
-    calls = _recording_batches(monkeypatch)
     original = mb.get_num_threads()
+    try:
+        yield (most, model, *_batch_of_states(model))
+    finally:
+        mb.set_num_threads(original)
+
+
+def test_the_thread_count_is_the_process_s(monkeypatch, threaded_batch):
+    """A batch run from a second Python thread uses what ``set_num_threads`` set in the first."""
+    most, model, q, v = threaded_batch
+    calls = _recording_batches(monkeypatch)
     seen, energies = [], []
 
     def elsewhere():
         seen.append(mb.get_num_threads())
         energies.append(mb.kinetic_energy(model, q, v))
 
-    try:
-        for n in (1, most):
-            mb.set_num_threads(n)
-            thread = threading.Thread(target=elsewhere)
-            thread.start()
-            thread.join()
-            assert seen[-1] == n
-            assert calls[-1] == (n, n), f"set_num_threads({n}): a batch of another thread ran on {calls[-1]}"
-        assert len(seen) == 2 and len(calls) == 2
-        # the same states on any number of threads: the same numbers
-        np.testing.assert_array_equal(energies[0], energies[1])
-        np.testing.assert_array_equal(energies[0], mb.kinetic_energy(model, q, v))
-    finally:
-        mb.set_num_threads(original)
+    for n in (1, most):
+        mb.set_num_threads(n)
+        thread = threading.Thread(target=elsewhere)
+        thread.start()
+        thread.join()
+        assert seen[-1] == n
+        assert calls[-1] == (n, n), f"set_num_threads({n}): a batch of another thread ran on {calls[-1]}"
+    assert len(seen) == 2 and len(calls) == 2
+    # the same states on any number of threads: the same numbers
+    np.testing.assert_array_equal(energies[0], energies[1])
+    np.testing.assert_array_equal(energies[0], mb.kinetic_energy(model, q, v))
 
 
-def test_an_interrupt_while_setting_numba_s_threads_leaves_later_batches_on_the_setting(monkeypatch):
+def test_an_interrupt_while_setting_numba_s_threads_leaves_later_batches_on_the_setting(monkeypatch, threaded_batch):
     """Ctrl-C just after a small batch has lowered Numba's thread count: the count comes back, and the
     next large batch runs on every thread of the setting."""
-    most = numba.config.NUMBA_NUM_THREADS
-    if most < 2:
-        pytest.skip("Numba has one thread only (NUMBA_NUM_THREADS=1): a small batch lowers nothing")
-    model = mb.robots.load("double_pendulum")
-    q, v = _batch_of_states(model)
-    original = mb.get_num_threads()
+    most, model, q, v = threaded_batch
     mb.set_num_threads(most)
     set_num_threads = numba.set_num_threads
     interrupts = []
@@ -145,19 +148,16 @@ def test_an_interrupt_while_setting_numba_s_threads_leaves_later_batches_on_the_
             interrupts.append(n)
             raise KeyboardInterrupt
 
-    try:
-        before = numba.get_num_threads()
-        monkeypatch.setattr(numba, "set_num_threads", interrupted)
-        with pytest.raises(KeyboardInterrupt):
-            mb.kinetic_energy(model, q[:2], v[:2])  # two states: one share, on one thread
-        assert interrupts == [1]
-        assert numba.get_num_threads() == before
-        assert mb.get_num_threads() == most
-        calls = _recording_batches(monkeypatch)
-        mb.kinetic_energy(model, q, v)
-        assert calls == [(most, most)]
-    finally:
-        mb.set_num_threads(original)
+    before = numba.get_num_threads()
+    monkeypatch.setattr(numba, "set_num_threads", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        mb.kinetic_energy(model, q[:2], v[:2])  # two states: one share, on one thread
+    assert interrupts == [1]
+    assert numba.get_num_threads() == before
+    assert mb.get_num_threads() == most
+    calls = _recording_batches(monkeypatch)
+    mb.kinetic_energy(model, q, v)
+    assert calls == [(most, most)]
 
 
 # ============================================================================= the workqueue layer
@@ -199,31 +199,23 @@ def test_concurrent_batches_under_the_workqueue_layer():
     assert done.stdout.split() == ["workqueue", "True", "True"]
 
 
-def test_a_local_thread_count_is_the_calling_thread_s_only(monkeypatch):
+def test_a_local_thread_count_is_the_calling_thread_s_only(monkeypatch, threaded_batch):
     """``driver.local_num_threads`` (a Dask task's share of its host): that Python thread's batches use
     it, the process's setting and the other threads' batches keep theirs."""
-    most = numba.config.NUMBA_NUM_THREADS
-    if most < 2:
-        pytest.skip("Numba has one thread only (NUMBA_NUM_THREADS=1): no count to tell apart")
-    model = mb.robots.load("double_pendulum")
-    q, v = _batch_of_states(model)
+    most, model, q, v = threaded_batch
     calls = _recording_batches(monkeypatch)
-    original = mb.get_num_threads()
-    try:
-        mb.set_num_threads(most)
-        with mb.driver.local_num_threads(1):
-            assert mb.get_num_threads() == 1
-            mb.kinetic_energy(model, q, v)
-            energies = []
-            other = threading.Thread(target=lambda: energies.append(mb.kinetic_energy(model, q, v)))
-            other.start()
-            other.join()
-            assert len(energies) == 1, "the other thread's batch failed"
-        assert mb.get_num_threads() == most
+    mb.set_num_threads(most)
+    with mb.driver.local_num_threads(1):
+        assert mb.get_num_threads() == 1
         mb.kinetic_energy(model, q, v)
-        assert calls == [(1, 1), (most, most), (most, most)]
-        with pytest.raises(ValueError, match="local_num_threads: n must be between 1 and NUMBA_NUM_THREADS"):
-            with mb.driver.local_num_threads(most + 1):
-                pass
-    finally:
-        mb.set_num_threads(original)
+        energies = []
+        other = threading.Thread(target=lambda: energies.append(mb.kinetic_energy(model, q, v)))
+        other.start()
+        other.join()
+        assert len(energies) == 1, "the other thread's batch failed"
+    assert mb.get_num_threads() == most
+    mb.kinetic_energy(model, q, v)
+    assert calls == [(1, 1), (most, most), (most, most)]
+    with pytest.raises(ValueError, match="local_num_threads: n must be between 1 and NUMBA_NUM_THREADS"):
+        with mb.driver.local_num_threads(most + 1):
+            pass
