@@ -916,9 +916,18 @@ class JointCoupling(CompiledRows):
             # joint b alone: held at c₀
             values[1:] = 0.0
         self.joint_a, self.joint_b = joint_a, joint_b
-        self.ratio, self.offset = float(values[1]), float(values[0])
         self.coefficients, self.reference = values, float(reference)
         self.coefficients.setflags(write=False)
+
+    @property
+    def ratio(self) -> float:
+        """``c₁``, the gear ratio ``p′(0)`` (read from :attr:`coefficients`, the one copy the rows use)."""
+        return float(self.coefficients[1])
+
+    @property
+    def offset(self) -> float:
+        """``c₀``, joint b's position at ``q_a = reference`` (rad or m; from :attr:`coefficients`)."""
+        return float(self.coefficients[0])
 
     def rows(self, system):
         return 1

@@ -73,6 +73,17 @@ def test_linear_coefficients_equal_ratio_and_offset(pendulum):
     assert np.array_equal(ratio_form.position(pendulum, q), coefficient_form.position(pendulum, q))
 
 
+def test_ratio_and_offset_are_the_coefficients_rows_use():
+    """``ratio`` and ``offset`` read ``c₁`` and ``c₀`` of the coefficients the compiled row is built from, and
+    cannot be set apart from them (a second copy would leave the row on the old polynomial)."""
+    coupling = mb.JointCoupling("shoulder", "elbow", coefficients=(0.2, -1.5, 0.7), reference=0.1)
+    assert (coupling.ratio, coupling.offset) == (-1.5, 0.2)
+    with pytest.raises(AttributeError):
+        coupling.ratio = 2.0
+    with pytest.raises(AttributeError):
+        coupling.offset = 1.0
+
+
 def test_joint_held_alone(pendulum):
     """Without joint a the row holds joint b at ``offset``: ``φ = q_b − c₀``, ``A = e_b``, ``γ = 0``."""
     hold = mb.JointCoupling(None, "elbow", offset=0.25)
