@@ -43,6 +43,10 @@ def _urdf_path(source):
         raise InputError(f"{source!r} is neither a URDF file nor a known robot: {error}") from None
 
 
+# what info, view and check answer to --floating-base with an MJCF file
+_MJCF_FLOATING_BASE = "--floating-base is for URDF files: an MJCF file gives its bodies their free joints"
+
+
 def _load(source, floating_base, package_dirs):
     """The model of a URDF or MJCF file (its root element ``<mujoco>``) or a robot name (see
     :func:`_urdf_path`)."""
@@ -53,7 +57,7 @@ def _load(source, floating_base, package_dirs):
     path, robot = _urdf_path(source)
     if not robot and is_mjcf_file(path):
         if floating_base:
-            raise InputError("--floating-base is for URDF files: an MJCF file gives its bodies their free joints")
+            raise InputError(_MJCF_FLOATING_BASE)
         return load_mjcf(path, package_dirs=package_dirs)
     if not robot:
         return load_urdf(path, floating_base=floating_base, package_dirs=package_dirs, invalid_inertia="warn")
@@ -148,7 +152,7 @@ def cmd_check(args):
         print(f"multibody check: needs {reference}: pip install {'mujoco' if mjcf else 'pin'}", file=sys.stderr)
         return 2
     if mjcf and args.floating_base:
-        raise InputError("--floating-base is for URDF files: an MJCF file gives its bodies their free joints")
+        raise InputError(_MJCF_FLOATING_BASE)
     from .check import compare_with_mujoco, compare_with_pinocchio
 
     with warnings.catch_warnings():

@@ -425,11 +425,7 @@ class _Reader:
         p = self.numbers(node, attrs, "pos", 3, None if required else _ZERO3)
         if R is None and not p.any():
             return _IDENTITY
-        X = np.eye(4)
-        if R is not None:
-            X[:3, :3] = R
-        X[:3, 3] = p
-        return X
+        return spatial.pose_matrix(np.eye(3) if R is None else R, p)
 
 
 _ZERO3 = np.zeros(3)
@@ -477,16 +473,13 @@ def _z_to_vector_quat(vector, node):
 
 
 def _translation(p):
-    X = np.eye(4)
-    X[:3, 3] = p
-    return X
+    """The pose ``(4, 4)`` that shifts by ``p (3,)`` (m) without turning."""
+    return spatial.pose_matrix(np.eye(3), p)
 
 
 def _inverse(X):
-    out = np.eye(4)
-    out[:3, :3] = X[:3, :3].T
-    out[:3, 3] = -X[:3, :3].T @ X[:3, 3]
-    return out
+    """``X⁻¹`` of a pose ``(4, 4)``."""
+    return spatial.pose_matrix(*spatial.inverse_pose(X[:3, :3], X[:3, 3]))
 
 
 # ----------------------------------------------------------------------------- defaults
@@ -621,8 +614,7 @@ class _Tree:
                 report.attributes(child, child.attrib)
                 body.inertial, body.inertial_pose = child, frame
             else:
-                read, ignored = _CHILDREN["body"]
-                if tag not in ignored:
+                if tag not in _CHILDREN["body"][1]:  # (the ignored children)
                     report.element(child, "body" if b >= 0 else "worldbody")
 
     def _joint(self, node, frame, childclass):
@@ -729,9 +721,7 @@ class _Tree:
         length = math.sqrt(axis @ axis)
         if length < MINVAL:
             raise node.error(f"attribute fromto={attrs.get('fromto')!r}: the two ends coincide")
-        pose = np.eye(4)
-        pose[:3, :3] = _quat_rotation(_z_to_vector_quat(axis, node), node)
-        pose[:3, 3] = 0.5 * (ends[:3] + ends[3:])
+        pose = spatial.pose_matrix(_quat_rotation(_z_to_vector_quat(axis, node), node), 0.5 * (ends[:3] + ends[3:]))
         return pose, length
 
 
@@ -854,9 +844,7 @@ class _Meshes:
         if refpos.any() or refquat != (1.0, 0.0, 0.0, 0.0):
             # v ↦ S Rᵀ (v − refpos) = Rᵀ (S v) − S Rᵀ refpos for a uniform scale S
             R = _quat_rotation(refquat, mesh[0])
-            placement = np.eye(4)
-            placement[:3, :3] = R.T
-            placement[:3, 3] = -scale * (R.T @ refpos)
+            placement = spatial.pose_matrix(R.T, -scale * (R.T @ refpos))
             if not np.allclose(scale, scale[0]):
                 self.reader.report.add(("refquat scale",), mesh[0], "a mesh scaled unevenly and moved by refpos or "
                                                                     "refquat is drawn approximately")
@@ -1120,9 +1108,7 @@ def _equalities(sections, reader, defaults, report, tree, names, sites, joints):
                     frame_b = _translation(anchor)
                     if np.any(relpose[3:]):
                         # body2's anchor at relpose's position in body1, body2 turned by its quaternion
-                        frame_a = np.eye(4)
-                        frame_a[:3, :3] = _quat_rotation(tuple(relpose[3:]), node)
-                        frame_a[:3, 3] = relpose[:3]
+                        frame_a = spatial.pose_matrix(_quat_rotation(tuple(relpose[3:]), node), relpose[:3])
                     else:
                         # the relative pose at qpos0
                         frame_a = _inverse(W1) @ W2 @ frame_b
@@ -1388,9 +1374,7 @@ def _reference_turn(joint):
     by ``−ref`` along a slide's."""
     if joint.kind == "slide":
         return _translation(-joint.ref * joint.axis)
-    X = np.eye(4)
-    X[:3, :3] = spatial.axis_angle_rotation(joint.axis, -joint.ref)
-    return X
+    return spatial.pose_matrix(spatial.axis_angle_rotation(joint.axis, -joint.ref), _ZERO3)
 
 
 def _per_dof(joint):

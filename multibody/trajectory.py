@@ -115,9 +115,8 @@ class Trajectory:
         batched trajectory stopped are NaN, as its states.
         """
         from . import dynamics, robotics
-        from .constrained import ConstrainedSystem, as_system
 
-        mechanical = system.system if isinstance(system, ConstrainedSystem) else as_system(system)
+        mechanical = _system_of(system)
         model = getattr(mechanical, "model", None)
         q, v = np.asarray(self.q), np.asarray(self.v)
         stopped = ~(np.isfinite(q).all(axis=-1) & np.isfinite(v).all(axis=-1))
