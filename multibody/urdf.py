@@ -87,8 +87,6 @@ def _floats(ctx, element, attribute, path, count, default=None, allow_infinite=F
     try:
         values = parse_numbers(text, allow_infinite)
     except ValueError as problem:
-        if str(problem) == "numbers must be finite":
-            raise ctx.error(path, f"attribute {attribute}={text!r} must be {count} finite number(s)") from None
         raise ctx.error(path, f"attribute {attribute}={text!r}: {problem}") from None
     if len(values) != count:
         raise ctx.error(path, f"attribute {attribute}={text!r} must be {count} number(s), got {len(values)}")

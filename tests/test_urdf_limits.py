@@ -245,6 +245,10 @@ def test_huge_effort_and_velocity_mean_none():
     ('<limit lower="-1" upper="1" effort="nan" velocity="1"/>', "<limit>", "'nan' is not a decimal number"),
     ('<limit lower="-1" upper="1" effort="1" velocity="1"/><dynamics damping="inf"/>', "<dynamics>",
      "'inf' is not a decimal number"),
+    ('<limit lower="-1" upper="1" effort="1" velocity="1"/><dynamics damping="1e400"/>', "<dynamics>",
+     "damping='1e400': numbers must be finite"),
+    ('<limit lower="-1" upper="1" effort="1" velocity="1"/><dynamics friction="1e60"/>', "<dynamics>",
+     "friction='1e60': magnitude above 1e+50"),
 ])
 def test_bad_dynamics_and_limits_name_the_element(extra, where, what):
     with pytest.raises(URDFError) as error:
