@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 import multibody as mb
 
@@ -29,3 +30,16 @@ def check_forward_dynamics(model, q, v, tau, M, event):
         assert names_a_joint or numerically_singular, (str(error), singular_values)
     else:
         assert np.all(np.isfinite(a)), a
+
+
+def check_refused(load, error_type, path, xml, where, fragments):
+    """Loading the file ``path`` that holds ``xml`` with ``load(str(path))`` raises ``error_type`` whose
+    message starts with ``where`` (the file and, where the format gives one, the line) and holds every one
+    of ``fragments`` (the element, the attribute and what is wrong)."""
+    path.write_text(xml, encoding="utf-8")
+    with pytest.raises(error_type) as info:
+        load(str(path))
+    message = str(info.value)
+    assert message.startswith(where), message
+    for fragment in fragments:
+        assert fragment in message, (fragment, message)
