@@ -118,14 +118,16 @@ def test_springs_are_the_files(example, gripper):
 
 
 def test_stroke_keeps_the_closures_and_closes(example, gripper, stroke):
-    """The 1 s stroke: the closure residual stays at or below 1e-10; the drivers end near the PD's target
-    (its steady error, the springs' pull over its gain) and the pads close by more than 80 mm; the stops
-    only ever push the couplers back into their range (their multipliers are never positive), as a
-    joint limit does, so holding them there is what the limits would do."""
+    """The 1 s stroke: the closure residual stays within what the step ends' projection leaves (its
+    tolerance times the rows' largest absolute row sum, margin 10; measured 1.0e-12); the drivers end near
+    the PD's target (its steady error, the springs' pull over its gain) and the pads close by more than
+    80 mm; the stops only ever push the couplers back into their range (their multipliers are never
+    positive), as a joint limit does, so holding them there is what the limits would do."""
     model, _ = gripper
     system, trajectory, _ = stroke
     assert trajectory.t[-1] == pytest.approx(1.0)
-    assert trajectory.residual.max() <= 1e-10
+    A = system.jacobian(trajectory.q)
+    assert trajectory.residual.max() <= 10 * trajectory.projection_tolerance * np.abs(A).sum(axis=2).max()
     driver = model.idx_q[model.joint_index("right_driver_joint")]
     assert abs(trajectory.q[-1, driver] - example["CLOSED"]) < 0.02
     width = example["opening"](model, trajectory.q)
@@ -137,7 +139,9 @@ def test_stroke_keeps_the_closures_and_closes(example, gripper, stroke):
 
 def test_multipliers_satisfy_the_equations_of_motion(gripper, stroke):
     """At every output state, the trajectory's multipliers satisfy ``M a + h = τ + Aᵀλ`` (``τ`` the example's
-    torques less the joints' damping, ``a`` from ``ConstrainedSystem.solve``) and ``A a = γ``, to 1e-10."""
+    torques less the joints' damping, ``a`` from ``ConstrainedSystem.solve``) to the rounding of its terms
+    (measured up to 0.25 of ε times their size), and ``A a = γ`` to 1e-10 (the minimum-norm solve of the
+    9 rows of rank 7 leaves up to 9e-12)."""
     model, _ = gripper
     system, trajectory, tau = stroke
     for t, q, v, lam in zip(trajectory.t, trajectory.q, trajectory.v, trajectory.lam):
@@ -146,7 +150,9 @@ def test_multipliers_satisfy_the_equations_of_motion(gripper, stroke):
             warnings.simplefilter("ignore", mb.RankDeficientWarning)
             solution = system.solve(q, v, torque, t)
         M, h = mb.mass_matrix(model, q), mb.bias_forces(model, q, v)
-        assert np.abs(M @ solution.a + h - torque - solution.A.T @ lam).max() <= 1e-10
+        terms = (np.abs(M).max() * np.abs(solution.a).max() + np.abs(h).max() + np.abs(torque).max()
+                 + np.abs(solution.A).max() * np.abs(lam).max())
+        assert np.abs(M @ solution.a + h - torque - solution.A.T @ lam).max() <= 10 * np.finfo(float).eps * terms
         assert np.abs(solution.A @ solution.a - solution.gamma).max() <= 1e-10
 
 
