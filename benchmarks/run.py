@@ -347,7 +347,6 @@ def panda_pd_loop(duration=3.0, rate=1000.0, repeats=5):
     finally:
         mb.set_num_threads(threads)
     result = {f"{name}_s": min(values) for name, values in timings.items() if values}
-    result["ours_s"] = result["python_s"]
     q_pd, v_pd = finals["pd"]
     result["controllers_final_difference"] = float(max(
         np.abs(np.concatenate(finals[name]) - np.concatenate(finals["pd"])).max() for name in runs))
