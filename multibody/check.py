@@ -142,7 +142,7 @@ def compare_with_pinocchio(path, floating_base=False, samples=20, seed=0, packag
 MUJOCO_TOLERANCE = 1e-10
 
 
-def mujoco_reference(source, package_dirs=None):
+def mujoco_reference(source):
     """MuJoCo's model of the MJCF ``source`` (a path or XML text) with everything our model leaves out turned
     off: contacts, joint limits, equalities and friction loss (its constraints), springs and dampers,
     actuators, fluid forces and gravity compensation. What remains are the equations of motion of the
@@ -190,7 +190,7 @@ def compare_with_mujoco(source, samples=20, seed=0, package_dirs=None):
     from . import mjcf
 
     model = mjcf.load_mjcf(source, package_dirs=package_dirs)
-    reference = mujoco_reference(source, package_dirs)
+    reference = mujoco_reference(source)
     if reference.nq != model.nq or reference.nv != model.nv or reference.nbody - 1 > model.nbodies:
         raise RuntimeError(f"sizes differ from MuJoCo's: nq {model.nq} vs {reference.nq}, nv {model.nv} vs "
                            f"{reference.nv}, {model.nbodies} bodies and sites vs {reference.nbody - 1} bodies")
