@@ -58,12 +58,11 @@ CART_POLE_URDF = """<robot name="cart_pole">
 </robot>"""
 
 
-def lqr(linearization, inputs, Q, R):
-    """The LQR gain ``K (len(inputs), p + k)`` of ``linearization`` (``A``, ``B``) with the joint forces at the
-    velocity indices ``inputs`` as controls, and the closed loop ``A − B_c K``; ``Q (p + k, p + k)``,
-    ``R (len(inputs), len(inputs))``, both symmetric, ``Q`` positive semi-definite and ``R`` definite.
-    ``K = R⁻¹ B_cᵀ X`` with ``X`` from the continuous algebraic Riccati equation (module docstring)."""
-    A, B = linearization.A, linearization.B[:, inputs]
+def lqr(A, B, Q, R):
+    """The LQR gain ``K (m, n)`` of ``ẋ = A x + B u`` (``A (n, n)``, ``B (n, m)``: a linearization's ``A`` and
+    the columns of its ``B`` of the pushed joints) and the closed loop ``A − B K``; ``Q (n, n)``,
+    ``R (m, m)``, both symmetric, ``Q`` positive semi-definite and ``R`` definite. ``K = R⁻¹ Bᵀ X`` with
+    ``X`` from the continuous algebraic Riccati equation (module docstring)."""
     X = scipy.linalg.solve_continuous_are(A, B, Q, R)
     K = np.linalg.solve(R, B.T @ X)
     return K, A - B @ K
@@ -106,7 +105,7 @@ def cart_pole_regulator(model, Q=np.diag([10.0, 100.0, 1.0, 10.0]), R=np.array([
     q_up, rest = model.neutral(), np.zeros(model.nv)
     linearization = mb.linearize(model, q_up, rest, rest)
     cart = model.idx_v[model.joint_index("slide")]
-    K, closed_loop = lqr(linearization, [cart], Q, R)
+    K, closed_loop = lqr(linearization.A, linearization.B[:, [cart]], Q, R)
     return linearization, cart, K, closed_loop
 
 
@@ -186,8 +185,7 @@ def unicycle_regulator(speed=6.0, q_weight=10.0, r_weight=1e-3):
     axle = model.idx_v[model.joint_index("axle")]
     T = regulated_subspace(linearization.A, linearization.B[:, [axle]])
     A_r, B_r = T.T @ linearization.A @ T, T.T @ linearization.B[:, [axle]]
-    X = scipy.linalg.solve_continuous_are(A_r, B_r, q_weight * np.eye(len(A_r)), np.array([[r_weight]]))
-    K = B_r.T @ X / r_weight
+    K, closed_loop = lqr(A_r, B_r, q_weight * np.eye(len(A_r)), np.array([[r_weight]]))
 
     def reference(t, q):
         # upright at the same place, heading and wheel angle, rolling at `speed` (free-flyer velocities are in
@@ -198,7 +196,7 @@ def unicycle_regulator(speed=6.0, q_weight=10.0, r_weight=1e-3):
         steady[3:7] = mb.spatial.rotation_to_quat(mb.spatial.axis_angle_rotation([0.0, 0.0, 1.0], heading))
         return steady, v_up
 
-    return unicycle, system, linearization, T, K, A_r - B_r @ K, reference
+    return unicycle, system, linearization, T, K, closed_loop, reference
 
 
 def ride_with_lqr(speed=6.0, lean=0.02, pitch=0.05, duration=4.0, dt=0.01, rtol=1e-9):

@@ -221,6 +221,15 @@ def lqr():
     return example("cartpole_lqr")
 
 
+def test_lqr_gain_of_the_double_integrator(lqr):
+    """``ẍ = u`` with ``Q = I``, ``R = 1``: the Riccati solution is ``X = [[√3, 1], [1, √3]]`` (``Aᵀ X + X A − X B Bᵀ X
+    + Q = 0`` entry by entry), so ``K = Bᵀ X = [1, √3]`` and the closed loop ``s² + √3 s + 1`` is damped."""
+    A, B = np.array([[0.0, 1.0], [0.0, 0.0]]), np.array([[0.0], [1.0]])
+    K, closed_loop = lqr["lqr"](A, B, np.eye(2), np.eye(1))
+    np.testing.assert_allclose(K, [[1.0, np.sqrt(3.0)]], rtol=1e-14)
+    np.testing.assert_array_equal(closed_loop, A - B @ K)
+
+
 def test_cart_pole_lqr_takes_the_linearization_as_given(lqr):
     """The cart-pole of the URDF string is linearized by ``mb.linearize`` at its upright equilibrium; the
     gain is the Riccati gain of exactly that ``A`` and the cart's column of ``B``, and it makes every
