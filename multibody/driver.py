@@ -260,29 +260,30 @@ def _batch(kernel, joints, reals, frames, X0, X1, X2, X3, OUT, workspace_size, s
                    X2[s if X2.shape[0] > 1 else 0], X3[s if X3.shape[0] > 1 else 0], OUT[s], ws)
 
 
-_LOOP_KERNELS = {}
-
-
 def _loop_kernel(kernel):
-    """``kernel`` as :func:`_batch` takes it: the machine code a single state runs (:func:`_direct`, the
-    types :data:`_SINGLE_CALL_TYPES`), passed as a first-class function, a function pointer. The loop is
-    then compiled once for every kernel, and no kernel is compiled again into a loop of its own (a
+    """``kernel`` as :func:`_batch` takes it: the machine code a single state runs (the types
+    :data:`_SINGLE_CALL_TYPES`), passed as a first-class function, a function pointer (:func:`first_class`). The
+    loop is then compiled once for every kernel, and no kernel is compiled again into a loop of its own (a
     specialization per kernel would compile the kernel's whole call tree twice more: the loop's
     body and the loop). Under ``NUMBA_DISABLE_JIT=1``: the Python function."""
-    function = _LOOP_KERNELS.get(kernel)
-    if function is None:
-        _direct(kernel)
-        function = _LOOP_KERNELS[kernel] = first_class(kernel, _SINGLE_CALL_TYPES)
-    return function
+    return first_class(kernel, _SINGLE_CALL_TYPES)
+
+
+#: :func:`first_class` of each function, made on first use.
+_FIRST_CLASS = {}
 
 
 def first_class(function, types):
-    """``function`` (a Numba dispatcher) compiled for the argument ``types``, as a first-class function: a value
-    that compiled code whose argument is ``numba.types.FunctionType`` of that signature calls through a pointer,
-    so that one compiled loop serves every such function (:func:`_loop_kernel`; a compiled controller of
-    :mod:`multibody.integrators`; :func:`multibody.numba_hooks.first_class`). Under ``NUMBA_DISABLE_JIT=1``: the
-    Python function."""
-    return numba_hooks.first_class(function, types)
+    """``function`` (a Numba dispatcher of multibody) compiled for the argument ``types``, as a first-class
+    function: a value that compiled code whose argument is ``numba.types.FunctionType`` of that signature calls
+    through a pointer, so that one compiled loop serves every such function (:func:`_loop_kernel`; the compiled
+    run of :mod:`multibody.integrators`; :func:`multibody.numba_hooks.first_class`). Kept per function, for one
+    signature each as :func:`_direct` keeps its entry: making the value costs about 30 µs, and a compiled run
+    asks for it at every chunk of steps. Under ``NUMBA_DISABLE_JIT=1``: the Python function."""
+    pointer = _FIRST_CLASS.get(function)
+    if pointer is None:
+        pointer = _FIRST_CLASS[function] = numba_hooks.first_class(function, types)
+    return pointer
 
 
 #: Fewest states a batch gives each thread (the results do not depend on it).

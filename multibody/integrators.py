@@ -367,7 +367,8 @@ class CompiledController:
             raise TypeError(f"tau: the numba.njit controller {name}(t, q, v, out) must write the joint forces into "
                             f"out and return nothing; it returns {returned}")
         #: the function as the compiled run takes it (a first-class function)
-        self.pointer = driver.first_class(function, CONTROLLER_TYPES)
+        # (not kept by the driver, which would hold every controller made: this object keeps it)
+        self.pointer = numba_hooks.first_class(function, CONTROLLER_TYPES)
 
     def __call__(self, t, q, v):
         q, v = driver.contiguous(np.asarray(q, dtype=float)), driver.contiguous(np.asarray(v, dtype=float))

@@ -413,6 +413,34 @@ def test_a_batch_with_a_compiled_controller_equals_its_trajectories_alone():
         assert_same(batch.select(r), mb.simulate(system, q0[r], v0[r], 0.3, dt=0.01, method="RK4", tau=push), tol=0.0)
 
 
+def test_the_run_s_first_class_functions_are_made_once_and_a_controller_is_not_kept(monkeypatch):
+    """The driver makes the first-class value of each of multibody's functions once (about 30 µs each) however
+    many runs and chunks ask for it; a user's compiled controller keeps its own, and the driver holds none."""
+    from multibody import driver, numba_hooks
+
+    made = []
+    first_class = numba_hooks.first_class
+
+    def recorded(function, types):
+        made.append(function)
+        return first_class(function, types)
+
+    monkeypatch.setattr(numba_hooks, "first_class", recorded)
+    ball, system = ball_system()
+    q0, v0 = system.project(*random_states(ball, system, 2, seed=5))
+
+    @numba.njit
+    def push(t, q, v, out):
+        out[0] = np.sin(3.0 * t)
+
+    runs = [mb.simulate(system, q0, v0, 0.1, dt=0.01, method="RK4", tau=push) for _ in range(2)]
+    assert_same(runs[0], runs[1], tol=0.0)
+    assert made.count(push) == 2, "each run's controller makes its own first-class value"
+    ours = [function for function in made if function is not push]
+    assert len(ours) == len(set(ours)), f"made again: {ours}"
+    assert push not in driver._FIRST_CLASS
+
+
 def test_a_batch_through_singular_configurations_hands_those_steps_to_python(statuses):
     """Parallelogram chains swinging through their flat configuration with a PD on the first bar: the runs stop
     before each step that starts near it, the lockstep loop takes it on the constraints, and the runs go on; each
