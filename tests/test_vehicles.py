@@ -316,3 +316,15 @@ def test_unicycle_lqr_closed_loop_decays_within_its_eigenvalue_bound_without_lea
     _, _, trajectory, angles, _ = lqr["ride_with_lqr"](lean=0.02, duration=3.0, dt=0.02)
     assert np.abs(angles[:, 1]).max() > 0.05                              # the lean is not held
     assert np.abs(angles[trajectory.t >= 1.0, 2]).max() < 0.2 * abs(angles[0, 2])   # held near upright
+
+
+# ============================================================================= the examples' figures
+
+@pytest.mark.parametrize("name, figures", [("ackermann_car", ["ackermann_car_forces", "ackermann_car_path"]),
+                                           ("unicycle", ["unicycle"]),
+                                           ("cartpole_lqr", ["cartpole_lqr", "unicycle_lqr"])])
+def test_example_writes_its_figures(name, figures, tmp_path):
+    # The gallery's figures, written by each example's main as its command line runs it (a few seconds each).
+    example(name)["main"](str(tmp_path))
+    assert sorted(p.name for p in tmp_path.iterdir()) == [f"{figure}.png" for figure in figures]
+    assert all(p.stat().st_size > 0 for p in tmp_path.iterdir())
