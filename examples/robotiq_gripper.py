@@ -147,7 +147,7 @@ def load_gripper(panda_path):
 
 def stops(model):
     """Each coupler held at the upper end of its range, where the springs press it during a free stroke."""
-    return [mb.JointCoupling(None, f"{side}_coupler_joint", offset=model.upper[model.idx_v[
+    return [mb.JointCoupling(None, f"{side}_coupler_joint", offset=model.upper[model.idx_q[
         model.joint_index(f"{side}_coupler_joint")]], name=f"{side} coupler stop") for side in FINGERS]
 
 
