@@ -29,13 +29,11 @@ are a run's chart maps as kernels, by which the Python loop takes its states.
 
 from __future__ import annotations
 
-import math
-
 from ..tree import IQ, IV, KIND, NV
 from . import aba, configuration, integration, kkt
 from . import joints as kinds
 from .jit import njit
-from .spatial import nan_unless_finite
+from .spatial import all_finite, nan_unless_finite
 
 # ----------------------------------------------------------------------------- layouts
 
@@ -181,15 +179,6 @@ def weighted_sum(y0, h, weights, K, start, stop, out):
 
 
 @njit(cache=True, error_model="numpy")
-def finite(x):
-    """Whether every entry of the vector ``x`` is finite."""
-    for c in range(x.shape[0]):
-        if not math.isfinite(x[c]):
-            return False
-    return True
-
-
-@njit(cache=True, error_model="numpy")
 def aligned(joints, reals, frames, q, v, T, w):
     """``w = T(q) v (nv,)``: the velocity ``v (nv,)`` at ``q (nq,)`` in the chart's aligned axes
     (:func:`multibody.kernels.configuration.velocity_alignment`, into ``T (nv, nv)``)."""
@@ -328,7 +317,7 @@ def advance(controller, joints, reals, frames, program, times, plan, control, st
                     K[i, nv + c] = 0.0
                 continue
             if not resumed:
-                if not finite(y):
+                if not all_finite(y):
                     io[IO_STEP], io[IO_STAGE], io[IO_STATUS] = k, 0, STAGE_UNSOLVED
                     return
                 # the stage's state: q = chart(q₀, δ), v = Tᵀ w, or q₀ + δ and w
@@ -363,7 +352,7 @@ def advance(controller, joints, reals, frames, program, times, plan, control, st
             else:
                 for c in range(nv):
                     tau[c] = 0.0
-            if kind != NO_CONTROL and kind != CONSTANT and not finite(tau):
+            if kind != NO_CONTROL and kind != CONSTANT and not all_finite(tau):
                 io[IO_TIME] = t
                 for c in range(nv):
                     io_tau[c] = tau[c]
@@ -390,7 +379,7 @@ def advance(controller, joints, reals, frames, program, times, plan, control, st
                 for c in range(nv):
                     K[i, c] = y[nv + c]
                     K[i, nv + c] = step[0, c]
-            if status != kkt.SOLVED or not finite(K[i]):
+            if status != kkt.SOLVED or not all_finite(K[i]):
                 io[IO_STEP], io[IO_STAGE], io[IO_STATUS] = k, 0, STAGE_UNSOLVED
                 return
         first_stage, given = 0, False
@@ -409,7 +398,7 @@ def advance(controller, joints, reals, frames, program, times, plan, control, st
                 end[c] = y_end[c] + q_chart[c]
             for c in range(nv):
                 end[nq + c] = y_end[nv + c]
-        if not finite(end):
+        if not all_finite(end):
             io[IO_TIME] = times[k]
             io[IO_STEP], io[IO_STAGE], io[IO_STATUS] = k, 0, NON_FINITE_STATE
             return
