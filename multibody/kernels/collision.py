@@ -1,0 +1,1124 @@
+"""Contact detection between convex shapes and against a half-space, compiled and allocation-free.
+
+Each function reads a geometry as its shape code, its ``size (3,)`` in kernel convention, its hull
+``vertices (k, 3)`` (geometry frame; used by ``CONVEX`` only, any array otherwise) and its world pose
+``R (3, 3)``, ``p (3,)`` (the geometry frame in the world: ``x_world = R x_geometry + p``), and writes
+contact rows ``[px, py, pz, nx, ny, nz, gap]`` (``CONTACT_COLUMNS``) into ``out (MAX_PAIR_CONTACTS, 7)``:
+
+* ``n``: unit normal in world axes, pointing from the other object (``b``, or the half-space) into ``a``;
+* ``gap``: the signed distance between the two surfaces along ``n`` (m; negative is penetration);
+* ``p``: for a pair, the midpoint of the two surfaces' witness points ``(x_a + x_b)/2`` with
+  ``x_a − x_b = gap · n``; against a half-space, the point on ``a``'s surface (its feature).
+
+Sizes (kernel convention): sphere ``(r, 0, 0)``; box half-extents ``(hx, hy, hz)``; capsule and
+cylinder ``(r, half length, 0)``, their axis the geometry frame's z; convex ``(0, 0, 0)`` with its
+vertices. Every feature with ``gap < margin`` is reported, at most ``MAX_PAIR_CONTACTS`` per call;
+scratch lives in ``ws`` (float64, ``PAIR_WORKSPACE`` entries). The code keeps to the subset that Numba
+compiles for CUDA too (:mod:`multibody.gpu`): loops, scalars and tuples, no allocation.
+
+Sources: C. Ericson, *Real-Time Collision Detection*, Morgan Kaufmann 2005 (RTCD) for the primitive
+tests, the closest points, the separating-axis test of boxes and the polygon clipping;
+E. G. Gilbert, D. W. Johnson, S. S. Keerthi, "A fast procedure for computing the distance between
+complex objects in three-dimensional space", IEEE J. Robotics and Automation 4(2), 1988 (GJK), and
+G. van den Bergen, *Collision Detection in Interactive 3D Environments*, Morgan Kaufmann 2003, §4.3
+(the GJK loop and its termination) and §4.3.8 (the expanding polytope algorithm, EPA).
+"""
+
+from __future__ import annotations
+
+import math
+
+from .jit import njit
+from .spatial import add3, cross, dot3, load3, rotate, rotate_back, row3, scale3, store_row, sub3
+
+#: Shape codes (``CollisionTable.shapes``).
+SPHERE, BOX, CAPSULE, CYLINDER, CONVEX = 0, 1, 2, 3, 4
+#: Most contact rows one call writes, and the columns of a row ``[px, py, pz, nx, ny, nz, gap]``.
+MAX_PAIR_CONTACTS = 8
+CONTACT_COLUMNS = 7
+
+#: Capacities of the GJK simplex and the EPA polytope (vertices, faces, horizon edges).
+SIMPLEX_SIZE = 4
+EPA_VERTICES = 64
+EPA_FACES = 128
+EPA_EDGES = 128
+#: Most vertices of a clipped face polygon (a quadrilateral clipped by four planes has at most 8).
+CLIP_VERTICES = 16
+#: Workspace layout: per simplex/polytope vertex ``[w, a, b]`` (9), per face ``[i, j, k, n, d, alive]`` (8).
+WS_SIMPLEX = 0
+WS_LAMBDA = WS_SIMPLEX + 9 * SIMPLEX_SIZE
+WS_EPA_VERTICES = WS_LAMBDA + SIMPLEX_SIZE
+WS_EPA_FACES = WS_EPA_VERTICES + 9 * EPA_VERTICES
+WS_EPA_EDGES = WS_EPA_FACES + 8 * EPA_FACES
+WS_CLIP = WS_EPA_EDGES + 2 * EPA_EDGES
+WS_SELECT = WS_CLIP + 2 * 3 * CLIP_VERTICES
+#: Size of ``ws`` (float64 entries) for :func:`halfspace_contacts` and :func:`pair_contacts`.
+PAIR_WORKSPACE = WS_SELECT + MAX_PAIR_CONTACTS
+
+#: GJK/EPA outcomes.
+SEPARATED, DISTANCE, OVERLAP, DEGENERATE = 0, 1, 2, 3
+#: Iteration limits of GJK and EPA.
+GJK_ITERATIONS = 128
+#: Relative tolerances (of a length scale of the pair): GJK's and EPA's termination, the face
+#: preference of the box–box axis choice, and "parallel" for edges and capsule axes.
+GJK_TOLERANCE = 1e-13
+EPA_TOLERANCE = 1e-12
+AXIS_PREFERENCE = 1e-10
+PARALLEL = 1e-10
+
+
+# ---------------------------------------------------------------------------------------------------------------------
+# small helpers
+
+
+@njit(cache=True, error_model="numpy")
+def rotation9(R):
+    """The (3, 3) array ``R`` as the row-major 9-tuple of :mod:`multibody.kernels.spatial`."""
+    return row3(R, 0, 0) + row3(R, 1, 0) + row3(R, 2, 0)
+
+
+@njit(cache=True, error_model="numpy")
+def norm3(a):
+    return math.sqrt(dot3(a, a))
+
+
+@njit(cache=True, error_model="numpy")
+def axis_of(R, k):
+    """Column ``k`` of the row-major rotation ``R``: the geometry frame's axis k in world axes."""
+    return (R[k], R[3 + k], R[6 + k])
+
+
+@njit(cache=True, error_model="numpy")
+def write_contact(out, count, point, normal, gap):
+    """Row ``count`` of ``out`` ← ``[point, normal, gap]`` while rows are left; the new count."""
+    if count >= out.shape[0]:
+        return count
+    store_row(out, count, 0, point + normal + (gap,))
+    return count + 1
+
+
+@njit(cache=True, error_model="numpy")
+def write_pair(out, count, x_a, x_b, normal, gap, margin):
+    """A pair's contact from its witness points ``x_a`` (on a) and ``x_b`` (on b): the row at their
+    midpoint, written when ``gap < margin``."""
+    if gap >= margin:
+        return count
+    return write_contact(out, count, scale3(0.5, add3(x_a, x_b)), normal, gap)
+
+
+@njit(cache=True, error_model="numpy")
+def any_perpendicular(u):
+    """A unit vector perpendicular to the unit vector ``u``: ``u ×`` the axis least aligned with it."""
+    ax, ay, az = abs(u[0]), abs(u[1]), abs(u[2])
+    if ax <= ay and ax <= az:
+        e = (1.0, 0.0, 0.0)
+    elif ay <= az:
+        e = (0.0, 1.0, 0.0)
+    else:
+        e = (0.0, 0.0, 1.0)
+    c = cross(u, e)
+    return scale3(1.0 / norm3(c), c)
+
+
+@njit(cache=True, error_model="numpy")
+def bounding_radius(shape, size, vertices):
+    """Radius of a ball about the geometry frame's origin holding the shape (m)."""
+    if shape == SPHERE:
+        return size[0]
+    if shape == BOX:
+        return math.sqrt(size[0] * size[0] + size[1] * size[1] + size[2] * size[2])
+    if shape == CAPSULE:
+        return size[0] + size[1]
+    if shape == CYLINDER:
+        return math.sqrt(size[0] * size[0] + size[1] * size[1])
+    r = 0.0
+    for i in range(vertices.shape[0]):
+        r = max(r, norm3(row3(vertices, i, 0)))
+    return r
+
+
+@njit(cache=True, error_model="numpy")
+def core_radius(shape, size):
+    """The radius by which a shape rounds its core (sphere: a point; capsule: a segment); 0 otherwise."""
+    if shape == SPHERE or shape == CAPSULE:
+        return size[0]
+    return 0.0
+
+
+@njit(cache=True, error_model="numpy")
+def support(shape, size, vertices, R, p, d, rounded):
+    """A point of the shape farthest along the world direction ``d`` (its support point), in world
+    coordinates: of the core (sphere: its centre; capsule: its segment) when ``rounded`` is False, of
+    the whole shape when True (the core's point plus the radius along ``d``).
+
+    In the geometry frame, with ``d' = Rᵀ d``: box ``(sign(d'ᵢ) hᵢ)``; segment ``(0, 0, sign(d'_z) h)``;
+    cylinder ``(r d'_⊥/|d'_⊥|, sign(d'_z) h)``; hull ``argmax_v d'·v`` (van den Bergen 2003, §4.3.1)."""
+    dl = rotate_back(R, d)
+    if shape == BOX:
+        local = (math.copysign(size[0], dl[0]), math.copysign(size[1], dl[1]), math.copysign(size[2], dl[2]))
+    elif shape == CAPSULE:
+        local = (0.0, 0.0, math.copysign(size[1], dl[2]))
+    elif shape == CYLINDER:
+        s = math.sqrt(dl[0] * dl[0] + dl[1] * dl[1])
+        z = math.copysign(size[1], dl[2])
+        if s > 0.0:
+            local = (size[0] * dl[0] / s, size[0] * dl[1] / s, z)
+        else:
+            local = (0.0, 0.0, z)
+    elif shape == CONVEX:
+        best = 0
+        best_value = -math.inf
+        for i in range(vertices.shape[0]):
+            value = dl[0] * vertices[i, 0] + dl[1] * vertices[i, 1] + dl[2] * vertices[i, 2]
+            if value > best_value:
+                best_value = value
+                best = i
+        local = row3(vertices, best, 0)
+    else:
+        local = (0.0, 0.0, 0.0)
+    x = add3(p, rotate(R, local))
+    if rounded:
+        r = core_radius(shape, size)
+        nd = norm3(d)
+        if r > 0.0 and nd > 0.0:
+            x = add3(x, scale3(r / nd, d))
+    return x
+
+
+# ---------------------------------------------------------------------------------------------------------------------
+# closest points (RTCD chapter 5)
+
+
+@njit(cache=True, error_model="numpy")
+def closest_on_segment(x, a, b):
+    """Parameter ``t ∈ [0, 1]`` of the point ``a + t (b − a)`` nearest ``x`` (RTCD §5.1.2):
+    ``t = clamp((x − a)·(b − a) / |b − a|², 0, 1)``."""
+    ab = sub3(b, a)
+    denominator = dot3(ab, ab)
+    if denominator <= 0.0:
+        return 0.0
+    return min(1.0, max(0.0, dot3(sub3(x, a), ab) / denominator))
+
+
+@njit(cache=True, error_model="numpy")
+def closest_between_segments(p1, q1, p2, q2):
+    """Parameters ``(s, t)`` of the closest points ``p1 + s d1`` and ``p2 + t d2`` of the segments
+    ``[p1, q1]`` and ``[p2, q2]`` (RTCD §5.1.9, ``ClosestPtSegmentSegment``): with ``d1 = q1 − p1``,
+    ``d2 = q2 − p2``, ``r = p1 − p2``, ``a = d1·d1``, ``e = d2·d2``, ``f = d2·r``, ``c = d1·r``,
+    ``b = d1·d2``, ``s = clamp((b f − c e)/(a e − b²))``, ``t = (b s + f)/e``, each re-clamped in turn.
+    Parallel segments (``a e − b² = 0``) take ``s = 0``."""
+    d1 = sub3(q1, p1)
+    d2 = sub3(q2, p2)
+    r = sub3(p1, p2)
+    a = dot3(d1, d1)
+    e = dot3(d2, d2)
+    f = dot3(d2, r)
+    if a <= 0.0 and e <= 0.0:
+        return 0.0, 0.0
+    if a <= 0.0:
+        return 0.0, min(1.0, max(0.0, f / e))
+    c = dot3(d1, r)
+    if e <= 0.0:
+        return min(1.0, max(0.0, -c / a)), 0.0
+    b = dot3(d1, d2)
+    denominator = a * e - b * b
+    s = 0.0
+    if denominator > PARALLEL * a * e:
+        s = min(1.0, max(0.0, (b * f - c * e) / denominator))
+    # t = (b s + f)/e, and s recomputed where t is clamped
+    t = (b * s + f) / e
+    if t < 0.0:
+        t = 0.0
+        s = min(1.0, max(0.0, -c / a))
+    elif t > 1.0:
+        t = 1.0
+        s = min(1.0, max(0.0, (b - c) / a))
+    return s, t
+
+
+@njit(cache=True, error_model="numpy")
+def closest_on_triangle(a, b, c):
+    """Barycentric coordinates ``(u, v, w)`` of the point of triangle ``abc`` nearest the origin, by
+    its Voronoi regions (RTCD §5.1.5, ``ClosestPtPointTriangle`` with ``p = 0``); a degenerate triangle
+    takes the nearest of its edges."""
+    ab = sub3(b, a)
+    ac = sub3(c, a)
+    # vertex region A: d1 = ab·(p − a) ≤ 0, d2 = ac·(p − a) ≤ 0
+    d1 = -dot3(ab, a)
+    d2 = -dot3(ac, a)
+    if d1 <= 0.0 and d2 <= 0.0:
+        return 1.0, 0.0, 0.0
+    d3 = -dot3(ab, b)
+    d4 = -dot3(ac, b)
+    if d3 >= 0.0 and d4 <= d3:
+        return 0.0, 1.0, 0.0
+    vc = d1 * d4 - d3 * d2
+    if vc <= 0.0 and d1 >= 0.0 and d3 <= 0.0:
+        v = d1 / (d1 - d3)
+        return 1.0 - v, v, 0.0
+    d5 = -dot3(ab, c)
+    d6 = -dot3(ac, c)
+    if d6 >= 0.0 and d5 <= d6:
+        return 0.0, 0.0, 1.0
+    vb = d5 * d2 - d1 * d6
+    if vb <= 0.0 and d2 >= 0.0 and d6 <= 0.0:
+        w = d2 / (d2 - d6)
+        return 1.0 - w, 0.0, w
+    va = d3 * d6 - d5 * d4
+    if va <= 0.0 and d4 - d3 >= 0.0 and d5 - d6 >= 0.0:
+        w = (d4 - d3) / ((d4 - d3) + (d5 - d6))
+        return 0.0, 1.0 - w, w
+    total = va + vb + vc
+    if total > 0.0:
+        # face region: (u, v, w) = (va, vb, vc) / (va + vb + vc)
+        v = vb / total
+        w = vc / total
+        return 1.0 - v - w, v, w
+    origin = (0.0, 0.0, 0.0)
+    t_ab = closest_on_segment(origin, a, b)
+    t_bc = closest_on_segment(origin, b, c)
+    t_ca = closest_on_segment(origin, c, a)
+    x_ab = add3(a, scale3(t_ab, ab))
+    x_bc = add3(b, scale3(t_bc, sub3(c, b)))
+    x_ca = add3(c, scale3(t_ca, sub3(a, c)))
+    n_ab, n_bc, n_ca = dot3(x_ab, x_ab), dot3(x_bc, x_bc), dot3(x_ca, x_ca)
+    if n_ab <= n_bc and n_ab <= n_ca:
+        return 1.0 - t_ab, t_ab, 0.0
+    if n_bc <= n_ca:
+        return 0.0, 1.0 - t_bc, t_bc
+    return t_ca, 0.0, 1.0 - t_ca
+
+
+# ---------------------------------------------------------------------------------------------------------------------
+# half-space
+
+
+@njit(cache=True, error_model="numpy")
+def halfspace_point(out, count, x, normal, height, radius, margin):
+    """A point feature ``x`` rounded by ``radius`` against ``n·x ≥ h``: ``gap = n·x − h − radius``, the
+    surface point ``x − radius n``."""
+    gap = dot3(normal, x) - height - radius
+    if gap >= margin:
+        return count
+    return write_contact(out, count, sub3(x, scale3(radius, normal)), normal, gap)
+
+
+@njit(cache=True, error_model="numpy")
+def halfspace_contacts(shape, size, vertices, R, p, normal, height, margin, out, ws):
+    """Contacts of a geometry with the half-space ``n·x ≥ height`` (``normal (3,)``, made unit here;
+    ``height`` in m): every feature with ``gap = n·x − height < margin`` (RTCD §5.2.3, a point against a
+    plane), with the normal ``n`` (from the half-space into the geometry) and the point on the
+    geometry's surface. Returns the count of rows written into ``out (MAX_PAIR_CONTACTS, 7)``.
+
+    * sphere: its lowest point ``c − r n``;
+    * box: its corners ``p + R (±hx, ±hy, ±hz)`` (a box resting on a face gives its 4 lowest);
+    * capsule: the lowest points of its two end spheres ``p ± h R e_z − r n``;
+    * cylinder: per end disc of centre ``c = p ± h a`` (axis ``a = R e_z``), four rim points a quarter
+      turn apart, ``c + r (cos θ u + sin θ (a × u))``, starting from the lowest, ``u = −(n − (n·a) a)/|·|``
+      (the disc's x axis where the disc is parallel to the plane): standing on its face gives 4 rim
+      points, lying on its side the two lowest rim points;
+    * convex hull: its vertices; where more than ``MAX_PAIR_CONTACTS`` are within the margin, the
+      deepest and the extreme ones along ``MAX_PAIR_CONTACTS − 1`` directions in the plane, evenly
+      spread over the full turn, so that the kept points span the supporting polygon.
+    """
+    Rt = rotation9(R)
+    pt = load3(p, 0)
+    n = load3(normal, 0)
+    n = scale3(1.0 / norm3(n), n)
+    count = 0
+    if shape == SPHERE:
+        return halfspace_point(out, count, pt, n, height, size[0], margin)
+    if shape == BOX:
+        for k in range(8):
+            local = (size[0] if k & 1 else -size[0], size[1] if k & 2 else -size[1], size[2] if k & 4 else -size[2])
+            count = halfspace_point(out, count, add3(pt, rotate(Rt, local)), n, height, 0.0, margin)
+        return count
+    if shape == CAPSULE:
+        a = axis_of(Rt, 2)
+        count = halfspace_point(out, count, add3(pt, scale3(size[1], a)), n, height, size[0], margin)
+        return halfspace_point(out, count, sub3(pt, scale3(size[1], a)), n, height, size[0], margin)
+    if shape == CYLINDER:
+        a = axis_of(Rt, 2)
+        # u: the downhill direction in the disc's plane, −(n − (n·a) a), normalised
+        tangential = sub3(scale3(dot3(n, a), a), n)
+        length = norm3(tangential)
+        if length > PARALLEL:
+            u = scale3(1.0 / length, tangential)
+        else:
+            u = axis_of(Rt, 0)
+        w = cross(a, u)
+        for side in range(2):
+            centre = add3(pt, scale3(size[1] if side == 0 else -size[1], a))
+            count = halfspace_point(out, count, add3(centre, scale3(size[0], u)), n, height, 0.0, margin)
+            count = halfspace_point(out, count, add3(centre, scale3(size[0], w)), n, height, 0.0, margin)
+            count = halfspace_point(out, count, sub3(centre, scale3(size[0], w)), n, height, 0.0, margin)
+            count = halfspace_point(out, count, sub3(centre, scale3(size[0], u)), n, height, 0.0, margin)
+        return count
+    return halfspace_hull(vertices, Rt, pt, n, height, margin, out, ws)
+
+
+@njit(cache=True, error_model="numpy")
+def halfspace_hull(vertices, R, p, n, height, margin, out, ws):
+    """A convex hull's vertices against ``n·x ≥ height`` (see :func:`halfspace_contacts`); ``ws[WS_SELECT:]``
+    holds the indices of the kept vertices."""
+    candidates = 0
+    deepest = -1
+    deepest_gap = math.inf
+    for i in range(vertices.shape[0]):
+        gap = dot3(n, add3(p, rotate(R, row3(vertices, i, 0)))) - height
+        if gap < margin:
+            candidates += 1
+            if gap < deepest_gap:
+                deepest_gap = gap
+                deepest = i
+    if candidates == 0:
+        return 0
+    if candidates <= out.shape[0]:
+        count = 0
+        for i in range(vertices.shape[0]):
+            count = halfspace_point(out, count, add3(p, rotate(R, row3(vertices, i, 0))), n, height, 0.0, margin)
+        return count
+    # more candidates than rows: the deepest, then the extreme candidate along t_k = cos θ_k e1 + sin θ_k e2
+    e1 = any_perpendicular(n)
+    e2 = cross(n, e1)
+    kept = 0
+    ws[WS_SELECT] = deepest
+    kept = 1
+    for k in range(out.shape[0] - 1):
+        angle = 2.0 * math.pi * k / (out.shape[0] - 1)
+        t = add3(scale3(math.cos(angle), e1), scale3(math.sin(angle), e2))
+        best = -1
+        best_value = -math.inf
+        for i in range(vertices.shape[0]):
+            x = add3(p, rotate(R, row3(vertices, i, 0)))
+            if dot3(n, x) - height < margin and dot3(t, x) > best_value:
+                best_value = dot3(t, x)
+                best = i
+        seen = False
+        for j in range(kept):
+            if int(ws[WS_SELECT + j]) == best:
+                seen = True
+        if not seen:
+            ws[WS_SELECT + kept] = best
+            kept += 1
+    count = 0
+    for j in range(kept):
+        x = add3(p, rotate(R, row3(vertices, int(ws[WS_SELECT + j]), 0)))
+        count = halfspace_point(out, count, x, n, height, 0.0, margin)
+    return count
+
+
+# ---------------------------------------------------------------------------------------------------------------------
+# analytic pairs (RTCD chapters 4 and 5)
+
+
+@njit(cache=True, error_model="numpy")
+def spheres(c_a, r_a, c_b, r_b, margin, out, count):
+    """Two balls (a sphere, or the nearest point of a capsule's segment): ``d = c_a − c_b``,
+    ``n = d/|d|``, ``gap = |d| − r_a − r_b`` (RTCD §4.3.1); witnesses ``c_a − r_a n`` and ``c_b + r_b n``.
+    Coincident centres take ``n = e_z``."""
+    d = sub3(c_a, c_b)
+    distance = norm3(d)
+    if distance > 0.0:
+        n = scale3(1.0 / distance, d)
+    else:
+        n = (0.0, 0.0, 1.0)
+    gap = distance - r_a - r_b
+    return write_pair(out, count, sub3(c_a, scale3(r_a, n)), add3(c_b, scale3(r_b, n)), n, gap, margin)
+
+
+@njit(cache=True, error_model="numpy")
+def sphere_box(c, r, size, R, p, margin, out, count):
+    """A sphere (centre ``c``, radius ``r``: object a) against a box (object b). In the box frame
+    ``c' = Rᵀ (c − p)``; outside, the box's nearest point is ``q = clamp(c', −h, h)`` (RTCD §5.1.3,
+    §4.3.2) and ``n = R (c' − q)/|c' − q|``, ``gap = |c' − q| − r``; inside, the face of least depth
+    ``k = argmin (hₖ − |c'ₖ|)`` gives ``n = sign(c'ₖ) R eₖ`` and ``gap = −(hₖ − |c'ₖ|) − r``."""
+    cl = rotate_back(R, sub3(c, p))
+    q = (min(size[0], max(-size[0], cl[0])), min(size[1], max(-size[1], cl[1])), min(size[2], max(-size[2], cl[2])))
+    d = sub3(cl, q)
+    distance = norm3(d)
+    if distance > 0.0:
+        n = rotate(R, scale3(1.0 / distance, d))
+        gap = distance - r
+        x_b = add3(p, rotate(R, q))
+    else:
+        # inside: push out through the nearest face
+        k = 0
+        depth = size[0] - abs(cl[0])
+        for i in range(1, 3):
+            if size[i] - abs(cl[i]) < depth:
+                depth = size[i] - abs(cl[i])
+                k = i
+        sign = 1.0 if cl[k] >= 0.0 else -1.0
+        n = scale3(sign, axis_of(R, k))
+        gap = -depth - r
+        x_b = add3(c, scale3(depth, n))
+    return write_pair(out, count, sub3(c, scale3(r, n)), x_b, n, gap, margin)
+
+
+@njit(cache=True, error_model="numpy")
+def segment_of(size, R, p):
+    """End points ``p ∓ h R e_z`` of a capsule's (or cylinder's) axis segment."""
+    a = scale3(size[1], axis_of(R, 2))
+    return sub3(p, a), add3(p, a)
+
+
+@njit(cache=True, error_model="numpy")
+def capsules(size_a, R_a, p_a, size_b, R_b, p_b, margin, out, count):
+    """Two capsules: the closest points of their segments (RTCD §5.1.9) as two balls (RTCD §4.5.1).
+    Parallel axes overlapping along their length give two contacts, at the ends of the overlap
+    interval of a's segment (where each is closest to b's segment), so that one capsule lying on
+    another is supported along the line."""
+    a0, a1 = segment_of(size_a, R_a, p_a)
+    b0, b1 = segment_of(size_b, R_b, p_b)
+    da = sub3(a1, a0)
+    db = sub3(b1, b0)
+    c = cross(da, db)
+    laa = dot3(da, da)
+    lbb = dot3(db, db)
+    if laa > 0.0 and lbb > 0.0 and dot3(c, c) <= PARALLEL * PARALLEL * laa * lbb:
+        # overlap of b's end points projected on a's axis: [max(0, min t), min(1, max t)]
+        t0 = dot3(sub3(b0, a0), da) / laa
+        t1 = dot3(sub3(b1, a0), da) / laa
+        lo = max(0.0, min(t0, t1))
+        hi = min(1.0, max(t0, t1))
+        if hi > lo:
+            for t in (lo, hi):
+                x = add3(a0, scale3(t, da))
+                y = add3(b0, scale3(closest_on_segment(x, b0, b1), db))
+                count = spheres(x, size_a[0], y, size_b[0], margin, out, count)
+            return count
+    s, t = closest_between_segments(a0, a1, b0, b1)
+    return spheres(add3(a0, scale3(s, da)), size_a[0], add3(b0, scale3(t, db)), size_b[0], margin, out, count)
+
+
+@njit(cache=True, error_model="numpy")
+def box_separation(axis, h_a, R_a, h_b, R_b, t):
+    """Separation of two boxes along the unit ``axis`` (RTCD §4.4.1): ``|L·t| − (Σ hₐᵢ |L·aᵢ| + Σ h_bⱼ |L·bⱼ|)``
+    with ``t = p_b − p_a``; positive: a separating axis."""
+    r_a = h_a[0] * abs(dot3(axis, axis_of(R_a, 0))) + h_a[1] * abs(dot3(axis, axis_of(R_a, 1))) \
+        + h_a[2] * abs(dot3(axis, axis_of(R_a, 2)))
+    r_b = h_b[0] * abs(dot3(axis, axis_of(R_b, 0))) + h_b[1] * abs(dot3(axis, axis_of(R_b, 1))) \
+        + h_b[2] * abs(dot3(axis, axis_of(R_b, 2)))
+    return abs(dot3(axis, t)) - r_a - r_b
+
+
+@njit(cache=True, error_model="numpy")
+def clip_polygon(ws, source, m, target, e, offset):
+    """Sutherland–Hodgman: the polygon of ``m`` vertices at ``ws[source:]`` clipped to ``e·x ≤ offset``,
+    written at ``ws[target:]`` (RTCD §8.3.4); returns its vertex count."""
+    k = 0
+    for i in range(m):
+        cur = load3(ws, source + 3 * i)
+        nxt = load3(ws, source + 3 * ((i + 1) % m))
+        dc = dot3(e, cur) - offset
+        dn = dot3(e, nxt) - offset
+        if dc <= 0.0 and k < CLIP_VERTICES:
+            store_row_flat(ws, target + 3 * k, cur)
+            k += 1
+        # the edge crosses the plane: its intersection x = cur + dc/(dc − dn) (nxt − cur)
+        if ((dc < 0.0 and dn > 0.0) or (dc > 0.0 and dn < 0.0)) and k < CLIP_VERTICES:
+            store_row_flat(ws, target + 3 * k, add3(cur, scale3(dc / (dc - dn), sub3(nxt, cur))))
+            k += 1
+    return k
+
+
+@njit(cache=True, error_model="numpy")
+def store_row_flat(x, start, values):
+    """``x[start : start + 3] = values`` for a 3-tuple."""
+    x[start] = values[0]
+    x[start + 1] = values[1]
+    x[start + 2] = values[2]
+
+
+@njit(cache=True, error_model="numpy")
+def box_face_contacts(h_ref, R_ref, p_ref, k, n, h_inc, R_inc, p_inc, flip, margin, out, count, ws):
+    """Face contact of two boxes (RTCD §5.2.x and §8.3.4; the reference-face clipping of Gregorius, GDC 2015):
+    the reference box's face ``k`` with outward normal ``n`` (towards the incident box), the incident box's
+    face most opposed to ``n`` clipped by the reference face's four side planes; each clipped corner ``x``
+    with ``gap = n·(x − c_ref) < margin`` (``c_ref = p_ref + h_k n``) gives a contact at the midpoint of
+    ``x`` and its projection on the reference face. The normal written is ``n``, or ``−n`` when ``flip``
+    (the reference box is b)."""
+    # incident face: the axis j of the incident box with the largest |n·bⱼ|, its outward normal against n
+    j = 0
+    best = -1.0
+    for i in range(3):
+        value = abs(dot3(n, axis_of(R_inc, i)))
+        if value > best:
+            best = value
+            j = i
+    sign = -1.0 if dot3(n, axis_of(R_inc, j)) > 0.0 else 1.0
+    u_axis = (j + 1) % 3
+    v_axis = (j + 2) % 3
+    centre = add3(p_inc, scale3(sign * h_inc[j], axis_of(R_inc, j)))
+    u = scale3(h_inc[u_axis], axis_of(R_inc, u_axis))
+    v = scale3(h_inc[v_axis], axis_of(R_inc, v_axis))
+    source = WS_CLIP
+    target = WS_CLIP + 3 * CLIP_VERTICES
+    store_row_flat(ws, source, add3(centre, add3(u, v)))
+    store_row_flat(ws, source + 3, add3(centre, sub3(v, u)))
+    store_row_flat(ws, source + 6, sub3(centre, add3(u, v)))
+    store_row_flat(ws, source + 9, add3(centre, sub3(u, v)))
+    m = 4
+    # the reference face's side planes ±eᵢ·x ≤ ±eᵢ·p_ref + hᵢ, i ≠ k
+    for i in range(3):
+        if i == k:
+            continue
+        e = axis_of(R_ref, i)
+        for s in (1.0, -1.0):
+            es = scale3(s, e)
+            m = clip_polygon(ws, source, m, target, es, dot3(es, p_ref) + h_ref[i])
+            source, target = target, source
+            if m == 0:
+                return count
+    face = dot3(n, p_ref) + h_ref[k]
+    normal = scale3(-1.0, n) if flip else n
+    for i in range(m):
+        x = load3(ws, source + 3 * i)
+        gap = dot3(n, x) - face
+        if gap < margin:
+            count = write_contact(out, count, sub3(x, scale3(0.5 * gap, n)), normal, gap)
+    return count
+
+
+@njit(cache=True, error_model="numpy")
+def boxes(h_a, R_a, p_a, h_b, R_b, p_b, margin, out, count, ws):
+    """Two boxes by the separating-axis test over their 15 axes (RTCD §4.4.1: the 3 + 3 face normals and
+    the 9 edge cross products ``aᵢ × bⱼ``, unit, parallel pairs skipped): the axis of largest separation
+    ``s(L) = |L·t| − r_a(L) − r_b(L)`` is the contact normal; none within the margin when ``s > margin``.
+    A face axis (preferred over an edge axis within a relative ``AXIS_PREFERENCE``) gives the clipped
+    face polygon's corners (:func:`box_face_contacts`: 4 for a box resting on a larger one); an edge axis
+    gives one point, the midpoint of the closest points of the two supporting edges (RTCD §5.1.9), with
+    ``gap = n·(x_a − x_b)``.
+
+    ``s`` is the exact distance (or depth) whenever the nearest features are a face and a point of the
+    other box over it or two edges; for separated boxes whose nearest features are corners or an edge
+    and a corner beside each other, it is a lower bound of the distance (so such contacts enter the margin
+    early, never late)."""
+    t = sub3(p_b, p_a)
+    scale = norm3(h_a) + norm3(h_b)
+    tolerance = AXIS_PREFERENCE * scale
+    best = -math.inf
+    best_axis = -1
+    for i in range(6):
+        axis = axis_of(R_a, i) if i < 3 else axis_of(R_b, i - 3)
+        s = box_separation(axis, h_a, R_a, h_b, R_b, t)
+        if s > best + (tolerance if i >= 3 else 0.0):
+            best = s
+            best_axis = i
+    if best > margin:
+        return count
+    best_edge = -math.inf
+    edge = -1
+    for i in range(3):
+        for j in range(3):
+            c = cross(axis_of(R_a, i), axis_of(R_b, j))
+            length = norm3(c)
+            if length <= PARALLEL:
+                continue
+            s = box_separation(scale3(1.0 / length, c), h_a, R_a, h_b, R_b, t)
+            if s > best_edge:
+                best_edge = s
+                edge = 3 * i + j
+    if edge >= 0 and best_edge > best + tolerance:
+        if best_edge > margin:
+            return count
+        i = edge // 3
+        j = edge % 3
+        c = cross(axis_of(R_a, i), axis_of(R_b, j))
+        n = scale3(1.0 / norm3(c), c)
+        if dot3(n, t) < 0.0:
+            n = scale3(-1.0, n)
+        # n points from a to b: a's supporting edge along n, b's along −n
+        ea = (0.0, 0.0, 0.0)
+        eb = (0.0, 0.0, 0.0)
+        for k in range(3):
+            if k != i:
+                ea = add3(ea, scale3(math.copysign(h_a[k], dot3(n, axis_of(R_a, k))), axis_of(R_a, k)))
+            if k != j:
+                eb = add3(eb, scale3(-math.copysign(h_b[k], dot3(n, axis_of(R_b, k))), axis_of(R_b, k)))
+        a0 = add3(p_a, sub3(ea, scale3(h_a[i], axis_of(R_a, i))))
+        a1 = add3(p_a, add3(ea, scale3(h_a[i], axis_of(R_a, i))))
+        b0 = add3(p_b, sub3(eb, scale3(h_b[j], axis_of(R_b, j))))
+        b1 = add3(p_b, add3(eb, scale3(h_b[j], axis_of(R_b, j))))
+        s, u = closest_between_segments(a0, a1, b0, b1)
+        x_a = add3(a0, scale3(s, sub3(a1, a0)))
+        x_b = add3(b0, scale3(u, sub3(b1, b0)))
+        normal = scale3(-1.0, n)
+        return write_pair(out, count, x_a, x_b, normal, dot3(normal, sub3(x_a, x_b)), margin)
+    if best_axis < 3:
+        n = axis_of(R_a, best_axis)
+        if dot3(n, t) < 0.0:
+            n = scale3(-1.0, n)
+        return box_face_contacts(h_a, R_a, p_a, best_axis, n, h_b, R_b, p_b, True, margin, out, count, ws)
+    n = axis_of(R_b, best_axis - 3)
+    if dot3(n, t) > 0.0:
+        n = scale3(-1.0, n)
+    return box_face_contacts(h_b, R_b, p_b, best_axis - 3, n, h_a, R_a, p_a, False, margin, out, count, ws)
+
+
+# ---------------------------------------------------------------------------------------------------------------------
+# GJK and EPA (Gilbert, Johnson & Keerthi 1988; van den Bergen 2003, §4.3)
+
+
+@njit(cache=True, error_model="numpy")
+def support_difference(shape_a, size_a, vertices_a, R_a, p_a, shape_b, size_b, vertices_b, R_b, p_b, d, rounded,
+                       ws, slot):
+    """``w = s_A(d) − s_B(−d)``, the support point of the Minkowski difference ``A − B`` along ``d``,
+    stored with its two parts at ``ws[slot : slot + 9]`` as ``[w, s_A, s_B]``; returns ``w``."""
+    x_a = support(shape_a, size_a, vertices_a, R_a, p_a, d, rounded)
+    x_b = support(shape_b, size_b, vertices_b, R_b, p_b, scale3(-1.0, d), rounded)
+    w = sub3(x_a, x_b)
+    store_row_flat(ws, slot, w)
+    store_row_flat(ws, slot + 3, x_a)
+    store_row_flat(ws, slot + 6, x_b)
+    return w
+
+
+@njit(cache=True, error_model="numpy")
+def copy_vertex(ws, source, target):
+    for k in range(9):
+        ws[target + k] = ws[source + k]
+
+
+@njit(cache=True, error_model="numpy")
+def simplex_closest(ws, m):
+    """The point ``v`` of the simplex of ``m`` vertices at ``ws[WS_SIMPLEX:]`` nearest the origin, with
+    the simplex reduced to the vertices whose barycentric weight (kept at ``ws[WS_LAMBDA:]``) is
+    positive (GJK's sub-algorithm, by the Voronoi regions of RTCD §5.1.2, §5.1.5 and §5.1.6). Returns
+    ``(m', v)``; ``m' = 4`` when the origin is inside the tetrahedron."""
+    w0 = load3(ws, WS_SIMPLEX)
+    for k in range(SIMPLEX_SIZE):
+        ws[WS_LAMBDA + k] = 0.0
+    if m == 1:
+        ws[WS_LAMBDA] = 1.0
+    elif m == 2:
+        w1 = load3(ws, WS_SIMPLEX + 9)
+        t = closest_on_segment((0.0, 0.0, 0.0), w0, w1)
+        ws[WS_LAMBDA] = 1.0 - t
+        ws[WS_LAMBDA + 1] = t
+    elif m == 3:
+        l0, l1, l2 = closest_on_triangle(w0, load3(ws, WS_SIMPLEX + 9), load3(ws, WS_SIMPLEX + 18))
+        ws[WS_LAMBDA] = l0
+        ws[WS_LAMBDA + 1] = l1
+        ws[WS_LAMBDA + 2] = l2
+    else:
+        # tetrahedron (RTCD §5.1.6): the nearest point of each face whose plane has the origin on the
+        # side away from the fourth vertex; none such: the origin is inside
+        best = math.inf
+        inside = True
+        for f in range(4):
+            i0, i1, i2, i3 = (f + 1) % 4, (f + 2) % 4, (f + 3) % 4, f
+            a = load3(ws, WS_SIMPLEX + 9 * i0)
+            b = load3(ws, WS_SIMPLEX + 9 * i1)
+            c = load3(ws, WS_SIMPLEX + 9 * i2)
+            d = load3(ws, WS_SIMPLEX + 9 * i3)
+            normal = cross(sub3(b, a), sub3(c, a))
+            side_origin = -dot3(a, normal)
+            side_other = dot3(sub3(d, a), normal)
+            scale = dot3(normal, normal)
+            if side_origin * side_other < 0.0 or side_other * side_other <= 1e-24 * scale * scale:
+                inside = False
+                l0, l1, l2 = closest_on_triangle(a, b, c)
+                x = add3(add3(scale3(l0, a), scale3(l1, b)), scale3(l2, c))
+                distance = dot3(x, x)
+                if distance < best:
+                    best = distance
+                    for k in range(SIMPLEX_SIZE):
+                        ws[WS_LAMBDA + k] = 0.0
+                    ws[WS_LAMBDA + i0] = l0
+                    ws[WS_LAMBDA + i1] = l1
+                    ws[WS_LAMBDA + i2] = l2
+        if inside:
+            return 4, (0.0, 0.0, 0.0)
+    # v = Σ λᵢ wᵢ over the vertices kept, compacted to the front
+    v = (0.0, 0.0, 0.0)
+    kept = 0
+    for k in range(m):
+        weight = ws[WS_LAMBDA + k]
+        if weight > 0.0:
+            v = add3(v, scale3(weight, load3(ws, WS_SIMPLEX + 9 * k)))
+            if kept != k:
+                copy_vertex(ws, WS_SIMPLEX + 9 * k, WS_SIMPLEX + 9 * kept)
+            ws[WS_LAMBDA + kept] = weight
+            kept += 1
+    return kept, v
+
+
+@njit(cache=True, error_model="numpy")
+def gjk(shape_a, size_a, vertices_a, R_a, p_a, shape_b, size_b, vertices_b, R_b, p_b, rounded, limit, scale, ws):
+    """GJK distance of the shapes' cores (``rounded`` False) or of the whole shapes (van den Bergen 2003,
+    Algorithm 4.5): from ``v ∈ A − B``, repeat ``w = s_{A−B}(−v)``, stop when ``|v|² − v·w ≤ ε |v|²``,
+    else ``v`` ← the point of ``conv(W ∪ {w})`` nearest the origin, ``W`` reduced to its support.
+
+    Returns ``(status, v, x_a, x_b, m)``: ``SEPARATED`` when ``v·w > limit |v|`` (the distance exceeds
+    ``limit``), ``DISTANCE`` with ``v = x_a − x_b`` the nearest points' difference, or ``OVERLAP`` (the
+    origin in ``A − B``, the simplex of ``m`` vertices left in ``ws`` for EPA)."""
+    d = sub3(p_a, p_b)
+    if dot3(d, d) <= 0.0:
+        d = (1.0, 0.0, 0.0)
+    v = support_difference(shape_a, size_a, vertices_a, R_a, p_a, shape_b, size_b, vertices_b, R_b, p_b, d,
+                           rounded, ws, WS_SIMPLEX)
+    ws[WS_LAMBDA] = 1.0
+    m = 1
+    tiny = (GJK_TOLERANCE * scale) ** 2
+    for _ in range(GJK_ITERATIONS):
+        vv = dot3(v, v)
+        if vv <= tiny:
+            return OVERLAP, v, v, v, m
+        slot = WS_SIMPLEX + 9 * m
+        w = support_difference(shape_a, size_a, vertices_a, R_a, p_a, shape_b, size_b, vertices_b, R_b, p_b,
+                               scale3(-1.0, v), rounded, ws, slot)
+        vw = dot3(v, w)
+        if vw > 0.0 and vw * vw > limit * limit * vv:
+            return SEPARATED, v, v, v, m
+        # |v|² − v·w bounds |v| (|v| − distance): converged
+        if vv - vw <= GJK_TOLERANCE * vv:
+            break
+        repeated = False
+        for k in range(m):
+            e = sub3(w, load3(ws, WS_SIMPLEX + 9 * k))
+            if dot3(e, e) <= tiny:
+                repeated = True
+        if repeated:
+            break
+        m, v_new = simplex_closest(ws, m + 1)
+        if m == 4:
+            return OVERLAP, v, v, v, m
+        if dot3(v_new, v_new) >= vv:
+            # no progress in floating point: v is as near as this arithmetic gets
+            break
+        v = v_new
+    # nearest points x_a = Σ λᵢ aᵢ, x_b = Σ λᵢ bᵢ
+    x_a = (0.0, 0.0, 0.0)
+    x_b = (0.0, 0.0, 0.0)
+    total = 0.0
+    for k in range(m):
+        weight = ws[WS_LAMBDA + k]
+        total += weight
+        x_a = add3(x_a, scale3(weight, load3(ws, WS_SIMPLEX + 9 * k + 3)))
+        x_b = add3(x_b, scale3(weight, load3(ws, WS_SIMPLEX + 9 * k + 6)))
+    x_a = scale3(1.0 / total, x_a)
+    x_b = scale3(1.0 / total, x_b)
+    v = sub3(x_a, x_b)
+    if dot3(v, v) <= tiny:
+        return OVERLAP, v, x_a, x_b, m
+    return DISTANCE, v, x_a, x_b, m
+
+
+@njit(cache=True, error_model="numpy")
+def epa_add_face(ws, faces, i, j, k):
+    """Face ``(i, j, k)`` of the polytope (counter-clockwise seen from outside) into a free slot: its unit
+    normal ``n`` and its plane's distance from the origin ``n·wᵢ``; a degenerate face gets distance ∞
+    (never expanded). Returns the face count, or −1 when the table is full."""
+    slot = -1
+    for f in range(faces):
+        if ws[WS_EPA_FACES + 8 * f + 7] == 0.0:
+            slot = f
+            break
+    if slot < 0:
+        if faces >= EPA_FACES:
+            return -1
+        slot = faces
+        faces += 1
+    a = load3(ws, WS_EPA_VERTICES + 9 * i)
+    b = load3(ws, WS_EPA_VERTICES + 9 * j)
+    c = load3(ws, WS_EPA_VERTICES + 9 * k)
+    normal = cross(sub3(b, a), sub3(c, a))
+    length = norm3(normal)
+    base = WS_EPA_FACES + 8 * slot
+    ws[base] = i
+    ws[base + 1] = j
+    ws[base + 2] = k
+    if length > 0.0:
+        normal = scale3(1.0 / length, normal)
+        ws[base + 6] = dot3(normal, a)
+    else:
+        ws[base + 6] = math.inf
+    store_row_flat(ws, base + 3, normal)
+    ws[base + 7] = 1.0
+    return faces
+
+
+@njit(cache=True, error_model="numpy")
+def epa_add_edge(ws, edges, i, j):
+    """Horizon bookkeeping: the edge ``(i, j)`` of a removed face cancels its reverse ``(j, i)`` (the two
+    faces sharing it are both removed), else joins the horizon. Returns the edge count (−1: full)."""
+    for e in range(edges):
+        if int(ws[WS_EPA_EDGES + 2 * e]) == j and int(ws[WS_EPA_EDGES + 2 * e + 1]) == i:
+            last = edges - 1
+            ws[WS_EPA_EDGES + 2 * e] = ws[WS_EPA_EDGES + 2 * last]
+            ws[WS_EPA_EDGES + 2 * e + 1] = ws[WS_EPA_EDGES + 2 * last + 1]
+            return last
+    if edges >= EPA_EDGES:
+        return -1
+    ws[WS_EPA_EDGES + 2 * edges] = i
+    ws[WS_EPA_EDGES + 2 * edges + 1] = j
+    return edges + 1
+
+
+@njit(cache=True, error_model="numpy")
+def epa_barycentric(ws, f, z):
+    """Barycentric coordinates ``(u, v, w)`` of the point ``z`` in the plane of EPA face ``f`` with
+    vertices ``a, b, c`` (RTCD §3.4, unclamped): with ``v₀ = b − a``, ``v₁ = c − a``, ``v₂ = z − a`` and
+    ``dᵢⱼ = vᵢ·vⱼ``, ``v = (d₁₁ d₂₀ − d₀₁ d₂₁)/D``, ``w = (d₀₀ d₂₁ − d₀₁ d₂₀)/D``, ``D = d₀₀ d₁₁ − d₀₁²``."""
+    base = WS_EPA_FACES + 8 * f
+    a = load3(ws, WS_EPA_VERTICES + 9 * int(ws[base]))
+    v0 = sub3(load3(ws, WS_EPA_VERTICES + 9 * int(ws[base + 1])), a)
+    v1 = sub3(load3(ws, WS_EPA_VERTICES + 9 * int(ws[base + 2])), a)
+    v2 = sub3(z, a)
+    d00, d01, d11 = dot3(v0, v0), dot3(v0, v1), dot3(v1, v1)
+    d20, d21 = dot3(v2, v0), dot3(v2, v1)
+    denominator = d00 * d11 - d01 * d01
+    if denominator <= 0.0:
+        return 1.0, 0.0, 0.0
+    v = (d11 * d20 - d01 * d21) / denominator
+    w = (d00 * d21 - d01 * d20) / denominator
+    return 1.0 - v - w, v, w
+
+
+@njit(cache=True, error_model="numpy")
+def epa(shape_a, size_a, vertices_a, R_a, p_a, shape_b, size_b, vertices_b, R_b, p_b, rounded, m, scale, ws):
+    """Penetration depth by the expanding polytope algorithm (van den Bergen 2003, §4.3.8): from GJK's
+    simplex around the origin (grown to a tetrahedron), repeatedly take the polytope's face nearest the
+    origin (unit outward normal ``n``, distance ``d``) and the support point ``w = s_{A−B}(n)``; stop when
+    ``n·w − d ≤ ε``, else add ``w``, remove the faces it sees and close the hole with faces on the horizon.
+
+    Returns ``(status, depth, n, x_a, x_b)``: ``OVERLAP`` with ``x_a − x_b = depth · n`` the witness points
+    (barycentric on the nearest face), so that a's contact normal is ``−n``; ``DEGENERATE`` when
+    ``A − B`` is flat (no tetrahedron)."""
+    for k in range(m):
+        copy_vertex(ws, WS_SIMPLEX + 9 * k, WS_EPA_VERTICES + 9 * k)
+    tolerance = EPA_TOLERANCE * scale
+    zero = (0.0, 0.0, 0.0)
+    # grow the simplex to a tetrahedron with support points off its affine hull
+    if m == 1:
+        w0 = load3(ws, WS_EPA_VERTICES)
+        for k in range(6):
+            d = (1.0 if k == 0 else (-1.0 if k == 1 else 0.0), 1.0 if k == 2 else (-1.0 if k == 3 else 0.0),
+                 1.0 if k == 4 else (-1.0 if k == 5 else 0.0))
+            w = support_difference(shape_a, size_a, vertices_a, R_a, p_a, shape_b, size_b, vertices_b, R_b, p_b,
+                                   d, rounded, ws, WS_EPA_VERTICES + 9)
+            if norm3(sub3(w, w0)) > tolerance:
+                m = 2
+                break
+        if m == 1:
+            return DEGENERATE, 0.0, zero, zero, zero
+    if m == 2:
+        w0 = load3(ws, WS_EPA_VERTICES)
+        line = sub3(load3(ws, WS_EPA_VERTICES + 9), w0)
+        line = scale3(1.0 / norm3(line), line)
+        e1 = any_perpendicular(line)
+        e2 = cross(line, e1)
+        for k in range(6):
+            angle = math.pi * k / 3.0
+            d = add3(scale3(math.cos(angle), e1), scale3(math.sin(angle), e2))
+            w = support_difference(shape_a, size_a, vertices_a, R_a, p_a, shape_b, size_b, vertices_b, R_b, p_b,
+                                   d, rounded, ws, WS_EPA_VERTICES + 18)
+            if norm3(cross(sub3(w, w0), line)) > tolerance:
+                m = 3
+                break
+        if m == 2:
+            return DEGENERATE, 0.0, zero, zero, zero
+    if m == 3:
+        w0 = load3(ws, WS_EPA_VERTICES)
+        normal = cross(sub3(load3(ws, WS_EPA_VERTICES + 9), w0), sub3(load3(ws, WS_EPA_VERTICES + 18), w0))
+        normal = scale3(1.0 / norm3(normal), normal)
+        w = support_difference(shape_a, size_a, vertices_a, R_a, p_a, shape_b, size_b, vertices_b, R_b, p_b,
+                               normal, rounded, ws, WS_EPA_VERTICES + 27)
+        if abs(dot3(normal, sub3(w, w0))) <= tolerance:
+            w = support_difference(shape_a, size_a, vertices_a, R_a, p_a, shape_b, size_b, vertices_b, R_b, p_b,
+                                   scale3(-1.0, normal), rounded, ws, WS_EPA_VERTICES + 27)
+            if abs(dot3(normal, sub3(w, w0))) <= tolerance:
+                return DEGENERATE, 0.0, zero, zero, zero
+    w0 = load3(ws, WS_EPA_VERTICES)
+    w1 = load3(ws, WS_EPA_VERTICES + 9)
+    w2 = load3(ws, WS_EPA_VERTICES + 18)
+    w3 = load3(ws, WS_EPA_VERTICES + 27)
+    volume = dot3(sub3(w1, w0), cross(sub3(w2, w0), sub3(w3, w0)))
+    if abs(volume) <= tolerance ** 3:
+        return DEGENERATE, 0.0, zero, zero, zero
+    if volume < 0.0:
+        # orient (w0, w1, w2, w3) positively: swap w1 and w2
+        for k in range(9):
+            x = ws[WS_EPA_VERTICES + 9 + k]
+            ws[WS_EPA_VERTICES + 9 + k] = ws[WS_EPA_VERTICES + 18 + k]
+            ws[WS_EPA_VERTICES + 18 + k] = x
+    for f in range(EPA_FACES):
+        ws[WS_EPA_FACES + 8 * f + 7] = 0.0
+    # the outward faces of a positively oriented tetrahedron
+    faces = 0
+    faces = epa_add_face(ws, faces, 0, 2, 1)
+    faces = epa_add_face(ws, faces, 0, 1, 3)
+    faces = epa_add_face(ws, faces, 0, 3, 2)
+    faces = epa_add_face(ws, faces, 1, 2, 3)
+    vertices = 4
+    best = 0
+    while True:
+        best = -1
+        best_distance = math.inf
+        for f in range(faces):
+            base = WS_EPA_FACES + 8 * f
+            if ws[base + 7] != 0.0 and ws[base + 6] < best_distance:
+                best_distance = ws[base + 6]
+                best = f
+        if best < 0:
+            return DEGENERATE, 0.0, zero, zero, zero
+        n = load3(ws, WS_EPA_FACES + 8 * best + 3)
+        if vertices >= EPA_VERTICES:
+            break
+        slot = WS_EPA_VERTICES + 9 * vertices
+        w = support_difference(shape_a, size_a, vertices_a, R_a, p_a, shape_b, size_b, vertices_b, R_b, p_b, n,
+                               rounded, ws, slot)
+        if dot3(n, w) - best_distance <= tolerance:
+            break
+        # remove the faces w sees, collecting their horizon
+        edges = 0
+        for f in range(faces):
+            base = WS_EPA_FACES + 8 * f
+            if ws[base + 7] == 0.0:
+                continue
+            i, j, k = int(ws[base]), int(ws[base + 1]), int(ws[base + 2])
+            if dot3(load3(ws, base + 3), sub3(w, load3(ws, WS_EPA_VERTICES + 9 * i))) > 0.0:
+                ws[base + 7] = 0.0
+                edges = epa_add_edge(ws, edges, i, j)
+                if edges >= 0:
+                    edges = epa_add_edge(ws, edges, j, k)
+                if edges >= 0:
+                    edges = epa_add_edge(ws, edges, k, i)
+                if edges < 0:
+                    return DEGENERATE, 0.0, zero, zero, zero
+        for e in range(edges):
+            faces = epa_add_face(ws, faces, int(ws[WS_EPA_EDGES + 2 * e]), int(ws[WS_EPA_EDGES + 2 * e + 1]), vertices)
+            if faces < 0:
+                return DEGENERATE, 0.0, zero, zero, zero
+        vertices += 1
+    # witnesses: barycentric coordinates of z = d n on the nearest face; of the faces in its plane (a
+    # polytope's face is split into triangles), the one holding z
+    z = scale3(best_distance, n)
+    chosen = best
+    l0, l1, l2 = epa_barycentric(ws, best, z)
+    for f in range(faces):
+        base = WS_EPA_FACES + 8 * f
+        if min(l0, l1, l2) >= 0.0:
+            break
+        if f == best or ws[base + 7] == 0.0 or abs(ws[base + 6] - best_distance) > tolerance \
+                or dot3(load3(ws, base + 3), n) < 1.0 - PARALLEL:
+            continue
+        m0, m1, m2 = epa_barycentric(ws, f, z)
+        if min(m0, m1, m2) > min(l0, l1, l2):
+            chosen = f
+            l0, l1, l2 = m0, m1, m2
+    base = WS_EPA_FACES + 8 * chosen
+    i, j, k = int(ws[base]), int(ws[base + 1]), int(ws[base + 2])
+    x_a = add3(add3(scale3(l0, load3(ws, WS_EPA_VERTICES + 9 * i + 3)), scale3(l1, load3(ws, WS_EPA_VERTICES + 9 * j + 3))),
+               scale3(l2, load3(ws, WS_EPA_VERTICES + 9 * k + 3)))
+    x_b = add3(add3(scale3(l0, load3(ws, WS_EPA_VERTICES + 9 * i + 6)), scale3(l1, load3(ws, WS_EPA_VERTICES + 9 * j + 6))),
+               scale3(l2, load3(ws, WS_EPA_VERTICES + 9 * k + 6)))
+    return OVERLAP, best_distance, n, x_a, x_b
+
+
+@njit(cache=True, error_model="numpy")
+def convex_contact(shape_a, size_a, vertices_a, R_a, p_a, shape_b, size_b, vertices_b, R_b, p_b, margin, out, count,
+                   ws):
+    """One contact between any two convex shapes by GJK and EPA on their support functions.
+
+    Spheres and capsules enter as their cores (a point, a segment) rounded by their radii ``r_a``, ``r_b``:
+    GJK on the cores gives the distance ``δ`` and nearest points ``y_a``, ``y_b`` exactly for polytope
+    cores, and ``n = (y_a − y_b)/δ``, ``gap = δ − r_a − r_b``, witnesses ``y_a − r_a n``, ``y_b + r_b n``.
+    Where the cores overlap, EPA on the cores gives the depth ``d`` and direction ``m`` of ``A − B``
+    (``n = −m``, ``gap = −d − r_a − r_b``), and where their difference is flat (two segments crossing),
+    EPA on the whole, rounded shapes. The single contact point is the midpoint of the two witnesses,
+    the points of a and b deepest in (or nearest to) each other.
+    """
+    Ra = rotation9(R_a)
+    Rb = rotation9(R_b)
+    pa = load3(p_a, 0)
+    pb = load3(p_b, 0)
+    ha = load3(size_a, 0)
+    hb = load3(size_b, 0)
+    r_a = core_radius(shape_a, ha)
+    r_b = core_radius(shape_b, hb)
+    scale = bounding_radius(shape_a, ha, vertices_a) + bounding_radius(shape_b, hb, vertices_b) + norm3(sub3(pa, pb))
+    limit = margin + r_a + r_b
+    status, v, y_a, y_b, m = gjk(shape_a, ha, vertices_a, Ra, pa, shape_b, hb, vertices_b, Rb, pb, False, limit,
+                                 scale, ws)
+    if status == SEPARATED:
+        return count
+    if status == DISTANCE:
+        distance = norm3(v)
+        n = scale3(1.0 / distance, v)
+        return write_pair(out, count, sub3(y_a, scale3(r_a, n)), add3(y_b, scale3(r_b, n)), n, distance - r_a - r_b,
+                          margin)
+    status, depth, direction, y_a, y_b = epa(shape_a, ha, vertices_a, Ra, pa, shape_b, hb, vertices_b, Rb, pb, False,
+                                             m, scale, ws)
+    if status == OVERLAP:
+        n = scale3(-1.0, direction)
+        return write_pair(out, count, sub3(y_a, scale3(r_a, n)), add3(y_b, scale3(r_b, n)), n, -depth - r_a - r_b,
+                          margin)
+    # flat core difference: the whole shapes
+    status, v, y_a, y_b, m = gjk(shape_a, ha, vertices_a, Ra, pa, shape_b, hb, vertices_b, Rb, pb, True, margin,
+                                 scale, ws)
+    if status == SEPARATED:
+        return count
+    if status == DISTANCE:
+        distance = norm3(v)
+        return write_pair(out, count, y_a, y_b, scale3(1.0 / distance, v), distance, margin)
+    status, depth, direction, y_a, y_b = epa(shape_a, ha, vertices_a, Ra, pa, shape_b, hb, vertices_b, Rb, pb, True,
+                                             m, scale, ws)
+    if status == OVERLAP:
+        return write_pair(out, count, y_a, y_b, scale3(-1.0, direction), -depth, margin)
+    # a flat shape touching: zero gap along the difference's normal is undefined; report none
+    return count
+
+
+# ---------------------------------------------------------------------------------------------------------------------
+# dispatch
+
+
+@njit(cache=True, error_model="numpy")
+def ordered_pair_contacts(shape_a, size_a, vertices_a, R_a, p_a, shape_b, size_b, vertices_b, R_b, p_b, margin, out,
+                          ws):
+    """:func:`pair_contacts` for ``shape_a ≤ shape_b``."""
+    count = 0
+    if shape_a == SPHERE and shape_b == SPHERE:
+        return spheres(load3(p_a, 0), size_a[0], load3(p_b, 0), size_b[0], margin, out, count)
+    if shape_a == SPHERE and shape_b == BOX:
+        return sphere_box(load3(p_a, 0), size_a[0], load3(size_b, 0), rotation9(R_b), load3(p_b, 0), margin, out,
+                          count)
+    if shape_a == SPHERE and shape_b == CAPSULE:
+        b0, b1 = segment_of(load3(size_b, 0), rotation9(R_b), load3(p_b, 0))
+        c = load3(p_a, 0)
+        y = add3(b0, scale3(closest_on_segment(c, b0, b1), sub3(b1, b0)))
+        return spheres(c, size_a[0], y, size_b[0], margin, out, count)
+    if shape_a == CAPSULE and shape_b == CAPSULE:
+        return capsules(load3(size_a, 0), rotation9(R_a), load3(p_a, 0), load3(size_b, 0), rotation9(R_b),
+                        load3(p_b, 0), margin, out, count)
+    if shape_a == BOX and shape_b == BOX:
+        return boxes(load3(size_a, 0), rotation9(R_a), load3(p_a, 0), load3(size_b, 0), rotation9(R_b), load3(p_b, 0),
+                     margin, out, count, ws)
+    return convex_contact(shape_a, size_a, vertices_a, R_a, p_a, shape_b, size_b, vertices_b, R_b, p_b, margin, out,
+                          count, ws)
+
+
+@njit(cache=True, error_model="numpy")
+def pair_contacts(shape_a, size_a, vertices_a, R_a, p_a, shape_b, size_b, vertices_b, R_b, p_b, margin, out, ws):
+    """Contacts between geometries a and b (each: shape code, ``size (3,)``, ``vertices (k, 3)``, world
+    ``R (3, 3)``, ``p (3,)``), every one with ``gap < margin`` (m), written into ``out (MAX_PAIR_CONTACTS, 7)``
+    with normals from b into a; returns the count.
+
+    Analytic: sphere–sphere, sphere–box, sphere–capsule, capsule–capsule (:func:`capsules`; two points for
+    parallel axes) and box–box (:func:`boxes`; the clipped face polygon's corners, or one edge–edge
+    point). Any other pair (cylinder, convex hull, capsule–box): one contact by GJK/EPA
+    (:func:`convex_contact`). Either order: the pair is computed with the lower shape code first and its
+    normals flipped when a and b were swapped, so the gaps and points are the same and the normals
+    opposite."""
+    if shape_a <= shape_b:
+        return ordered_pair_contacts(shape_a, size_a, vertices_a, R_a, p_a, shape_b, size_b, vertices_b, R_b, p_b,
+                                     margin, out, ws)
+    count = ordered_pair_contacts(shape_b, size_b, vertices_b, R_b, p_b, shape_a, size_a, vertices_a, R_a, p_a, margin,
+                                  out, ws)
+    for i in range(count):
+        for k in range(3, 6):
+            out[i, k] = -out[i, k]
+    return count
