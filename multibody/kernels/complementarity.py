@@ -1,0 +1,303 @@
+"""The velocity-level frictional contact problem, with bilateral and unilateral rows, solved by ADMM.
+
+Given the Delassus matrix ``G (m, m)`` (symmetric positive semi-definite, in m/s per N·s; singular
+for redundant contacts) and the free velocity ``c (m,)`` (m/s), find impulses ``x (m,)`` (N·s) and
+velocities ``u = G x + c`` with, for each block of rows (M. Jean, *Comput. Methods Appl. Mech. Engrg.*
+177, 1999; V. Acary & B. Brogliato, *Numerical Methods for Nonsmooth Dynamical Systems*, Springer
+2008, §13.3; the lecture note's contact chapter):
+
+* ``BILATERAL`` (1 row): ``u = 0``, ``x`` free;
+* ``UNILATERAL`` (1 row, a frictionless contact or a joint limit): ``0 ≤ x ⊥ u ≥ 0``;
+* ``CONTACT`` (3 rows: the normal, then two tangents; friction ``μ``): De Saxcé's formulation
+  (G. De Saxcé & Z.-Q. Feng, *Math. Comput. Model.* 28, 1998)
+
+      K_μ ∋ x ⊥ û ∈ K_μ*,   û = u + μ ‖u_T‖ e_N,
+      K_μ = {‖x_T‖ ≤ μ x_N},   K_μ* = {μ ‖û_T‖ ≤ û_N},
+
+  which holds exactly when the contact separates (``x = 0``, ``u_N ≥ 0``), sticks (``u = 0``,
+  ``‖x_T‖ ≤ μ x_N``) or slides (``u_N = 0``, ``x_T = −μ x_N u_T/‖u_T‖``: maximum dissipation).
+
+With ``K`` the product of the blocks' cones (``ℝ`` bilateral, ``ℝ₊`` unilateral, ``K_μ`` contact) and
+the shift ``s`` of De Saxcé held fixed, these are the optimality conditions of the convex problem
+``min ½ xᵀ G x + (c + s)ᵀ x`` over ``x ∈ K``. The solver is ADMM on that problem with a proximal term
+and an adaptive penalty (J. Carpentier, Q. Le Lidec, L. Montaut et al., "From compliant to rigid
+contact simulation: a unified and efficient approach", RSS 2024, Alg. 1; S. Boyd et al., *Found.
+Trends Mach. Learn.* 3, 2011, §3.4.1), the shift updated after every iteration:
+
+    (G + (ρ + η) I) x⁺ = −(c + s) + y + ρ z + η x        (proximal step on the quadratic)
+    z⁺ = P_K(x⁺ − y/ρ)                                     (projection on the cones)
+    y⁺ = y + ρ (z⁺ − x⁺)                                   (the velocity multiplier)
+    s⁺ = μ ‖(G z⁺ + c)_T‖ e_N                              (De Saxcé's shift)
+
+``G + (ρ + η) I`` is factored once by Cholesky (:func:`multibody.kernels.kkt.cholesky`) and again only
+when ``ρ`` changes. By Moreau's decomposition ``z⁺ ∈ K``, ``y⁺ ∈ K*`` and ``z⁺ ⊥ y⁺`` after every
+iteration, so the iteration has converged when ``y⁺`` is the velocity ``û`` at ``z⁺``.
+
+Singular ``G`` (a box flat on the ground touching at four corners, redundant bilateral rows): the
+impulses are then not unique, and the solver returns the one its iteration reaches from the warm
+start: the proximal rule. Each x-update is a step of Rockafellar's proximal point method
+(``η``, and ``ρ`` through ``z``, pull ``x⁺`` towards the previous iterate), so among equally good
+impulses the iterates move only as far from the warm start as the conditions demand; from ``x = 0``
+a symmetric problem gets the symmetric solution. The velocities ``u`` are unique.
+
+The residual returned (and compared with the tolerance, m/s) is the largest over the blocks of the
+problem's natural residual at the returned ``x`` (which is in ``K`` exactly, being a projection):
+the distance of ``û`` from ``K*`` (``|u|`` for a bilateral row, ``max(−u, 0)`` for a unilateral one)
+and the complementarity ``|x·û| / ‖x‖`` (0 where ``x = 0``) of the block.
+"""
+
+from __future__ import annotations
+
+import math
+
+from .jit import njit
+from .kkt import cholesky, cholesky_solve
+from .spatial import all_finite
+
+#: Kinds of block: one row with ``u = 0``; one row with ``0 ≤ x ⊥ u ≥ 0``; three rows of a Coulomb contact.
+BILATERAL, UNILATERAL, CONTACT = 0, 1, 2
+#: Statuses of :func:`solve`: the residual is within the tolerance; it is not after ``max_iterations``;
+#: an input (``G``, ``c``, ``μ``, the warm start) has a NaN or infinite entry; ``G`` is not positive
+#: semi-definite (the Cholesky factorisation of ``G + (ρ + η) I`` failed).
+CONVERGED, MAX_ITERATIONS, NOT_FINITE, INDEFINITE = 0, 1, 2, 3
+
+#: The proximal weight ``η`` relative to the largest eigenvalue ``λ_max`` of ``G``.
+PROXIMAL = 1e-9
+#: The first penalty ``ρ`` relative to ``λ_max``.
+PENALTY = 0.1
+#: Residual balancing: ``ρ`` changes by :data:`PENALTY_STEP` when one residual (the primal one in velocity
+#: units, times ``λ_max``) exceeds the other this many times.
+BALANCE = 10.0
+PENALTY_STEP = 3.0
+#: Power iterations estimating the largest eigenvalue of ``G``.
+POWER_ITERATIONS = 12
+
+
+@njit(cache=True, error_model="numpy")
+def larger(a, b):
+    """The larger of ``a`` and ``b``, ``a`` where either is NaN (the builtin ``max`` does not compile for
+    Numba's CUDA target)."""
+    return b if b > a else a
+
+
+@njit(cache=True, error_model="numpy")
+def workspace_size(m):
+    """Floats of workspace of :func:`solve` for ``m`` rows: the factor ``(m, m)`` and five vectors."""
+    return m * m + 5 * m
+
+
+@njit(cache=True, error_model="numpy")
+def block_rows(kind):
+    """Rows of a block of the given kind."""
+    return 3 if kind == CONTACT else 1
+
+
+@njit(cache=True, error_model="numpy")
+def project_primal(kind, mu, w, z, i):
+    """``z[i:i+k] = P_K(w[i:i+k])``, the Euclidean projection on the block's cone: ``ℝ``, ``ℝ₊`` or
+    ``K_μ = {‖x_T‖ ≤ μ x_N}``. On the cone's boundary (Boyd & Vandenberghe, *Convex Optimization*,
+    exercise 8.3(c), scaled by ``μ``): ``x_N = (w_N + μ ‖w_T‖) / (1 + μ²)``, ``x_T = μ x_N w_T / ‖w_T‖``."""
+    if kind == BILATERAL:
+        z[i] = w[i]
+        return
+    if kind == UNILATERAL:
+        z[i] = larger(w[i], 0.0)
+        return
+    n, t1, t2 = w[i], w[i + 1], w[i + 2]
+    t = math.sqrt(t1 * t1 + t2 * t2)
+    if t <= mu * n:
+        z[i], z[i + 1], z[i + 2] = n, t1, t2
+    elif mu * t <= -n:
+        # the polar cone −K_μ* projects on the apex
+        z[i], z[i + 1], z[i + 2] = 0.0, 0.0, 0.0
+    else:
+        # x_N = (w_N + μ‖w_T‖)/(1 + μ²),  x_T = μ x_N w_T/‖w_T‖  (t > 0 here)
+        normal = (n + mu * t) / (1.0 + mu * mu)
+        z[i], z[i + 1], z[i + 2] = normal, mu * normal * t1 / t, mu * normal * t2 / t
+
+
+@njit(cache=True, error_model="numpy")
+def dual_distance(n, t, mu):
+    """Distance of a vector with normal part ``n`` and tangential norm ``t`` from ``K_μ* = {μ ‖t‖ ≤ n}``
+    (by symmetry, that of the point ``(n, t)`` from the plane cone ``{μ t ≤ n}``): 0 inside, ``‖(n, t)‖``
+    in its polar cone ``{t ≤ −μ n}`` (nearest point: the apex), else the distance to the boundary ray
+    ``n = μ t``, ``(μ t − n) / √(1 + μ²)``."""
+    if mu * t <= n:
+        return 0.0
+    if t <= -mu * n:
+        return math.sqrt(n * n + t * t)
+    return (mu * t - n) / math.sqrt(1.0 + mu * mu)
+
+
+@njit(cache=True, error_model="numpy")
+def shift_and_residual(kinds, starts, mu, x, u, s):
+    """De Saxcé's shift ``s = μ ‖u_T‖ e_N`` of each contact block into ``s`` (zero on the other rows), and
+    the natural residual (m/s) at ``x ∈ K`` with ``u = G x + c``: the largest over the blocks of the
+    distance of ``û = u + s`` from ``K*`` and of ``|x·û| / ‖x‖``."""
+    residual = 0.0
+    for b in range(kinds.shape[0]):
+        kind, i = kinds[b], starts[b]
+        if kind == BILATERAL:
+            s[i] = 0.0
+            residual = larger(residual, abs(u[i]))
+        elif kind == UNILATERAL:
+            s[i] = 0.0
+            # K* = ℝ₊; complementarity |x u|/|x| = |u| where x ≠ 0
+            residual = larger(residual, larger(-u[i], 0.0))
+            if x[i] != 0.0:
+                residual = larger(residual, abs(u[i]))
+        else:
+            tangential = math.sqrt(u[i + 1] * u[i + 1] + u[i + 2] * u[i + 2])
+            # û = u + μ ‖u_T‖ e_N
+            s[i], s[i + 1], s[i + 2] = mu[b] * tangential, 0.0, 0.0
+            normal = u[i] + s[i]
+            residual = larger(residual, dual_distance(normal, tangential, mu[b]))
+            size = math.sqrt(x[i] * x[i] + x[i + 1] * x[i + 1] + x[i + 2] * x[i + 2])
+            if size > 0.0:
+                residual = larger(residual, abs(x[i] * normal + x[i + 1] * u[i + 1] + x[i + 2] * u[i + 2]) / size)
+    return residual
+
+
+@njit(cache=True, error_model="numpy")
+def velocities(G, c, x, u, m):
+    """``u = G x + c``."""
+    for i in range(m):
+        total = c[i]
+        for j in range(m):
+            total += G[i, j] * x[j]
+        u[i] = total
+
+
+@njit(cache=True, error_model="numpy")
+def factor(G, F, shift, m):
+    """``F = chol(G + shift I)`` (lower triangle, :func:`multibody.kernels.kkt.cholesky`); ``False`` when
+    that matrix is not positive definite."""
+    for i in range(m):
+        for j in range(i + 1):
+            F[i, j] = G[i, j]
+        F[i, i] += shift
+    return cholesky(F, m)
+
+
+@njit(cache=True, error_model="numpy")
+def largest_eigenvalue(G, m, v, w):
+    """An estimate of ``λ_max(G)`` by :data:`POWER_ITERATIONS` power iterations from the all-ones vector
+    (Golub & Van Loan, *Matrix Computations*, 4th ed., §8.2.1), at least the largest diagonal entry
+    (a Rayleigh quotient itself); ``v``, ``w (m,)`` are scratch."""
+    estimate = 0.0
+    for i in range(m):
+        estimate = larger(estimate, G[i, i])
+        v[i] = 1.0 / math.sqrt(m)
+    for _ in range(POWER_ITERATIONS):
+        # w = G v,  λ ≈ vᵀ G v,  v = w/‖w‖
+        size, rayleigh = 0.0, 0.0
+        for i in range(m):
+            total = 0.0
+            for j in range(m):
+                total += G[i, j] * v[j]
+            w[i] = total
+            rayleigh += v[i] * total
+            size += total * total
+        estimate = larger(estimate, rayleigh)
+        if not size > 0.0:
+            break
+        size = math.sqrt(size)
+        for i in range(m):
+            v[i] = w[i] / size
+    return estimate
+
+
+@njit(cache=True, error_model="numpy")
+def solve(G, c, kinds, starts, mu, tolerance, max_iterations, x, u, ws):
+    """Impulses ``x (m,)`` (N·s, in: the warm start; out: the solution) and velocities ``u = G x + c`` (m/s,
+    out) of the contact problem of the module docstring, by ADMM. Returns ``(status, iterations, residual)``:
+    :data:`CONVERGED` when the natural residual (m/s) is at most ``tolerance``, else :data:`MAX_ITERATIONS`
+    after ``max_iterations`` iterations (the last iterate returned), :data:`NOT_FINITE` (``x``, ``u`` and
+    the residual NaN) or :data:`INDEFINITE`.
+
+    ``G (m, m)`` symmetric positive semi-definite (m/s per N·s), ``c (m,)`` (m/s); block ``b`` has kind
+    ``kinds[b]`` (:data:`BILATERAL`, :data:`UNILATERAL`, :data:`CONTACT`) and starts at row
+    ``starts[b]``, the blocks covering the rows in order; ``mu (nb,)`` the friction coefficients (read for
+    contact blocks, ≥ 0); ``ws`` of :func:`workspace_size` ``(m)`` floats."""
+    m = c.shape[0]
+    F = ws[: m * m].reshape((m, m))
+    vectors = ws[m * m :]
+    z = vectors[:m]
+    y = vectors[m : 2 * m]
+    s = vectors[2 * m : 3 * m]
+    rhs = vectors[3 * m : 4 * m]
+    w = vectors[4 * m : 5 * m]
+    finite = all_finite(c) and all_finite(x) and all_finite(mu)
+    for i in range(m):
+        finite = finite and all_finite(G[i])
+    if not finite:
+        for i in range(m):
+            x[i] = math.nan
+            u[i] = math.nan
+        return NOT_FINITE, 0, math.nan
+
+    # the warm start projected on K; y the velocity there, û = G z + c + s
+    for b in range(kinds.shape[0]):
+        project_primal(kinds[b], mu[b], x, z, starts[b])
+    velocities(G, c, z, u, m)
+    residual = shift_and_residual(kinds, starts, mu, z, u, s)
+    for i in range(m):
+        x[i] = z[i]
+        y[i] = u[i] + s[i]
+    if residual <= tolerance:
+        return CONVERGED, 0, residual
+
+    # η and the first ρ as fractions of λ_max, so that the iteration does not depend on the units
+    largest = largest_eigenvalue(G, m, rhs, w)
+    if not largest > 0.0:
+        largest = 1.0
+    eta = PROXIMAL * largest
+    rho = PENALTY * largest
+    if not factor(G, F, rho + eta, m):
+        return INDEFINITE, 0, residual
+
+    status = MAX_ITERATIONS
+    iteration = 0
+    while iteration < max_iterations:
+        iteration += 1
+        # (G + (ρ + η) I) x⁺ = −(c + s) + y + ρ z + η x
+        for i in range(m):
+            rhs[i] = -(c[i] + s[i]) + y[i] + rho * z[i] + eta * x[i]
+        cholesky_solve(F, m, rhs)
+        # z⁺ = P_K(x⁺ − y/ρ)
+        for i in range(m):
+            x[i] = rhs[i]
+            w[i] = x[i] - y[i] / rho
+        for b in range(kinds.shape[0]):
+            project_primal(kinds[b], mu[b], w, z, starts[b])
+        # y⁺ = y + ρ (z⁺ − x⁺)
+        primal = 0.0
+        for i in range(m):
+            y[i] += rho * (z[i] - x[i])
+            primal = larger(primal, abs(z[i] - x[i]))
+        # u = G z⁺ + c, the shift s⁺ and the natural residual there
+        velocities(G, c, z, u, m)
+        residual = shift_and_residual(kinds, starts, mu, z, u, s)
+        if residual <= tolerance:
+            status = CONVERGED
+            break
+        if not (residual < math.inf and all_finite(z)):
+            # an overflow (G far from positive semi-definite, or magnitudes near the largest float)
+            status = NOT_FINITE
+            break
+        # dual residual: y⁺ against the velocity û at z⁺
+        dual = 0.0
+        for i in range(m):
+            dual = larger(dual, abs(u[i] + s[i] - y[i]))
+        # residual balancing (Boyd et al. §3.4.1), the primal residual in velocity units
+        if largest * primal > BALANCE * dual:
+            rho *= PENALTY_STEP
+        elif dual > BALANCE * largest * primal:
+            rho /= PENALTY_STEP
+        else:
+            continue
+        if not factor(G, F, rho + eta, m):
+            return INDEFINITE, iteration, residual
+    for i in range(m):
+        x[i] = z[i]
+    return status, iteration, residual

@@ -1,0 +1,312 @@
+"""The velocity-level contact solver (:mod:`multibody.kernels.complementarity`, through
+:func:`multibody.contact_problem.solve`).
+
+* One contact: sticking (``u = 0``, ``x = −G⁻¹ c`` inside the cone), sliding against the closed form of
+  a point mass (the impulse on the cone's edge opposite the slip) and the same answer, rotated, after a
+  rotation of the tangent plane (the cone is isotropic), separating (``x = 0``).
+* A box flat on the ground from the box's own Jacobians and mass matrix (four contacts, ``G`` of rank 6
+  for 12 rows): the normal impulses sum to ``m g dt`` at rest and when sliding, where the friction
+  impulse is ``μ m g dt`` against the motion.
+* Bilateral, unilateral and frictionless contact blocks against an exact enumeration of active sets.
+* Warm start, NaN input, an iteration limit, an indefinite ``G``, and every status's message.
+* The solver compiles for the CUDA target (PTX, no device needed; skipped without libNVVM).
+"""
+
+from __future__ import annotations
+
+import itertools
+import os
+import subprocess
+import sys
+import textwrap
+
+import numpy as np
+import pytest
+
+import multibody as mb
+from multibody import contact_problem
+from multibody.contact_problem import BILATERAL, CONTACT, UNILATERAL, STATUS_MESSAGES, solve
+from multibody.inertia import box as box_inertia
+from multibody.joints import FreeFlyer
+from multibody.kernels import complementarity
+
+TOLERANCE = 1e-12
+G_EARTH = 9.81
+
+
+def natural_residual(G, c, kinds, mu, x):
+    """The residual of the problem at ``x`` computed here from its definition, independently of the
+    kernel: per block, the distance of ``û`` from ``K*`` and ``|x·û|/‖x‖``, and how far ``x`` is from
+    ``K``."""
+    u = G @ x + c
+    starts, _ = contact_problem.block_starts(kinds)
+    worst = 0.0
+    for b, (kind, i) in enumerate(zip(kinds, starts)):
+        if kind == BILATERAL:
+            worst = max(worst, abs(u[i]))
+        elif kind == UNILATERAL:
+            worst = max(worst, -u[i], -x[i] * 1e6, abs(x[i] * u[i]) / abs(x[i]) if x[i] else 0.0)
+        else:
+            xb, ub = x[i:i + 3], u[i:i + 3].copy()
+            ub[0] += mu[b] * np.hypot(ub[1], ub[2])
+            # distance from K* = {μ‖û_T‖ ≤ û_N}, sampled finely enough for the tests' magnitudes
+            n, t = ub[0], np.hypot(ub[1], ub[2])
+            if mu[b] * t > n:
+                worst = max(worst, np.hypot(n, t) if t <= -mu[b] * n else (mu[b] * t - n) / np.hypot(1, mu[b]))
+            assert np.hypot(xb[1], xb[2]) <= mu[b] * xb[0] * (1 + 1e-14) + 1e-300, "x outside the cone"
+            if np.linalg.norm(xb):
+                worst = max(worst, abs(xb @ ub) / np.linalg.norm(xb))
+    return worst
+
+
+def spd(rng, n, condition=10.0):
+    """A random symmetric positive definite matrix with eigenvalues in [1, condition]."""
+    Q, _ = np.linalg.qr(rng.standard_normal((n, n)))
+    return Q @ np.diag(np.geomspace(1.0, condition, n)) @ Q.T
+
+
+# ----------------------------------------------------------------------------- one contact
+
+def test_sticking_contact_has_zero_velocity_and_impulse_inside_the_cone():
+    rng = np.random.default_rng(1)
+    G = spd(rng, 3)
+    # the impulse that stops the contact, chosen well inside the cone, and the free velocity it cancels
+    x_stick = np.array([2.0, 0.3, -0.4])
+    c = -G @ x_stick
+    result = solve(G, c, ["contact"], 0.8, tolerance=TOLERANCE)
+    assert result.status == complementarity.CONVERGED, result.message
+    np.testing.assert_allclose(result.x, x_stick, rtol=0, atol=1e-11)
+    assert np.max(np.abs(result.u)) <= TOLERANCE
+    assert result.residual <= TOLERANCE
+    assert natural_residual(G, c, [CONTACT], [0.8], result.x) <= 2 * TOLERANCE
+
+
+def test_sliding_point_mass_matches_the_closed_form_and_the_cone_is_isotropic():
+    # a point mass m: G = I/m. With c_N < 0 and a slip too fast to stop, x_N = −m c_N, and the friction
+    # impulse lies on the cone's edge opposite the slip, x_T = −μ x_N c_T/‖c_T‖, u_T = c_T + x_T/m.
+    mass, mu = 2.0, 0.3
+    G = np.eye(3) / mass
+    c = np.array([-0.5, 0.4, -0.3])
+    x_normal = -mass * c[0]
+    slip = c[1:] / np.linalg.norm(c[1:])
+    expected = np.concatenate([[x_normal], -mu * x_normal * slip])
+    result = solve(G, c, ["contact"], mu, tolerance=TOLERANCE)
+    assert result.status == complementarity.CONVERGED, result.message
+    np.testing.assert_allclose(result.x, expected, rtol=0, atol=1e-11)
+    np.testing.assert_allclose(result.u[1:], c[1:] + expected[1:] / mass, rtol=0, atol=1e-11)
+    assert abs(result.u[0]) <= TOLERANCE
+
+    # a general G (normal and tangents coupled), then the tangent plane rotated: the answer rotates with it
+    rng = np.random.default_rng(2)
+    G = spd(rng, 3, condition=4.0)
+    c = np.array([-0.5, 1.5, -0.7])
+    base = solve(G, c, ["contact"], mu, tolerance=TOLERANCE)
+    assert base.status == complementarity.CONVERGED, base.message
+    assert np.hypot(base.x[1], base.x[2]) == pytest.approx(mu * base.x[0], rel=1e-10)  # sliding: on the edge
+    for angle in (0.3, 1.0, 2.5):
+        R = np.eye(3)
+        R[1:, 1:] = [[np.cos(angle), -np.sin(angle)], [np.sin(angle), np.cos(angle)]]
+        rotated = solve(R @ G @ R.T, R @ c, ["contact"], mu, tolerance=TOLERANCE)
+        assert rotated.status == complementarity.CONVERGED, rotated.message
+        np.testing.assert_allclose(rotated.x, R @ base.x, rtol=0, atol=1e-10)
+
+
+def test_separating_contact_has_zero_impulse():
+    rng = np.random.default_rng(3)
+    G = spd(rng, 3)
+    c = np.array([0.2, 1.0, -3.0])
+    result = solve(G, c, ["contact"], 0.5, tolerance=TOLERANCE)
+    assert result.status == complementarity.CONVERGED, result.message
+    assert np.all(result.x == 0.0)
+    np.testing.assert_array_equal(result.u, c)
+
+
+# ----------------------------------------------------------------------------- a box on the ground
+
+def box_on_ground(v, mass=2.0, size=(0.4, 0.3, 0.2), dt=1e-3):
+    """``G`` and ``c`` of a box of ``mass`` resting flat on the plane ``z = 0`` with body velocity ``v (6,)``
+    (linear, angular), from its Jacobians at the four lowest corners (rows: normal z, then x, y) and its
+    mass matrix: ``G = J M⁻¹ Jᵀ``, ``c = J (v + dt M⁻¹ (τ − h))``."""
+    builder = mb.ModelBuilder("box")
+    builder.add_body("box", joint=FreeFlyer(), inertia=box_inertia(mass, size))
+    model = builder.build()
+    q = model.neutral()
+    q[2] = size[2] / 2
+    v = np.asarray(v, dtype=float)
+    rows = []
+    for sx, sy in itertools.product((-1, 1), (-1, 1)):
+        corner = np.array([sx * size[0] / 2, sy * size[1] / 2, -size[2] / 2])
+        J = mb.jacobian(model, q, "box", point=corner)[:3]
+        rows += [J[2], J[0], J[1]]
+    J = np.array(rows)
+    M = mb.mass_matrix(model, q)
+    v_free = v + dt * mb.forward_dynamics(model, q, v, np.zeros(model.nv))
+    return J @ np.linalg.solve(M, J.T), J @ v_free, mass * G_EARTH * dt
+
+
+def test_box_flat_on_the_ground_carries_its_weight_with_a_singular_delassus_matrix():
+    G, c, weight = box_on_ground(np.zeros(6))
+    assert np.linalg.matrix_rank(G, tol=1e-9) == 6
+    result = solve(G, c, ["contact"] * 4, 0.5, tolerance=TOLERANCE)
+    assert result.status == complementarity.CONVERGED, result.message
+    assert result.residual <= TOLERANCE
+    assert natural_residual(G, c, [CONTACT] * 4, [0.5] * 4, result.x) <= 2 * TOLERANCE
+    assert result.x[0::3].sum() == pytest.approx(weight, rel=1e-10)
+    assert np.max(np.abs(result.u)) <= TOLERANCE  # sticking: the box stays still
+    # from x = 0 the symmetric problem gets the symmetric distribution
+    np.testing.assert_allclose(result.x[0::3], weight / 4, rtol=1e-9)
+
+
+def test_box_sliding_on_the_ground_is_braked_by_mu_m_g_dt_against_its_motion():
+    mu = 0.4
+    direction = np.array([0.6, 0.8, 0.0])
+    G, c, weight = box_on_ground(np.concatenate([1.5 * direction, np.zeros(3)]))
+    result = solve(G, c, ["contact"] * 4, mu, tolerance=TOLERANCE, max_iterations=5000)
+    assert result.status == complementarity.CONVERGED, result.message
+    assert result.residual <= TOLERANCE
+    assert result.x[0::3].sum() == pytest.approx(weight, rel=1e-10)
+    friction = np.array([result.x[1::3].sum(), result.x[2::3].sum()])
+    np.testing.assert_allclose(friction, -mu * weight * direction[:2], rtol=1e-9)
+
+
+# ----------------------------------------------------------------------------- mixed blocks
+
+def enumerate_frictionless(G, c, kinds):
+    """The solution of the frictionless problem (contact blocks with μ = 0) by trying every active set of
+    its sign-constrained rows: a row is either free (bilateral, or active: ``u = 0``) or ``x = 0``; the
+    set whose solution has ``x ≥ 0`` and ``u ≥ 0`` where required. Contact tangents carry no impulse."""
+    starts, m = contact_problem.block_starts(kinds)
+    signed, fixed_zero, free = [], [], []
+    for kind, i in zip(kinds, starts):
+        if kind == BILATERAL:
+            free.append(i)
+        elif kind == UNILATERAL:
+            signed.append(i)
+        else:
+            signed.append(i)
+            fixed_zero += [i + 1, i + 2]
+    for active in itertools.product((False, True), repeat=len(signed)):
+        rows = free + [i for i, a in zip(signed, active) if a]
+        x = np.zeros(m)
+        if rows:
+            x[rows] = np.linalg.solve(G[np.ix_(rows, rows)], -c[rows])
+        u = G @ x + c
+        if all(x[i] >= -1e-12 and u[i] >= -1e-12 for i in signed):
+            return x
+    raise AssertionError("no active set solves the problem")
+
+
+def test_bilateral_unilateral_and_frictionless_contact_blocks_match_an_enumeration_of_active_sets():
+    rng = np.random.default_rng(4)
+    kinds = [BILATERAL, CONTACT, UNILATERAL, BILATERAL, CONTACT, UNILATERAL, UNILATERAL]
+    m = 11
+    for trial in range(6):
+        J = rng.standard_normal((m, 14))
+        G = J @ np.linalg.solve(spd(rng, 14, 100.0), J.T)
+        c = rng.standard_normal(m)
+        expected = enumerate_frictionless(G, c, kinds)
+        result = solve(G, c, kinds, 0.0, tolerance=TOLERANCE, max_iterations=20000)
+        assert result.status == complementarity.CONVERGED, (trial, result.message, result.residual)
+        np.testing.assert_allclose(result.x, expected, rtol=0, atol=1e-9 * max(1.0, np.max(np.abs(expected))))
+        assert natural_residual(G, c, kinds, np.zeros(len(kinds)), result.x) <= 2 * TOLERANCE
+
+
+# ----------------------------------------------------------------------------- warm start and statuses
+
+def test_warm_start_reduces_iterations():
+    G, c, _ = box_on_ground(np.array([1.0, 0.5, 0.0, 0.0, 0.0, 0.3]))
+    cold = solve(G, c, ["contact"] * 4, 0.3, tolerance=TOLERANCE, max_iterations=5000)
+    assert cold.status == complementarity.CONVERGED, cold.message
+    # the solution itself as the warm start: no iteration
+    again = solve(G, c, ["contact"] * 4, 0.3, tolerance=10 * TOLERANCE, warm_start=cold.x)
+    assert again.status == complementarity.CONVERGED and again.iterations == 0
+
+
+def test_every_status_is_reached_and_has_its_message():
+    G, c, _ = box_on_ground(np.array([1.0, 0.5, 0.0, 0.0, 0.0, 0.3]))
+    reached = {}
+    result = solve(G, c, ["contact"] * 4, 0.3, tolerance=TOLERANCE, max_iterations=5000)
+    reached[result.status] = result
+    result = solve(G, c, ["contact"] * 4, 0.3, tolerance=TOLERANCE, max_iterations=1)
+    assert result.status == complementarity.MAX_ITERATIONS and result.iterations == 1
+    assert result.residual > TOLERANCE
+    reached[result.status] = result
+    for bad in ("G", "c"):
+        G_bad, c_bad = G.copy(), c.copy()
+        if bad == "G":
+            G_bad[1, 1] = np.nan
+        else:
+            c_bad[4] = np.inf
+        result = solve(G_bad, c_bad, ["contact"] * 4, 0.3)
+        assert result.status == complementarity.NOT_FINITE, bad
+        assert np.all(np.isnan(result.x)) and np.isnan(result.residual)
+        reached[result.status] = result
+    result = solve(-np.eye(3), np.array([-1.0, 0.0, 0.0]), ["contact"], 0.3)
+    assert result.status == complementarity.INDEFINITE
+    reached[result.status] = result
+    assert set(reached) == set(STATUS_MESSAGES)
+    for status, result in reached.items():
+        assert result.message == STATUS_MESSAGES[status]
+
+
+def test_bad_input_gets_a_message_naming_the_argument():
+    G, c = np.eye(3), np.array([-1.0, 0.0, 0.0])
+    with pytest.raises(ValueError, match=r"mu\[0\] must be ≥ 0"):
+        solve(G, c, ["contact"], -0.1)
+    with pytest.raises(ValueError, match=r"G must have shape \(3, 3\)"):
+        solve(np.eye(2), c, ["contact"], 0.5)
+    with pytest.raises(ValueError, match=r"c must have shape \(3,\)"):
+        solve(G, c[:2], ["contact"], 0.5)
+    with pytest.raises(ValueError, match=r"kinds\[1\] must be"):
+        solve(np.eye(4), np.zeros(4), ["contact", "sliding"], 0.5)
+    with pytest.raises(ValueError, match=r"mu must be a number or have shape \(1,\)"):
+        solve(G, c, ["contact"], [0.5, 0.5])
+    with pytest.raises(ValueError, match="warm_start must have shape"):
+        solve(G, c, ["contact"], 0.5, warm_start=np.zeros(2))
+    with pytest.raises(ValueError, match="tolerance must be a positive number"):
+        solve(G, c, ["contact"], 0.5, tolerance=0.0)
+    with pytest.raises(ValueError, match="max_iterations must be an integer"):
+        solve(G, c, ["contact"], 0.5, max_iterations=0)
+    with pytest.raises(ValueError, match="G must be symmetric"):
+        solve(np.triu(np.ones((3, 3))), c, ["contact"], 0.5)
+
+
+PTX = textwrap.dedent(r"""
+    import types
+    from numba import cuda
+    from numba import types as nt
+    def probe(x):
+        x[0] = 1.0
+    try:  # the toolchain (libNVVM) on a trivial kernel
+        cuda.compile_ptx(probe, (nt.float64[::1],), cc=(9, 0))
+    except Exception as e:
+        print("NO-NVVM", type(e).__name__, str(e)[:200])
+        raise SystemExit(0)
+    import numba.cuda.dispatcher as dispatcher
+    dispatcher.get_current_device = lambda: types.SimpleNamespace(compute_capability=(9, 0))
+    from multibody.kernels.complementarity import solve
+
+    def launch(G, c, kinds, starts, mu, out, x, u, ws):
+        i = cuda.grid(1)
+        if i < G.shape[0]:
+            status, iterations, residual = solve(G[i], c[i], kinds[i], starts[i], mu[i], 1e-12, 100, x[i], u[i],
+                                                 ws[i])
+            out[i, 0], out[i, 1], out[i, 2] = status, iterations, residual
+
+    rows = nt.float64[:, ::1]
+    signature = (nt.float64[:, :, ::1], rows, nt.int64[:, ::1], nt.int64[:, ::1], rows, rows, rows, rows, rows)
+    ptx, _ = cuda.compile_ptx(launch, signature, cc=(9, 0))
+    assert ".entry" in ptx
+    print("PTX-OK")
+""")
+
+
+def test_solver_compiles_for_the_cuda_target():
+    env = dict(os.environ)
+    env.pop("NUMBA_DISABLE_JIT", None)
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    result = subprocess.run([sys.executable, "-c", PTX], capture_output=True, text=True, timeout=600, env=env,
+                            cwd=root)
+    if "NO-NVVM" in result.stdout or "No module named 'numba.cuda" in result.stderr:
+        pytest.skip("no CUDA compiler toolchain (libNVVM): " + result.stdout.strip())
+    assert "PTX-OK" in result.stdout, result.stdout + result.stderr
