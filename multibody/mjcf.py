@@ -35,6 +35,11 @@ loader reads, after the MuJoCo XML reference (mujoco.readthedocs.io, "XML Refere
 * Geoms are the viewer's shapes (``model.geometries``): those of groups 0–2, which MuJoCo's viewer
   shows, as ``"visual"``, the others as ``"collision"``; the world's geoms (a floor) and meshes given by
   their vertices (no file) are not kept.
+* The bodies' geoms that collide (``contype`` or ``conaffinity`` not 0, MuJoCo's filter; any group) are
+  ``model.collision_geometries``: spheres, boxes, capsules and cylinders, and meshes as their convex
+  hulls (a file's read when :func:`multibody.geometry.collision_table` is built; one given by its vertices
+  at once). Ellipsoids, planes, height fields and SDFs of bodies are left out with a warning; the world's
+  geoms (a floor) belong to no body and are not kept (a floor is :class:`multibody.Ground`'s half-space).
 * ``<option gravity>`` (and ``<flag gravity="disable"/>``).
 * ``<equality>``: ``connect`` → :class:`~multibody.LoopClosure` ``kind="point"``, ``weld`` →
   ``kind="weld"``, ``joint`` → :class:`~multibody.JointCoupling` with MuJoCo's ``polycoef``, in
@@ -70,6 +75,7 @@ import numpy as np
 from . import joints as jt
 from . import spatial
 from .constraints import JointCoupling, LoopClosure
+from .geometry import COLLISION_SHAPES, hull_vertices
 from .inertia import Inertia
 from .model import Geometry, ModelBuilder
 from .modelfiles import (
@@ -234,8 +240,8 @@ _ATTRIBUTES = {
                "user", "actuatorfrcrange", "actuatorfrclimited", "actuatorgravcomp"}),
     "freejoint": ({"name", "align"}, {"group"}),
     "geom": ({*_FRAME, "class", "type", "size", "group", "mass", "density", "shellinertia", "fromto", "mesh",
-              "fitscale"},
-             {"contype", "conaffinity", "condim", "priority", "material", "rgba", "friction", "solmix", "solref",
+              "fitscale", "contype", "conaffinity"},
+             {"condim", "priority", "material", "rgba", "friction", "solmix", "solref",
               "solimp", "margin", "gap", "user", "hfield", "fluidshape", "fluidcoef"}),
     "site": ({*_FRAME, "class", "fromto"}, {"type", "size", "group", "material", "rgba", "user"}),
     "mesh": ({"name", "class", "file", "vertex", "face", "refpos", "refquat", "scale", "inertia"},
@@ -540,7 +546,7 @@ class _Joint:
 
 
 class _Geom:
-    __slots__ = ("node", "kind", "size", "pose", "group", "mass", "density", "mesh")
+    __slots__ = ("node", "kind", "size", "pose", "group", "mass", "density", "mesh", "collides")
 
 
 class _Body:
@@ -702,6 +708,10 @@ class _Tree:
             raise node.error(f"a {kind} needs {needed} positive size(s), got size={attrs.get('size', '0 0 0')!r}")
         geom.size, geom.pose = size, frame @ pose if frame is not _IDENTITY else pose
         geom.group, = reader.integers(node, attrs, "group", 1, (0,))
+        # MuJoCo's collision filter: a geom with contype and conaffinity both 0 collides with nothing
+        contype, = reader.integers(node, attrs, "contype", 1, (1,))
+        conaffinity, = reader.integers(node, attrs, "conaffinity", 1, (1,))
+        geom.collides = contype != 0 or conaffinity != 0
         geom.mass = reader.number(node, attrs, "mass", math.nan) if "mass" in attrs else None
         geom.density = reader.number(node, attrs, "density", 1000.0)
         if (geom.mass is not None and geom.mass < 0.0) or geom.density < 0.0:
@@ -861,6 +871,41 @@ class _Meshes:
         (:func:`mesh_mass_properties` of its vertices as MuJoCo compiles them)."""
         if name in self._solids:
             return self._solids[name]
+        mesh_node, _, _, _, mode, _, _, _ = self._get(name, node)
+        vertices, faces = self._vertices(name, node)
+        if faces is None or mode == "convex":
+            # MuJoCo takes the convex hull of a mesh given by its vertices alone
+            import trimesh
+
+            try:
+                # (trimesh divides by the zero volume of a flat hull; mesh_mass_properties says so below)
+                with np.errstate(all="ignore"):
+                    hull = trimesh.convex.convex_hull(vertices)
+            except Exception as exc:  # qhull refuses fewer than four points and some degenerate sets
+                first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+                raise mesh_node.error(f"no convex hull of its {len(vertices)} vertices: {first}") from None
+            vertices, faces = np.asarray(hull.vertices), np.asarray(hull.faces)
+        try:
+            self._solids[name] = mesh_mass_properties(vertices, faces, "exact" if mode == "convex" else mode)
+        except ValueError as error:
+            raise mesh_node.error(str(error)) from None
+        return self._solids[name]
+
+    def hull(self, name, node):
+        """``(k, 3)`` vertices of the convex hull of mesh ``name`` in the geom's frame, m
+        (:func:`multibody.geometry.hull_vertices` of its vertices as MuJoCo compiles them), or ``None`` with a
+        warning when they have no hull with volume."""
+        try:
+            return hull_vertices(self._vertices(name, node)[0])
+        except ValueError as problem:
+            self.reader.report.add(("collision hull",), self._get(name, node)[0],
+                                   f"a mesh without a convex hull is left out of the collision geometries: its "
+                                   f"vertices {problem}")
+            return None
+
+    def _vertices(self, name, node):
+        """``(vertices (k, 3), faces (f, 3) or None)`` of mesh ``name`` in the geom's frame, m, as MuJoCo
+        compiles them: read in single precision, moved by ``refpos``, turned by ``refquat⁻¹``, scaled."""
         mesh_node, attrs, file, path, mode, scale, refpos, refquat = self._get(name, node)
         if "vertex" in attrs:
             vertices = self.reader.numbers(mesh_node, attrs, "vertex")
@@ -886,24 +931,7 @@ class _Meshes:
             raise mesh_node.error("vertices beyond single precision (3.4e38), in which MuJoCo keeps them")
         vertices = single.astype(float)
         # MuJoCo's order: move by refpos, turn by refquat⁻¹, then scale
-        vertices = (vertices - refpos) @ _quat_rotation(refquat, mesh_node) * scale
-        if faces is None or mode == "convex":
-            # MuJoCo takes the convex hull of a mesh given by its vertices alone
-            import trimesh
-
-            try:
-                # (trimesh divides by the zero volume of a flat hull; mesh_mass_properties says so below)
-                with np.errstate(all="ignore"):
-                    hull = trimesh.convex.convex_hull(vertices)
-            except Exception as exc:  # qhull refuses fewer than four points and some degenerate sets
-                first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-                raise mesh_node.error(f"no convex hull of its {len(vertices)} vertices: {first}") from None
-            vertices, faces = np.asarray(hull.vertices), np.asarray(hull.faces)
-        try:
-            self._solids[name] = mesh_mass_properties(vertices, faces, "exact" if mode == "convex" else mode)
-        except ValueError as error:
-            raise mesh_node.error(str(error)) from None
-        return self._solids[name]
+        return (vertices - refpos) @ _quat_rotation(refquat, mesh_node) * scale, faces
 
     def _faces(self, node, attrs, count):
         """The ``face`` attribute as ``(f, 3)`` indices of the ``count`` vertices; any other number is refused,
@@ -1327,9 +1355,12 @@ def _build(root, tree, reader, meshes, gravity):
                 builder.add_body(name, jt.Fixed(), parent=parent, placement=_translation(-previous), inertia=inertia,
                                  joint_name=_FIXED + name)
         for geom in body.geoms:
-            geometry = _geometry(geom, name, meshes)
+            geometry = _geometry(geom, name, meshes, "visual" if geom.group <= 2 else "collision")
             if geometry is not None:
                 builder.add_geometry(geometry)
+            collision = _collision_geometry(geom, name, meshes, tree.report) if geom.collides else None
+            if collision is not None:
+                builder.add_collision_geometry(collision)
     sites = {}
     site_names = []
     for b, site_list in [(-1, tree.world_sites)] + [(k, body.sites) for k, body in enumerate(bodies)]:
@@ -1381,10 +1412,9 @@ def _per_dof(joint):
     return {"damping": joint.damping, "friction": joint.friction, "armature": joint.armature}
 
 
-def _geometry(geom, body, meshes):
-    """The viewer's :class:`Geometry` of a geom (``None`` for planes, height fields, SDFs and meshes given by
+def _geometry(geom, body, meshes, kind):
+    """The :class:`Geometry` of ``kind`` of a geom (``None`` for planes, height fields, SDFs and meshes given by
     their vertices, which have no file for the viewer to read)."""
-    kind = "visual" if geom.group <= 2 else "collision"
     a, b, c = geom.size
     if geom.kind == "mesh":
         uri, filename, scale, placement = meshes.visual(geom.mesh, geom.node)
@@ -1396,6 +1426,23 @@ def _geometry(geom, body, meshes):
     if geom.kind not in sizes:
         return None
     return Geometry(body, kind, geom.kind, geom.pose, size=sizes[geom.kind])
+
+
+def _collision_geometry(geom, body, meshes, report):
+    """The collision :class:`Geometry` of a colliding geom: a primitive, a mesh file (its convex hull, read
+    when the collision table is built), or a mesh given by its vertices as the hull of them; ``None``, with a
+    warning, for an ellipsoid, a plane, a height field or an SDF, which contact detection has no shape for, and
+    for vertices in one plane; ``None`` for a mesh whose file is not found (:func:`warn_missing_meshes` says
+    so)."""
+    if geom.kind not in COLLISION_SHAPES:
+        report.add(("collision", geom.kind), geom.node, f"{geom.kind} geoms of bodies are left out of the collision "
+                                                        "geometries (contact detection has no such shape)")
+        return None
+    if geom.kind == "mesh" and meshes.visual(geom.mesh, geom.node)[0] is None:
+        hull = meshes.hull(geom.mesh, geom.node)
+        return None if hull is None else Geometry(body, "collision", "convex", geom.pose, vertices=hull)
+    geometry = _geometry(geom, body, meshes, "collision")
+    return None if geometry.shape == "mesh" and geometry.filename is None else geometry
 
 
 # ----------------------------------------------------------------------------- MuJoCo's state conventions

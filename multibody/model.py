@@ -20,6 +20,7 @@ import numpy as np
 
 from . import driver, spatial
 from . import joints as jt
+from .geometry import COLLISION_SHAPES, hull_vertices
 from .inertia import Inertia
 from .kernels import configuration
 
@@ -49,12 +50,15 @@ def all_finite(x) -> bool:
 class Geometry:
     """A visual or collision shape attached to a body (loaded on demand, see :mod:`multibody.geometry`).
 
-    ``shape`` is ``"mesh"``, ``"box"``, ``"sphere"``, ``"cylinder"``, ``"capsule"`` or ``"ellipsoid"``;
-    ``placement`` the 4×4 pose of the shape in the body frame; ``filename`` the resolved mesh path (``None``
-    if it could not be found), ``uri`` the mesh reference as written; ``scale`` (3,); ``size`` the
-    primitive's dimensions in m (box: edge lengths; sphere: radius; cylinder: radius, length along z;
-    capsule: radius, length of its cylinder along z between the centres of its hemispheres; ellipsoid:
-    semi-axes).
+    ``kind`` is ``"visual"`` or ``"collision"``; ``shape`` is ``"mesh"``, ``"box"``, ``"sphere"``,
+    ``"cylinder"``, ``"capsule"``, ``"ellipsoid"`` or ``"convex"`` (the convex hull of ``vertices``);
+    ``placement`` the 4×4 pose of the shape (the geometry frame) in the body frame; ``filename`` the resolved
+    mesh path (``None`` if it could not be found), ``uri`` the mesh reference as written; ``scale`` (3,);
+    ``size`` the primitive's dimensions in m (box: edge lengths; sphere: radius; cylinder: radius, length
+    along z; capsule: radius, length of its cylinder along z between the centres of its hemispheres;
+    ellipsoid: semi-axes; convex: none); ``vertices`` ``(k, 3)`` the vertices of a convex shape's hull in the
+    geometry frame, m (``None`` for the other shapes; a mesh's hull is read from its file by
+    :func:`multibody.geometry.hull_vertices`).
     """
 
     body: str
@@ -65,6 +69,7 @@ class Geometry:
     filename: str | None = None
     scale: tuple = (1.0, 1.0, 1.0)
     size: tuple = ()
+    vertices: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -131,7 +136,11 @@ class Model:
         lower, upper: ``(nq,)`` configuration limits (``±inf`` when unbounded; ``±1`` on the unit-norm
             quaternion and planar ``(cos θ, sin θ)`` components, which can never leave them).
         gravity: ``(3,)`` gravitational acceleration in the world frame, m/s².
-        geometries: visual and collision shapes (see :class:`Geometry`).
+        geometries: visual and collision shapes of the model file, the viewer's (see :class:`Geometry`).
+        collision_geometries: the shapes contact detection uses (see :mod:`multibody.geometry`), each a
+            :class:`Geometry` of kind ``"collision"`` naming its body: a URDF's ``<collision>`` elements, an
+            MJCF's colliding geoms (``contype`` or ``conaffinity`` not 0), and those of
+            :meth:`ModelBuilder.add_collision`; a mesh whose file is not found is left out (with a warning).
         mimic: recorded mimic relations (see :class:`Mimic`).
         damping: ``(nv,)`` viscous joint damping, N·m·s/rad or N·s/m (default zeros); the force
             ``−damping · v`` when :func:`multibody.simulate` is given ``joint_damping=True``.
@@ -167,6 +176,7 @@ class Model:
     upper: np.ndarray
     gravity: np.ndarray = field(default_factory=lambda: _frozen(STANDARD_GRAVITY))
     geometries: tuple = ()
+    collision_geometries: tuple = ()
     mimic: tuple = ()
     damping: np.ndarray | None = None
     friction: np.ndarray | None = None
@@ -183,6 +193,8 @@ class Model:
         set_("body_names", tuple(self.body_names))
         set_("body_inertias", tuple(self.body_inertias))
         set_("equality_constraints", tuple(self.equality_constraints))
+        set_("geometries", tuple(self.geometries))
+        set_("collision_geometries", tuple(self.collision_geometries))
         set_("parents", _frozen(self.parents, int).reshape(nj))
         set_("body_joints", _frozen(self.body_joints, int).reshape(nb))
         set_("joint_placements", _frozen(self.joint_placements).reshape(nj, 4, 4))
@@ -590,6 +602,10 @@ class Model:
 
 # ============================================================================= builder
 
+#: What the size of each shape of :meth:`ModelBuilder.add_collision` holds, in order (m).
+_COLLISION_SIZES = {"sphere": ("radius",), "box": ("x", "y", "z"), "cylinder": ("radius", "length"),
+                    "capsule": ("radius", "length"), "convex": ()}
+
 @dataclass
 class _BodySpec:
     name: str
@@ -630,6 +646,7 @@ class ModelBuilder:
         self._names: set[str] = set()
         self._joint_names: set[str] = set()
         self.geometries: list[Geometry] = []
+        self.collision_geometries: list[Geometry] = []
         self.mimic: list[Mimic] = []
 
     def add_body(self, name, joint=None, *, parent=None, placement=None, inertia=None, joint_name=None,
@@ -699,6 +716,74 @@ class ModelBuilder:
             raise ValueError(f"geometry attached to unknown body {geometry.body!r}")
         self.geometries.append(geometry)
 
+    def add_collision_geometry(self, geometry: Geometry):
+        """Attach a collision :class:`Geometry` (kind ``"collision"``, a shape of
+        :data:`multibody.geometry.COLLISION_SHAPES`) to an existing body, as a model file gives it: its sizes
+        are checked when :func:`multibody.geometry.collision_table` reads them (:meth:`add_collision`
+        checks them at once)."""
+        if geometry.body not in self._names:
+            raise unknown_name("body", geometry.body, [spec.name for spec in self._bodies], "bodies")
+        if geometry.kind != "collision" or geometry.shape not in COLLISION_SHAPES:
+            raise ValueError(f"collision geometry of body {geometry.body!r} must be of kind 'collision' and shape "
+                             f"{', '.join(COLLISION_SHAPES)}; got kind {geometry.kind!r}, shape {geometry.shape!r}")
+        self.collision_geometries.append(geometry)
+
+    def add_collision(self, body, shape, size=None, placement=None, *, vertices=None) -> Geometry:
+        """Attach a collision shape to an existing body (:attr:`Model.collision_geometries`).
+
+        Args:
+            body: name of the body, already added.
+            shape: ``"sphere"``, ``"box"``, ``"cylinder"``, ``"capsule"`` or ``"convex"``.
+            size: the dimensions in m, positive: sphere ``(radius,)``; box ``(x, y, z)``, its edge lengths;
+                cylinder ``(radius, length)`` along the geometry frame's z; capsule ``(radius, length)``,
+                the length of its cylinder between the centres of its hemispheres, along z; ``None`` (or
+                ``()``) for ``"convex"``. A number stands for a one-number size.
+            placement: 4×4 pose of the geometry frame in the body frame (default identity).
+            vertices: ``"convex"`` only: ``(k, 3)`` points in the geometry frame, m, at least 4 and not all
+                in one plane; the shape is their convex hull, and only the hull's vertices are kept.
+        Returns:
+            the :class:`Geometry` added.
+        Raises:
+            ValueError: an unknown body or shape, sizes not positive and finite or not as many as the shape
+                has, a placement that is not a finite rigid pose, or vertices missing, not finite, fewer
+                than 4 or in one plane; the message names the argument and the body.
+        """
+        if body not in self._names:
+            raise ValueError(f"add_collision: {unknown_name('body', body, [s.name for s in self._bodies], 'bodies')}")
+        where = f"collision geometry of body {body!r}"
+        if shape not in _COLLISION_SIZES:
+            raise ValueError(f"{where}: shape must be one of {', '.join(_COLLISION_SIZES)}, got {shape!r}")
+        names = _COLLISION_SIZES[shape]
+        try:
+            size = np.array(() if size is None else size, dtype=float).reshape(-1)
+        except (TypeError, ValueError):  # (text, or a ragged sequence)
+            raise ValueError(f"{where}: size of a {shape} must be numbers, got {size!r}") from None
+        if len(size) != len(names):
+            raise ValueError(f"{where}: size of a {shape} must be {len(names)} number(s) "
+                             f"({', '.join(names) or 'none: the vertices give it'}), got {len(size)}")
+        if not np.all(np.isfinite(size) & (size > 0.0)):
+            raise ValueError(f"{where}: size of a {shape} ({', '.join(names)}) must be positive and finite, "
+                             f"got {size.tolist()}")
+        try:
+            placement = np.eye(4) if placement is None else np.array(placement, dtype=float)
+        except (TypeError, ValueError):  # (text, or a ragged sequence)
+            raise ValueError(f"{where}: placement must be a 4×4 pose, got {placement!r}") from None
+        problem = spatial.pose_problem(placement)
+        if problem:
+            raise ValueError(f"{where}: placement {problem}")
+        if (shape == "convex") != (vertices is not None):
+            raise ValueError(f"{where}: vertices are given for a convex shape, and only for one"
+                             + (f" (not a {shape})" if shape != "convex" else ""))
+        if vertices is not None:
+            try:
+                vertices = hull_vertices(vertices)
+            except ValueError as problem:
+                raise ValueError(f"{where}: vertices {problem}") from None
+        geometry = Geometry(body, "collision", shape, _frozen(placement), size=tuple(size.tolist()),
+                            vertices=vertices)
+        self.add_collision_geometry(geometry)
+        return geometry
+
     def add_mimic(self, mimic: Mimic):
         """Record a mimic relation between two joints (both stay independent coordinates)."""
         self.mimic.append(mimic)
@@ -746,6 +831,7 @@ class ModelBuilder:
             upper=np.concatenate(upper) if upper else np.zeros(0),
             gravity=self.gravity,
             geometries=tuple(self.geometries),
+            collision_geometries=tuple(self.collision_geometries),
             mimic=tuple(self.mimic),
             **{key: np.concatenate(values) if values else np.zeros(0) for key, values in per_dof.items()},
         )

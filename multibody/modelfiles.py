@@ -91,4 +91,5 @@ def warn_missing_meshes(model, source_name, remedy, stacklevel=2):
     missing = [g.uri for g in model.geometries if g.shape == "mesh" and g.filename is None]
     if missing:
         warnings.warn(f"{source_name}: {len(missing)} mesh file(s) not found, e.g. {missing[0]!r} ({remedy}); "
-                      "the dynamics are unaffected", UserWarning, stacklevel=stacklevel + 1)
+                      "the dynamics are unaffected, and collision meshes among them are left out of "
+                      "model.collision_geometries", UserWarning, stacklevel=stacklevel + 1)

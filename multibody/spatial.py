@@ -305,6 +305,23 @@ def pose_matrix(R, p):
     return X
 
 
+def pose_problem(X, tolerance=1e-9):
+    """What keeps the float array ``X`` from being one rigid pose, as a phrase, or ``None``: shape ``(4, 4)``,
+    finite entries, last row ``[0, 0, 0, 1]`` and a rotation ``R`` (``RᵀR = I`` within ``tolerance``,
+    ``det R = +1``) in the upper-left 3×3 block."""
+    if X.shape != (4, 4):
+        return f"must have shape (4, 4), got {X.shape}"
+    if not np.all(np.isfinite(X)):
+        return "must be finite, got NaN or infinite entries"
+    if np.any(X[3] != (0.0, 0.0, 0.0, 1.0)):
+        return f"must have the last row [0, 0, 0, 1], got {X[3].tolist()}"
+    R = X[:3, :3]
+    off = np.abs(R.T @ R - np.eye(3)).max()
+    if off > tolerance or np.linalg.det(R) < 0.0:
+        return f"must hold a rotation (orthonormal, determinant +1) in its upper-left 3×3 block; RᵀR − I is off by {off:.1e}"
+    return None
+
+
 def pose_from_xyz_rpy(xyz=(0.0, 0.0, 0.0), rpy=(0.0, 0.0, 0.0)):
     """4×4 pose from a translation and URDF roll-pitch-yaw angles (rad)."""
     return pose_matrix(rpy_to_rotation(rpy), xyz)

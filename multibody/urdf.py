@@ -34,6 +34,10 @@ The model follows Pinocchio's ``buildModelFromUrdf`` exactly where both are defi
   and the joint that carries it must have one coordinate too. A mimicked joint that does not
   exist only warns, and the relation is dropped; a ``<mimic>`` on a fixed joint is ignored
   (reduced models such as Talos's freeze the mimicking joints and keep the tag).
+* ``<visual>`` and ``<collision>`` shapes (sphere, box, cylinder, mesh) are ``model.geometries``, the
+  viewer's; the ``<collision>`` ones are also ``model.collision_geometries`` (a mesh as its convex hull,
+  read when :func:`multibody.geometry.collision_table` is first built). A size of 0 loads (the dynamics need
+  no shape); the collision table refuses it.
 
 Malformed files raise :class:`URDFError` naming the file, the element and the problem.
 """
@@ -316,8 +320,10 @@ def load_urdf(source, *, floating_base=False, package_dirs=None, invalid_inertia
         package_dirs: directories searched for ``package://name/...`` meshes (a path or a list);
             ``package://name/rest`` is looked up as ``d/name/rest`` and ``d/rest`` for each ``d``,
             then in the directories of ``ROS_PACKAGE_PATH``. Nothing is read until
-            :func:`multibody.geometry.load_meshes` is called; meshes that cannot be found give one
-            ``UserWarning`` (the dynamics need only ``<inertial>``).
+            :func:`multibody.geometry.load_meshes` (the viewer) or
+            :func:`multibody.geometry.collision_table` (contact: each ``<collision>`` mesh's convex hull)
+            is called; meshes that cannot be found give one ``UserWarning`` (the dynamics need only
+            ``<inertial>``), and collision meshes among them are left out of ``model.collision_geometries``.
         invalid_inertia: what to do when a moving rigid body (a moving link lumped with the links
             fixed to it, as the dynamics sees it) has mass properties no real body can have: an
             inertia tensor that is not positive semi-definite or breaks the triangle inequality
@@ -392,6 +398,9 @@ def load_urdf(source, *, floating_base=False, package_dirs=None, invalid_inertia
                          joint_name=joint_name, lower=lower, upper=upper, **(dynamics or {}))
         for geometry in _geometries(ctx, links[name], path, base_dir, package_dirs):
             builder.add_geometry(geometry)
+            # (a mesh that is not found is left out: warn_missing_meshes says so)
+            if geometry.kind == "collision" and (geometry.shape != "mesh" or geometry.filename is not None):
+                builder.add_collision_geometry(geometry)
 
     # The root link is the world itself when it is called "world" and the base is fixed.
     world_root = root_link if (root_link == "world" and not floating_base) else None

@@ -111,7 +111,7 @@ SEED = """\
     </body>
     <body name="brick" pos="-0.5 0 1">
       <freejoint name="loose"/>
-      <geom type="ellipsoid" size="0.1 0.05 0.08"/>
+      <geom type="ellipsoid" size="0.1 0.05 0.08" contype="0" conaffinity="0"/>
       <geom type="mesh" mesh="tetra" pos="0.1 0 0"/>
       <geom type="cylinder" size="0.02 0.1" pos="0 0.1 0" euler="0 90 0"/>
       <site name="brick_site" pos="0 0 0.1"/>
