@@ -268,7 +268,12 @@ def test_box_edge_on_box_edge_gives_one_point():
 # symmetry and GJK/EPA against the analytic routines
 
 
-def random_geometry(shape, rng, near=None):
+def random_geometry(shape, rng):
+    if shape == C.CONVEX:
+        # a random polytope: the hull of 12 points on an ellipsoid
+        points = rng.standard_normal((12, 3))
+        points *= rng.uniform(0.1, 0.4, 3) / np.linalg.norm(points, axis=1, keepdims=True)
+        return (shape, (0, 0, 0), random_rotation(rng), rng.uniform(-0.4, 0.4, 3), points)
     if shape == C.SPHERE:
         size = (rng.uniform(0.1, 0.5), 0, 0)
     elif shape == C.BOX:
@@ -280,7 +285,8 @@ def random_geometry(shape, rng, near=None):
 
 
 PAIRS = [(C.SPHERE, C.SPHERE), (C.SPHERE, C.BOX), (C.SPHERE, C.CAPSULE), (C.CAPSULE, C.CAPSULE), (C.BOX, C.BOX),
-         (C.BOX, C.CAPSULE), (C.CYLINDER, C.BOX), (C.CYLINDER, C.SPHERE), (C.CONVEX, C.CAPSULE)]
+         (C.BOX, C.CAPSULE), (C.CYLINDER, C.BOX), (C.CYLINDER, C.SPHERE), (C.CYLINDER, C.CYLINDER),
+         (C.CONVEX, C.CAPSULE), (C.CONVEX, C.CONVEX)]
 
 
 @pytest.mark.parametrize("shapes", PAIRS)
@@ -289,7 +295,6 @@ def test_swapping_a_and_b_flips_the_normals_and_keeps_gaps_and_points(shapes):
     for _ in range(40):
         a = random_geometry(shapes[0], rng)
         b = random_geometry(shapes[1], rng)
-        a = a if shapes[0] != C.CONVEX else (C.CONVEX, (0, 0, 0), a[2], a[3], CUBE * 0.6)
         ab = run_pair(a, b, margin=1.0)
         ba = run_pair(b, a, margin=1.0)
         assert len(ab) == len(ba) >= 1
@@ -314,31 +319,88 @@ def test_gjk_epa_agrees_with_the_analytic_routines(shapes):
     assert 10 <= overlaps <= 70  # both separated and penetrating poses were drawn
 
 
-def test_gjk_epa_agrees_with_box_box_where_its_axis_is_exact():
-    """Penetrating boxes: the box–box axis of least penetration is the EPA depth and direction (both are
-    the minimum translation of two polytopes); the deepest clipped point has that depth unless the deepest
-    corner lies outside the reference face, so the depth is compared with the separating-axis value."""
+def test_gjk_epa_agrees_with_box_box():
+    """Separated boxes: the nearest contact is GJK's (distance, normal). Overlapping boxes: the box–box axis
+    of least penetration is EPA's depth and direction (both are the least translation separating two
+    polytopes); the clipped points are no deeper than that depth."""
     rng = np.random.default_rng(3)
-    compared = 0
-    for _ in range(150):
+    separated = overlapping = 0
+    for _ in range(200):
         a = random_geometry(C.BOX, rng)
         b = random_geometry(C.BOX, rng)
         gjk = run_pair(a, b, margin=10.0, convex=True)
         analytic = run_pair(a, b, margin=10.0)
-        if gjk[0, 6] >= 0:
-            continue
-        normal = analytic[0, 3:6]
-        assert np.all(analytic[:, 3:6] == normal)
-        # the separating-axis depth along the analytic normal, from the box supports
-        Ra, Rb = a[2], b[2]
-        ra = np.sum(np.asarray(a[1]) * np.abs(Ra.T @ normal))
-        rb = np.sum(np.asarray(b[1]) * np.abs(Rb.T @ normal))
-        separation = abs(normal @ (a[3] - b[3])) - ra - rb
-        np.testing.assert_allclose(separation, gjk[0, 6], atol=1e-9)
-        np.testing.assert_allclose(normal, gjk[0, 3:6], atol=1e-9)
-        assert analytic[:, 6].min() >= gjk[0, 6] - 1e-9
-        compared += 1
-    assert compared >= 50
+        nearest = analytic[np.argmin(analytic[:, 6])]
+        assert np.all(analytic[:, 3:6] == nearest[3:6])
+        np.testing.assert_allclose(nearest[3:6], gjk[0, 3:6], atol=1e-9)
+        if gjk[0, 6] > 0:
+            np.testing.assert_allclose(nearest[6], gjk[0, 6], atol=1e-9)
+            separated += 1
+        else:
+            normal = nearest[3:6]
+            ra = np.sum(np.asarray(a[1]) * np.abs(a[2].T @ normal))
+            rb = np.sum(np.asarray(b[1]) * np.abs(b[2].T @ normal))
+            np.testing.assert_allclose(abs(normal @ (a[3] - b[3])) - ra - rb, gjk[0, 6], atol=1e-9)
+            assert analytic[:, 6].min() >= gjk[0, 6] - 1e-9
+            overlapping += 1
+    assert separated >= 30 and overlapping >= 50
+
+
+def test_boxes_corner_to_corner_give_the_distance():
+    """Two unit cubes corner to corner along the diagonal d, 0.1 apart: the separating-axis value 0.1/√3 is a
+    lower bound; the contact is at the corners' midpoint, along d, with gap 0.1."""
+    d = np.ones(3) / np.sqrt(3)
+    a = (C.BOX, (0.5, 0.5, 0.5), I3, np.full(3, 0.5) + 0.1 * d)
+    b = (C.BOX, (0.5, 0.5, 0.5), I3, -np.full(3, 0.5))
+    np.testing.assert_allclose(run_pair(a, b, margin=0.2), [np.r_[0.05 * d, d, 0.1]], atol=1e-12)
+    assert len(run_pair(a, b, margin=0.09)) == 0
+
+
+def test_cylinder_against_a_sphere_closed_form():
+    """Sphere centre at radial distance ρ and height z in the cylinder's frame: outside,
+    gap = √(max(ρ − r, 0)² + max(|z| − h, 0)²) − r_s; inside, gap = −min(r − ρ, h − |z|) − r_s."""
+    rng = np.random.default_rng(4)
+    inside = 0
+    for _ in range(150):
+        r, h = rng.uniform(0.1, 0.4), rng.uniform(0.1, 0.4)
+        R = random_rotation(rng)
+        p = rng.uniform(-0.3, 0.3, 3)
+        rs = rng.uniform(0.05, 0.3)
+        c = rng.uniform(-0.5, 0.5, 3)
+        local = R.T @ (c - p)
+        rho, z = np.hypot(local[0], local[1]), abs(local[2])
+        if rho <= r and z <= h:
+            gap = -min(r - rho, h - z) - rs
+            inside += 1
+        else:
+            gap = np.hypot(max(rho - r, 0.0), max(z - h, 0.0)) - rs
+        for rows, sign in ((run_pair((C.SPHERE, (rs, 0, 0), I3, c), (C.CYLINDER, (r, h, 0), R, p), margin=10.0), 1),
+                           (run_pair((C.CYLINDER, (r, h, 0), R, p), (C.SPHERE, (rs, 0, 0), I3, c), margin=10.0), -1)):
+            assert len(rows) == 1
+            np.testing.assert_allclose(rows[0, 6], gap, atol=1e-9)
+            # the sphere's witness, point + gap/2 n (n into the sphere), is its point nearest (deepest in) the
+            # cylinder; on a curved surface the direction converges as the square root of the gap's tolerance
+            n = sign * rows[0, 3:6]
+            np.testing.assert_allclose(rows[0, :3] + 0.5 * rows[0, 6] * n, c - rs * n, atol=1e-6)
+    assert inside >= 10
+
+
+def test_cylinder_against_its_many_sided_prism():
+    """A cylinder and the convex hull of a 128-sided prism inscribed in it, against boxes, spheres, capsules
+    and cylinders: the gaps differ by at most the prism's inset r (1 − cos(π/128))."""
+    angles = np.linspace(0, 2 * np.pi, 128, endpoint=False)
+    rng = np.random.default_rng(11)
+    for k in range(120):
+        r, h = rng.uniform(0.1, 0.4), rng.uniform(0.1, 0.4)
+        ring = np.c_[r * np.cos(angles), r * np.sin(angles)]
+        prism = np.r_[np.c_[ring, -h * np.ones(128)], np.c_[ring, h * np.ones(128)]]
+        R = random_rotation(rng)
+        p = rng.uniform(-0.3, 0.3, 3)
+        other = random_geometry([C.BOX, C.SPHERE, C.CAPSULE, C.CYLINDER][k % 4], rng)
+        cylinder = run_pair((C.CYLINDER, (r, h, 0), R, p), other, margin=10.0)
+        hull = run_pair((C.CONVEX, (0, 0, 0), R, p, prism), other, margin=10.0)
+        assert len(cylinder) == len(hull) == 1
+        assert abs(cylinder[0, 6] - hull[0, 6]) <= r * (1 - np.cos(np.pi / 128)) + 1e-9
 
 
 def test_convex_hull_of_a_cube_equals_the_box_in_pairs():
@@ -376,8 +438,53 @@ def test_pairs_beyond_the_margin_give_nothing():
     for shapes in PAIRS:
         a = random_geometry(shapes[0], rng)
         b = random_geometry(shapes[1], rng)
-        if shapes[0] == C.CONVEX:
-            a = (C.CONVEX, (0, 0, 0), a[2], a[3], CUBE * 0.6)
-        far = (b[0], b[1], b[2], np.asarray(b[3]) + [3.0, 0, 0])
+        far = b[:3] + (np.asarray(b[3]) + [3.0, 0, 0],) + b[4:]
         assert len(run_pair(a, far, margin=0.5)) == 0
         assert len(run_pair(far, a, margin=0.5)) == 0
+
+
+PTX = r"""
+import types
+from numba import cuda
+from numba import types as nt
+def probe(x):
+    x[0] = 1.0
+try:  # the toolchain (libNVVM) on a trivial kernel
+    cuda.compile_ptx(probe, (nt.float64[::1],), cc=(9, 0))
+except Exception as e:
+    print("NO-NVVM", type(e).__name__, str(e)[:200])
+    raise SystemExit(0)
+import numba.cuda.dispatcher as dispatcher
+dispatcher.get_current_device = lambda: types.SimpleNamespace(compute_capability=(9, 0))
+from multibody.kernels.collision import halfspace_contacts, pair_contacts
+
+def launch(shapes, sizes, vertices, R, p, normal, out, ws, counts):
+    i = cuda.grid(1)
+    if i < out.shape[0]:
+        counts[i, 0] = halfspace_contacts(shapes[i], sizes[i], vertices, R[i], p[i], normal, 0.0, 1e-3, out[i], ws[i])
+        counts[i, 1] = pair_contacts(shapes[i], sizes[i], vertices, R[i], p[i], shapes[0], sizes[0], vertices, R[0],
+                                     p[0], 1e-3, out[i], ws[i])
+
+rows = nt.float64[:, ::1]
+signature = (nt.int64[::1], rows, rows, nt.float64[:, :, ::1], rows, nt.float64[::1], nt.float64[:, :, ::1], rows,
+             nt.int64[:, ::1])
+ptx, _ = cuda.compile_ptx(launch, signature, cc=(9, 0))
+assert ".entry" in ptx
+print("COLLISION-PTX-OK", len(ptx))
+"""
+
+
+def test_detection_compiles_for_the_cuda_target():
+    """Both entry points, with every shape's branch, lower to PTX for sm_90 as a CUDA kernel's device
+    functions (no allocation, no Python objects); skipped where libNVVM is not found."""
+    import os
+    import subprocess
+    import sys
+
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    env = dict(os.environ)
+    env.pop("NUMBA_DISABLE_JIT", None)
+    result = subprocess.run([sys.executable, "-c", PTX], capture_output=True, text=True, timeout=900, env=env, cwd=root)
+    if "NO-NVVM" in result.stdout or "No module named 'numba.cuda" in result.stderr:
+        pytest.skip("no CUDA compiler toolchain (libNVVM): " + result.stdout.strip())
+    assert "COLLISION-PTX-OK" in result.stdout, result.stdout + result.stderr[-3000:]

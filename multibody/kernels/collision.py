@@ -44,13 +44,15 @@ EPA_FACES = 128
 EPA_EDGES = 128
 #: Most vertices of a clipped face polygon (a quadrilateral clipped by four planes has at most 8).
 CLIP_VERTICES = 16
-#: Workspace layout: per simplex/polytope vertex ``[w, a, b]`` (9), per face ``[i, j, k, n, d, alive]`` (8).
+#: Workspace layout: per simplex/polytope vertex ``[w, a, b]`` (9), per face ``[i, j, k, n, d, state]`` (8; state
+#: 0 removed, 1 live, 2 live and already tested in this expansion), a stack of faces to visit.
 WS_SIMPLEX = 0
 WS_LAMBDA = WS_SIMPLEX + 9 * SIMPLEX_SIZE
 WS_EPA_VERTICES = WS_LAMBDA + SIMPLEX_SIZE
 WS_EPA_FACES = WS_EPA_VERTICES + 9 * EPA_VERTICES
 WS_EPA_EDGES = WS_EPA_FACES + 8 * EPA_FACES
-WS_CLIP = WS_EPA_EDGES + 2 * EPA_EDGES
+WS_EPA_STACK = WS_EPA_EDGES + 2 * EPA_EDGES
+WS_CLIP = WS_EPA_STACK + EPA_FACES
 WS_SELECT = WS_CLIP + 2 * 3 * CLIP_VERTICES
 #: Size of ``ws`` (float64 entries) for :func:`halfspace_contacts` and :func:`pair_contacts`.
 PAIR_WORKSPACE = WS_SELECT + MAX_PAIR_CONTACTS
@@ -62,7 +64,7 @@ GJK_ITERATIONS = 128
 #: Relative tolerances (of a length scale of the pair): GJK's and EPA's termination, the face
 #: preference of the box–box axis choice, and "parallel" for edges and capsule axes.
 GJK_TOLERANCE = 1e-13
-EPA_TOLERANCE = 1e-12
+EPA_TOLERANCE = 1e-10
 AXIS_PREFERENCE = 1e-10
 PARALLEL = 1e-10
 
@@ -80,6 +82,20 @@ def rotation9(R):
 @njit(cache=True, error_model="numpy")
 def norm3(a):
     return math.sqrt(dot3(a, a))
+
+
+@njit(cache=True, error_model="numpy")
+def clamp(x, lo, hi):
+    """``x`` limited to ``[lo, hi]`` (written out: Numba's CUDA target does not compile the builtin
+    ``min``/``max`` of floats)."""
+    return lo if x < lo else (hi if x > hi else x)
+
+
+@njit(cache=True, error_model="numpy")
+def least3(a, b, c):
+    """The least of three numbers."""
+    m = a if a < b else b
+    return m if m < c else c
 
 
 @njit(cache=True, error_model="numpy")
@@ -133,7 +149,9 @@ def bounding_radius(shape, size, vertices):
         return math.sqrt(size[0] * size[0] + size[1] * size[1])
     r = 0.0
     for i in range(vertices.shape[0]):
-        r = max(r, norm3(row3(vertices, i, 0)))
+        length = norm3(row3(vertices, i, 0))
+        if length > r:
+            r = length
     return r
 
 
@@ -197,7 +215,7 @@ def closest_on_segment(x, a, b):
     denominator = dot3(ab, ab)
     if denominator <= 0.0:
         return 0.0
-    return min(1.0, max(0.0, dot3(sub3(x, a), ab) / denominator))
+    return clamp(dot3(sub3(x, a), ab) / denominator, 0.0, 1.0)
 
 
 @njit(cache=True, error_model="numpy")
@@ -216,23 +234,23 @@ def closest_between_segments(p1, q1, p2, q2):
     if a <= 0.0 and e <= 0.0:
         return 0.0, 0.0
     if a <= 0.0:
-        return 0.0, min(1.0, max(0.0, f / e))
+        return 0.0, clamp(f / e, 0.0, 1.0)
     c = dot3(d1, r)
     if e <= 0.0:
-        return min(1.0, max(0.0, -c / a)), 0.0
+        return clamp(-c / a, 0.0, 1.0), 0.0
     b = dot3(d1, d2)
     denominator = a * e - b * b
     s = 0.0
     if denominator > PARALLEL * a * e:
-        s = min(1.0, max(0.0, (b * f - c * e) / denominator))
+        s = clamp((b * f - c * e) / denominator, 0.0, 1.0)
     # t = (b s + f)/e, and s recomputed where t is clamped
     t = (b * s + f) / e
     if t < 0.0:
         t = 0.0
-        s = min(1.0, max(0.0, -c / a))
+        s = clamp(-c / a, 0.0, 1.0)
     elif t > 1.0:
         t = 1.0
-        s = min(1.0, max(0.0, (b - c) / a))
+        s = clamp((b - c) / a, 0.0, 1.0)
     return s, t
 
 
@@ -306,8 +324,8 @@ def halfspace_point(out, count, x, normal, height, radius, margin):
 @njit(cache=True, error_model="numpy")
 def halfspace_contacts(shape, size, vertices, R, p, normal, height, margin, out, ws):
     """Contacts of a geometry with the half-space ``n·x ≥ height`` (``normal (3,)``, made unit here;
-    ``height`` in m): every feature with ``gap = n·x − height < margin`` (RTCD §5.2.3, a point against a
-    plane), with the normal ``n`` (from the half-space into the geometry) and the point on the
+    ``height`` in m): every feature with ``gap = n·x − height < margin`` (a point's signed distance to
+    a plane, RTCD §5.2.2–5.2.3), with the normal ``n`` (from the half-space into the geometry) and the point on the
     geometry's surface. Returns the count of rows written into ``out (MAX_PAIR_CONTACTS, 7)``.
 
     * sphere: its lowest point ``c − r n``;
@@ -430,11 +448,11 @@ def spheres(c_a, r_a, c_b, r_b, margin, out, count):
 @njit(cache=True, error_model="numpy")
 def sphere_box(c, r, size, R, p, margin, out, count):
     """A sphere (centre ``c``, radius ``r``: object a) against a box (object b). In the box frame
-    ``c' = Rᵀ (c − p)``; outside, the box's nearest point is ``q = clamp(c', −h, h)`` (RTCD §5.1.3,
-    §4.3.2) and ``n = R (c' − q)/|c' − q|``, ``gap = |c' − q| − r``; inside, the face of least depth
+    ``c' = Rᵀ (c − p)``; outside, the box's nearest point is ``q = clamp(c', −h, h)`` (RTCD §5.1.4,
+    ``ClosestPtPointOBB``, and the sphere–OBB test on it) and ``n = R (c' − q)/|c' − q|``, ``gap = |c' − q| − r``; inside, the face of least depth
     ``k = argmin (hₖ − |c'ₖ|)`` gives ``n = sign(c'ₖ) R eₖ`` and ``gap = −(hₖ − |c'ₖ|) − r``."""
     cl = rotate_back(R, sub3(c, p))
-    q = (min(size[0], max(-size[0], cl[0])), min(size[1], max(-size[1], cl[1])), min(size[2], max(-size[2], cl[2])))
+    q = (clamp(cl[0], -size[0], size[0]), clamp(cl[1], -size[1], size[1]), clamp(cl[2], -size[2], size[2]))
     d = sub3(cl, q)
     distance = norm3(d)
     if distance > 0.0:
@@ -480,8 +498,8 @@ def capsules(size_a, R_a, p_a, size_b, R_b, p_b, margin, out, count):
         # overlap of b's end points projected on a's axis: [max(0, min t), min(1, max t)]
         t0 = dot3(sub3(b0, a0), da) / laa
         t1 = dot3(sub3(b1, a0), da) / laa
-        lo = max(0.0, min(t0, t1))
-        hi = min(1.0, max(t0, t1))
+        lo = clamp(t0 if t0 < t1 else t1, 0.0, 1.0)
+        hi = clamp(t1 if t0 < t1 else t0, 0.0, 1.0)
         if hi > lo:
             for t in (lo, hi):
                 x = add3(a0, scale3(t, da))
@@ -533,7 +551,8 @@ def store_row_flat(x, start, values):
 
 @njit(cache=True, error_model="numpy")
 def box_face_contacts(h_ref, R_ref, p_ref, k, n, h_inc, R_inc, p_inc, flip, margin, out, count, ws):
-    """Face contact of two boxes (RTCD §5.2.x and §8.3.4; the reference-face clipping of Gregorius, GDC 2015):
+    """Face contact of two boxes by reference-face clipping (D. Gregorius, "Robust Contact Creation for Physics
+    Simulations", GDC 2015; the clipping is Sutherland–Hodgman's, RTCD §8.3.4):
     the reference box's face ``k`` with outward normal ``n`` (towards the incident box), the incident box's
     face most opposed to ``n`` clipped by the reference face's four side planes; each clipped corner ``x``
     with ``gap = n·(x − c_ref) < margin`` (``c_ref = p_ref + h_k n``) gives a contact at the midpoint of
@@ -582,19 +601,20 @@ def box_face_contacts(h_ref, R_ref, p_ref, k, n, h_inc, R_inc, p_inc, flip, marg
 
 
 @njit(cache=True, error_model="numpy")
-def boxes(h_a, R_a, p_a, h_b, R_b, p_b, margin, out, count, ws):
+def boxes(h_a, vertices_a, R_a, p_a, h_b, vertices_b, R_b, p_b, margin, out, count, ws):
     """Two boxes by the separating-axis test over their 15 axes (RTCD §4.4.1: the 3 + 3 face normals and
     the 9 edge cross products ``aᵢ × bⱼ``, unit, parallel pairs skipped): the axis of largest separation
-    ``s(L) = |L·t| − r_a(L) − r_b(L)`` is the contact normal; none within the margin when ``s > margin``.
-    A face axis (preferred over an edge axis within a relative ``AXIS_PREFERENCE``) gives the clipped
-    face polygon's corners (:func:`box_face_contacts`: 4 for a box resting on a larger one); an edge axis
-    gives one point, the midpoint of the closest points of the two supporting edges (RTCD §5.1.9), with
-    ``gap = n·(x_a − x_b)``.
+    ``s(L) = |L·t| − r_a(L) − r_b(L)`` (``t = p_b − p_a``) is the contact normal; none within the margin
+    when ``s > margin``. A face axis (preferred over an edge axis within a relative ``AXIS_PREFERENCE``)
+    gives the clipped face polygon's corners (:func:`box_face_contacts`: 4 for a box resting on a larger
+    one); an edge axis gives one point, the midpoint of the closest points of the two supporting edges
+    (RTCD §5.1.9), with ``gap = n·(x_a − x_b)``.
 
-    ``s`` is the exact distance (or depth) whenever the nearest features are a face and a point of the
-    other box over it or two edges; for separated boxes whose nearest features are corners or an edge
-    and a corner beside each other, it is a lower bound of the distance (so such contacts enter the margin
-    early, never late)."""
+    For overlapping boxes ``−s`` is the depth (the least translation that separates two polytopes is along
+    one of these axes). For separated boxes ``s`` is a lower bound of the distance, exact when the nearest
+    features are a face and what lies over it, or two edges: so they are measured by GJK
+    (:func:`gjk`), and where its direction is not the axis's (corners or an edge and a corner beside each
+    other), the single GJK contact is the answer."""
     t = sub3(p_b, p_a)
     scale = norm3(h_a) + norm3(h_b)
     tolerance = AXIS_PREFERENCE * scale
@@ -620,23 +640,38 @@ def boxes(h_a, R_a, p_a, h_b, R_b, p_b, margin, out, count, ws):
             if s > best_edge:
                 best_edge = s
                 edge = 3 * i + j
-    if edge >= 0 and best_edge > best + tolerance:
-        if best_edge > margin:
+    use_edge = edge >= 0 and best_edge > best + tolerance
+    separation = best_edge if use_edge else best
+    if separation > margin:
+        return count
+    # the axis as the contact normal, from b into a
+    if use_edge:
+        c = cross(axis_of(R_a, edge // 3), axis_of(R_b, edge % 3))
+        axis = scale3(1.0 / norm3(c), c)
+    else:
+        axis = axis_of(R_a, best_axis) if best_axis < 3 else axis_of(R_b, best_axis - 3)
+    normal = axis if dot3(axis, t) < 0.0 else scale3(-1.0, axis)
+    if separation > 0.0:
+        status, v, x_a, x_b, _ = gjk(BOX, h_a, vertices_a, R_a, p_a, BOX, h_b, vertices_b, R_b, p_b, False, margin,
+                                     scale + norm3(t), ws)
+        if status == SEPARATED:
             return count
+        if status == DISTANCE:
+            distance = norm3(v)
+            direction = scale3(1.0 / distance, v)
+            if dot3(direction, normal) < 1.0 - PARALLEL:
+                return write_pair(out, count, x_a, x_b, direction, distance, margin)
+    if use_edge:
         i = edge // 3
         j = edge % 3
-        c = cross(axis_of(R_a, i), axis_of(R_b, j))
-        n = scale3(1.0 / norm3(c), c)
-        if dot3(n, t) < 0.0:
-            n = scale3(-1.0, n)
-        # n points from a to b: a's supporting edge along n, b's along −n
+        # n = −normal points from a to b: a's supporting edge along n, b's along −n
         ea = (0.0, 0.0, 0.0)
         eb = (0.0, 0.0, 0.0)
         for k in range(3):
             if k != i:
-                ea = add3(ea, scale3(math.copysign(h_a[k], dot3(n, axis_of(R_a, k))), axis_of(R_a, k)))
+                ea = sub3(ea, scale3(math.copysign(h_a[k], dot3(normal, axis_of(R_a, k))), axis_of(R_a, k)))
             if k != j:
-                eb = add3(eb, scale3(-math.copysign(h_b[k], dot3(n, axis_of(R_b, k))), axis_of(R_b, k)))
+                eb = add3(eb, scale3(math.copysign(h_b[k], dot3(normal, axis_of(R_b, k))), axis_of(R_b, k)))
         a0 = add3(p_a, sub3(ea, scale3(h_a[i], axis_of(R_a, i))))
         a1 = add3(p_a, add3(ea, scale3(h_a[i], axis_of(R_a, i))))
         b0 = add3(p_b, sub3(eb, scale3(h_b[j], axis_of(R_b, j))))
@@ -644,17 +679,11 @@ def boxes(h_a, R_a, p_a, h_b, R_b, p_b, margin, out, count, ws):
         s, u = closest_between_segments(a0, a1, b0, b1)
         x_a = add3(a0, scale3(s, sub3(a1, a0)))
         x_b = add3(b0, scale3(u, sub3(b1, b0)))
-        normal = scale3(-1.0, n)
         return write_pair(out, count, x_a, x_b, normal, dot3(normal, sub3(x_a, x_b)), margin)
     if best_axis < 3:
-        n = axis_of(R_a, best_axis)
-        if dot3(n, t) < 0.0:
-            n = scale3(-1.0, n)
-        return box_face_contacts(h_a, R_a, p_a, best_axis, n, h_b, R_b, p_b, True, margin, out, count, ws)
-    n = axis_of(R_b, best_axis - 3)
-    if dot3(n, t) > 0.0:
-        n = scale3(-1.0, n)
-    return box_face_contacts(h_b, R_b, p_b, best_axis - 3, n, h_a, R_a, p_a, False, margin, out, count, ws)
+        return box_face_contacts(h_a, R_a, p_a, best_axis, scale3(-1.0, normal), h_b, R_b, p_b, True, margin, out,
+                                 count, ws)
+    return box_face_contacts(h_b, R_b, p_b, best_axis - 3, normal, h_a, R_a, p_a, False, margin, out, count, ws)
 
 
 # ---------------------------------------------------------------------------------------------------------------------
@@ -810,15 +839,14 @@ def gjk(shape_a, size_a, vertices_a, R_a, p_a, shape_b, size_b, vertices_b, R_b,
 def epa_add_face(ws, faces, i, j, k):
     """Face ``(i, j, k)`` of the polytope (counter-clockwise seen from outside) into a free slot: its unit
     normal ``n`` and its plane's distance from the origin ``n·wᵢ``; a degenerate face gets distance ∞
-    (never expanded). Returns the face count, or −1 when the table is full."""
+    (never expanded). Returns the face count and the slot used; the caller leaves room
+    (:func:`epa_free_faces`)."""
     slot = -1
     for f in range(faces):
         if ws[WS_EPA_FACES + 8 * f + 7] == 0.0:
             slot = f
             break
     if slot < 0:
-        if faces >= EPA_FACES:
-            return -1
         slot = faces
         faces += 1
     a = load3(ws, WS_EPA_VERTICES + 9 * i)
@@ -837,7 +865,7 @@ def epa_add_face(ws, faces, i, j, k):
         ws[base + 6] = math.inf
     store_row_flat(ws, base + 3, normal)
     ws[base + 7] = 1.0
-    return faces
+    return faces, slot
 
 
 @njit(cache=True, error_model="numpy")
@@ -858,14 +886,13 @@ def epa_add_edge(ws, edges, i, j):
 
 
 @njit(cache=True, error_model="numpy")
-def epa_barycentric(ws, f, z):
-    """Barycentric coordinates ``(u, v, w)`` of the point ``z`` in the plane of EPA face ``f`` with
-    vertices ``a, b, c`` (RTCD §3.4, unclamped): with ``v₀ = b − a``, ``v₁ = c − a``, ``v₂ = z − a`` and
+def epa_barycentric(ws, i, j, k, z):
+    """Barycentric coordinates ``(u, v, w)`` of the point ``z`` in the plane of the EPA vertices ``a, b, c``
+    (indices ``i, j, k``) (RTCD §3.4, unclamped): with ``v₀ = b − a``, ``v₁ = c − a``, ``v₂ = z − a`` and
     ``dᵢⱼ = vᵢ·vⱼ``, ``v = (d₁₁ d₂₀ − d₀₁ d₂₁)/D``, ``w = (d₀₀ d₂₁ − d₀₁ d₂₀)/D``, ``D = d₀₀ d₁₁ − d₀₁²``."""
-    base = WS_EPA_FACES + 8 * f
-    a = load3(ws, WS_EPA_VERTICES + 9 * int(ws[base]))
-    v0 = sub3(load3(ws, WS_EPA_VERTICES + 9 * int(ws[base + 1])), a)
-    v1 = sub3(load3(ws, WS_EPA_VERTICES + 9 * int(ws[base + 2])), a)
+    a = load3(ws, WS_EPA_VERTICES + 9 * i)
+    v0 = sub3(load3(ws, WS_EPA_VERTICES + 9 * j), a)
+    v1 = sub3(load3(ws, WS_EPA_VERTICES + 9 * k), a)
     v2 = sub3(z, a)
     d00, d01, d11 = dot3(v0, v0), dot3(v0, v1), dot3(v1, v1)
     d20, d21 = dot3(v2, v0), dot3(v2, v1)
@@ -875,6 +902,70 @@ def epa_barycentric(ws, f, z):
     v = (d11 * d20 - d01 * d21) / denominator
     w = (d00 * d21 - d01 * d20) / denominator
     return 1.0 - v - w, v, w
+
+
+@njit(cache=True, error_model="numpy")
+def epa_free_faces(ws, faces):
+    """Slots of removed faces among the first ``faces``, free for new ones."""
+    free = 0
+    for f in range(faces):
+        if ws[WS_EPA_FACES + 8 * f + 7] == 0.0:
+            free += 1
+    return free
+
+
+@njit(cache=True, error_model="numpy")
+def epa_neighbour(ws, faces, i, j):
+    """The live face holding the directed edge ``(j, i)``: the neighbour across edge ``(i, j)``; −1 if none."""
+    for f in range(faces):
+        base = WS_EPA_FACES + 8 * f
+        if ws[base + 7] == 0.0:
+            continue
+        a, b, c = int(ws[base]), int(ws[base + 1]), int(ws[base + 2])
+        if (a == j and b == i) or (b == j and c == i) or (c == j and a == i):
+            return f
+    return -1
+
+
+@njit(cache=True, error_model="numpy")
+def epa_remove_visible(ws, faces, first, w):
+    """Remove the faces that the new vertex ``w`` sees (``n·(w − a) > 0``), grown across edges from the face
+    ``first`` (which sees it), so that the removed faces form one patch and its boundary, the horizon, one
+    loop (van den Bergen 2003, §4.3.8, the silhouette); the horizon's directed edges are left at
+    ``ws[WS_EPA_EDGES:]``. Returns their count, −1 when a table is full."""
+    edges = 0
+    top = 0
+    ws[WS_EPA_STACK] = first
+    top = 1
+    ws[WS_EPA_FACES + 8 * first + 7] = 0.0
+    while top > 0:
+        top -= 1
+        f = int(ws[WS_EPA_STACK + top])
+        base = WS_EPA_FACES + 8 * f
+        corners = (int(ws[base]), int(ws[base + 1]), int(ws[base + 2]))
+        for e in range(3):
+            i = corners[e]
+            j = corners[(e + 1) % 3]
+            edges = epa_add_edge(ws, edges, i, j)
+            if edges < 0:
+                return -1
+            g = epa_neighbour(ws, faces, i, j)
+            if g < 0 or ws[WS_EPA_FACES + 8 * g + 7] != 1.0:
+                continue
+            other = WS_EPA_FACES + 8 * g
+            if dot3(load3(ws, other + 3), sub3(w, load3(ws, WS_EPA_VERTICES + 9 * int(ws[other])))) > 0.0:
+                ws[other + 7] = 0.0
+                if top >= EPA_FACES:
+                    return -1
+                ws[WS_EPA_STACK + top] = g
+                top += 1
+            else:
+                # seen and kept: not tested again in this pass
+                ws[other + 7] = 2.0
+    for f in range(faces):
+        if ws[WS_EPA_FACES + 8 * f + 7] == 2.0:
+            ws[WS_EPA_FACES + 8 * f + 7] = 1.0
+    return edges
 
 
 @njit(cache=True, error_model="numpy")
@@ -948,12 +1039,12 @@ def epa(shape_a, size_a, vertices_a, R_a, p_a, shape_b, size_b, vertices_b, R_b,
         ws[WS_EPA_FACES + 8 * f + 7] = 0.0
     # the outward faces of a positively oriented tetrahedron
     faces = 0
-    faces = epa_add_face(ws, faces, 0, 2, 1)
-    faces = epa_add_face(ws, faces, 0, 1, 3)
-    faces = epa_add_face(ws, faces, 0, 3, 2)
-    faces = epa_add_face(ws, faces, 1, 2, 3)
+    faces, _ = epa_add_face(ws, faces, 0, 2, 1)
+    faces, _ = epa_add_face(ws, faces, 0, 1, 3)
+    faces, _ = epa_add_face(ws, faces, 0, 3, 2)
+    faces, _ = epa_add_face(ws, faces, 1, 2, 3)
     vertices = 4
-    best = 0
+    intact = True
     while True:
         best = -1
         best_distance = math.inf
@@ -964,53 +1055,47 @@ def epa(shape_a, size_a, vertices_a, R_a, p_a, shape_b, size_b, vertices_b, R_b,
                 best = f
         if best < 0:
             return DEGENERATE, 0.0, zero, zero, zero
-        n = load3(ws, WS_EPA_FACES + 8 * best + 3)
+        base = WS_EPA_FACES + 8 * best
+        i, j, k = int(ws[base]), int(ws[base + 1]), int(ws[base + 2])
+        n = load3(ws, base + 3)
         if vertices >= EPA_VERTICES:
             break
-        slot = WS_EPA_VERTICES + 9 * vertices
         w = support_difference(shape_a, size_a, vertices_a, R_a, p_a, shape_b, size_b, vertices_b, R_b, p_b, n,
-                               rounded, ws, slot)
+                               rounded, ws, WS_EPA_VERTICES + 9 * vertices)
         if dot3(n, w) - best_distance <= tolerance:
             break
-        # remove the faces w sees, collecting their horizon
-        edges = 0
-        for f in range(faces):
-            base = WS_EPA_FACES + 8 * f
-            if ws[base + 7] == 0.0:
-                continue
-            i, j, k = int(ws[base]), int(ws[base + 1]), int(ws[base + 2])
-            if dot3(load3(ws, base + 3), sub3(w, load3(ws, WS_EPA_VERTICES + 9 * i))) > 0.0:
-                ws[base + 7] = 0.0
-                edges = epa_add_edge(ws, edges, i, j)
-                if edges >= 0:
-                    edges = epa_add_edge(ws, edges, j, k)
-                if edges >= 0:
-                    edges = epa_add_edge(ws, edges, k, i)
-                if edges < 0:
-                    return DEGENERATE, 0.0, zero, zero, zero
+        edges = epa_remove_visible(ws, faces, best, w)
+        if edges < 0 or faces + edges > EPA_FACES + epa_free_faces(ws, faces):
+            # out of room: the nearest face found so far is the answer (its vertices are kept)
+            intact = False
+            break
+        broken = False
         for e in range(edges):
-            faces = epa_add_face(ws, faces, int(ws[WS_EPA_EDGES + 2 * e]), int(ws[WS_EPA_EDGES + 2 * e + 1]), vertices)
-            if faces < 0:
-                return DEGENERATE, 0.0, zero, zero, zero
+            faces, f = epa_add_face(ws, faces, int(ws[WS_EPA_EDGES + 2 * e]), int(ws[WS_EPA_EDGES + 2 * e + 1]),
+                                    vertices)
+            # the polytope only grows, so no new face may be nearer the origin than the face expanded:
+            # one that is, a sliver whose normal rounding has turned, ends the expansion
+            broken = broken or ws[WS_EPA_FACES + 8 * f + 6] < best_distance - tolerance
+        if broken:
+            intact = False
+            break
         vertices += 1
     # witnesses: barycentric coordinates of z = d n on the nearest face; of the faces in its plane (a
     # polytope's face is split into triangles), the one holding z
     z = scale3(best_distance, n)
-    chosen = best
-    l0, l1, l2 = epa_barycentric(ws, best, z)
+    l0, l1, l2 = epa_barycentric(ws, i, j, k, z)
     for f in range(faces):
         base = WS_EPA_FACES + 8 * f
-        if min(l0, l1, l2) >= 0.0:
+        if not intact or least3(l0, l1, l2) >= 0.0:
             break
-        if f == best or ws[base + 7] == 0.0 or abs(ws[base + 6] - best_distance) > tolerance \
+        if ws[base + 7] == 0.0 or abs(ws[base + 6] - best_distance) > tolerance \
                 or dot3(load3(ws, base + 3), n) < 1.0 - PARALLEL:
             continue
-        m0, m1, m2 = epa_barycentric(ws, f, z)
-        if min(m0, m1, m2) > min(l0, l1, l2):
-            chosen = f
+        fi, fj, fk = int(ws[base]), int(ws[base + 1]), int(ws[base + 2])
+        m0, m1, m2 = epa_barycentric(ws, fi, fj, fk, z)
+        if least3(m0, m1, m2) > least3(l0, l1, l2):
+            i, j, k = fi, fj, fk
             l0, l1, l2 = m0, m1, m2
-    base = WS_EPA_FACES + 8 * chosen
-    i, j, k = int(ws[base]), int(ws[base + 1]), int(ws[base + 2])
     x_a = add3(add3(scale3(l0, load3(ws, WS_EPA_VERTICES + 9 * i + 3)), scale3(l1, load3(ws, WS_EPA_VERTICES + 9 * j + 3))),
                scale3(l2, load3(ws, WS_EPA_VERTICES + 9 * k + 3)))
     x_b = add3(add3(scale3(l0, load3(ws, WS_EPA_VERTICES + 9 * i + 6)), scale3(l1, load3(ws, WS_EPA_VERTICES + 9 * j + 6))),
@@ -1095,8 +1180,8 @@ def ordered_pair_contacts(shape_a, size_a, vertices_a, R_a, p_a, shape_b, size_b
         return capsules(load3(size_a, 0), rotation9(R_a), load3(p_a, 0), load3(size_b, 0), rotation9(R_b),
                         load3(p_b, 0), margin, out, count)
     if shape_a == BOX and shape_b == BOX:
-        return boxes(load3(size_a, 0), rotation9(R_a), load3(p_a, 0), load3(size_b, 0), rotation9(R_b), load3(p_b, 0),
-                     margin, out, count, ws)
+        return boxes(load3(size_a, 0), vertices_a, rotation9(R_a), load3(p_a, 0), load3(size_b, 0), vertices_b,
+                     rotation9(R_b), load3(p_b, 0), margin, out, count, ws)
     return convex_contact(shape_a, size_a, vertices_a, R_a, p_a, shape_b, size_b, vertices_b, R_b, p_b, margin, out,
                           count, ws)
 
