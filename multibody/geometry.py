@@ -84,7 +84,7 @@ def _build_table(model):
         shapes[g], frames[g] = SHAPE_CODES[geometry.shape], model.body_index(geometry.body)
         placements[g] = geometry.placement
         if shapes[g] == CONVEX:
-            hull = geometry.vertices if geometry.vertices is not None else _mesh_hull(geometry)
+            hull = convex_vertices(geometry)
             vertex_ranges[g] = start, len(hull)
             hulls.append(hull)
             start += len(hull)
@@ -107,9 +107,12 @@ def _build_table(model):
     return CollisionTable(*arrays, tuple(geometry.body for geometry in geometries))
 
 
-def _mesh_hull(geometry):
-    """The convex hull's vertices of a collision mesh, scaled, in its geometry frame; ``ValueError`` naming
-    the body and the file when it cannot be read or has no volume."""
+def convex_vertices(geometry) -> np.ndarray:
+    """``(k, 3)`` vertices of the convex hull of a ``"convex"`` or ``"mesh"`` :class:`~multibody.model.Geometry`
+    in its geometry frame, m: its ``vertices``, or its mesh file's hull, scaled (:func:`mesh_hull`).
+    ``ValueError`` naming the body and the file when that cannot be read or has no volume."""
+    if geometry.vertices is not None:
+        return geometry.vertices
     try:
         return mesh_hull(geometry.filename, tuple(geometry.scale))
     except ValueError as problem:

@@ -848,17 +848,24 @@ class _Meshes:
     def visual(self, name, node):
         """``(uri, filename, scale, placement (4, 4))`` of a mesh for the viewer: the file drawn scaled,
         then placed; MuJoCo moves the vertices by ``refpos`` and turns them by ``refquat`` before scaling."""
+        file, path, scale, placement, exact = self.drawn(name, node)
+        if not exact:
+            self.reader.report.add(("refquat scale",), self._get(name, node)[0], "a mesh scaled unevenly and turned "
+                                                                                 "by refquat is drawn approximately")
+        return file, path, scale, placement
+
+    def drawn(self, name, node):
+        """``(uri, filename, scale, placement (4, 4), exact)`` of a mesh drawn as its file scaled, then placed:
+        ``exact`` unless it is scaled unevenly and turned by ``refquat`` (MuJoCo scales after turning)."""
         mesh = self._get(name, node)
         _, _, file, path, _, scale, refpos, refquat = mesh
-        placement = _IDENTITY
+        placement, exact = _IDENTITY, True
         if refpos.any() or refquat != (1.0, 0.0, 0.0, 0.0):
-            # v ↦ S Rᵀ (v − refpos) = Rᵀ (S v) − S Rᵀ refpos for a uniform scale S
+            # v ↦ S Rᵀ (v − refpos) = Rᵀ (S v) − S Rᵀ refpos where S and Rᵀ commute: S uniform or R = I
             R = _quat_rotation(refquat, mesh[0])
             placement = spatial.pose_matrix(R.T, -scale * (R.T @ refpos))
-            if not np.allclose(scale, scale[0]):
-                self.reader.report.add(("refquat scale",), mesh[0], "a mesh scaled unevenly and moved by refpos or "
-                                                                    "refquat is drawn approximately")
-        return file, path, tuple(float(s) for s in scale), placement
+            exact = refquat == (1.0, 0.0, 0.0, 0.0) or np.allclose(scale, scale[0])
+        return file, path, tuple(float(s) for s in scale), placement, exact
 
     def _get(self, name, node):
         mesh = self.meshes.get(name)
@@ -1430,7 +1437,8 @@ def _geometry(geom, body, meshes, kind):
 
 def _collision_geometry(geom, body, meshes, report):
     """The collision :class:`Geometry` of a colliding geom: a primitive, a mesh file (its convex hull, read
-    when the collision table is built), or a mesh given by its vertices as the hull of them; ``None``, with a
+    when the collision table is built), or a mesh given by its vertices, or scaled unevenly and turned by
+    ``refquat``, as the hull of its vertices as MuJoCo compiles them; ``None``, with a
     warning, for an ellipsoid, a plane, a height field or an SDF, which contact detection has no shape for, and
     for vertices in one plane; ``None`` for a mesh whose file is not found (:func:`warn_missing_meshes` says
     so)."""
@@ -1438,11 +1446,16 @@ def _collision_geometry(geom, body, meshes, report):
         report.add(("collision", geom.kind), geom.node, f"{geom.kind} geoms of bodies are left out of the collision "
                                                         "geometries (contact detection has no such shape)")
         return None
-    if geom.kind == "mesh" and meshes.visual(geom.mesh, geom.node)[0] is None:
+    if geom.kind != "mesh":
+        return _geometry(geom, body, meshes, "collision")
+    uri, filename, scale, placement, exact = meshes.drawn(geom.mesh, geom.node)
+    if uri is not None and filename is None:
+        return None
+    if uri is None or not exact:
+        # vertices given in the file, or a file that its placement cannot draw exactly: the hull at once
         hull = meshes.hull(geom.mesh, geom.node)
         return None if hull is None else Geometry(body, "collision", "convex", geom.pose, vertices=hull)
-    geometry = _geometry(geom, body, meshes, "collision")
-    return None if geometry.shape == "mesh" and geometry.filename is None else geometry
+    return Geometry(body, "collision", "mesh", geom.pose @ placement, uri=uri, filename=filename, scale=scale)
 
 
 # ----------------------------------------------------------------------------- MuJoCo's state conventions

@@ -57,8 +57,8 @@ class Geometry:
     ``size`` the primitive's dimensions in m (box: edge lengths; sphere: radius; cylinder: radius, length
     along z; capsule: radius, length of its cylinder along z between the centres of its hemispheres;
     ellipsoid: semi-axes; convex: none); ``vertices`` ``(k, 3)`` the vertices of a convex shape's hull in the
-    geometry frame, m (``None`` for the other shapes; a mesh's hull is read from its file by
-    :func:`multibody.geometry.hull_vertices`).
+    geometry frame, m (``None`` for the other shapes; a mesh's hull is read from its file, when contact
+    detection first needs it, by :func:`multibody.geometry.convex_vertices`).
     """
 
     body: str
@@ -69,7 +69,7 @@ class Geometry:
     filename: str | None = None
     scale: tuple = (1.0, 1.0, 1.0)
     size: tuple = ()
-    vertices: np.ndarray | None = None
+    vertices: np.ndarray | None = field(default=None, repr=False)
 
 
 @dataclass(frozen=True)

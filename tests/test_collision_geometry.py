@@ -382,3 +382,70 @@ def test_table_rows_feed_the_detection_kernel():
                                            np.array([0.0, 0.0, 1.0]), 0.0, 1e-9, out, ws)
         assert found == expected, shape
         np.testing.assert_allclose(out[:found, 6], 0.0, rtol=0, atol=1e-15, err_msg=shape)
+
+
+def test_add_collision_geometry_takes_a_model_files_shapes_as_given():
+    """``add_collision_geometry`` (the loaders' way in) takes a collision shape as a file gives it, a size of 0
+    included (the table refuses that later), and refuses an unknown body, a visual geometry or a shape contact
+    detection has no code for."""
+    b = builder()
+    flat = mb.model.Geometry("tool", "collision", "box", np.eye(4), size=(0.1, 0.0, 0.1))
+    b.add_collision_geometry(flat)
+    with pytest.raises(ValueError, match=r"unknown body 'hand'"):
+        b.add_collision_geometry(mb.model.Geometry("hand", "collision", "sphere", np.eye(4), size=(0.1,)))
+    for kind, shape in (("visual", "sphere"), ("collision", "ellipsoid")):
+        with pytest.raises(ValueError, match=rf"collision geometry of body 'tool' must be of kind 'collision' and "
+                                             rf"shape sphere, box, capsule, cylinder, mesh, convex; got kind "
+                                             rf"'{kind}', shape '{shape}'"):
+            b.add_collision_geometry(mb.model.Geometry("tool", kind, shape, np.eye(4), size=(0.1, 0.1, 0.1)))
+    model = b.build()
+    assert model.collision_geometries == (flat,)
+    with pytest.raises(ValueError, match=r"collision geometry of body 'tool': a box needs 3 positive size\(s\), got "
+                                         r"\(0.1, 0.0, 0.1\)"):
+        geo.collision_table(model)
+
+
+@pytest.mark.parametrize("reference_pose, shape", [('refpos="0.05 0 0"', "mesh"),
+                                                   ('refpos="0.05 0 0" refquat="0.9 0.1 0.3 0.2"', "convex")])
+def test_mjcf_mesh_file_hull_is_mujocos(tmp_path, reference_pose, shape):
+    """A colliding mesh geom read from a file (scaled unevenly, moved by ``refpos``, placed by ``pos`` and
+    ``euler``) is the convex hull MuJoCo collides: its support function ``max_v d·v`` in the world equals
+    that of MuJoCo's mesh vertices placed at the geom's pose, in every direction, to MuJoCo's single
+    precision, and so does the viewer's mesh, drawn without a warning. Turned by ``refquat`` as well, the
+    file's placement cannot draw it (MuJoCo scales after turning, and the viewer warns): its hull is read at
+    load, a ``"convex"`` geometry."""
+    mujoco = pytest.importorskip("mujoco")
+    mesh = trimesh.creation.icosphere(subdivisions=1, radius=0.3)
+    mesh.vertices[:, 0] += 0.2 * mesh.vertices[:, 1] ** 2  # (not symmetric: the re-centring shows)
+    mesh.export(str(tmp_path / "blob.stl"))
+    xml = (f'<mujoco><asset><mesh name="blob" file="blob.stl" scale="1 2 0.5" {reference_pose}/></asset>'
+           '<worldbody><body name="b" pos="0 0 1"><joint type="ball"/>'
+           '<geom type="mesh" mesh="blob" pos="0.1 0.2 0.3" euler="10 20 30"/></body></worldbody></mujoco>')
+    (tmp_path / "blob.xml").write_text(xml)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        model = mb.load_mjcf(str(tmp_path / "blob.xml"))
+    assert [str(w.message).split(": ", 1)[1] for w in caught] == \
+        ([] if shape == "mesh" else ["<mesh name='blob'>: a mesh scaled unevenly and turned by refquat is drawn "
+                                     "approximately"])
+    reference = mujoco.MjModel.from_xml_path(str(tmp_path / "blob.xml"))
+    data = mujoco.MjData(reference)
+    rng = np.random.default_rng(3)
+    q = model.random_configuration(rng)
+    data.qpos[:] = mb.mjcf.to_mujoco(model, q, np.zeros(model.nv))[0]
+    mujoco.mj_kinematics(reference, data)
+    assert [g.shape for g in model.collision_geometries] == [shape]
+    table = geo.collision_table(model)
+    assert table.shapes.tolist() == [geo.CONVEX]
+    X = mb.forward_kinematics(model, q)[table.frames[0]] @ table.placements[0]
+    ours = table.vertices @ X[:3, :3].T + X[:3, 3]
+    start, count = reference.mesh_vertadr[0], reference.mesh_vertnum[0]
+    theirs = reference.mesh_vert[start : start + count] @ data.geom_xmat[0].reshape(3, 3).T + data.geom_xpos[0]
+    directions = rng.normal(size=(200, 3))
+    support = (directions @ theirs.T).max(axis=1)
+    np.testing.assert_allclose((directions @ ours.T).max(axis=1), support, rtol=0, atol=1e-6)
+    if shape == "mesh":
+        (geometry, drawn), = geo.load_meshes(model)
+        body = mb.forward_kinematics(model, q)[model.body_index(geometry.body)]
+        world = np.asarray(drawn.vertices) @ body[:3, :3].T + body[:3, 3]
+        np.testing.assert_allclose((directions @ world.T).max(axis=1), support, rtol=0, atol=1e-6)
