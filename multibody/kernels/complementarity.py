@@ -19,26 +19,33 @@ velocities ``u = G x + c`` with, for each block of rows (M. Jean, *Comput. Metho
 
 With ``K`` the product of the blocks' cones (``ℝ`` bilateral, ``ℝ₊`` unilateral, ``K_μ`` contact) and
 the shift ``s`` of De Saxcé held fixed, these are the optimality conditions of the convex problem
-``min ½ xᵀ G x + (c + s)ᵀ x`` over ``x ∈ K``. The solver is ADMM on that problem with a proximal term
-and an adaptive penalty (J. Carpentier, Q. Le Lidec, L. Montaut et al., "From compliant to rigid
-contact simulation: a unified and efficient approach", RSS 2024, Alg. 1; S. Boyd et al., *Found.
-Trends Mach. Learn.* 3, 2011, §3.4.1), the shift updated after every iteration:
+``min ½ xᵀ G x + (c + s)ᵀ x`` over ``x ∈ K``. The solver is ADMM on that problem with a proximal term,
+an adaptive penalty and over-relaxation (J. Carpentier, Q. Le Lidec, L. Montaut et al., "From
+compliant to rigid contact simulation: a unified and efficient approach", RSS 2024, Alg. 1; S. Boyd
+et al., *Found. Trends Mach. Learn.* 3, 2011, §3.4.1 and §3.4.3), the shift updated after every
+iteration:
 
-    (G + (ρ + η) I) x⁺ = −(c + s) + y + ρ z + η x        (proximal step on the quadratic)
+    (G + (ρ + η) I) x̃ = −(c + s) + y + ρ z + η x          (proximal step on the quadratic)
+    x⁺ = α x̃ + (1 − α) z                                   (over-relaxation, α = RELAX)
     z⁺ = P_K(x⁺ − y/ρ)                                     (projection on the cones)
     y⁺ = y + ρ (z⁺ − x⁺)                                   (the velocity multiplier)
     s⁺ = μ ‖(G z⁺ + c)_T‖ e_N                              (De Saxcé's shift)
 
 ``G + (ρ + η) I`` is factored once by Cholesky (:func:`multibody.kernels.kkt.cholesky`) and again only
 when ``ρ`` changes. By Moreau's decomposition ``z⁺ ∈ K``, ``y⁺ ∈ K*`` and ``z⁺ ⊥ y⁺`` after every
-iteration, so the iteration has converged when ``y⁺`` is the velocity ``û`` at ``z⁺``.
+iteration, so the iteration has converged when ``y⁺`` is the velocity ``û`` at ``z⁺``. ADMM converges
+linearly; from time to time (:data:`POLISH_FIRST`) a few damped semismooth Newton steps on the natural
+map ``x − P_K(x − r û(x)) = 0`` (:func:`polish`) take its iterate to the tolerance quadratically once
+the contacts' modes (separating, sticking, sliding) are found, and ADMM goes on from the better of the
+two otherwise.
 
 Singular ``G`` (a box flat on the ground touching at four corners, redundant bilateral rows): the
-impulses are then not unique, and the solver returns the one its iteration reaches from the warm
-start: the proximal rule. Each x-update is a step of Rockafellar's proximal point method
-(``η``, and ``ρ`` through ``z``, pull ``x⁺`` towards the previous iterate), so among equally good
-impulses the iterates move only as far from the warm start as the conditions demand; from ``x = 0``
-a symmetric problem gets the symmetric solution. The velocities ``u`` are unique.
+impulses are then not unique, and the solver returns the one its iterations reach from the warm start:
+the proximal rule. Each x-update is a step of Rockafellar's proximal point method (``η``, and ``ρ``
+through ``z``, pull ``x⁺`` towards the previous iterate) and each Newton step is damped
+(Levenberg–Marquardt), so along the directions that change no velocity the iterates move only as far
+from the warm start as the conditions demand; from ``x = 0`` a symmetric problem gets the symmetric
+solution. The velocities ``u`` are unique.
 
 The residual returned (and compared with the tolerance, m/s) is the largest over the blocks of the
 problem's natural residual at the returned ``x`` (which is in ``K`` exactly, being a projection):
@@ -71,6 +78,17 @@ BALANCE = 10.0
 PENALTY_STEP = 3.0
 #: Power iterations estimating the largest eigenvalue of ``G``.
 POWER_ITERATIONS = 12
+#: Over-relaxation ``α`` of ADMM (Boyd et al. §3.4.3 recommend 1.5 to 1.8).
+RELAX = 1.5
+#: The polish (:func:`polish`) runs after this many ADMM iterations (at once from a nonzero warm start),
+#: then after twice as many as before each time, at most :data:`POLISH_STEPS` Newton steps each time.
+POLISH_FIRST = 4
+POLISH_STEPS = 8
+#: The Levenberg–Marquardt damping of the polish, ``λ = ‖f‖/‖x‖``, kept within these bounds.
+DAMPING = 1e-3
+DAMPING_FLOOR = 1e-12
+#: Halvings of a polish step before the polish gives up.
+LINE_SEARCH = 12
 
 
 @njit(cache=True, error_model="numpy")
@@ -82,8 +100,9 @@ def larger(a, b):
 
 @njit(cache=True, error_model="numpy")
 def workspace_size(m):
-    """Floats of workspace of :func:`solve` for ``m`` rows: the factor ``(m, m)`` and five vectors."""
-    return m * m + 5 * m
+    """Floats of workspace of :func:`solve` for ``m`` rows: three ``(m, m)`` matrices (the ADMM factor, the
+    polish's Jacobian and normal matrix) and nine vectors."""
+    return 3 * m * m + 9 * m
 
 
 @njit(cache=True, error_model="numpy")
@@ -96,7 +115,8 @@ def block_rows(kind):
 def project_primal(kind, mu, w, z, i):
     """``z[i:i+k] = P_K(w[i:i+k])``, the Euclidean projection on the block's cone: ``ℝ``, ``ℝ₊`` or
     ``K_μ = {‖x_T‖ ≤ μ x_N}``. On the cone's boundary (Boyd & Vandenberghe, *Convex Optimization*,
-    exercise 8.3(c), scaled by ``μ``): ``x_N = (w_N + μ ‖w_T‖) / (1 + μ²)``, ``x_T = μ x_N w_T / ‖w_T‖``."""
+    exercise 8.3(c), scaled by ``μ``): ``x_N = (w_N + μ ‖w_T‖) / (1 + μ²)``,
+    ``x_T = μ x_N w_T / ‖w_T‖``."""
     if kind == BILATERAL:
         z[i] = w[i]
         return
@@ -208,12 +228,160 @@ def largest_eigenvalue(G, m, v, w):
 
 
 @njit(cache=True, error_model="numpy")
+def natural_map(G, c, kinds, starts, mu, r, x, u, s, w, f):
+    """``f = x − P_K(x − r û)`` with ``u = G x + c``, ``û = u + s`` (De Saxcé's shift ``s``), and ``w`` the
+    point projected; returns ``‖f‖²``. ``f = 0`` exactly at a solution (Moreau: ``x ∈ K``, ``û ∈ K*``,
+    ``x ⊥ û``), ``r > 0`` (N·s per m/s) weighing velocities against impulses."""
+    m = c.shape[0]
+    velocities(G, c, x, u, m)
+    shift_and_residual(kinds, starts, mu, x, u, s)
+    for i in range(m):
+        w[i] = x[i] - r * (u[i] + s[i])
+    for b in range(kinds.shape[0]):
+        project_primal(kinds[b], mu[b], w, f, starts[b])
+    norm = 0.0
+    for i in range(m):
+        f[i] = x[i] - f[i]
+        norm += f[i] * f[i]
+    return norm
+
+
+@njit(cache=True, error_model="numpy")
+def natural_map_jacobian(G, kinds, starts, mu, r, u, w, J):
+    """An element of the generalized Jacobian of :func:`natural_map` at the point that gave ``u`` and ``w``:
+    ``J = I − D (I − r (I + S) G)``, with ``S = ∂s/∂u`` (the row ``μ u_Tᵀ/‖u_T‖`` on a contact's normal,
+    zero where ``u_T = 0``) and ``D = ∂P_K/∂w`` block by block: 1 or 0 for a row of ``ℝ`` or ``ℝ₊``; for
+    ``K_μ``, ``I`` inside, 0 in the polar cone, and on the boundary part, with ``t̂ = w_T/‖w_T‖``,
+    ``k = 1/(1 + μ²)``, ``a = k (w_N + μ ‖w_T‖)`` (the projection ``a (1, μ t̂)``):
+
+        D = [[k, μ k t̂ᵀ], [μ k t̂, μ² k t̂ t̂ᵀ + (μ a/‖w_T‖)(I − t̂ t̂ᵀ)]]
+
+    (J.-S. Pang & D. Sun's derivative of the second-order cone projection; Hayashi, Yamashita &
+    Fukushima, *SIAM J. Optim.* 15, 2005, §4)."""
+    m = u.shape[0]
+    # J = I − r (I + S) G, row by row
+    for i in range(m):
+        for j in range(m):
+            J[i, j] = (1.0 if i == j else 0.0) - r * G[i, j]
+    for b in range(kinds.shape[0]):
+        i = starts[b]
+        if kinds[b] == CONTACT:
+            tangential = math.sqrt(u[i + 1] * u[i + 1] + u[i + 2] * u[i + 2])
+            if tangential > 0.0:
+                # S: ∂(μ‖u_T‖)/∂u_T = μ u_T/‖u_T‖ on the normal row
+                e1, e2 = mu[b] * u[i + 1] / tangential, mu[b] * u[i + 2] / tangential
+                for j in range(m):
+                    J[i, j] -= r * (e1 * G[i + 1, j] + e2 * G[i + 2, j])
+    # J ← I − D J, block by block
+    for b in range(kinds.shape[0]):
+        kind, i = kinds[b], starts[b]
+        if kind == BILATERAL or (kind == UNILATERAL and w[i] > 0.0):
+            for j in range(m):
+                J[i, j] = (1.0 if i == j else 0.0) - J[i, j]
+        elif kind == UNILATERAL:
+            for j in range(m):
+                J[i, j] = 1.0 if i == j else 0.0
+        else:
+            n, t1, t2 = w[i], w[i + 1], w[i + 2]
+            t = math.sqrt(t1 * t1 + t2 * t2)
+            friction = mu[b]
+            if t <= friction * n:
+                d00, d01, d02, d11, d12, d22 = 1.0, 0.0, 0.0, 1.0, 0.0, 1.0
+            elif friction * t <= -n:
+                d00, d01, d02, d11, d12, d22 = 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+            else:
+                k = 1.0 / (1.0 + friction * friction)
+                a = k * (n + friction * t)
+                h1, h2 = t1 / t, t2 / t
+                ratio = friction * a / t
+                d00, d01, d02 = k, friction * k * h1, friction * k * h2
+                d11 = friction * friction * k * h1 * h1 + ratio * (1.0 - h1 * h1)
+                d12 = friction * friction * k * h1 * h2 - ratio * h1 * h2
+                d22 = friction * friction * k * h2 * h2 + ratio * (1.0 - h2 * h2)
+            for j in range(m):
+                b0, b1, b2 = J[i, j], J[i + 1, j], J[i + 2, j]
+                J[i, j] = (1.0 if i == j else 0.0) - (d00 * b0 + d01 * b1 + d02 * b2)
+                J[i + 1, j] = (1.0 if i + 1 == j else 0.0) - (d01 * b0 + d11 * b1 + d12 * b2)
+                J[i + 2, j] = (1.0 if i + 2 == j else 0.0) - (d02 * b0 + d12 * b1 + d22 * b2)
+
+
+@njit(cache=True, error_model="numpy")
+def polish(G, c, kinds, starts, mu, r, steps, tolerance, x, u, s, w, f, dx, trial, J, H):
+    """At most ``steps`` Levenberg–Marquardt steps on the natural map ``f(x) = 0`` (:func:`natural_map`)
+    from ``x``, a semismooth Newton method (L. Qi & J. Sun, *Math. Program.* 58, 1993) damped so that
+    it also solves singular problems (N. Yamashita & M. Fukushima, *Computing Suppl.* 15, 2001):
+
+        (Jᵀ J + λ I) δ = −Jᵀ f,   x ← x + t δ,
+
+    ``J`` from :func:`natural_map_jacobian`, ``λ = ‖f‖/‖x‖`` (dimensionless, as ``f`` is in impulse
+    units; between :data:`DAMPING_FLOOR` and :data:`DAMPING`), ``t`` halved until ``‖f‖²`` falls by
+    ``10⁻⁴ t`` of itself (Armijo).
+    Along singular directions of ``G`` the damping keeps the step small: among equal solutions, the one
+    near the start. Stops when the natural residual at ``P_K(x)`` is within ``tolerance`` or no step
+    decreases ``‖f‖``. Returns ``(steps taken, residual)``, with ``P_K(x)`` in ``trial`` and the velocities
+    there in ``u``. ``J``, ``H (m, m)``, the vectors ``(m,)`` are scratch."""
+    m = c.shape[0]
+    norm = natural_map(G, c, kinds, starts, mu, r, x, u, s, w, f)
+    taken = 0
+    for step in range(steps):
+        natural_map_jacobian(G, kinds, starts, mu, r, u, w, J)
+        size = 0.0
+        for i in range(m):
+            size += x[i] * x[i]
+        damping = math.sqrt(norm / size) if size > 0.0 else 1.0
+        damping = larger(DAMPING if damping > DAMPING else damping, DAMPING_FLOOR)
+        # H = Jᵀ J + λ I (lower triangle), δ = −Jᵀ f
+        for i in range(m):
+            for j in range(i + 1):
+                total = 0.0
+                for k in range(m):
+                    total += J[k, i] * J[k, j]
+                H[i, j] = total
+            H[i, i] += damping
+            total = 0.0
+            for k in range(m):
+                total += J[k, i] * f[k]
+            dx[i] = -total
+        if not cholesky(H, m):
+            break
+        cholesky_solve(H, m, dx)
+        taken += 1
+        t, accepted = 1.0, False
+        for _ in range(LINE_SEARCH):
+            for i in range(m):
+                trial[i] = x[i] + t * dx[i]
+            new = natural_map(G, c, kinds, starts, mu, r, trial, u, s, w, f)
+            if new <= (1.0 - 1e-4 * t) * norm:
+                accepted = True
+                break
+            t *= 0.5
+        if not accepted:
+            break
+        for i in range(m):
+            x[i] = trial[i]
+        norm = new
+        # done once the natural residual at P_K(x) is
+        for b in range(kinds.shape[0]):
+            project_primal(kinds[b], mu[b], x, trial, starts[b])
+        velocities(G, c, trial, u, m)
+        if shift_and_residual(kinds, starts, mu, trial, u, s) <= tolerance:
+            break
+        # (u, s, w, f at x again, for the next Jacobian)
+        natural_map(G, c, kinds, starts, mu, r, x, u, s, w, f)
+    for b in range(kinds.shape[0]):
+        project_primal(kinds[b], mu[b], x, trial, starts[b])
+    velocities(G, c, trial, u, m)
+    return taken, shift_and_residual(kinds, starts, mu, trial, u, s)
+
+
+@njit(cache=True, error_model="numpy")
 def solve(G, c, kinds, starts, mu, tolerance, max_iterations, x, u, ws):
     """Impulses ``x (m,)`` (N·s, in: the warm start; out: the solution) and velocities ``u = G x + c`` (m/s,
-    out) of the contact problem of the module docstring, by ADMM. Returns ``(status, iterations, residual)``:
-    :data:`CONVERGED` when the natural residual (m/s) is at most ``tolerance``, else :data:`MAX_ITERATIONS`
-    after ``max_iterations`` iterations (the last iterate returned), :data:`NOT_FINITE` (``x``, ``u`` and
-    the residual NaN) or :data:`INDEFINITE`.
+    out) of the contact problem of the module docstring, by ADMM and Newton steps. Returns
+    ``(status, iterations, residual)``: :data:`CONVERGED` when the natural residual (m/s) is at most
+    ``tolerance``, else :data:`MAX_ITERATIONS` after ``max_iterations`` iterations (ADMM iterations and
+    Newton steps; the last iterate returned), :data:`NOT_FINITE` (``x``, ``u`` and the residual NaN) or
+    :data:`INDEFINITE`.
 
     ``G (m, m)`` symmetric positive semi-definite (m/s per N·s), ``c (m,)`` (m/s); block ``b`` has kind
     ``kinds[b]`` (:data:`BILATERAL`, :data:`UNILATERAL`, :data:`CONTACT`) and starts at row
@@ -221,12 +389,18 @@ def solve(G, c, kinds, starts, mu, tolerance, max_iterations, x, u, ws):
     contact blocks, ≥ 0); ``ws`` of :func:`workspace_size` ``(m)`` floats."""
     m = c.shape[0]
     F = ws[: m * m].reshape((m, m))
-    vectors = ws[m * m :]
+    J = ws[m * m : 2 * m * m].reshape((m, m))
+    H = ws[2 * m * m : 3 * m * m].reshape((m, m))
+    vectors = ws[3 * m * m :]
     z = vectors[:m]
     y = vectors[m : 2 * m]
     s = vectors[2 * m : 3 * m]
     rhs = vectors[3 * m : 4 * m]
     w = vectors[4 * m : 5 * m]
+    point = vectors[5 * m : 6 * m]
+    f = vectors[6 * m : 7 * m]
+    dx = vectors[7 * m : 8 * m]
+    trial = vectors[8 * m : 9 * m]
     finite = all_finite(c) and all_finite(x) and all_finite(mu)
     for i in range(m):
         finite = finite and all_finite(G[i])
@@ -237,8 +411,11 @@ def solve(G, c, kinds, starts, mu, tolerance, max_iterations, x, u, ws):
         return NOT_FINITE, 0, math.nan
 
     # the warm start projected on K; y the velocity there, û = G z + c + s
+    warm = False
     for b in range(kinds.shape[0]):
         project_primal(kinds[b], mu[b], x, z, starts[b])
+    for i in range(m):
+        warm = warm or z[i] != 0.0
     velocities(G, c, z, u, m)
     residual = shift_and_residual(kinds, starts, mu, z, u, s)
     for i in range(m):
@@ -258,15 +435,39 @@ def solve(G, c, kinds, starts, mu, tolerance, max_iterations, x, u, ws):
 
     status = MAX_ITERATIONS
     iteration = 0
+    polish_at = 0 if warm else POLISH_FIRST
     while iteration < max_iterations:
+        if iteration >= polish_at:
+            # Newton steps from z, kept if they bring the residual down; ADMM goes on from there otherwise
+            polish_at = 2 * iteration if iteration > POLISH_FIRST else 2 * POLISH_FIRST
+            for i in range(m):
+                point[i] = z[i]
+            steps = max_iterations - iteration if max_iterations - iteration < POLISH_STEPS else POLISH_STEPS
+            taken, polished = polish(G, c, kinds, starts, mu, 1.0 / largest, steps, tolerance, point, u, s, w, f, dx,
+                                     trial, J, H)
+            iteration += taken
+            if polished < residual:
+                residual = polished
+                for i in range(m):
+                    z[i] = trial[i]
+                    x[i] = z[i]
+                    y[i] = u[i] + s[i]
+            else:
+                velocities(G, c, z, u, m)
+                shift_and_residual(kinds, starts, mu, z, u, s)
+            if residual <= tolerance:
+                status = CONVERGED
+                break
+            if iteration >= max_iterations:
+                break
         iteration += 1
-        # (G + (ρ + η) I) x⁺ = −(c + s) + y + ρ z + η x
+        # (G + (ρ + η) I) x̃ = −(c + s) + y + ρ z + η x
         for i in range(m):
             rhs[i] = -(c[i] + s[i]) + y[i] + rho * z[i] + eta * x[i]
         cholesky_solve(F, m, rhs)
-        # z⁺ = P_K(x⁺ − y/ρ)
+        # x⁺ = α x̃ + (1 − α) z,  z⁺ = P_K(x⁺ − y/ρ)
         for i in range(m):
-            x[i] = rhs[i]
+            x[i] = RELAX * rhs[i] + (1.0 - RELAX) * z[i]
             w[i] = x[i] - y[i] / rho
         for b in range(kinds.shape[0]):
             project_primal(kinds[b], mu[b], w, z, starts[b])
