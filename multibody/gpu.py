@@ -24,6 +24,12 @@ float64 arrays whose leading axes are the batch's or of one state; values are no
 device (a quaternion is not checked for unit norm; a non-finite input, or a singular mass matrix in
 forward dynamics, gives NaN where the CPU path warns or raises). ``numba.cuda`` is imported on first use
 only. This lives in the ``[gpu]`` extra (``numba-cuda``).
+
+:func:`multibody.simulate` given CUDA arrays ``q0``, ``v0`` runs the compiled fixed-step run of
+:mod:`multibody.kernels.stepping` the same way, one trajectory per thread (:func:`advance_batch`): the launcher
+calls :func:`multibody.kernels.stepping.advance`, which the CUDA target compiles with everything beneath it (the
+chart maps, ABA or the constrained step and the projection of :mod:`multibody.kernels.kkt`, the PD law), and a
+``numba.njit`` controller as a device function.
 """
 
 from __future__ import annotations
@@ -213,3 +219,93 @@ def like(result, template):
         import torch
         return torch.as_tensor(result, device=template.device)
     return result
+
+
+# ----------------------------------------------------------------------------- the compiled run of simulate
+
+
+def to_host(x):
+    """A CUDA array's values as a NumPy array (a copy from the device)."""
+    cuda = _cuda()
+    if not hasattr(x, "__cuda_ndarray__"):
+        x = cuda.as_cuda_array(x)
+    return x.copy_to_host()
+
+
+def run_source(advance, controller):
+    _cuda()
+
+    def launch(joints, reals, frames, program, times, plan, control, states, io, rows, WS):
+        thread = cuda.grid(1)
+        for j in range(thread, rows.shape[0], cuda.gridsize(1)):
+            r = rows[j]
+            # one control row serves every trajectory, as in the CPU's loop over trajectories
+            advance(controller, joints, reals, frames, program, times, plan, control[r if control.shape[0] > 1 else 0],
+                    states[r], io[r], WS[thread])
+
+    return launch
+
+
+#: The key of a ``numba.njit`` controller's launcher in the controller's own ``__dict__``.
+_LAUNCHER_KEY = "_multibody_cuda_run"
+
+
+@functools.lru_cache(maxsize=None)
+def _uncontrolled_launcher():
+    from .kernels import stepping
+    return _cuda().jit(run_source(stepping.advance, None))
+
+
+def run_launcher(run):
+    """The ``cuda.jit`` launcher of a compiled run (:class:`multibody.integrators.CompiledRun`), compiled on first
+    launch: :func:`multibody.kernels.stepping.advance` with no controller function (the run's controller is none,
+    constant or :class:`multibody.PD`, read from its plan), or with its ``numba.njit`` controller as a device
+    function. The launcher of a controller lives in the controller's ``__dict__`` (as :func:`device_tree`'s copy
+    in the model's): it is compiled once per controller, and dies with it.
+
+    Under ``NUMBA_ENABLE_CUDASIM=1`` the launcher calls the CPU's compiled ``advance`` with the run's first-class
+    controller (:attr:`~multibody.integrators.CompiledRun.pointer`), as :func:`_simulated` does for the kernels."""
+    from numba import config
+
+    from . import driver, integrators
+    from .kernels import stepping
+    cuda = _cuda()
+    if config.ENABLE_CUDASIM:
+        entry = driver.entry_point(stepping.advance, dict(integrators.ENTRY_POINTS)[stepping.advance])
+        return cuda.jit(run_source(_simulated(entry), run.pointer))
+    if run.kind != stepping.FUNCTION:
+        return _uncontrolled_launcher()
+    function = run.controller.function
+    launcher = function.__dict__.get(_LAUNCHER_KEY)
+    if launcher is None:
+        launcher = function.__dict__[_LAUNCHER_KEY] = cuda.jit(run_source(stepping.advance, function))
+    return launcher
+
+
+def launch(run, states, io, rows):
+    """The steps ``io[r, IO_STEP]`` up to ``io[r, IO_STOP]`` of the trajectories ``rows`` of a compiled ``run`` on the
+    GPU, one trajectory per thread (:func:`multibody.kernels.stepping.advance`, each status in its ``io`` row), on
+    device arrays: ``states (N, n, nq + nv)`` and ``io (N, io_size)`` float64, filled in place, and ``rows (k,)``
+    int64. Returns at once (the launch is asynchronous); a thread runs ``rows[j]`` for ``j = thread, thread +
+    threads, …`` in a workspace row of its own."""
+    cuda = _cuda()
+    count = rows.shape[0]
+    if not count:
+        return
+    threads = min(count, MAX_THREADS)
+    blocks = -(-threads // THREADS_PER_BLOCK)
+    workspace = cuda.device_array((blocks * THREADS_PER_BLOCK, max(1, run.workspace)))
+    arrays = [cuda.to_device(np.ascontiguousarray(x)) for x in (run.tree.joints, run.tree.reals, run.frames,
+                                                                 run.program, run.times, run.plan, run.control)]
+    run_launcher(run)[blocks, THREADS_PER_BLOCK](*arrays, states, io, rows, workspace)
+
+
+def advance_batch(run, states, io, rows):
+    """:meth:`multibody.integrators.CompiledRun.advance_batch` on the GPU: host arrays ``states (N, n, nq + nv)``,
+    ``io (N, io_size)`` (float64) copied to the device, :func:`launch` of the trajectories ``rows`` (int64), and
+    both copied back in place."""
+    cuda = _cuda()
+    device_states, device_io = cuda.to_device(states), cuda.to_device(io)
+    launch(run, device_states, device_io, cuda.to_device(np.ascontiguousarray(rows, dtype=np.int64)))
+    device_states.copy_to_host(states)
+    device_io.copy_to_host(io)

@@ -43,10 +43,11 @@ from dataclasses import fields, replace
 import numpy as np
 from scipy.integrate import BDF, DOP853, LSODA, RK23, RK45, Radau
 
-from . import driver
+from . import driver, gpu
 from .constrained import ConstrainedSystem, ConstraintError, ModelSystem, as_system
 from .constraints import CompiledRows
-from .integrators import TABLEAUS, CompiledController, CompiledRun, PDController, as_controller, tableau_step
+from .integrators import (PD, TABLEAUS, CompiledController, CompiledRun, PDController, as_controller,
+                          is_compiled_controller, tableau_step)
 from .kernels import aba, kkt, stepping
 from .model import all_finite
 from .spatial import matvec, transpose
@@ -172,6 +173,14 @@ def simulate(system, q0, v0, t_final, *, dt=None, method="RK45", tau=None, rtol=
             systems, and the adaptive methods, raise ``ValueError``. The trajectories equal those simulated
             one at a time; one that fails (a non-finite state, a step without solution) stops and is marked
             in ``Trajectory.status``, and the others go on (one ``RuntimeWarning`` says how many stopped).
+            CUDA arrays (CuPy, PyTorch or Numba device arrays) ``q0 (N, nq)``, ``v0 (N, nv)`` run the same
+            compiled step on the GPU, one trajectory per thread (:func:`multibody.gpu.advance_batch`), and the
+            result is the same ``Trajectory`` of host (NumPy) arrays: a fixed-step method, joint forces
+            ``None``, an array, :class:`multibody.PD` or a ``numba.njit`` function, and a ``Model`` or a
+            ``ConstrainedSystem`` with built-in constraints; anything else (a Python callable, an adaptive or the
+            variational method, user constraints, one initial state) raises ``ValueError``. The initial states'
+            projection onto the constraints, a step that starts near a singular configuration of them and the
+            steps after it, and the outputs' multipliers, energies and residuals are computed on the host.
         t_final: end time (s).
         dt: output interval (s), and the step of the fixed-step methods; default ``(t_final − t0) / 500``.
         method: ``"RK45"``, ``"DOP853"``, ``"Radau"`` (or ``"RK23"``, ``"BDF"``, ``"LSODA"``); the fixed-step
@@ -232,6 +241,10 @@ def simulate(system, q0, v0, t_final, *, dt=None, method="RK45", tau=None, rtol=
             (``limits="error"``) a joint left its limits; ``.trajectory`` holds the part computed so far (up to
             the last output time before the failure).
     """
+    device = gpu.is_device_array(q0) or gpu.is_device_array(v0)
+    if device:
+        _check_device_run(method, tau)
+        q0, v0 = (gpu.to_host(x) if gpu.is_device_array(x) else x for x in (q0, v0))
     if method == "variational":  # the discrete Hamilton's principle, in its own module
         from . import variational
         tau = as_controller(tau, system.system if isinstance(system, ConstrainedSystem) else as_system(system))
@@ -250,8 +263,17 @@ def simulate(system, q0, v0, t_final, *, dt=None, method="RK45", tau=None, rtol=
     model = getattr(mechanical, "model", None)  # limits and damping belong to a Model
     q, v = np.array(q0, dtype=float), np.array(v0, dtype=float)
     batch = _batch_size(q, v, nq, nv)
+    if device and batch is None:
+        raise ValueError(f"simulate on CUDA arrays integrates a batch, one trajectory per GPU thread: q0 (N, {nq}), "
+                         f"v0 (N, {nv}); got one state, q0 {q.shape} and v0 {v.shape} (simulate one state from "
+                         "NumPy arrays)")
     if batch is not None:
-        _check_batchable(constrained, method, q.shape, v.shape)
+        try:
+            _check_batchable(constrained, method, q.shape, v.shape)
+        except ValueError as error:
+            if device:
+                raise ValueError(f"simulate on CUDA arrays: {error}") from None
+            raise
     elif q.shape != (nq,) or v.shape != (nv,):
         raise ValueError(f"q0 and v0 must have shapes ({nq},) and ({nv},), got {q.shape} and {v.shape}")
     _require_finite(mechanical, "q0", q)
@@ -278,7 +300,8 @@ def simulate(system, q0, v0, t_final, *, dt=None, method="RK45", tau=None, rtol=
                             times) if data else None
         return _simulate_batch(constrained, charts, np.broadcast_to(q, (batch, nq)), np.broadcast_to(v, (batch, nv)),
                                times, torque, callable(tau), TABLEAUS[method], run, project=project,
-                               projection_tolerance=projection_tolerance, limits=limits, progress=progress)
+                               projection_tolerance=projection_tolerance, limits=limits, progress=progress,
+                               device=device)
 
     q_projected, v_projected, conditioning = constrained._projection(q, v, t0)
     dq, dv = np.abs(q_projected - q), np.abs(v_projected - v)
@@ -983,6 +1006,18 @@ _FAILURES = (SimulationError, ConstraintError, np.linalg.LinAlgError, ValueError
 _OUTPUT_BLOCK = 1 << 16
 
 
+def _check_device_run(method, tau):
+    """``ValueError`` unless :func:`simulate` can run ``method`` and the joint forces ``tau`` on the GPU: a fixed-step
+    method, and joint forces that are data or compiled (the GPU does not call Python)."""
+    if method not in FIXED_STEP_METHODS:
+        raise ValueError(f"simulate on CUDA arrays runs the fixed-step methods {FIXED_STEP_METHODS}, one trajectory "
+                         f"per GPU thread; method={method!r} is not one (it runs on the host: pass NumPy arrays)")
+    if callable(tau) and not isinstance(tau, PD) and not is_compiled_controller(tau):
+        raise ValueError("simulate on CUDA arrays takes joint forces tau that the GPU computes: None, an array, mb.PD "
+                         "or a numba.njit function f(t, q, v, out); a Python callable runs on the host (pass NumPy "
+                         "arrays, or write it as a numba.njit function)")
+
+
 def _check_batchable(constrained, method, q_shape, v_shape):
     """``ValueError`` unless ``constrained`` can integrate a batch of initial states in lockstep with ``method``."""
     if method not in FIXED_STEP_METHODS:
@@ -1024,7 +1059,7 @@ def _by_state(f, arrays, shape):
 
 
 def _simulate_batch(constrained, charts, q0, v0, times, torque, state_dependent, tableau, run, *, project,
-                    projection_tolerance, limits, progress):
+                    projection_tolerance, limits, progress, device=False):
     """:func:`simulate` from ``N`` initial states ``q0 (N, nq)``, ``v0 (N, nv)`` at the output ``times (n,)`` (s),
     one step of ``tableau`` per output interval. With a compiled ``run`` (:class:`~multibody.integrators.CompiledRun`:
     joint forces that are data or compiled), each trajectory runs on its own in compiled calls on all cores, and a
@@ -1037,7 +1072,8 @@ def _simulate_batch(constrained, charts, q0, v0, times, torque, state_dependent,
     that does not converge) stops: its status says when and why, its outputs from the next output time on are NaN,
     and the others go on. ``torque(t, q (N, nq), v (N, nv))`` sees every trajectory, a stopped one at its last
     state (one that never started, whose initial state cannot be projected, at rest in the neutral
-    configuration). The initial states are finite (:func:`simulate` checks them).
+    configuration). The initial states are finite (:func:`simulate` checks them). ``device``: the compiled run's
+    first pass over every trajectory runs on the GPU (:func:`_run_batch`).
     """
     mechanical = constrained.system
     nq, nv, m = constrained.nq, constrained.nv, constrained.num_rows
@@ -1165,7 +1201,7 @@ def _simulate_batch(constrained, charts, q0, v0, times, torque, state_dependent,
                 python_step(k, rows)
                 bar.update(times[k])
         else:
-            _run_batch(run, mechanical, states, last, stop, near, fail, python_step, times, bar)
+            _run_batch(run, mechanical, states, last, stop, near, fail, python_step, times, bar, device)
     finally:
         bar.close()
     trajectory = _batch_trajectory(constrained, times, q_out, v_out, stop, last, torque, state_dependent, status,
@@ -1177,17 +1213,40 @@ def _simulate_batch(constrained, charts, q0, v0, times, torque, state_dependent,
     return trajectory
 
 
-def _run_batch(run, system, states, last, stop, near, fail, python_step, times, bar):
+def _run_batch(run, system, states, last, stop, near, fail, python_step, times, bar, device=False):
     """The steps of a batch by its compiled ``run`` (:meth:`~multibody.integrators.CompiledRun.advance_batch`), each
     trajectory on its own from its next step, in calls of about :data:`CHUNK_SECONDS`. A step that a trajectory's run
     leaves to Python (it starts near a singular configuration, or a stage or a projection the compiled step did not
     solve) is taken by ``python_step(k, rows)`` for the trajectories at that step, which then go on compiled.
     ``states (N, n, nq + nv)``, ``last (N, nq + nv)``, ``stop (N,)``, ``near (N,)`` and the failures (``fail(r, k,
-    reason)``) as :func:`_simulate_batch` keeps them; ``system``: the mechanical system (for messages)."""
+    reason)``) as :func:`_simulate_batch` keeps them; ``system``: the mechanical system (for messages).
+
+    ``device``: every trajectory's steps up to the first it leaves to Python run first, in one launch on the GPU
+    (:func:`multibody.gpu.advance_batch`, one trajectory per thread); the steps left after that run here."""
     count, n = states.shape[:2]
     io = np.zeros((count, run.io.size))
     following = np.ones(count, dtype=np.int64)  # each trajectory's next step
     handed = np.zeros(count, dtype=bool)  # whose next step the run left to Python
+
+    def reports(rows):
+        """Where the run of the trajectories ``rows`` stopped (their ``io`` rows), and why."""
+        following[rows] = io[rows, stepping.IO_STEP]
+        last[rows] = states[rows, following[rows] - 1]
+        for r in rows:
+            status = int(io[r, stepping.IO_STATUS])
+            if status == stepping.NEAR_SINGULAR:
+                near[r] = True
+            elif status in _RUN_FAILURES:
+                states[r, following[r]] = np.nan
+                fail(r, following[r], str(_RUN_FAILURES[status](system, io[r], run.plan)))
+            elif status != stepping.COMPLETED:
+                handed[r] = True
+
+    if device:
+        rows = np.flatnonzero((stop == n) & ~near)
+        io[rows, stepping.IO_STEP], io[rows, stepping.IO_STOP] = 1, n
+        gpu.advance_batch(run, states, io, rows)
+        reports(rows)
     chunk = _FIRST_CHUNK
     while True:
         going = (stop == n) & (following < n)
@@ -1198,17 +1257,7 @@ def _run_batch(run, system, states, last, stop, near, fail, python_step, times, 
             started = time.perf_counter()
             run.advance_batch(states, io, rows)
             chunk = _next_chunk(chunk, time.perf_counter() - started)
-            following[rows] = io[rows, stepping.IO_STEP]
-            last[rows] = states[rows, following[rows] - 1]
-            for r in rows:
-                status = int(io[r, stepping.IO_STATUS])
-                if status == stepping.NEAR_SINGULAR:
-                    near[r] = True
-                elif status in _RUN_FAILURES:
-                    states[r, following[r]] = np.nan
-                    fail(r, following[r], str(_RUN_FAILURES[status](system, io[r], run.plan)))
-                elif status != stepping.COMPLETED:
-                    handed[r] = True
+            reports(rows)
         going = (stop == n) & (following < n)
         bar.update(times[int(following[stop == n].min(initial=n)) - 1])
         waiting = np.flatnonzero(going & (near | handed))

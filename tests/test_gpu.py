@@ -84,7 +84,9 @@ SIMULATED = textwrap.dedent(r"""
 """)
 
 
-def _run(source, env_extra=None, timeout=240):
+def run_python(source, env_extra=None, timeout=240):
+    """``source`` in a fresh Python process of this repository (``TESTS``: this folder), with ``env_extra`` added to
+    its environment."""
     env = dict(os.environ, **(env_extra or {}))
     env.pop("NUMBA_DISABLE_JIT", None)
     return subprocess.run([sys.executable, "-c", f"TESTS = {HERE!r}\n" + source], capture_output=True, text=True,
@@ -92,7 +94,7 @@ def _run(source, env_extra=None, timeout=240):
 
 
 def test_device_arrays_match_cpu_kernels_under_the_cuda_simulator():
-    result = _run(SIMULATED, {"NUMBA_ENABLE_CUDASIM": "1"})
+    result = run_python(SIMULATED, {"NUMBA_ENABLE_CUDASIM": "1"})
     if "No module named 'numba.cuda" in result.stderr:
         pytest.skip("numba.cuda is not installed")
     assert "GPU-SIMULATED-OK" in result.stdout, result.stdout + result.stderr
@@ -129,7 +131,7 @@ PTX = textwrap.dedent(r"""
 
 
 def test_kernels_compile_for_the_cuda_target():
-    result = _run(PTX)
+    result = run_python(PTX)
     if "NO-NVVM" in result.stdout or "No module named 'numba.cuda" in result.stderr:
         pytest.skip("no CUDA compiler toolchain (libNVVM, NVRTC): " + result.stdout.strip())
     assert "GPU-PTX-OK" in result.stdout, result.stdout + result.stderr

@@ -1,0 +1,192 @@
+"""``mb.simulate`` on CUDA arrays (:func:`multibody.gpu.advance_batch`), with no GPU.
+
+* Under Numba's CUDA simulator (``NUMBA_ENABLE_CUDASIM=1``, in a subprocess so that the rest of the suite keeps
+  the real ``numba.cuda``): a batch simulated from device arrays ``q0``, ``v0`` equals the CPU's batched run to
+  1e-12 in every array of the ``Trajectory`` (``q``, ``v``, ``λ``, energy, residual, statuses), for Panda under RK4
+  and ``mb.PD`` (gains and references per trajectory, URDF joint damping), a four-bar linkage closed by a built-in
+  loop closure under semi-implicit Euler and a ``numba.njit`` controller, and a double pendulum under explicit Euler
+  with constant joint forces. Each device run takes its steps in one launch of the GPU run (counted) and none in
+  the CPU's compiled run. The simulator runs the launcher as Python, one thread per trajectory, and the arithmetic
+  as the CPU's compiled ``advance``: this checks the launch (rows, threads, workspaces, transfers) and the routing.
+  What the GPU path does not run (a Python callable, adaptive and variational methods, user constraints, one
+  state) raises ``ValueError`` saying so.
+* Compiled for the CUDA target (PTX for sm_90, no device needed): the run's launcher, with
+  :func:`multibody.kernels.stepping.advance`, the constrained step, the projection and a ``numba.njit`` controller
+  beneath it. Skipped where the CUDA toolchain is not found, or where ``numba.cuda`` is Numba's built-in target,
+  which does not compile the builtin ``max`` of two floats that the kernels use (the ``[gpu]`` extra's
+  ``numba-cuda`` does); about 2.5 minutes of compiling on one core.
+"""
+
+from __future__ import annotations
+
+import os
+import textwrap
+
+import pytest
+
+from test_gpu import run_python
+
+SIMULATED = textwrap.dedent(r"""
+    import os, sys, warnings
+    os.environ["NUMBA_ENABLE_CUDASIM"] = "1"
+    sys.path.insert(0, TESTS)
+    import numba
+    import numpy as np
+    from numba import config, cuda
+    import multibody as mb
+    from multibody import gpu
+    from multibody.integrators import CompiledRun
+    assert config.ENABLE_CUDASIM
+
+    # count the device runs and the CPU's compiled runs
+    calls = {"device": 0, "cpu": 0}
+    device_run, cpu_run = gpu.advance_batch, CompiledRun.advance_batch
+    def counted_device(*args):
+        calls["device"] += 1
+        return device_run(*args)
+    def counted_cpu(self, *args, **kwargs):
+        calls["cpu"] += 1
+        return cpu_run(self, *args, **kwargs)
+    gpu.advance_batch, CompiledRun.advance_batch = counted_device, counted_cpu
+
+    def same(system, q0, v0, t_final, **options):
+        calls.update(device=0, cpu=0)
+        device = mb.simulate(system, *(cuda.to_device(np.ascontiguousarray(x)) for x in (q0, v0)), t_final, **options)
+        assert calls == {"device": 1, "cpu": 0}, calls
+        host = mb.simulate(system, q0, v0, t_final, **options)
+        assert calls["cpu"] >= 1, calls
+        assert type(device.q) is np.ndarray and device.q.shape == host.q.shape, (type(device.q), device.q.shape)
+        assert device.status == host.status, (device.status, host.status)
+        for name in ("t", "q", "v", "lam", "energy", "residual"):
+            a, b = getattr(device, name), getattr(host, name)
+            assert a.shape == b.shape, (name, a.shape, b.shape)
+            scale = max(1.0, float(np.nanmax(np.abs(b)))) if b.size else 1.0
+            err = float(np.nanmax(np.abs(a - b))) if a.size else 0.0
+            assert np.array_equal(np.isnan(a), np.isnan(b)) and err <= 1e-12 * scale, (name, err)
+        return device
+
+    rng = np.random.default_rng(5)
+    # Panda, RK4, a PD law with gains and references per trajectory, and the URDF's joint damping
+    panda = mb.robots.load("panda")
+    n = 3
+    q0 = panda.random_configuration(rng, (n,))
+    v0 = 0.1 * rng.standard_normal((n, panda.nv))
+    pd = mb.PD(kp=50.0 + 10.0 * rng.random((n, panda.nv)), kd=5.0, q_ref=panda.random_configuration(rng, (n,)))
+    run = same(panda, q0, v0, 0.004, dt=0.001, method="RK4", tau=pd, joint_damping=True, limits="ignore")
+    assert run.q.shape == (n, 5, panda.nq) and all(run.completed), run.status
+    print("PANDA-PD-OK")
+
+    # a four-bar linkage closed by a built-in loop closure, semi-implicit Euler, a numba.njit controller
+    model = mb.robots.load("four_bar")
+    in_plane = mb.spatial.pose_from_xyz_rpy(rpy=(np.pi / 2, 0.0, 0.0))
+    four_bar = mb.ConstrainedSystem(model, [mb.LoopClosure("coupler_tip", "rocker_tip", frame_a=in_plane,
+                                                           kind="planar")])
+    guess = np.array([-np.pi / 3, 0.9, -1.4]) + 0.05 * rng.standard_normal((4, 3))
+    q0, v0 = four_bar.project(guess, rng.standard_normal((4, 3)))
+
+    @numba.njit
+    def spring(t, q, v, out):
+        for c in range(out.shape[0]):
+            out[c] = -2.0 * (q[c] + 0.5) - 0.3 * v[c] + np.sin(3.0 * t)
+
+    run = same(four_bar, q0, v0, 0.05, dt=0.01, method="semi-implicit Euler", tau=spring)
+    assert run.lam.shape == (4, 6, 2) and np.all(np.isfinite(run.lam)) and all(run.completed), run.status
+    print("FOUR-BAR-NJIT-OK")
+
+    # a double pendulum, explicit Euler: constant joint forces per trajectory, one initial velocity (a host array)
+    # for all; then a numba.njit controller whose joint forces are NaN past q[0] = 1.5, which stops trajectory 2 alone
+    # with the CPU's status
+    pendulum = mb.robots.load("double_pendulum")
+    q0 = np.clip(0.3 * rng.standard_normal((5, 2)), -1.0, 1.0)
+    v0 = rng.standard_normal(2)
+    calls.update(device=0, cpu=0)
+    device = mb.simulate(pendulum, cuda.to_device(q0), v0, 0.03, dt=0.01, method="Euler",
+                         tau=rng.standard_normal((5, 2)), limits="ignore")
+    assert calls == {"device": 1, "cpu": 0}, calls
+    same(pendulum, q0, np.broadcast_to(v0, (5, 2)).copy(), 0.03, dt=0.01, method="Euler",
+         tau=rng.standard_normal((5, 2)), limits="ignore")
+
+    @numba.njit
+    def fails_past(t, q, v, out):
+        out[0] = np.nan if q[0] > 1.5 else -q[0]
+
+    q0[2, 0] = 2.0
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        run = same(pendulum, q0, np.zeros((5, 2)), 0.03, dt=0.01, method="Euler", tau=fails_past, limits="ignore")
+    assert list(run.completed) == [True, True, False, True, True] and "joint forces" in run.status[2], run.status
+    assert sum("1 of 5 trajectories stopped early" in str(w.message) for w in caught) == 2, caught
+    print("PENDULUM-EULER-OK")
+
+    # what the GPU does not run
+    dq, dv = cuda.to_device(np.zeros((2, 2))), cuda.to_device(np.zeros((2, 2)))
+    refused = [
+        (dict(method="RK4", tau=lambda t, q, v: np.zeros((2, 2))), "a Python callable runs on the host"),
+        (dict(method="RK45"), "method='RK45' is not one"),
+        (dict(method="variational", dt=0.01), "method='variational' is not one"),
+    ]
+    for options, words in refused:
+        try:
+            mb.simulate(pendulum, dq, dv, 0.1, **options)
+        except ValueError as error:
+            assert words in str(error) and "CUDA arrays" in str(error), error
+        else:
+            raise AssertionError(f"{options} ran on the GPU")
+    ball = mb.robots.load("double_pendulum")
+    user = mb.ConstrainedSystem(ball, [mb.Holonomic(lambda q, t: q[:1] - 0.1, name="pinned")])
+    for system, q, v, words in ((user, dq, dv, "user constraints"),
+                                (pendulum, cuda.to_device(np.zeros(2)), cuda.to_device(np.zeros(2)), "got one state")):
+        try:
+            mb.simulate(system, q, v, 0.1, method="RK4")
+        except ValueError as error:
+            assert words in str(error) and "CUDA arrays" in str(error), error
+        else:
+            raise AssertionError(f"{words}: ran on the GPU")
+    print("GPU-SIMULATE-OK")
+""")
+
+
+def test_simulate_on_device_arrays_equals_the_cpu_batch_under_the_cuda_simulator():
+    result = run_python(SIMULATED, {"NUMBA_ENABLE_CUDASIM": "1"}, timeout=900)
+    if "No module named 'numba.cuda" in result.stderr:
+        pytest.skip("numba.cuda is not installed")
+    assert "GPU-SIMULATE-OK" in result.stdout, result.stdout + result.stderr
+
+
+PTX = textwrap.dedent(r"""
+    import types
+    import numba
+    from numba import cuda
+    from numba import types as nt
+    from multibody import gpu
+    from multibody.kernels import stepping
+    def probe(x):
+        x[0] = max(x[1], x[2])
+    try:  # the toolchain (libNVVM; NVRTC for numba-cuda), and a target that compiles max of two floats
+        cuda.compile_ptx(probe, (nt.float64[::1],), cc=(9, 0))
+    except Exception as e:
+        print("NO-TOOLCHAIN", type(e).__name__, str(e)[:200])
+        raise SystemExit(0)
+    # Device functions are compiled for the current device's compute capability: without a device, name one.
+    import numba.cuda.dispatcher as dispatcher
+    dispatcher.get_current_device = lambda: types.SimpleNamespace(compute_capability=(9, 0))
+
+    @numba.njit
+    def controller(t, q, v, out):
+        for c in range(out.shape[0]):
+            out[c] = -q[c] - 0.1 * v[c] * t
+
+    rows, vector = nt.float64[:, ::1], nt.float64[::1]
+    signature = (nt.int64[:, ::1], rows, rows, vector, vector, vector, rows, nt.float64[:, :, ::1], rows,
+                 nt.int64[::1], rows)
+    ptx, _ = cuda.compile_ptx(gpu.run_source(stepping.advance, controller), signature, cc=(9, 0))
+    assert ".entry" in ptx, ptx[:500]
+    print("GPU-RUN-PTX-OK", len(ptx))
+""")
+
+
+def test_the_run_compiles_for_the_cuda_target():
+    result = run_python(PTX, timeout=1200)
+    if "NO-TOOLCHAIN" in result.stdout or "No module named 'numba.cuda" in result.stderr:
+        pytest.skip("no CUDA toolchain that compiles the kernels (libNVVM, NVRTC, numba-cuda): " + result.stdout.strip())
+    assert "GPU-RUN-PTX-OK" in result.stdout, result.stdout + result.stderr
