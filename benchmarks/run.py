@@ -10,13 +10,15 @@ next to the same loop written on Pinocchio and MuJoCo's RK4 mj_step in C on the 
 evaluation of a closed chain of 40 parallelograms near its singular flat configuration; 4096
 double-pendulum and Panda trajectories by batched RK4 for 1 s at 1 kHz, against batched forward dynamics, and
 4096 Panda trajectories under mb.PD against mujoco.rollout on the same threads;
-with Dask installed, the overhead of chunks of 1e5 states on two local worker processes; and the time to
-load gymnasium's MJCF humanoid against MuJoCo's own compiler.
+with Dask installed, the overhead of chunks of 1e5 states on two local worker processes; on a CUDA GPU, Panda
+RNEA, CRBA and ABA states/s and batched RK4 trajectory-steps/s under mb.PD against the CPU (or one line saying no GPU
+was found); and the time to load gymnasium's MJCF humanoid against MuJoCo's own compiler.
 The table is printed and saved as JSON and Markdown.
 
     python benchmarks/run.py                      # the full table (several minutes)
     python benchmarks/run.py --quick              # small sizes, a smoke run
     python benchmarks/run.py --robots panda ur5 --sizes 1 4096
+    python benchmarks/run.py --gpu                # the GPU lines alone
 
 Times are the fastest of repeated samples (µs; see ``best_time``). The machine is shared and noisy:
 compare ratios within one run, not absolute numbers across runs.
@@ -517,30 +519,84 @@ def dask_line(chunk=100_000, chunks=4, budget=1.0):
     return f"Dask, 2 local worker processes, {chunks} chunks of {chunk} Panda states: " + "; ".join(parts)
 
 
-def gpu_line(n=1_000_000, budget=1.0):
-    """The benchmark line of the GPU (:mod:`multibody.gpu`): Panda RNEA, CRBA and ABA in states per second on ``n``
-    states already on the device (synchronised; the first, compiling call not timed), or that there is none."""
+def gpu_lines(n=1_000_000, trajectories=65536, duration=0.1, rate=1000.0, budget=1.0):
+    """The benchmark lines of the GPU (:mod:`multibody.gpu`), or one line saying why there are none.
+
+    Panda float64: RNEA, CRBA and ABA in states per second on ``n`` states already on the device (synchronised; the
+    first, compiling call not timed), beside the same batch of host arrays on every CPU thread; and ``trajectories``
+    batched RK4 trajectories under the PD of :func:`panda_pd_loop` for ``duration`` s at ``rate`` Hz from device
+    arrays, in trajectory-steps per second: ``mb.simulate`` end to end (the copies to and from the device and the
+    outputs' energies on the host included), the device run alone (the launch of :func:`multibody.gpu.launch`,
+    synchronised) and the CPU's batched ``mb.simulate`` on every thread, with the largest difference of their
+    final positions."""
     try:
         from numba import cuda
     except ImportError:
-        return "GPU: numba.cuda not installed (pip install 'multibody[gpu]')"
+        return ["GPU: numba.cuda not installed (pip install 'multibody[gpu]'); nothing measured on a GPU"]
     if not cuda.is_available():
-        return "GPU: not present"
+        return ["GPU: no CUDA device found (numba.cuda.is_available() is False); RNEA, CRBA, ABA and batched RK4 "
+                "not measured on a GPU"]
+    from multibody import gpu
+
     model = load(os.path.join(example_robot_data(), ROBOTS["panda"][0]))
     rng = np.random.default_rng(4)
-    q = cuda.to_device(model.random_configuration(rng, (n,)))
-    v, x = (cuda.to_device(rng.standard_normal((n, model.nv))) for _ in range(2))
+    host = (model.random_configuration(rng, (n,)), rng.standard_normal((n, model.nv)), rng.standard_normal((n, model.nv)))
+    device = [cuda.to_device(x) for x in host]
+    threads = mb.get_num_threads()
     parts = []
-    for name, fn, arrays in (("RNEA", mb.inverse_dynamics, (q, v, x)), ("CRBA", mb.mass_matrix, (q,)),
-                             ("ABA", mb.forward_dynamics, (q, v, x))):
-        fn(model, *arrays)
+    for name, fn, count in (("RNEA", mb.inverse_dynamics, 3), ("CRBA", mb.mass_matrix, 1),
+                            ("ABA", mb.forward_dynamics, 3)):
+        fn(model, *device[:count])
         cuda.synchronize()
 
         def run():
-            fn(model, *arrays)
+            fn(model, *device[:count])
             cuda.synchronize()
-        parts.append(f"{name} {n / best_time(run, budget):.3g} states/s")
-    return f"GPU ({cuda.get_current_device().name}), Panda at batch {n:.0e}: " + "; ".join(parts)
+        on_gpu = n / best_time(run, budget)
+        on_cpu = n / best_time(lambda: fn(model, *host[:count]), budget)
+        parts.append(f"{name} {on_gpu:.3g} states/s (CPU {on_cpu:.3g}, {on_gpu / on_cpu:.3g}×)")
+    device_name = getattr(cuda.current_context().device, "name", "the CUDA simulator")
+    device_name = device_name.decode() if isinstance(device_name, bytes) else device_name
+    lines = [f"GPU ({device_name}), Panda float64 at batch {n:.0e}, CPU on {threads} threads beside: " + "; ".join(parts)]
+
+    q_ref = model.neutral() + 0.3
+    q0 = model.neutral() + rng.uniform(-0.3, 0.3, (trajectories, model.nq))
+    v0 = np.zeros((trajectories, model.nv))
+    steps = int(round(duration * rate))
+    options = dict(dt=1.0 / rate, method="RK4", tau=mb.PD(*PD_GAINS, q_ref), limits="ignore", progress=False)
+    launch, launched = gpu.launch, []
+
+    def timed_launch(*args):
+        cuda.synchronize()
+        start = time.perf_counter()
+        launch(*args)
+        cuda.synchronize()
+        launched.append(time.perf_counter() - start)
+
+    gpu.launch = timed_launch  # (simulate's device run calls multibody.gpu.launch)
+    try:
+        try:
+            mb.simulate(model, cuda.to_device(q0[:2]), cuda.to_device(v0[:2]), 3.0 / rate, **options)  # compiles
+        except Exception as error:  # e.g. Numba's built-in CUDA target, which the kernels' max() defeats
+            return lines + [f"batched RK4 on the GPU: the run did not compile or launch ({type(error).__name__}: "
+                            f"{str(error)[:200]}); the [gpu] extra's numba-cuda compiles it"]
+        launched.clear()
+        start = time.perf_counter()
+        on_device = mb.simulate(model, cuda.to_device(q0), cuda.to_device(v0), duration, **options)
+        end_to_end = time.perf_counter() - start
+    finally:
+        gpu.launch = launch
+    start = time.perf_counter()
+    on_host = mb.simulate(model, q0, v0, duration, **options)
+    cpu = time.perf_counter() - start
+    work = trajectories * steps
+    difference = float(np.nanmax(np.abs(on_device.q[:, -1] - on_host.q[:, -1])))
+    lines.append(f"GPU batched RK4, {trajectories} Panda trajectories under mb.PD for {duration:g} s at {rate:g} Hz, "
+                 f"float64: mb.simulate from device arrays {work / end_to_end:.3g} trajectory-steps/s end to end, the "
+                 f"device run alone {work / sum(launched):.3g}; CPU mb.simulate on {threads} threads "
+                 f"{work / cpu:.3g} ({cpu / sum(launched):.3g}× for the device run); final positions "
+                 f"agree to {difference:.1e} ({int(on_device.completed.sum())} of {trajectories} completed)")
+    return lines
 
 
 def mjcf_load_line(budget=0.5):
@@ -592,6 +648,7 @@ def main(argv=None):
     parser.add_argument("--memory-states", type=int, default=16384)
     parser.add_argument("--sim-duration", type=float, default=10.0)
     parser.add_argument("--quick", action="store_true", help="tiny sizes and budgets (a smoke run)")
+    parser.add_argument("--gpu", action="store_true", help="print the GPU lines alone (gpu_lines), nothing saved")
     parser.add_argument("--out", default=os.path.join(os.path.dirname(os.path.abspath(__file__)), "results"))
     args = parser.parse_args(argv)
     if args.quick:
@@ -600,6 +657,10 @@ def main(argv=None):
     if example_robot_data() is None:
         print("example-robot-data is not installed: pip install example-robot-data", file=sys.stderr)
         return 2
+    if args.gpu:
+        print("\n".join(gpu_lines(1000 if args.quick else 1_000_000, 64 if args.quick else 65536,
+                                   0.005 if args.quick else 0.1, budget=0.01 if args.quick else 1.0)))
+        return 0
     rng = np.random.default_rng(0)
     rows = [row for name in args.robots for row in benchmark_robot(name, args.sizes, args.budget, rng)]
     table = markdown(rows, args.sizes)
@@ -624,7 +685,8 @@ def main(argv=None):
         batched_rk4_line(64 if args.quick else 4096, 0.005 if args.quick else 1.0),
         batched_pd_line(64 if args.quick else 4096, 0.005 if args.quick else 1.0, repeats=1 if args.quick else 2),
         dask_line(1000 if args.quick else 100_000, 2 if args.quick else 4, 0.01 if args.quick else 1.0),
-        gpu_line(1000 if args.quick else 1_000_000, 0.01 if args.quick else 1.0),
+        *gpu_lines(1000 if args.quick else 1_000_000, 64 if args.quick else 65536, 0.005 if args.quick else 0.1,
+                   budget=0.01 if args.quick else 1.0),
         mjcf_load_line(0.05 if args.quick else args.budget),
         f"threads: {mb.get_num_threads()}",
         "roboticstoolbox rne_python (µs): " + ", ".join(
