@@ -220,6 +220,32 @@ def test_capsule_capsule_crossed_and_parallel():
     np.testing.assert_allclose(rows_as_set(rows), rows_as_set(expected), atol=TOL)
 
 
+def test_capsule_on_a_box_face():
+    """A capsule lying on a box's top face is supported at its two end points (clipped to the face where it
+    overhangs); tipped, only its lower end is within the margin; standing, one point."""
+    box = (C.BOX, (1.0, 0.5, 0.5), I3, (0.0, 0.0, 0.0))
+    along_x = Rotation.from_euler("y", np.pi / 2).as_matrix()
+    r, half = 0.1, 0.4
+    rows = run_pair(box, (C.CAPSULE, (r, half, 0), along_x, (0.2, 0.1, 0.6 - 1e-4)))
+    expected = [[x, 0.1, 0.5 - 0.5e-4, 0, 0, -1, -1e-4] for x in (-0.2, 0.6)]
+    np.testing.assert_allclose(rows_as_set(rows), rows_as_set(expected), atol=TOL)
+    swapped = run_pair((C.CAPSULE, (r, half, 0), along_x, (0.2, 0.1, 0.6 - 1e-4)), box)
+    np.testing.assert_allclose(swapped[:, 3:6], np.tile([0, 0, 1.0], (2, 1)), atol=TOL)
+    # overhanging the face's edge x = 1: clipped there
+    rows = run_pair(box, (C.CAPSULE, (r, half, 0), along_x, (0.9, 0.1, 0.6 + 2e-4)))
+    expected = [[x, 0.1, 0.5 + 1e-4, 0, 0, -1, 2e-4] for x in (0.5, 1.0)]
+    np.testing.assert_allclose(rows_as_set(rows), rows_as_set(expected), atol=TOL)
+    # tipped by 0.01 rad about y: the ends' heights differ by 2 half sin(0.01) ≈ 8e-3, beyond the margin
+    tipped = Rotation.from_euler("y", np.pi / 2 + 0.01).as_matrix()
+    rows = run_pair(box, (C.CAPSULE, (r, half, 0), tipped, (0.0, 0.0, 0.6 + half * np.sin(0.01) - 1e-4)))
+    assert len(rows) == 1
+    np.testing.assert_allclose(rows[0, 6], -1e-4, atol=TOL)
+    np.testing.assert_allclose(rows[0, :3], tipped @ [0, 0, half] + [0, 0, 0.6 + half * np.sin(0.01) - 1e-4]
+                               + [0, 0, -r + 0.5e-4], atol=TOL)
+    rows = run_pair(box, (C.CAPSULE, (r, half, 0), I3, (0.3, 0.2, 0.5 + half + r + 1e-4)))
+    np.testing.assert_allclose(rows, [[0.3, 0.2, 0.5 + 0.5e-4, 0, 0, -1, 1e-4]], atol=TOL)
+
+
 def test_box_on_a_larger_box_gives_four_corners_with_the_gap():
     big = (C.BOX, (2.0, 2.0, 0.5), I3, (0.0, 0.0, 0.0))
     for yaw in (0.0, 0.3, np.pi / 4):
@@ -304,8 +330,10 @@ def test_swapping_a_and_b_flips_the_normals_and_keeps_gaps_and_points(shapes):
 
 
 @pytest.mark.parametrize("shapes", [(C.SPHERE, C.SPHERE), (C.SPHERE, C.BOX), (C.BOX, C.SPHERE), (C.SPHERE, C.CAPSULE),
-                                    (C.CAPSULE, C.CAPSULE)])
+                                    (C.CAPSULE, C.CAPSULE), (C.BOX, C.CAPSULE), (C.CAPSULE, C.BOX)])
 def test_gjk_epa_agrees_with_the_analytic_routines(shapes):
+    """One contact each (random poses never make parallel axes or a capsule flat on a face): the same row;
+    box–capsule on a face reports the clipped segment's ends, the nearer of which is GJK's contact."""
     rng = np.random.default_rng(10 + 7 * shapes[0] + shapes[1])
     overlaps = 0
     for _ in range(80):
@@ -313,9 +341,10 @@ def test_gjk_epa_agrees_with_the_analytic_routines(shapes):
         b = random_geometry(shapes[1], rng)
         analytic = run_pair(a, b, margin=10.0)
         gjk = run_pair(a, b, margin=10.0, convex=True)
-        assert len(analytic) == len(gjk) == 1
-        overlaps += analytic[0, 6] < 0
-        np.testing.assert_allclose(gjk, analytic, atol=1e-9, rtol=0)
+        assert len(gjk) == 1 and 1 <= len(analytic) <= 2
+        nearest = analytic[np.argmin(analytic[:, 6])]
+        overlaps += nearest[6] < 0
+        np.testing.assert_allclose(nearest, gjk[0], atol=1e-9, rtol=0)
     assert 10 <= overlaps <= 70  # both separated and penetrating poses were drawn
 
 
@@ -488,3 +517,16 @@ def test_detection_compiles_for_the_cuda_target():
     if "NO-NVVM" in result.stdout or "No module named 'numba.cuda" in result.stderr:
         pytest.skip("no CUDA compiler toolchain (libNVVM): " + result.stdout.strip())
     assert "COLLISION-PTX-OK" in result.stdout, result.stdout + result.stderr[-3000:]
+
+
+def test_non_finite_poses_end_without_contacts_or_hanging():
+    """A NaN in a pose ends every loop (GJK's and EPA's are bounded) and writes no contact."""
+    rng = np.random.default_rng(2)
+    for shapes in PAIRS:
+        a = random_geometry(shapes[0], rng)
+        b = random_geometry(shapes[1], rng)
+        bad = a[:3] + (np.array([np.nan, 0.0, 0.0]),) + a[4:]
+        assert len(run_pair(bad, b, margin=10.0)) == 0
+        assert len(run_pair(b, bad, margin=10.0)) == 0
+        assert len(run_halfspace(bad[0], bad[1], bad[2], bad[3], margin=10.0,
+                                 vertices=bad[4] if len(bad) > 4 else NO_VERTICES)) == 0

@@ -116,8 +116,8 @@ def write_contact(out, count, point, normal, gap):
 @njit(cache=True, error_model="numpy")
 def write_pair(out, count, x_a, x_b, normal, gap, margin):
     """A pair's contact from its witness points ``x_a`` (on a) and ``x_b`` (on b): the row at their
-    midpoint, written when ``gap < margin``."""
-    if gap >= margin:
+    midpoint, written when ``gap < margin`` (so never for a NaN gap)."""
+    if not gap < margin:
         return count
     return write_contact(out, count, scale3(0.5, add3(x_a, x_b)), normal, gap)
 
@@ -153,6 +153,20 @@ def bounding_radius(shape, size, vertices):
         if length > r:
             r = length
     return r
+
+
+@njit(cache=True, error_model="numpy")
+def as_tuples(size, R, p):
+    """A geometry's ``size (3,)``, ``R (3, 3)`` and ``p (3,)`` arrays as the tuples the helpers take."""
+    return load3(size, 0), rotation9(R), load3(p, 0)
+
+
+@njit(cache=True, error_model="numpy")
+def pair_scale(shape_a, size_a, vertices_a, p_a, shape_b, size_b, vertices_b, p_b):
+    """A length of the pair (m), to which GJK's and EPA's tolerances are relative: the bounding radii and
+    the distance between the geometry origins."""
+    return bounding_radius(shape_a, size_a, vertices_a) + bounding_radius(shape_b, size_b, vertices_b) \
+        + norm3(sub3(p_a, p_b))
 
 
 @njit(cache=True, error_model="numpy")
@@ -316,7 +330,7 @@ def halfspace_point(out, count, x, normal, height, radius, margin):
     """A point feature ``x`` rounded by ``radius`` against ``n·x ≥ h``: ``gap = n·x − h − radius``, the
     surface point ``x − radius n``."""
     gap = dot3(normal, x) - height - radius
-    if gap >= margin:
+    if not gap < margin:
         return count
     return write_contact(out, count, sub3(x, scale3(radius, normal)), normal, gap)
 
@@ -1116,15 +1130,11 @@ def convex_contact(shape_a, size_a, vertices_a, R_a, p_a, shape_b, size_b, verti
     EPA on the whole, rounded shapes. The single contact point is the midpoint of the two witnesses,
     the points of a and b deepest in (or nearest to) each other.
     """
-    Ra = rotation9(R_a)
-    Rb = rotation9(R_b)
-    pa = load3(p_a, 0)
-    pb = load3(p_b, 0)
-    ha = load3(size_a, 0)
-    hb = load3(size_b, 0)
+    ha, Ra, pa = as_tuples(size_a, R_a, p_a)
+    hb, Rb, pb = as_tuples(size_b, R_b, p_b)
     r_a = core_radius(shape_a, ha)
     r_b = core_radius(shape_b, hb)
-    scale = bounding_radius(shape_a, ha, vertices_a) + bounding_radius(shape_b, hb, vertices_b) + norm3(sub3(pa, pb))
+    scale = pair_scale(shape_a, ha, vertices_a, pa, shape_b, hb, vertices_b, pb)
     limit = margin + r_a + r_b
     status, v, y_a, y_b, m = gjk(shape_a, ha, vertices_a, Ra, pa, shape_b, hb, vertices_b, Rb, pb, False, limit,
                                  scale, ws)
@@ -1157,6 +1167,63 @@ def convex_contact(shape_a, size_a, vertices_a, R_a, p_a, shape_b, size_b, verti
     return count
 
 
+@njit(cache=True, error_model="numpy")
+def box_capsule(size_a, vertices_a, R_a, p_a, size_b, vertices_b, R_b, p_b, margin, out, count, ws):
+    """A box (a) against a capsule (b). GJK on the box and the capsule's segment gives their distance ``δ``
+    and direction ``n`` (from the capsule into the box). Where ``n`` is a face normal of the box, the
+    segment is clipped to the face's slab (Liang–Barsky, ``|e_i·(x − p_a)| ≤ hᵢ`` for the face's two side
+    axes) and each end ``x`` of the clipped segment gives a contact with ``gap = d(x) − r``, ``d(x)`` its
+    height over the face plane: a capsule lying on a face is supported at both ends, a tilted one where it
+    comes within the margin. Otherwise, and where the segment enters the box, one contact by
+    :func:`convex_contact`."""
+    ha, Ra, pa = as_tuples(size_a, R_a, p_a)
+    hb, Rb, pb = as_tuples(size_b, R_b, p_b)
+    r = hb[0]
+    scale = pair_scale(BOX, ha, vertices_a, pa, CAPSULE, hb, vertices_b, pb)
+    status, v, x_a, x_b, _ = gjk(BOX, ha, vertices_a, Ra, pa, CAPSULE, hb, vertices_b, Rb, pb, False, margin + r,
+                                 scale, ws)
+    if status == SEPARATED:
+        return count
+    if status == DISTANCE:
+        n = scale3(1.0 / norm3(v), v)
+        face = -1
+        for k in range(3):
+            if abs(dot3(n, axis_of(Ra, k))) >= 1.0 - PARALLEL:
+                face = k
+        if face >= 0:
+            # the segment in the box frame, clipped to the slabs of the two side axes
+            s0, s1 = segment_of(hb, Rb, pb)
+            l0 = rotate_back(Ra, sub3(s0, pa))
+            l1 = rotate_back(Ra, sub3(s1, pa))
+            lo = 0.0
+            hi = 1.0
+            for i in range(3):
+                if i == face:
+                    continue
+                d = l1[i] - l0[i]
+                if d == 0.0:
+                    if abs(l0[i]) > ha[i]:
+                        hi = -1.0
+                    continue
+                t0 = (-ha[i] - l0[i]) / d
+                t1 = (ha[i] - l0[i]) / d
+                lo = clamp(t0 if t0 < t1 else t1, lo, 1.0)
+                hi = clamp(t1 if t0 < t1 else t0, 0.0, hi)
+            if lo <= hi:
+                side = -1.0 if dot3(n, axis_of(Ra, face)) > 0.0 else 1.0  # the face's outward normal is −n
+                ends = 2 if hi > lo else 1
+                for e in range(ends):
+                    t = lo if e == 0 else hi
+                    local = add3(l0, scale3(t, sub3(l1, l0)))
+                    height = side * local[face] - ha[face]
+                    x = add3(s0, scale3(t, sub3(s1, s0)))
+                    count = write_pair(out, count, add3(x, scale3(height, n)), add3(x, scale3(r, n)), n, height - r,
+                                       margin)
+                return count
+    return convex_contact(BOX, size_a, vertices_a, R_a, p_a, CAPSULE, size_b, vertices_b, R_b, p_b, margin, out, count,
+                          ws)
+
+
 # ---------------------------------------------------------------------------------------------------------------------
 # dispatch
 
@@ -1179,6 +1246,8 @@ def ordered_pair_contacts(shape_a, size_a, vertices_a, R_a, p_a, shape_b, size_b
     if shape_a == CAPSULE and shape_b == CAPSULE:
         return capsules(load3(size_a, 0), rotation9(R_a), load3(p_a, 0), load3(size_b, 0), rotation9(R_b),
                         load3(p_b, 0), margin, out, count)
+    if shape_a == BOX and shape_b == CAPSULE:
+        return box_capsule(size_a, vertices_a, R_a, p_a, size_b, vertices_b, R_b, p_b, margin, out, count, ws)
     if shape_a == BOX and shape_b == BOX:
         return boxes(load3(size_a, 0), vertices_a, rotation9(R_a), load3(p_a, 0), load3(size_b, 0), vertices_b,
                      rotation9(R_b), load3(p_b, 0), margin, out, count, ws)
@@ -1194,7 +1263,8 @@ def pair_contacts(shape_a, size_a, vertices_a, R_a, p_a, shape_b, size_b, vertic
 
     Analytic: sphere–sphere, sphere–box, sphere–capsule, capsule–capsule (:func:`capsules`; two points for
     parallel axes) and box–box (:func:`boxes`; the clipped face polygon's corners, or one edge–edge
-    point). Any other pair (cylinder, convex hull, capsule–box): one contact by GJK/EPA
+    point); box–capsule by GJK with the segment clipped on a face (:func:`box_capsule`; two points for a
+    capsule lying on a face). Any other pair (cylinder, convex hull): one contact by GJK/EPA
     (:func:`convex_contact`). Either order: the pair is computed with the lower shape code first and its
     normals flipped when a and b were swapped, so the gaps and points are the same and the normals
     opposite."""
