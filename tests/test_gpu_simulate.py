@@ -5,11 +5,13 @@
   1e-12 in every array of the ``Trajectory`` (``q``, ``v``, ``λ``, energy, residual, statuses), for Panda under RK4
   and ``mb.PD`` (gains and references per trajectory, URDF joint damping), a four-bar linkage closed by a built-in
   loop closure under semi-implicit Euler and a ``numba.njit`` controller, and a double pendulum under explicit Euler
-  with constant joint forces. Each device run takes its steps in one launch of the GPU run (counted) and none in
-  the CPU's compiled run. The simulator runs the launcher as Python, one thread per trajectory, and the arithmetic
-  as the CPU's compiled ``advance``: this checks the launch (rows, threads, workspaces, transfers) and the routing.
-  What the GPU path does not run (a Python callable, adaptive and variational methods, user constraints, one
-  state) raises ``ValueError`` saying so.
+  with constant joint forces and with a compiled controller that stops one trajectory; parallelogram chains whose
+  steps near their flat configuration the device run leaves to the host; also with two threads for
+  five trajectories, and for an empty batch. Each device run takes its steps in one launch of the GPU run (counted)
+  and none in the CPU's compiled run. The simulator runs the launcher as Python, one thread per trajectory, and the
+  arithmetic as the CPU's compiled ``advance``: this checks the launch (rows, threads, workspaces, transfers) and
+  the routing. What the GPU path does not run (a Python callable, adaptive and variational methods, user
+  constraints, one state) raises ``ValueError`` saying so.
 * Compiled for the CUDA target (PTX for sm_90, no device needed): the run's launcher, with
   :func:`multibody.kernels.stepping.advance`, the constrained step, the projection and a ``numba.njit`` controller
   beneath it. Skipped where the CUDA toolchain is not found, or where ``numba.cuda`` is Numba's built-in target,
@@ -49,12 +51,13 @@ SIMULATED = textwrap.dedent(r"""
         return cpu_run(self, *args, **kwargs)
     gpu.advance_batch, CompiledRun.advance_batch = counted_device, counted_cpu
 
-    def same(system, q0, v0, t_final, **options):
+    def same(system, q0, v0, t_final, handed=False, **options):
+        # the run from device arrays against the CPU's; handed: the device run leaves steps to the host
         calls.update(device=0, cpu=0)
         device = mb.simulate(system, *(cuda.to_device(np.ascontiguousarray(x)) for x in (q0, v0)), t_final, **options)
-        assert calls == {"device": 1, "cpu": 0}, calls
+        assert calls["device"] == 1 and (calls["cpu"] >= 1 if handed else calls["cpu"] == 0), calls
         host = mb.simulate(system, q0, v0, t_final, **options)
-        assert calls["cpu"] >= 1, calls
+        assert calls["cpu"] >= 1 or not len(q0), calls
         assert type(device.q) is np.ndarray and device.q.shape == host.q.shape, (type(device.q), device.q.shape)
         assert device.status == host.status, (device.status, host.status)
         for name in ("t", "q", "v", "lam", "energy", "residual"):
@@ -93,6 +96,16 @@ SIMULATED = textwrap.dedent(r"""
     assert run.lam.shape == (4, 6, 2) and np.all(np.isfinite(run.lam)) and all(run.completed), run.status
     print("FOUR-BAR-NJIT-OK")
 
+    # two-cell parallelogram chains, one far from its flat configuration, two near it: the steps that start near flat
+    # run on the host, and those trajectories' steps after them
+    from constraint_helpers import crank_state, parallelogram_chain, planar_closures
+    chain = mb.ConstrainedSystem(parallelogram_chain(2), planar_closures(2))
+    q0, v0 = (np.array(x) for x in zip(*[crank_state(2, angle, rate) for angle, rate in ((0.5, 0.0), (0.05, -1.0),
+                                                                                        (0.01, 2.0))]))
+    run = same(chain, q0, v0, 0.2, handed=True, dt=0.01, method="RK4")
+    assert all(run.completed), run.status
+    print("PARALLELOGRAMS-OK")
+
     # a double pendulum, explicit Euler: constant joint forces per trajectory, one initial velocity (a host array)
     # for all; then a numba.njit controller whose joint forces are NaN past q[0] = 1.5, which stops trajectory 2 alone
     # with the CPU's status
@@ -117,6 +130,18 @@ SIMULATED = textwrap.dedent(r"""
     assert list(run.completed) == [True, True, False, True, True] and "joint forces" in run.status[2], run.status
     assert sum("1 of 5 trajectories stopped early" in str(w.message) for w in caught) == 2, caught
     print("PENDULUM-EULER-OK")
+
+    # two threads for five trajectories (each thread runs several, in its one workspace row), and an empty batch
+    limits = gpu.MAX_THREADS, gpu.THREADS_PER_BLOCK
+    gpu.MAX_THREADS = gpu.THREADS_PER_BLOCK = 2
+    try:
+        same(pendulum, q0, np.zeros((5, 2)), 0.03, dt=0.01, method="RK4", tau=rng.standard_normal((5, 2)),
+             limits="ignore")
+    finally:
+        gpu.MAX_THREADS, gpu.THREADS_PER_BLOCK = limits
+    empty = same(pendulum, np.zeros((0, 2)), np.zeros((0, 2)), 0.03, dt=0.01, method="RK4")
+    assert empty.q.shape == (0, 4, 2), empty.q.shape
+    print("THREADS-OK")
 
     # what the GPU does not run
     dq, dv = cuda.to_device(np.zeros((2, 2))), cuda.to_device(np.zeros((2, 2)))
