@@ -6,6 +6,7 @@ Public names are listed in ``docs/api.md``; conventions (vector ordering, frames
 
 from . import inertia, joints, robots, spatial
 from .driver import get_num_threads, set_num_threads
+from .contact import ContactPair, Ground, JointLimits
 from .constrained import ConstrainedSystem, ConstraintError, KKTDerivatives, KKTSolution, RankDeficientWarning
 from .constraints import (
     Distance,

@@ -19,6 +19,7 @@ import numpy as np
 
 from . import derivatives, differences, driver, dynamics, kinematics, linalg, spatial
 from .constraints import CompiledRows, _frame_key, constraint_program
+from .contact import Unilateral
 from .kernels import aba, integration, kkt
 from .kernels import constraints as compiled_rows
 from .model import Model
@@ -199,8 +200,11 @@ class ConstrainedSystem:
     def __init__(self, model, constraints=(), *, baumgarte=None, rank_tolerance=1e-10):
         self.system = as_system(model)
         self.model = model if isinstance(model, Model) else None
+        constraints = list(constraints)
+        # Contact and joint limits (multibody.contact) add no bilateral rows: simulate steps them at velocity level.
+        self.unilateral = [c.bind(self.system) for c in constraints if isinstance(c, Unilateral)]
         # Each constraint checked against the model, as it applies to it (Constraint.bind).
-        self.constraints = [c.bind(self.system) for c in constraints]
+        self.constraints = [c.bind(self.system) for c in constraints if not isinstance(c, Unilateral)]
         self.nq, self.nv = self.system.nq, self.system.nv
         if baumgarte is None:
             self.baumgarte = None
@@ -242,6 +246,14 @@ class ConstrainedSystem:
         frames = frame_rows(model, [kinematics._frame_arguments(model, *frame) for frame in frames])
         workspace = kkt.workspace_size(model.njoints, self.nv, len(frames), self.num_rows)
         return program, frames, workspace
+
+    def compiled_program(self):
+        """``(program, frame rows)`` of the bilateral rows compiled (:mod:`multibody.kernels.constraints`, the frames
+        it indexes as :mod:`multibody.tree` rows), as the compiled steps read them; ``None`` when a constraint has
+        no compiled rows (a user constraint, a moving surface), there are none, or the system is not a
+        :class:`Model`."""
+        step = self._compiled_step
+        return None if step is None else step[:2]
 
     def _compiled_levels(self, q):
         """``(φ (m,), A (m, nv), b (m,))`` of every row at one state ``q``, all compiled and fixed in time

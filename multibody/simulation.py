@@ -43,7 +43,7 @@ from dataclasses import fields, replace
 import numpy as np
 from scipy.integrate import BDF, DOP853, LSODA, RK23, RK45, Radau
 
-from . import driver, gpu
+from . import contact, driver, gpu
 from .constrained import ConstrainedSystem, ConstraintError, ModelSystem, as_system
 from .constraints import CompiledRows
 from .integrators import (PD, TABLEAUS, CompiledController, CompiledRun, PDController, as_controller,
@@ -155,7 +155,7 @@ def _batch_size(q, v, nq, nv):
     return sizes.pop()
 
 
-def simulate(system, q0, v0, t_final, *, dt=None, method="RK45", tau=None, rtol=1e-8, atol=1e-10,
+def simulate(system, q0, v0, t_final, *, dt=None, method=None, tau=None, rtol=1e-8, atol=1e-10,
              project=True, projection_tolerance=1e-12, t0=0.0, max_step=np.inf, joint_damping=False, limits="warn",
              progress=None, rule=None, order=None):
     """Integrate the motion of a ``Model`` or ``ConstrainedSystem`` from ``(q0, v0)`` at ``t0`` to ``t_final``.
@@ -183,11 +183,14 @@ def simulate(system, q0, v0, t_final, *, dt=None, method="RK45", tau=None, rtol=
             steps after it, and the outputs' multipliers, energies and residuals are computed on the host.
         t_final: end time (s).
         dt: output interval (s), and the step of the fixed-step methods; default ``(t_final − t0) / 500``.
-        method: ``"RK45"``, ``"DOP853"``, ``"Radau"`` (or ``"RK23"``, ``"BDF"``, ``"LSODA"``); the fixed-step
+        method: ``"RK45"`` (the default), ``"DOP853"``, ``"Radau"`` (or ``"RK23"``, ``"BDF"``, ``"LSODA"``); the fixed-step
             ``"Euler"`` (explicit, order 1), ``"semi-implicit Euler"`` (velocities first, then positions with the new
             velocities: symplectic, order 1) or ``"RK4"`` (classical, order 4); or ``"variational"``: the discrete
             Hamilton's principle with step ``dt``, constraints by discrete multipliers
-            (:func:`multibody.variational.simulate`, one state; Lie-group joints included).
+            (:func:`multibody.variational.simulate`, one state; Lie-group joints included). A system with contact
+            or joint limits (:class:`multibody.Ground`, :class:`multibody.ContactPair`, :class:`multibody.JointLimits`)
+            is simulated by velocity-level time stepping with step ``dt``, ``"Moreau-Jean"`` (its default and only
+            method: :mod:`multibody.contact`); another method raises ``ValueError``.
         tau: joint forces (N·m or N per coordinate of ``v``): ``None``; an array ``(nv,)``; :class:`multibody.PD`, a
             joint-space PD law as data, run inside the compiled step; a ``numba.njit`` function ``f(t, q, v, out)``
             that writes them into ``out (nv,)`` (zeros on entry), also run inside it
@@ -254,6 +257,9 @@ def simulate(system, q0, v0, t_final, *, dt=None, method="RK45", tau=None, rtol=
     if rule is not None or order is not None:
         raise ValueError(f"rule and order are options of method='variational', not of method={method!r}")
     constrained = system if isinstance(system, ConstrainedSystem) else ConstrainedSystem(system)
+    if constrained.unilateral:
+        return _simulate_unilateral(constrained, q0, v0, t_final, dt, method, tau, t0, joint_damping, limits)
+    method = "RK45" if method is None else method
     mechanical = constrained.system
     nq, nv = constrained.nq, constrained.nv
     if method not in ADAPTIVE_METHODS + FIXED_STEP_METHODS:
@@ -486,6 +492,50 @@ def simulate(system, q0, v0, t_final, *, dt=None, method="RK45", tau=None, rtol=
                              settled=method in FIXED_STEP_METHODS)
     if model is not None and limits != "ignore":
         _report_limits(mechanical, trajectory, limits)
+    return trajectory
+
+
+def _simulate_unilateral(constrained, q0, v0, t_final, dt, method, tau, t0, joint_damping, limits):
+    """:func:`simulate` of a system with contact or joint limits: the checks of every method, then the compiled
+    Moreau–Jean steps of :func:`multibody.contact.run`; a failure raises :class:`SimulationError` with the trajectory
+    up to it (one trajectory), or is marked in the batch's status."""
+    if method not in (None, contact.METHOD):
+        names = ", ".join(c.name for c in constrained.unilateral)
+        raise ValueError(f"method={method!r} cannot simulate contact or joint limits ({names}): a system with unilateral "
+                         f"constraints is simulated by velocity-level time stepping, method={contact.METHOD!r} (the "
+                         "default), whose steps resolve each impact and the Coulomb cone; the smooth methods would "
+                         "integrate through them")
+    mechanical = constrained.system
+    if not isinstance(mechanical, ModelSystem):
+        raise ValueError(f"contact and joint limits need a system built on a Model; {type(mechanical).__name__} is not")
+    nq, nv = constrained.nq, constrained.nv
+    dt = _checked_timing(t0, t_final, dt, None, limits)
+    q, v = np.array(q0, dtype=float), np.array(v0, dtype=float)
+    batch = _batch_size(q, v, nq, nv)
+    if batch is None and (q.shape != (nq,) or v.shape != (nv,)):
+        raise ValueError(f"q0 and v0 must have shapes ({nq},) and ({nv},), got {q.shape} and {v.shape}")
+    _require_finite(mechanical, "q0", q)
+    _require_finite(mechanical, "v0", v, rate=True)
+    controller = as_controller(tau, mechanical, batch)
+    torque = None
+    if callable(controller) and not isinstance(controller, (PDController, CompiledController)):
+        torque, controller = _torque_function(controller, nv, batch, mechanical), None
+    elif controller is not None and not isinstance(controller, (PDController, CompiledController)):
+        controller = np.asarray(_torque_function(controller, nv, batch, mechanical)(t0, None, None))
+    model = mechanical.model
+    damping = np.array(model.damping, dtype=float) if joint_damping and np.any(model.damping) else None
+    count = 1 if batch is None else batch
+    trajectory = contact.run(constrained, np.broadcast_to(q, (count, nq)), np.broadcast_to(v, (count, nv)),
+                             _output_times(t0, t_final, dt), controller, torque, batch, damping)
+    if batch is None:
+        if trajectory.status != "completed":
+            raise SimulationError(f"simulate ({contact.METHOD}) stopped: {trajectory.status}", trajectory)
+        if limits != "ignore":
+            _report_limits(mechanical, trajectory, limits)
+        return trajectory
+    _warn_if_stopped(trajectory, 3)
+    if limits != "ignore":
+        trajectory = _report_batch_limits(mechanical, trajectory, limits)
     return trajectory
 
 

@@ -31,6 +31,12 @@ class Trajectory:
             status names (its last good state), and is NaN from the next output time on.
         projection_tolerance: the residual above which output states were projected back onto the
             constraints (``simulate``'s ``projection_tolerance``), ``None`` when they were not.
+        contacts: with contact or joint limits (:mod:`multibody.contact`), one entry per output time (a list of
+            them per trajectory of a batch), entry ``k`` the contact rows of the step that ends at ``t[k]`` (entry 0
+            empty): a :class:`multibody.contact.Contacts` with ``body``, ``other``, ``point``, ``normal`` and
+            ``force``; ``None`` otherwise.
+        complementarity: with contact or joint limits, ``(n,)`` (``(N, n)``) the residual of each step's contact
+            problem (non-penetration, the cone, complementarity; m/s), 0 at ``t[0]``; ``None`` otherwise.
         joint_names: the model the trajectory belongs to: the names of its moving joints
             (``Model.joint_names``), or of the coordinates of a symbolic system
             (``LagrangianSystem.numeric()``); ``None`` when the system names none. With the widths
@@ -47,6 +53,8 @@ class Trajectory:
     status: str = "completed"
     projection_tolerance: float | None = None
     joint_names: list | None = None
+    contacts: list | None = None
+    complementarity: np.ndarray | None = None
 
     def __len__(self):
         """The number of output times ``n``."""
@@ -101,7 +109,8 @@ class Trajectory:
             raise ValueError("select(k) picks one of N trajectories simulated together; this is one trajectory")
         return replace(self, q=self.q[k].copy(), v=self.v[k].copy(), lam=self.lam[k].copy(),
                        energy=self.energy[k].copy(), residual=self.residual[k].copy(), status=self.status[k],
-                       row_names=list(self.row_names))
+                       row_names=list(self.row_names), contacts=None if self.contacts is None else self.contacts[k],
+                       complementarity=None if self.complementarity is None else self.complementarity[k].copy())
 
     def momentum(self, system, kind="generalized"):
         """Momenta along the trajectory: ``kind="generalized"`` gives ``p = ∂L/∂q̇ = M(q) v`` at every output
@@ -155,7 +164,10 @@ class Trajectory:
         arrays = {_FILE_FORMAT_KEY: np.array(_FILE_FORMAT)}
         for f in fields(self):
             value = getattr(self, f.name)
-            if value is not None:  # an absent entry loads as the field's default, None
+            if f.name == "contacts":
+                if value is not None:
+                    arrays.update(_stored_contacts(value, self.batch_size is not None))
+            elif value is not None:  # an absent entry loads as the field's default, None
                 arrays[f.name] = _stored(f.name, value)
         path = os.fspath(path)
         path = path if path.endswith(".npz") else path + ".npz"
@@ -225,6 +237,8 @@ class Trajectory:
                 # (an object array, which only pickle could read, raises ValueError; a truncated or
                 # corrupted member BadZipFile, EOFError or zlib.error)
                 values = {f.name: _restored(archive[f.name]) for f in fields(cls) if f.name in archive.files}
+                if _CONTACT_KEYS[0] in archive.files:
+                    values["contacts"] = _restored_contacts(archive)
             except (ValueError, TypeError, EOFError, OSError, zipfile.BadZipFile, zlib.error) as error:
                 raise ValueError(f"{not_ours}: {error}") from None
         trajectory = cls(**values)
@@ -253,6 +267,41 @@ def _stored(name, value):
         return np.array(value)
     raise TypeError(f"Trajectory.save: field {name!r} holds {type(value).__name__} {value!r}, which is not an "
                     "array, a string, a list of strings or a number")
+
+
+#: The arrays that hold :attr:`Trajectory.contacts` in a saved file: the rows of each step, then every step's rows
+#: one after the other.
+_CONTACT_KEYS = ("contacts_count", "contacts_body", "contacts_other", "contacts_point", "contacts_normal",
+                 "contacts_force")
+
+
+def _stored_contacts(contacts, batch):
+    """:attr:`Trajectory.contacts` (a list of entries, or a list of them per trajectory) as arrays without
+    pickle: the number of rows of each entry ``(n,)`` (``(N, n)``), then the rows of all entries in order."""
+    entries = [entry for trajectory in contacts for entry in trajectory] if batch else list(contacts)
+    count = np.array([len(entry) for entry in entries], dtype=np.int64)
+    if batch:
+        count = count.reshape(len(contacts), -1)
+
+    def joined(name, shape):
+        parts = [np.asarray(getattr(entry, name)) for entry in entries]
+        return np.concatenate(parts) if parts else np.zeros(shape)
+
+    return dict(zip(_CONTACT_KEYS, (count, joined("body", (0,)).astype(str), joined("other", (0,)).astype(str),
+                                    joined("point", (0, 3)), joined("normal", (0, 3)), joined("force", (0, 3)))))
+
+
+def _restored_contacts(archive):
+    """:attr:`Trajectory.contacts` from the arrays of :func:`_stored_contacts`."""
+    from .contact import Contacts
+
+    count, body, other, point, normal, force = (archive[key] for key in _CONTACT_KEYS)
+    ends = np.cumsum(count.reshape(-1))
+    starts = ends - count.reshape(-1)
+    entries = [Contacts(body[a:b], other[a:b], point[a:b], normal[a:b], force[a:b]) for a, b in zip(starts, ends)]
+    if count.ndim == 2:
+        return [entries[r * count.shape[1] : (r + 1) * count.shape[1]] for r in range(count.shape[0])]
+    return entries
 
 
 def _restored(array):

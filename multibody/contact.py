@@ -1,0 +1,573 @@
+"""Contact and joint limits: unilateral constraints, simulated by velocity-level time stepping.
+
+:class:`Ground`, :class:`ContactPair` and :class:`JointLimits` go in a
+:class:`~multibody.constrained.ConstrainedSystem`'s list beside the bilateral constraints (they add no bilateral
+rows). :func:`multibody.simulate` then takes Moreau–Jean steps of ``dt`` (:mod:`multibody.kernels.timestepping`,
+where the equations are): contact detection at the step's start, one frictional contact problem with the bilateral
+rows (:mod:`multibody.kernels.complementarity`), the new velocities, then the positions. Every step is compiled; a
+batch of initial states runs each trajectory on its own on all cores.
+
+The trajectory gains :attr:`~multibody.Trajectory.contacts` (each step's contact points, normals and forces, and the
+joint limits' generalized forces) and :attr:`~multibody.Trajectory.complementarity` (each step's residual of its
+contact problem, m/s).
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from dataclasses import dataclass
+
+import numba
+import numpy as np
+from numba import prange, types
+
+from . import driver
+from .integrators import CONTROLLER_TYPES, CompiledController, PDController, as_controller
+from .contact_problem import STATUS_MESSAGES
+from .kernels import collision, complementarity, stepping, timestepping
+from .model import Model
+from .trajectory import Trajectory, recorded_names
+from .tree import frame_rows
+
+#: The one time-stepping method of systems with unilateral constraints (``simulate(..., method=...)``).
+METHOD = "Moreau-Jean"
+#: Default tolerance of each step's contact problem (m/s): its residual (:mod:`multibody.kernels.complementarity`).
+TOLERANCE = 1e-12
+#: Default iterations of each step's solver.
+MAX_ITERATIONS = 2000
+#: Distance (m, or rad for a joint limit) within which a contact or limit enters a step beyond what its speed
+#: can close in the step (its rows are inactive while it stays open).
+MARGIN = 1e-3
+#: Depth (m or rad) of a step's end penetration that its position correction removes (shallower is left alone).
+PENETRATION = 1e-10
+
+
+class Unilateral:
+    """Base class of the unilateral constraints: contact and joint limits. They take part in a
+    :class:`~multibody.constrained.ConstrainedSystem` without bilateral rows; :meth:`bind` checks one against the
+    model and returns it as it applies there."""
+
+    name = "Unilateral"
+
+    def bind(self, system):
+        raise NotImplementedError
+
+    def __repr__(self):
+        return self.name
+
+
+def _coefficient(owner, name, value, upper=None):
+    """``value`` as a finite float ≥ 0 (and ≤ ``upper``), or ``ValueError`` naming ``owner`` and ``name``."""
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{owner}: {name} must be a number, got {value!r}") from None
+    if not math.isfinite(number) or number < 0.0 or (upper is not None and number > upper):
+        bounds = f"in [0, {upper:g}]" if upper is not None else ">= 0"
+        raise ValueError(f"{owner}: {name} must be {bounds}, got {value!r}")
+    return number
+
+
+def _model_of(system, owner):
+    model = getattr(system, "model", system)
+    if not isinstance(model, Model):
+        raise TypeError(f"{owner} needs a multibody Model (bodies and their collision geometry), got "
+                        f"{type(model).__name__}")
+    return model
+
+
+def _body(model, owner, body):
+    """The body name of ``body`` (a name or an index) in ``model``, or ``ValueError`` naming ``owner`` and the close
+    matches."""
+    try:
+        return model.body_names[model.body_index(body)]
+    except ValueError as error:
+        raise ValueError(f"{owner}: {error}") from None
+
+
+def _geometries_of(model, owner, body):
+    """The indices of ``body``'s collision geometries in :func:`multibody.geometry.collision_table`, or
+    ``ValueError`` naming ``owner`` when it has none."""
+    from .geometry import collision_table
+
+    names = collision_table(model).names
+    found = [g for g, name in enumerate(names) if name == body]
+    if not found:
+        with_geometry = sorted(set(names))
+        raise ValueError(f"{owner}: body {body!r} has no collision geometry (bodies with one: "
+                         f"{', '.join(map(repr, with_geometry)) if with_geometry else 'none'})")
+    return found
+
+
+class Ground(Unilateral):
+    """The half-space ``normal · x ≥ height`` (world axes, m) against every collision geometry of ``bodies`` (names
+    or indices; default ``None``: every body with one), with Coulomb friction ``friction`` (≥ 0) and Newton's
+    restitution ``restitution`` (in [0, 1]).
+
+    Raises ``ValueError`` naming the constraint for a friction below 0, a restitution outside [0, 1], a normal that
+    is zero or not finite, a height that is not finite, and (when bound to a model) an unknown body (with the close
+    matches) or a body without collision geometry."""
+
+    def __init__(self, normal=(0.0, 0.0, 1.0), height=0.0, *, friction=0.5, restitution=0.0, bodies=None):
+        self.name = "Ground"
+        n = np.asarray(normal, dtype=float)
+        if n.shape != (3,) or not np.isfinite(n).all() or not np.linalg.norm(n) > 0.0:
+            raise ValueError(f"{self.name}: normal must be a non-zero, finite 3-vector, got {normal!r}")
+        self.normal = n / np.linalg.norm(n)
+        try:
+            self.height = float(height)
+        except (TypeError, ValueError):
+            raise ValueError(f"{self.name}: height must be a finite number (m), got {height!r}") from None
+        if not math.isfinite(self.height):
+            raise ValueError(f"{self.name}: height must be a finite number (m), got {height!r}")
+        self.friction = _coefficient(self.name, "friction", friction)
+        self.restitution = _coefficient(self.name, "restitution", restitution, 1.0)
+        if isinstance(bodies, str | int | np.integer):
+            bodies = [bodies]
+        self.bodies = None if bodies is None else list(bodies)
+        self.geometries = None
+
+    def bind(self, system):
+        """This ground with its geometries on ``system``'s model: ``geometries``, their indices in
+        :func:`multibody.geometry.collision_table`."""
+        from .geometry import collision_table
+
+        model = _model_of(system, self.name)
+        bound = _copy(self)
+        if self.bodies is None:
+            bound.geometries = list(range(len(collision_table(model).names)))
+        else:
+            bound.geometries = [g for body in self.bodies
+                                for g in _geometries_of(model, self.name, _body(model, self.name, body))]
+        return bound
+
+
+class ContactPair(Unilateral):
+    """The collision geometries of ``body_a`` against those of ``body_b`` (names or indices), with Coulomb friction
+    ``friction`` (≥ 0) and Newton's restitution ``restitution`` (in [0, 1]). Contact forces are reported on
+    ``body_a``; the normal points from ``body_b`` into ``body_a``.
+
+    Raises ``ValueError`` naming the pair for a friction below 0, a restitution outside [0, 1], and (when bound to a
+    model) an unknown body (with the close matches), a body without collision geometry, or a body paired with
+    itself."""
+
+    def __init__(self, body_a, body_b, *, friction=0.5, restitution=0.0):
+        self.name = f"ContactPair({body_a!r}, {body_b!r})"
+        self.body_a, self.body_b = body_a, body_b
+        self.friction = _coefficient(self.name, "friction", friction)
+        self.restitution = _coefficient(self.name, "restitution", restitution, 1.0)
+        self.pairs = None
+
+    def bind(self, system):
+        """This pair on ``system``'s model: ``pairs``, the ``(geometry a, geometry b)`` index pairs."""
+        model = _model_of(system, self.name)
+        a, b = _body(model, self.name, self.body_a), _body(model, self.name, self.body_b)
+        if a == b:
+            raise ValueError(f"{self.name}: a body cannot be in contact with itself ({a!r})")
+        bound = _copy(self)
+        bound.pairs = [(ga, gb) for ga in _geometries_of(model, self.name, a) for gb in _geometries_of(model, self.name, b)]
+        return bound
+
+
+class JointLimits(Unilateral):
+    """``model.lower ≤ q ≤ model.upper`` of the named one-coordinate joints (revolute, prismatic; names or indices;
+    default ``None``: every such joint with a finite limit) as unilateral constraints, with Newton's restitution
+    ``restitution`` (in [0, 1]). The limit's generalized force is reported per step (negative at an upper limit).
+
+    Raises ``ValueError`` naming the constraint for a restitution outside [0, 1], and (when bound to a model) an
+    unknown joint (with the close matches), a joint of more than one coordinate, or one without a finite limit."""
+
+    def __init__(self, joints=None, *, restitution=0.0):
+        self.name = "JointLimits"
+        self.restitution = _coefficient(self.name, "restitution", restitution, 1.0)
+        if isinstance(joints, str | int | np.integer):
+            joints = [joints]
+        self.joints = None if joints is None else list(joints)
+        self.limits = None
+
+    def bind(self, system):
+        """These limits on ``system``'s model: ``limits``, rows ``(joint index, iq, iv, lower, upper)``."""
+        model = _model_of(system, self.name)
+
+        def limited(i):
+            joint = model.joints[i]
+            iq = model.idx_q[i]
+            return joint.nq == 1 and joint.nv == 1 and (np.isfinite(model.lower[iq]) or np.isfinite(model.upper[iq]))
+
+        if self.joints is None:
+            chosen = [i for i in range(model.njoints) if limited(i)]
+        else:
+            chosen = []
+            for joint in self.joints:
+                try:
+                    i = model.joint_index(joint)
+                except ValueError as error:
+                    raise ValueError(f"{self.name}: {error}") from None
+                name = model.joint_names[i]
+                if model.joints[i].nq != 1 or model.joints[i].nv != 1:
+                    raise ValueError(f"{self.name}: joint {name!r} has {model.joints[i].nq} coordinates; limits apply "
+                                     "to one-coordinate joints (revolute, prismatic)")
+                if not limited(i):
+                    raise ValueError(f"{self.name}: joint {name!r} has no finite limit (lower "
+                                     f"{model.lower[model.idx_q[i]]}, upper {model.upper[model.idx_q[i]]})")
+                chosen.append(i)
+        bound = _copy(self)
+        bound.limits = [(i, int(model.idx_q[i]), int(model.idx_v[i]), float(model.lower[model.idx_q[i]]),
+                         float(model.upper[model.idx_q[i]])) for i in chosen]
+        return bound
+
+
+def _copy(constraint):
+    bound = object.__new__(type(constraint))
+    bound.__dict__.update(constraint.__dict__)
+    return bound
+
+
+# ============================================================================= the program of a system
+
+
+@dataclass
+class ContactProgram:
+    """What the compiled step of a system with unilateral constraints reads (:mod:`multibody.kernels.timestepping`):
+    the bilateral program and its frames, the geometry rows and vertices, and the plan without its controller."""
+
+    program: np.ndarray
+    frames: np.ndarray
+    geometry: np.ndarray
+    vertices: np.ndarray
+    plan: np.ndarray
+    workspace: int
+    int_workspace: int
+    records: int
+    bilateral: int
+    body_names: tuple
+    joint_names: tuple
+
+
+def contact_program(constrained, *, tolerance=TOLERANCE, max_iterations=MAX_ITERATIONS, margin=MARGIN,
+                    penetration=PENETRATION, damping=None):
+    """The :class:`ContactProgram` of ``constrained`` (a :class:`~multibody.constrained.ConstrainedSystem` on a
+    :class:`~multibody.model.Model` with unilateral constraints); ``damping (nv,)``: joint damping, or ``None``."""
+    from .constraints import constraint_program
+    from .geometry import collision_table
+
+    model = constrained.system.model
+    nq, nv = model.nq, model.nv
+    table = collision_table(model)
+    geometry = np.zeros((len(table.names), timestepping.GEOMETRY_COLUMNS))
+    if len(table.names):
+        placements = [(int(b), np.asarray(X, dtype=float)) for b, X in zip(table.frames, table.placements)]
+        geometry[:, : 13] = frame_rows(model, placements)
+        geometry[:, timestepping.GEOMETRY_SIZE : timestepping.GEOMETRY_SIZE + 3] = table.sizes
+        geometry[:, timestepping.GEOMETRY_SHAPE] = table.shapes
+        geometry[:, timestepping.GEOMETRY_VERTEX_START : timestepping.GEOMETRY_VERTEX_START + 2] = table.vertex_ranges
+        geometry[:, timestepping.GEOMETRY_BODY] = table.frames
+        for g in range(len(table.names)):
+            start, count = table.vertex_ranges[g]
+            geometry[g, timestepping.GEOMETRY_RADIUS] = collision.bounding_radius(
+                int(table.shapes[g]), np.ascontiguousarray(table.sizes[g]),
+                np.ascontiguousarray(table.vertices[start : start + count]))
+    grounds, pairs, limits = [], [], []
+    for c in constrained.unilateral:
+        if isinstance(c, Ground):
+            grounds += [[g, *c.normal, c.height, c.friction, c.restitution] for g in c.geometries]
+        elif isinstance(c, ContactPair):
+            pairs += [[ga, gb, c.friction, c.restitution] for ga, gb in c.pairs]
+        elif isinstance(c, JointLimits):
+            limits += [[iq, iv, lower, upper, c.restitution, j] for j, iq, iv, lower, upper in c.limits]
+    blocks = [np.ravel(np.array(x, dtype=float)) for x in (grounds, pairs, limits)]
+    header = np.zeros(timestepping.PLAN_HEADER)
+    start = timestepping.PLAN_HEADER
+    starts = np.cumsum([start] + [b.size for b in blocks])
+    damped = damping is not None
+    header[[timestepping.PLAN_NQ, timestepping.PLAN_NV, timestepping.PLAN_GROUNDS, timestepping.PLAN_PAIRS,
+            timestepping.PLAN_LIMITS, timestepping.PLAN_MARGIN, timestepping.PLAN_TOLERANCE,
+            timestepping.PLAN_MAX_ITERATIONS, timestepping.PLAN_BILATERAL, timestepping.PLAN_DAMPED,
+            timestepping.PLAN_GROUND_START, timestepping.PLAN_PAIR_START, timestepping.PLAN_LIMIT_START,
+            timestepping.PLAN_DAMPING_START, timestepping.PLAN_PENETRATION, timestepping.PLAN_KINEMATICS_WORKSPACE,
+            timestepping.PLAN_PASSES_WORKSPACE]] = (
+        nq, nv, len(grounds), len(pairs), len(limits), margin, tolerance, max_iterations, constrained.num_rows, damped,
+        starts[0], starts[1], starts[2], starts[3], penetration, *timestepping.pass_workspaces(model.njoints, nv))
+    plan = np.concatenate([header, *blocks, np.zeros(nv) if damping is None else np.asarray(damping, dtype=float)])
+    # the bilateral rows' program and frames (the compiled constraint program of the constrained step)
+    if constrained.num_rows:
+        compiled = constrained.compiled_program()
+        if compiled is None:
+            names = [c.name for c in constrained.constraints]
+            raise ValueError(f"simulate with contact or joint limits needs bilateral constraints with compiled rows "
+                             f"(built-in, fixed in time); {names} are not all")
+        program, frames = compiled
+    else:
+        program, frames = np.zeros(0), np.zeros((0, 13))
+    contacts = timestepping.max_contacts(len(grounds), len(pairs))
+    m = timestepping.max_rows(constrained.num_rows, len(limits), contacts)
+    solver_workspace = complementarity.workspace_size(m)
+    workspace = timestepping.workspace_size(model.njoints, nq, nv, len(frames), constrained.num_rows, len(limits),
+                                            contacts, solver_workspace)
+    return ContactProgram(np.ascontiguousarray(program, dtype=float), np.ascontiguousarray(frames, dtype=float),
+                          np.ascontiguousarray(geometry), np.ascontiguousarray(table.vertices, dtype=float),
+                          np.ascontiguousarray(plan), workspace,
+                          timestepping.int_workspace_size(constrained.num_rows, len(limits), contacts),
+                          contacts + len(limits), constrained.num_rows, tuple(model.body_names),
+                          tuple(model.joint_names))
+
+
+# ============================================================================= the compiled run
+
+_TREE_INTS = types.Array(types.int64, 2, "C", readonly=True)
+_TREE_FLOATS = types.Array(types.float64, 2, "C", readonly=True)
+_CONTROLLER_FUNCTION = types.FunctionType(types.none(*CONTROLLER_TYPES))
+_RUN_TYPES = (_CONTROLLER_FUNCTION, _TREE_INTS, _TREE_FLOATS, types.float64[:, ::1], types.float64[::1],
+              types.float64[:, ::1], types.float64[:, ::1], types.float64[::1], types.float64[::1], types.float64[::1],
+              types.float64[:, ::1], types.float64[:, :, ::1], types.float64[:, ::1], types.float64[::1],
+              types.float64[::1], types.int64[::1])
+_TRAJECTORIES_TYPES = (types.FunctionType(types.none(*_RUN_TYPES)), _CONTROLLER_FUNCTION, _TREE_INTS, _TREE_FLOATS,
+                       types.float64[:, ::1], types.float64[::1], types.float64[:, ::1], types.float64[:, ::1],
+                       types.float64[::1], types.float64[:, ::1], types.float64[::1], types.float64[:, :, ::1],
+                       types.float64[:, :, :, ::1], types.float64[:, :, ::1], types.float64[:, ::1], types.int64,
+                       types.int64, types.int64)
+
+
+@numba.njit(cache=True, parallel=True, error_model="numpy")
+def _trajectories(run, controller, joints, reals, frames, program, geometry, vertices, plan, control, times, states,
+                  records, summaries, io, workspace, int_workspace, shares):
+    # ``run`` (multibody.kernels.timestepping.run) is a first-class function, so that this loop's cached machine
+    # code holds none of the kernels' (whose cache multibody.kernels renews when their sources change)
+    n = states.shape[0]
+    for share in prange(shares):
+        ws = np.empty(workspace)
+        iws = np.zeros(int_workspace, dtype=np.int64)
+        for r in range(share * n // shares, (share + 1) * n // shares):
+            run(controller, joints, reals, frames, program, geometry, vertices, plan,
+                control[r if control.shape[0] > 1 else 0], times, states[r], records[r], summaries[r], io[r], ws, iws)
+
+
+#: The compiled run's functions that Python calls or passes as first-class functions (``multibody compile``).
+ENTRY_POINTS = ((timestepping.run, _RUN_TYPES), (_trajectories, _TRAJECTORIES_TYPES))
+
+#: Messages of a run's status (:mod:`multibody.kernels.timestepping`).
+_STATUS = {
+    timestepping.NOT_POSITIVE_DEFINITE: "the mass matrix is not positive definite",
+    timestepping.UNDEFINED: "a bilateral constraint's rows are undefined at this configuration",
+    timestepping.NON_FINITE_STATE: "the state is not finite",
+    timestepping.NON_FINITE_TORQUE: "the joint forces are not finite",
+}
+
+
+def _control(controller, nv):
+    """``(kind, control rows (1 or N, L))`` of a controller, as :mod:`multibody.kernels.stepping` reads them."""
+    if controller is None:
+        return stepping.NO_CONTROL, np.zeros((1, nv))
+    if isinstance(controller, np.ndarray):
+        return stepping.CONSTANT, np.ascontiguousarray(controller.reshape(-1, nv), dtype=float)
+    if isinstance(controller, PDController):
+        rows = controller.rows
+        return stepping.PD, np.ascontiguousarray(np.concatenate([np.zeros((len(rows), nv)), rows], axis=1))
+    if isinstance(controller, CompiledController):
+        return stepping.FUNCTION, np.zeros((1, nv))
+    return stepping.PYTHON, np.zeros((1, nv))
+
+
+@dataclass
+class Contacts:
+    """The contact rows of one step (entry ``k`` of :attr:`multibody.Trajectory.contacts`, the step that ends at
+    ``t[k]``): ``body (c,)`` a body's name (a joint's for a limit), ``other (c,)`` the other body's name, ``"ground"``
+    or ``"limit"``, ``point (c, 3)`` (world, m), ``normal (c, 3)`` (world, from ``other`` into ``body``), ``force
+    (c, 3)`` (world axes, on ``body``, the step's impulse / dt, N); a joint limit has zero point and normal and its
+    generalized force (N·m or N, negative at an upper limit) in ``force[:, 0]``."""
+
+    body: np.ndarray
+    other: np.ndarray
+    point: np.ndarray
+    normal: np.ndarray
+    force: np.ndarray
+
+    def __len__(self):
+        return len(self.body)
+
+    def __eq__(self, other):
+        return (isinstance(other, Contacts) and all(np.array_equal(getattr(self, name), getattr(other, name))
+                                                    for name in ("body", "other", "point", "normal", "force")))
+
+
+def _entries(records, summaries, program):
+    """The :class:`Contacts` of each step of one trajectory from its ``records (n, R, 11)`` and ``summaries``."""
+    body_names, joint_names = program.body_names, program.joint_names
+    entries = []
+    for record, summary in zip(records, summaries):
+        count = int(summary[timestepping.SUMMARY_COUNT]) if np.isfinite(summary[timestepping.SUMMARY_COUNT]) else 0
+        rows = record[:count]
+        other = rows[:, timestepping.RECORD_OTHER]
+        limit = other == timestepping.LIMIT
+        body = [joint_names[int(b)] if is_limit else body_names[int(b)]
+                for b, is_limit in zip(rows[:, timestepping.RECORD_BODY], limit)]
+        others = ["limit" if o == timestepping.LIMIT else "ground" if o == timestepping.GROUND else body_names[int(o)]
+                  for o in other]
+        entries.append(Contacts(np.array(body, dtype=str), np.array(others, dtype=str),
+                                rows[:, timestepping.RECORD_POINT : timestepping.RECORD_POINT + 3].copy(),
+                                rows[:, timestepping.RECORD_NORMAL : timestepping.RECORD_NORMAL + 3].copy(),
+                                rows[:, timestepping.RECORD_FORCE : timestepping.RECORD_FORCE + 3].copy()))
+    return entries
+
+
+def separate_initial(constrained, program, q, tree):
+    """``q`` with its penetrations (contacts and joint limits) removed by :func:`multibody.kernels.timestepping.step`'s
+    position correction at ``dt → 0`` (a zero-length step moves nothing but the correction), repeated until the
+    deepest gap is above the tolerance (curvature needs a few passes), and the deepest penetration found (m or rad,
+    ≥ 0)."""
+    nq, nv = constrained.nq, constrained.nv
+    deepest = 0.0
+    for _ in range(20):
+        states = np.zeros((2, nq + nv))
+        states[0, :nq], states[0, nq:] = q, 0.0
+        records = np.zeros((2, max(program.records, 1), timestepping.RECORD_COLUMNS))
+        summaries = np.zeros((2, timestepping.SUMMARY_COLUMNS + program.bilateral))
+        io = np.zeros(timestepping.IO_SIZE)
+        io[timestepping.IO_STEP], io[timestepping.IO_STOP] = 1, 2
+        # a step of 1e-300 s: the free motion and the impulses move nothing; the correction moves q
+        times = np.array([0.0, 1e-300])
+        _call_run(program, tree, stepping.NO_CONTROL, np.zeros((1, nv)), None, times, states, records, summaries, io)
+        depth = -summaries[1, timestepping.SUMMARY_SEPARATION]
+        if not depth > 0.0:
+            break
+        deepest = max(deepest, depth)
+        q = states[1, :nq].copy()
+    return q, deepest
+
+
+def _call_run(program, tree, kind, control, controller, times, states, records, summaries, io):
+    """One trajectory's steps ``io[IO_STEP]`` up to ``io[IO_STOP]`` by :func:`multibody.kernels.timestepping.run`."""
+    plan = program.plan.copy()
+    plan[timestepping.PLAN_CONTROL] = kind
+    pointer = controller.pointer if kind == stepping.FUNCTION else driver.first_class(stepping.no_controller,
+                                                                                       CONTROLLER_TYPES)
+    entry = driver.entry_point(timestepping.run, _RUN_TYPES)
+    entry(pointer, tree.joints, tree.reals, program.frames, program.program, program.geometry, program.vertices, plan,
+          control[0], times, states, records, summaries, io, np.empty(program.workspace),
+          np.zeros(program.int_workspace, dtype=np.int64))
+
+
+def _run_batch(program, tree, kind, control, controller, times, states, records, summaries, io):
+    """The steps of every trajectory of ``states (N, n, nq + nv)`` on all cores, each on its own."""
+    plan = program.plan.copy()
+    plan[timestepping.PLAN_CONTROL] = kind
+    pointer = controller.pointer if kind == stepping.FUNCTION else driver.first_class(stepping.no_controller,
+                                                                                       CONTROLLER_TYPES)
+    shares = max(1, min(driver.get_num_threads(), len(states)))
+    entry = driver.entry_point(_trajectories, _TRAJECTORIES_TYPES)
+    with driver.parallel_shares(shares):
+        entry(driver.first_class(timestepping.run, _RUN_TYPES), pointer, tree.joints, tree.reals, program.frames,
+              program.program, program.geometry, program.vertices, plan, control, times, states, records, summaries,
+              io, program.workspace, program.int_workspace, shares)
+
+
+def run(constrained, q, v, times, controller, torque, batch, damping=None, tolerance=TOLERANCE,
+        max_iterations=MAX_ITERATIONS):
+    """The Moreau–Jean steps (:mod:`multibody.kernels.timestepping`) of ``constrained`` from the checked initial
+    states ``q (N, nq)``, ``v (N, nv)`` at the output ``times (n,)`` (s; one step per interval): a
+    :class:`~multibody.Trajectory` (one, for ``batch`` ``None``, or of ``batch`` trajectories) whose ``status``
+    says where each stopped. ``controller``: ``None``, joint forces ``(nv,)`` or ``(N, nv)``, a bound PD or a
+    compiled controller, run inside the step; or ``torque(t, q, v)``, a Python function of the state at each step's
+    start (``controller`` then ``None``). ``damping (nv,)`` or ``None``: joint damping ``−D v``. ``tolerance`` (m/s)
+    and ``max_iterations``: each step's contact problem; a step that does not reach the tolerance ends its
+    trajectory. An initial state in penetration is projected out (the smallest move in the metric of ``M``) with a
+    warning giving the depth."""
+    model = constrained.system.model
+    nq, nv = constrained.nq, constrained.nv
+    program = contact_program(constrained, tolerance=tolerance, max_iterations=max_iterations, damping=damping)
+    tree = model.tree
+    count = len(q)
+    q, v = model.normalize(np.array(q, dtype=float)), np.array(v, dtype=float)
+    # an initial state in penetration, projected out (and onto the bilateral constraints)
+    for r in range(count):
+        if constrained.num_rows:
+            q[r], v[r] = constrained.project(q[r], v[r], times[0])
+        q[r], depth = separate_initial(constrained, program, q[r], tree)
+        if depth > 0.0:
+            where = "" if batch is None else f" (trajectory {r})"
+            warnings.warn(f"the initial state{where} penetrates by {depth:.3g} (m, or rad past a joint limit); "
+                          "projected out of penetration", UserWarning, stacklevel=4)
+    n = len(times)
+    states = np.full((count, n, nq + nv), np.nan)
+    states[:, 0, :nq], states[:, 0, nq:] = q, v
+    records = np.zeros((count, n, max(program.records, 1), timestepping.RECORD_COLUMNS))
+    summaries = np.zeros((count, n, timestepping.SUMMARY_COLUMNS + program.bilateral))
+    io = np.zeros((count, timestepping.IO_SIZE))
+    io[:, timestepping.IO_STEP], io[:, timestepping.IO_STOP] = 1, n
+    if torque is not None:
+        # a Python controller: its joint forces at each step's start, then that one step compiled
+        for k in range(1, n):
+            live = io[:, timestepping.IO_STATUS] == timestepping.COMPLETED
+            if not live.any():
+                break
+            at = (states[:, k - 1, :nq], states[:, k - 1, nq:]) if batch is not None else \
+                (states[0, k - 1, :nq].copy(), states[0, k - 1, nq:].copy())
+            value = torque(times[k - 1], *at)
+            control = np.ascontiguousarray(np.broadcast_to(np.zeros(nv) if value is None else value, (count, nv)),
+                                           dtype=float)
+            io[live, timestepping.IO_STEP], io[live, timestepping.IO_STOP] = k, k + 1
+            _dispatch(program, tree, stepping.CONSTANT, control, None, times, states, records, summaries, io, batch,
+                      live)
+    else:
+        kind, control = _control(controller, nv)
+        _dispatch(program, tree, kind, control, controller, times, states, records, summaries, io, batch, None)
+    statuses = []
+    for r in range(count):
+        status = int(io[r, timestepping.IO_STATUS])
+        last = int(io[r, timestepping.IO_STEP])
+        if status == timestepping.COMPLETED:
+            statuses.append("completed")
+            continue
+        if status == timestepping.NOT_SOLVED:
+            summary = summaries[r, last - 1]
+            solver = int(summary[timestepping.SUMMARY_STATUS])
+            statuses.append(f"the contact problem of the step ending at t = {times[last - 1]:.6g} s did not reach the "
+                            f"tolerance {tolerance:.3g} m/s in {int(summary[timestepping.SUMMARY_ITERATIONS])} "
+                            f"iterations (residual {summary[timestepping.SUMMARY_RESIDUAL]:.3g} m/s: "
+                            f"{STATUS_MESSAGES.get(solver, 'failed')})")
+        else:
+            statuses.append(f"{_STATUS[status]} at t = {io[r, timestepping.IO_TIME]:.6g} s")
+        states[r, last:] = np.nan
+    return _trajectory(constrained, program, times, states, records, summaries, statuses, batch)
+
+
+def _dispatch(program, tree, kind, control, controller, times, states, records, summaries, io, batch, live):
+    """The steps of one trajectory (``batch`` ``None``) or of the ``live`` trajectories of a batch (``None``: all)."""
+    if batch is None:
+        _call_run(program, tree, kind, control, controller, times, states[0], records[0], summaries[0], io[0])
+        return
+    if live is None or live.all():
+        _run_batch(program, tree, kind, control, controller, times, states, records, summaries, io)
+        return
+    rows = np.flatnonzero(live)
+    parts = [np.ascontiguousarray(x[rows]) for x in (states, records, summaries, io)]
+    _run_batch(program, tree, kind, np.ascontiguousarray(control[rows]) if len(control) > 1 else control, controller,
+               times, *parts)
+    for x, part in zip((states, records, summaries, io), parts):
+        x[rows] = part
+
+
+def _trajectory(constrained, program, times, states, records, summaries, statuses, batch):
+    """The :class:`~multibody.Trajectory` of the runs (one, or ``batch`` of them)."""
+    nq, m = constrained.nq, constrained.num_rows
+    q, v = states[..., :nq], states[..., nq:]
+    finite = np.isfinite(q).all(axis=-1) & np.isfinite(v).all(axis=-1)
+    safe_q = np.where(finite[..., None], q, constrained.system.model.neutral())
+    safe_v = np.where(finite[..., None], v, 0.0)
+    energy = np.where(finite, constrained.energy(safe_q, safe_v), np.nan)
+    if m:
+        residual = np.where(finite, constrained.residual(safe_q, safe_v, times), np.nan)
+    else:
+        residual = np.where(finite, 0.0, np.nan)
+    lam = summaries[..., timestepping.SUMMARY_COLUMNS :].copy()
+    complementarity_ = summaries[..., timestepping.SUMMARY_RESIDUAL].copy()
+    complementarity_[..., 0] = 0.0
+    contacts = [_entries(records[r], summaries[r], program) for r in range(len(states))]
+    one = batch is None
+    return Trajectory(t=np.array(times, dtype=float), q=q[0] if one else q, v=v[0] if one else v,
+                      lam=lam[0] if one else lam, energy=energy[0] if one else energy,
+                      residual=residual[0] if one else residual, row_names=list(constrained.row_names),
+                      status=statuses[0] if one else statuses, joint_names=recorded_names(constrained),
+                      contacts=contacts[0] if one else contacts,
+                      complementarity=complementarity_[0] if one else complementarity_)

@@ -1,0 +1,648 @@
+"""Velocity-level time stepping with contact and joint limits: Moreau–Jean's scheme, every step compiled.
+
+One step of ``dt`` from ``(q_k, v_k)`` (J. J. Moreau, *Unilateral contact and dry friction in finite freedom
+dynamics*, CISM 302, 1988; M. Jean, *The non-smooth contact dynamics method*, Comput. Methods Appl. Mech. Engrg.
+177, 1999; with θ = 1 and the positions updated with the new velocities, as in V. Acary and B. Brogliato,
+*Numerical Methods for Nonsmooth Dynamical Systems*, Springer 2008, §10.1, and M. Anitescu and F. A. Potra,
+Nonlinear Dynamics 14, 1997):
+
+    M (v_{k+1} − v_k) = dt (τ − h)(q_k, v_k) + Jᵀ P                                  (Acary & Brogliato eq. 10.4)
+    q_{k+1} = q_k ⊕ dt v_{k+1}
+
+with ``M``, ``h`` and the rows ``J`` at ``q_k``. Eliminating ``v_{k+1}`` with the free velocity
+``v* = v_k + dt M⁻¹ (τ − h)`` gives the one contact problem of the step, in the impulses ``P``:
+
+    u = G P + c,   G = J M⁻¹ Jᵀ,   c = J v* + (offsets below),   v_{k+1} = v* + M⁻¹ Jᵀ P
+
+solved by :func:`multibody.kernels.complementarity.solve` with one block per row kind: a bilateral row
+``u = 0`` (the constraint program's rows, :mod:`multibody.kernels.constraints`, at velocity level with the
+offset ``φ/dt``, so that the step closes ``φ`` to first order), a joint limit's unilateral row
+``0 ≤ P ⊥ u ≥ 0``, and a contact's three rows (normal, two tangents) in De Saxcé's cone complementarity
+``P ∈ K_μ``, ``u + μ‖u_T‖ e_N ∈ K_μ*``, ``P · (u + μ‖u_T‖ e_N) = 0`` (Acary & Brogliato §13.3).
+
+The offset of a normal (or limit) row with gap ``g`` (m or rad; < 0 when penetrating) asks
+``u⁺ₙ ≥ ℓ`` with
+
+    ℓ = −max(g, 0)/dt                            the step ends with g + dt u⁺ₙ ≥ 0 (to first order), and a
+                                                 penetrating contact is not pushed out (no energy added);
+    ℓ = max(ℓ, −e u⁻ₙ)                           Newton's restitution, for a contact that closes within the step
+                                                 (g + dt u*ₙ < 0) while approaching faster than one step's free
+                                                 change of its normal velocity, |u*ₙ − u⁻ₙ|
+
+(``u⁻ₙ`` the normal velocity at the step's start, ``u*ₙ`` the free one): so the row is ``u = u⁺ₙ − ℓ ≥ 0``,
+``c = Jₙ v* − ℓ``. Slower approaches are inelastic: a ball whose bounces shrink below what gravity gives in one
+step comes to rest instead of bouncing ever more often (no Zeno chatter). A contact that penetrates at the end
+of the step (rotation and curvature, which the first-order gap leaves out) is separated by a position
+correction that leaves the velocities alone (:func:`separate`), so penetration never becomes speed.
+
+Contacts come from :mod:`multibody.kernels.collision` at ``q_k``: every geometry against the half-spaces of
+``Ground`` and the pairs of ``ContactPair``, with a margin that covers what the step's motion can close (the
+geometries' speeds times ``2 dt`` beyond a fixed margin); a contact's rows are those of the velocity of body a
+relative to body b at the contact point, in the frame ``(n, t₁, t₂)``. Joint limits are rows ``± e_i`` of a
+one-coordinate joint whose gap to ``lower`` or ``upper`` is within the margin.
+
+A run (:func:`run`) takes the steps of one trajectory; :mod:`multibody.contact` runs many on all cores.
+"""
+
+from __future__ import annotations
+
+import math
+
+from ..tree import FRAME_JOINT, FRAME_POSITION, IQ, IV, KIND, NV
+from . import collision, complementarity, crba, kinematics, kkt, rnea, stepping
+from . import joints as kinds
+from .constraints import constraint_rows
+from .jit import njit
+from .spatial import all_finite, cross, dot3, load3, scale3
+
+# ----------------------------------------------------------------------------- layouts
+
+#: The plan's header (one float each): sizes, the controller, the counts of ground items, contact pairs and
+#: limited coordinates, the solver's settings, where the blocks that follow start, the penetration the position
+#: correction leaves, and the workspaces of the kinematics and of the dynamics passes (:func:`pass_workspaces`).
+(PLAN_NQ, PLAN_NV, PLAN_CONTROL, PLAN_GROUNDS, PLAN_PAIRS, PLAN_LIMITS, PLAN_MARGIN, PLAN_TOLERANCE,
+ PLAN_MAX_ITERATIONS, PLAN_BILATERAL, PLAN_DAMPED, PLAN_GROUND_START, PLAN_PAIR_START, PLAN_LIMIT_START,
+ PLAN_DAMPING_START, PLAN_PENETRATION, PLAN_KINEMATICS_WORKSPACE, PLAN_PASSES_WORKSPACE) = range(18)
+PLAN_HEADER = 18
+
+#: A ground item: a geometry against the half-space ``n · x ≥ height``, with its friction and restitution.
+GROUND_GEOMETRY, GROUND_NORMAL, GROUND_HEIGHT, GROUND_FRICTION, GROUND_RESTITUTION = 0, 1, 4, 5, 6
+GROUND_COLUMNS = 7
+#: A pair item: two geometries, friction and restitution.
+PAIR_A, PAIR_B, PAIR_FRICTION, PAIR_RESTITUTION = 0, 1, 2, 3
+PAIR_COLUMNS = 4
+#: A limited coordinate: its index in ``q`` and in ``v``, its limits (``±inf`` where none), restitution, the joint.
+LIMIT_IQ, LIMIT_IV, LIMIT_LOWER, LIMIT_UPPER, LIMIT_RESTITUTION, LIMIT_JOINT = range(6)
+LIMIT_COLUMNS = 6
+
+#: A geometry row: its frame row (:mod:`multibody.tree`: the joint that moves it and its pose in that joint's
+#: frame), its size in the kernel convention of :mod:`multibody.kernels.collision`, shape code, the radius of a
+#: ball about its origin that holds it (m), its vertices' start and count, and its body's index in the model.
+GEOMETRY_FRAME, GEOMETRY_SIZE, GEOMETRY_SHAPE, GEOMETRY_RADIUS, GEOMETRY_VERTEX_START, GEOMETRY_VERTEX_COUNT, \
+    GEOMETRY_BODY = 0, 13, 16, 17, 18, 19, 20
+GEOMETRY_COLUMNS = 21
+
+#: A recorded row: body, other (a body index; :data:`GROUND` or :data:`LIMIT`), point (3), normal (3), force (3).
+RECORD_BODY, RECORD_OTHER, RECORD_POINT, RECORD_NORMAL, RECORD_FORCE = 0, 1, 2, 5, 8
+RECORD_COLUMNS = 11
+GROUND, LIMIT = -1.0, -2.0
+#: A step's summary: rows recorded, the solver's residual (m/s), its iterations and status, and the deepest
+#: penetration its position correction removed (m or rad, ≤ 0; :func:`separate`).
+SUMMARY_COUNT, SUMMARY_RESIDUAL, SUMMARY_ITERATIONS, SUMMARY_STATUS, SUMMARY_SEPARATION = 0, 1, 2, 3, 4
+SUMMARY_COLUMNS = 5
+
+#: The entries of a run's ``io``: the next step (in and out), the step to stop before, the status (out), the
+#: time of what it reports.
+IO_STEP, IO_STOP, IO_STATUS, IO_TIME = 0, 1, 2, 3
+IO_SIZE = 4
+#: Status of a run: completed; ``M`` not positive definite; a bilateral row undefined; the solver did not reach
+#: its tolerance (the step is taken, and the run stops after it); a non-finite state; non-finite joint forces.
+COMPLETED, NOT_POSITIVE_DEFINITE, UNDEFINED, NOT_SOLVED, NON_FINITE_STATE, NON_FINITE_TORQUE = range(6)
+
+#: A contact's data while the step is built: the bodies (model indices; a ground's ``other`` is GROUND), point
+#: (3), normal, tangents (3 each), gap, restitution, friction.
+C_BODY, C_OTHER, C_POINT, C_NORMAL, C_T1, C_T2, C_GAP, C_RESTITUTION, C_FRICTION = 0, 1, 2, 5, 8, 11, 14, 15, 16
+CONTACT_DATA = 17
+
+@njit(cache=True, error_model="numpy")
+def max_contacts(grounds, pairs):
+    """The most contact points a step can have: :data:`~multibody.kernels.collision.MAX_PAIR_CONTACTS` per ground
+    item and per pair."""
+    return (grounds + pairs) * collision.MAX_PAIR_CONTACTS
+
+
+@njit(cache=True, error_model="numpy")
+def max_rows(bilateral, limits, contacts):
+    """The most rows of a step's problem: the bilateral rows, two per limited coordinate, three per contact."""
+    return bilateral + 2 * limits + 3 * contacts
+
+
+def pass_workspaces(nj, nv):
+    """Floats of workspace of the kinematics pass (kept through the step) and of the dynamics passes (CRBA, RNEA,
+    frame motions), the plan's :data:`PLAN_KINEMATICS_WORKSPACE` and :data:`PLAN_PASSES_WORKSPACE`."""
+    return (kinematics.workspace_size(nj, nv),
+            max(crba.workspace_size(nj, nv), rnea.workspace_size(nj, nv), kinematics.workspace_size(nj, nv)))
+
+
+def workspace_size(nj, nq, nv, nframes, bilateral, limits, contacts, solver_workspace):
+    """Floats of workspace of a run's step."""
+    m = max_rows(bilateral, limits, contacts)
+    kinematic, passes = pass_workspaces(nj, nv)
+    return (nv * nv + 5 * nv + 2 * nq + kinematic + passes
+            + nframes * kinematics.motion_columns(nv) + bilateral * nv + 2 * bilateral
+            + collision.MAX_PAIR_CONTACTS * collision.CONTACT_COLUMNS + collision.PAIR_WORKSPACE + 9 + 9 + 3 * 3
+            + 6 * nv + contacts * CONTACT_DATA + 3 * m * nv + m * m + 12 * m + solver_workspace)
+
+
+def int_workspace_size(bilateral, limits, contacts):
+    """Integers of workspace of a run's step: the blocks' kinds and first rows."""
+    blocks = bilateral + 2 * limits + contacts
+    return 2 * blocks
+
+
+# ----------------------------------------------------------------------------- geometry
+
+@njit(cache=True, error_model="numpy")
+def tangents(n):
+    """Two unit tangents ``(t₁, t₂)`` of the unit normal ``n`` with ``(n, t₁, t₂)`` right-handed: ``t₁`` along
+    ``n × e`` for the axis ``e`` least aligned with ``n``."""
+    if abs(n[0]) <= abs(n[1]) and abs(n[0]) <= abs(n[2]):
+        e = (1.0, 0.0, 0.0)
+    elif abs(n[1]) <= abs(n[2]):
+        e = (0.0, 1.0, 0.0)
+    else:
+        e = (0.0, 0.0, 1.0)
+    t = cross(n, e)
+    t1 = scale3(1.0 / math.sqrt(dot3(t, t)), t)
+    return t1, cross(n, t1)
+
+
+@njit(cache=True, error_model="numpy")
+def speed_bound(geometry, g, vel):
+    """An upper bound on the speed of any point of geometry ``g`` (m/s): ``|v_O + ω × p| + |ω| r`` for its
+    origin ``p`` in its joint's frame and the radius ``r`` of :data:`GEOMETRY_RADIUS`; the joints' velocities
+    ``vel (nj, 6)`` (:func:`multibody.kernels.kinematics.joint_motions`, joint coordinates)."""
+    j = int(geometry[g, GEOMETRY_FRAME + FRAME_JOINT])
+    if j < 0:
+        return 0.0
+    p = load3(geometry[g], GEOMETRY_FRAME + FRAME_POSITION)
+    v_j, w_j = load3(vel[j], 0), load3(vel[j], 3)
+    w_p = cross(w_j, p)
+    s = (v_j[0] + w_p[0], v_j[1] + w_p[1], v_j[2] + w_p[2])
+    return math.sqrt(dot3(s, s)) + math.sqrt(dot3(w_j, w_j)) * geometry[g, GEOMETRY_RADIUS]
+
+
+@njit(cache=True, error_model="numpy")
+def world_pose(pose, geometry, g, R, p):
+    """Geometry ``g``'s world rotation into ``R (3, 3)`` and position (m) into ``p (3,)``, from the joints' poses
+    ``pose`` of :func:`multibody.kernels.kinematics.joint_motions`."""
+    rotation, p_O = kinematics.frame_pose(pose, geometry[g : g + 1, GEOMETRY_FRAME : GEOMETRY_FRAME + 13], 0)
+    x = kinematics.world_position(pose, p_O)
+    for r in range(3):
+        p[r] = x[r]
+        for c in range(3):
+            R[r, c] = rotation[3 * r + c]
+
+
+@njit(cache=True, error_model="numpy")
+def add_contacts(rows, count, contacts, found, body, other, mu, e, limit):
+    """Append the ``count`` detected rows ``rows (k, 7)`` (``[point, normal, gap]``) to ``contacts`` after
+    ``found`` of them, with their frame ``(n, t₁, t₂)``; returns the new number (at most ``limit``)."""
+    for r in range(count):
+        if found >= limit:
+            break
+        data = contacts[found]
+        n = (rows[r, 3], rows[r, 4], rows[r, 5])
+        t1, t2 = tangents(n)
+        data[C_BODY], data[C_OTHER] = body, other
+        for c in range(3):
+            data[C_POINT + c] = rows[r, c]
+            data[C_NORMAL + c] = n[c]
+            data[C_T1 + c] = t1[c]
+            data[C_T2 + c] = t2[c]
+        data[C_GAP], data[C_RESTITUTION], data[C_FRICTION] = rows[r, 6], e, mu
+        found += 1
+    return found
+
+
+@njit(cache=True, error_model="numpy")
+def detect(plan, geometry, vertices, pose, vel, dt, contacts, out, cws, R_a, p_a, R_b, p_b, normal):
+    """Every contact of the ground items and pairs of ``plan`` at the joints' poses ``pose`` into ``contacts
+    (·, CONTACT_DATA)``; returns their number. Each item's margin is the plan's plus ``2 dt`` times the speeds
+    its geometries can reach (:func:`speed_bound`), so that a contact the step can close is in it."""
+    margin = plan[PLAN_MARGIN]
+    limit = contacts.shape[0]
+    found = 0
+    start = int(plan[PLAN_GROUND_START])
+    for k in range(int(plan[PLAN_GROUNDS])):
+        item = plan[start + k * GROUND_COLUMNS : start + (k + 1) * GROUND_COLUMNS]
+        g = int(item[GROUND_GEOMETRY])
+        world_pose(pose, geometry, g, R_a, p_a)
+        for c in range(3):
+            normal[c] = item[GROUND_NORMAL + c]
+        first, count = int(geometry[g, GEOMETRY_VERTEX_START]), int(geometry[g, GEOMETRY_VERTEX_COUNT])
+        count = collision.halfspace_contacts(int(geometry[g, GEOMETRY_SHAPE]),
+                                             geometry[g, GEOMETRY_SIZE : GEOMETRY_SIZE + 3],
+                                             vertices[first : first + count], R_a, p_a, normal, item[GROUND_HEIGHT],
+                                             margin + 2.0 * dt * speed_bound(geometry, g, vel), out, cws)
+        found = add_contacts(out, count, contacts, found, geometry[g, GEOMETRY_BODY], GROUND, item[GROUND_FRICTION],
+                             item[GROUND_RESTITUTION], limit)
+    start = int(plan[PLAN_PAIR_START])
+    for k in range(int(plan[PLAN_PAIRS])):
+        item = plan[start + k * PAIR_COLUMNS : start + (k + 1) * PAIR_COLUMNS]
+        a, b = int(item[PAIR_A]), int(item[PAIR_B])
+        world_pose(pose, geometry, a, R_a, p_a)
+        world_pose(pose, geometry, b, R_b, p_b)
+        first_a, count_a = int(geometry[a, GEOMETRY_VERTEX_START]), int(geometry[a, GEOMETRY_VERTEX_COUNT])
+        first_b, count_b = int(geometry[b, GEOMETRY_VERTEX_START]), int(geometry[b, GEOMETRY_VERTEX_COUNT])
+        reach = margin + 2.0 * dt * (speed_bound(geometry, a, vel) + speed_bound(geometry, b, vel))
+        count = collision.pair_contacts(int(geometry[a, GEOMETRY_SHAPE]), geometry[a, GEOMETRY_SIZE : GEOMETRY_SIZE + 3],
+                                        vertices[first_a : first_a + count_a], R_a, p_a,
+                                        int(geometry[b, GEOMETRY_SHAPE]), geometry[b, GEOMETRY_SIZE : GEOMETRY_SIZE + 3],
+                                        vertices[first_b : first_b + count_b], R_b, p_b, reach, out, cws)
+        found = add_contacts(out, count, contacts, found, geometry[a, GEOMETRY_BODY], geometry[b, GEOMETRY_BODY],
+                             item[PAIR_FRICTION], item[PAIR_RESTITUTION], limit)
+    return found
+
+
+@njit(cache=True, error_model="numpy")
+def body_joint(geometry, body):
+    """The joint that moves the body of model index ``body`` (``-1``: the world or the ground), read from the
+    first geometry row of that body."""
+    if body < 0.0:
+        return -1
+    for g in range(geometry.shape[0]):
+        if geometry[g, GEOMETRY_BODY] == body:
+            return int(geometry[g, GEOMETRY_FRAME + FRAME_JOINT])
+    return -1
+
+
+@njit(cache=True, error_model="numpy")
+def contact_rows(joints, reals, pose, geometry, data, J, row, J6):
+    """The three rows ``[n; t₁; t₂]ᵀ (J_a − J_b)`` of one contact into ``J[row : row + 3]``: the velocity of body a
+    relative to body b at the contact point, in the contact frame (m/s per unit of ``v``). ``J6 (6, nv)`` is
+    scratch for a body's Jacobian (:func:`multibody.kernels.kinematics.jacobian_columns`, world axes)."""
+    nv = J.shape[1]
+    for r in range(3):
+        for c in range(nv):
+            J[row + r, c] = 0.0
+    # the point from the reference point O, where the joints' positions are
+    origin = kinematics.world_origin(pose)
+    x = (data[C_POINT] + origin[0], data[C_POINT + 1] + origin[1], data[C_POINT + 2] + origin[2])
+    for side in range(2):
+        j = body_joint(geometry, data[C_BODY] if side == 0 else data[C_OTHER])
+        if j < 0:
+            continue
+        sign = 1.0 if side == 0 else -1.0
+        kinematics.jacobian_columns(joints, reals, pose, j, x, J6)
+        for r in range(3):
+            axis = C_NORMAL if r == 0 else (C_T1 if r == 1 else C_T2)
+            for c in range(nv):
+                J[row + r, c] += sign * (data[axis] * J6[0, c] + data[axis + 1] * J6[1, c] + data[axis + 2] * J6[2, c])
+
+
+@njit(cache=True, error_model="numpy")
+def row_dot(J, row, x):
+    """``J[row] · x``."""
+    s = 0.0
+    for c in range(J.shape[1]):
+        s += J[row, c] * x[c]
+    return s
+
+
+@njit(cache=True, error_model="numpy")
+def lower_bound(gap, dt, u_start, u_free, e):
+    """``ℓ`` of a normal or limit row (module docstring): the least ``u⁺ₙ`` the step allows, from its gap ``g``,
+    the normal velocity ``u⁻ₙ`` at the start, the free one ``u*ₙ`` and the restitution ``e`` (0 for a step of
+    zero length, which solves nothing)."""
+    if not dt > 0.0:
+        return 0.0
+    # ℓ = −max(g, 0)/dt
+    bound = -max(gap, 0.0) / dt
+    # Newton's restitution, u⁺ₙ ≥ −e u⁻ₙ, for a contact that closes within the step, approaching faster than
+    # the step's free change of its normal velocity
+    if e > 0.0 and gap + dt * u_free < 0.0 and u_start < -abs(u_free - u_start):
+        bound = max(bound, -e * u_start)
+    return bound
+
+
+# ----------------------------------------------------------------------------- one step
+
+@njit(cache=True, error_model="numpy")
+def metric_rows(L, J, W, Y, m, nv):
+    """``W_i = L⁻¹ J_iᵀ`` and ``Y_i = M⁻¹ J_iᵀ = L⁻ᵀ W_i`` for the first ``m`` rows of ``J`` (``M = L Lᵀ``)."""
+    for i in range(m):
+        for c in range(nv):
+            W[i, c] = J[i, c]
+        kkt.forward_substitution(L, nv, W[i])
+        for c in range(nv):
+            Y[i, c] = W[i, c]
+        kkt.back_substitution(L, nv, Y[i])
+
+
+@njit(cache=True, error_model="numpy")
+def delassus(W, rows, m, G):
+    """``G = W Wᵀ (m, m)`` of the rows ``rows[:m]`` of ``W``: the Delassus matrix ``J M⁻¹ Jᵀ``."""
+    for i in range(m):
+        for k in range(i + 1):
+            s = kkt.row_dot(W, int(rows[i]), int(rows[k]), W.shape[1])
+            G[i, k] = s
+            G[k, i] = s
+
+
+@njit(cache=True, error_model="numpy")
+def separate(joints, plan, W, Y, gaps, normal_rows, count, G, x, u, mu, kinds_, starts, sws, nq, nv, q, dq, moved):
+    """The position correction of the rows (contact normals, joint limits) ``normal_rows[:count]`` of a step whose
+    first-order gaps at its end, ``gaps[:count]`` (m or rad), go below ``−plan[PLAN_PENETRATION]``: the smallest move
+    ``w`` in the metric of ``M`` with ``Jₙ w ≥ −g`` on all of them (the frictionless problem ``0 ≤ P ⊥ Gₙ P + g ≥ 0``
+    with ``Gₙ = Jₙ M⁻¹ Jₙᵀ``, ``w = M⁻¹ Jₙᵀ P``; the rows still open keep ``g + Jₙ w ≥ 0``), then ``q ← q ⊕ w``. The
+    velocities are left alone, so penetration is removed without adding energy: a post-stabilization of the
+    positions (E. Hairer, C. Lubich and G. Wanner, *Geometric Numerical Integration*, §IV.4's projection, here
+    onto the unilateral set; Acary & Brogliato §10.3). ``W``, ``Y``: the rows of :func:`metric_rows`. Returns the
+    deepest end gap corrected (m or rad, ≤ 0), 0 when nothing penetrates."""
+    deepest = 0.0
+    for i in range(count):
+        deepest = min(deepest, gaps[i])
+    if deepest >= -plan[PLAN_PENETRATION]:
+        return 0.0
+    # Gₙ = Wₙ Wₙᵀ ;  0 ≤ P ⊥ Gₙ P + g ≥ 0
+    Gn = G[: count * count].reshape((count, count))
+    delassus(W, normal_rows, count, Gn)
+    for i in range(count):
+        x[i] = 0.0
+        kinds_[i] = complementarity.UNILATERAL
+        starts[i] = i
+        mu[i] = 0.0
+    complementarity.solve(Gn, gaps[:count], kinds_[:count], starts[:count], mu[:count], plan[PLAN_TOLERANCE],
+                          int(plan[PLAN_MAX_ITERATIONS]), x[:count], u[:count], sws)
+    # w = M⁻¹ Jₙᵀ P ;  q ← q ⊕ w
+    for col in range(nv):
+        s = 0.0
+        for i in range(count):
+            s += Y[int(normal_rows[i]), col] * x[i]
+        dq[col] = s
+    for i in range(joints.shape[0]):
+        kinds.integrate(joints[i, KIND], joints[i, NV], q, dq, joints[i, IQ], joints[i, IV], moved)
+    for col in range(nq):
+        q[col] = moved[col]
+    return deepest
+
+
+@njit(cache=True, error_model="numpy")
+def step(controller, joints, reals, frames, program, geometry, vertices, plan, control, t, dt, q, v, q_next, v_next,
+         record, summary, ws, iws):
+    """One step of ``dt`` (s) from ``q (nq,)``, ``v (nv,)`` at ``t`` into ``q_next``, ``v_next`` (module docstring),
+    the contact rows into ``record (R, RECORD_COLUMNS)`` and ``summary (SUMMARY_COLUMNS + m_b,)`` (its last ``m_b``
+    entries the bilateral rows' multipliers, impulse / dt). A step of zero length moves ``q`` by the position
+    correction alone (:func:`separate`), which projects an initial state out of penetration. Returns a status
+    (:data:`COMPLETED` ...). ``controller``, ``control`` as :func:`multibody.kernels.stepping.advance` takes them
+    (the plan's controller kind: none, constant, PD, or a compiled function)."""
+    nq, nv = q.shape[0], v.shape[0]
+    nj = joints.shape[0]
+    kind = int(plan[PLAN_CONTROL])
+    mb = int(plan[PLAN_BILATERAL])
+    n_limits = int(plan[PLAN_LIMITS])
+    n_contacts = max_contacts(int(plan[PLAN_GROUNDS]), int(plan[PLAN_PAIRS]))
+    m_max = max_rows(mb, n_limits, n_contacts)
+    tolerance, iterations = plan[PLAN_TOLERANCE], int(plan[PLAN_MAX_ITERATIONS])
+    none = plan[:0]
+    # workspace
+    at = 0
+    L = ws[at : at + nv * nv].reshape((nv, nv))
+    at += nv * nv
+    h = ws[at : at + nv].reshape((1, nv))
+    at += nv
+    tau = ws[at : at + nv]
+    at += nv
+    v_free = ws[at : at + nv]
+    at += nv
+    dq = ws[at : at + nv]
+    at += nv
+    scratch = ws[at : at + nq + nv]
+    at += nq + nv
+    moved = ws[at : at + nq]
+    at += nq
+    kinematic_size, passes_size = int(plan[PLAN_KINEMATICS_WORKSPACE]), int(plan[PLAN_PASSES_WORKSPACE])
+    kin = ws[at : at + kinematic_size]
+    at += kinematic_size
+    passes = ws[at : at + passes_size]
+    at += passes_size
+    cols = kinematics.motion_columns(nv)
+    motions = ws[at : at + frames.shape[0] * cols].reshape((frames.shape[0], cols))
+    at += frames.shape[0] * cols
+    A = ws[at : at + mb * nv].reshape((mb, nv))
+    at += mb * nv
+    gamma = ws[at : at + mb]
+    at += mb
+    phi = ws[at : at + mb]
+    at += mb
+    out = ws[at : at + collision.MAX_PAIR_CONTACTS * collision.CONTACT_COLUMNS].reshape(
+        (collision.MAX_PAIR_CONTACTS, collision.CONTACT_COLUMNS))
+    at += collision.MAX_PAIR_CONTACTS * collision.CONTACT_COLUMNS
+    cws = ws[at : at + collision.PAIR_WORKSPACE]
+    at += collision.PAIR_WORKSPACE
+    R_a = ws[at : at + 9].reshape((3, 3))
+    at += 9
+    R_b = ws[at : at + 9].reshape((3, 3))
+    at += 9
+    p_a = ws[at : at + 3]
+    p_b = ws[at + 3 : at + 6]
+    normal = ws[at + 6 : at + 9]
+    at += 9
+    J6 = ws[at : at + 6 * nv].reshape((6, nv))
+    at += 6 * nv
+    contacts = ws[at : at + n_contacts * CONTACT_DATA].reshape((n_contacts, CONTACT_DATA))
+    at += n_contacts * CONTACT_DATA
+    J = ws[at : at + m_max * nv].reshape((m_max, nv))
+    at += m_max * nv
+    W = ws[at : at + m_max * nv].reshape((m_max, nv))
+    at += m_max * nv
+    Y = ws[at : at + m_max * nv].reshape((m_max, nv))
+    at += m_max * nv
+    G_space = ws[at : at + m_max * m_max]
+    at += m_max * m_max
+    c = ws[at : at + m_max]
+    x = ws[at + m_max : at + 2 * m_max]
+    u = ws[at + 2 * m_max : at + 3 * m_max]
+    mu = ws[at + 3 * m_max : at + 4 * m_max]
+    bound = ws[at + 4 * m_max : at + 5 * m_max]
+    rows = ws[at + 5 * m_max : at + 6 * m_max]
+    gaps = ws[at + 6 * m_max : at + 7 * m_max]
+    sep_gap = ws[at + 7 * m_max : at + 8 * m_max]
+    sep_rows = ws[at + 8 * m_max : at + 9 * m_max]
+    sep_x = ws[at + 9 * m_max : at + 10 * m_max]
+    sep_u = ws[at + 10 * m_max : at + 11 * m_max]
+    sep_mu = ws[at + 11 * m_max : at + 12 * m_max]
+    at += 12 * m_max
+    sws = ws[at:]
+    blocks = iws.shape[0] // 2
+    block_kinds = iws[:blocks]
+    block_starts = iws[blocks:]
+    for k in range(summary.shape[0]):
+        summary[k] = 0.0
+
+    # the joint forces τ (less the joint damping D v)
+    if kind == stepping.CONSTANT:
+        for col in range(nv):
+            tau[col] = control[col]
+    elif kind == stepping.PD:
+        stepping.pd_torque(joints, t, q, v, control[nv:], tau, scratch)
+    elif kind == stepping.FUNCTION and controller is not None:
+        for col in range(nv):
+            tau[col] = 0.0
+        controller(t, q, v, tau)
+    else:
+        for col in range(nv):
+            tau[col] = 0.0
+    if not all_finite(tau):
+        return NON_FINITE_TORQUE
+    if plan[PLAN_DAMPED] != 0.0:
+        damping = plan[int(plan[PLAN_DAMPING_START]) : int(plan[PLAN_DAMPING_START]) + nv]
+        for col in range(nv):
+            tau[col] -= damping[col] * v[col]
+
+    # M = L Lᵀ and h at (q_k, v_k); v* = v_k + dt M⁻¹ (τ − h)
+    crba.mass_matrix(joints, reals, frames, q, none, none, none, L, passes)
+    rnea.inverse_dynamics(joints, reals, frames, q, v, none, none, h, passes)
+    if not kkt.cholesky(L, nv):
+        return NOT_POSITIVE_DEFINITE
+    for col in range(nv):
+        v_free[col] = tau[col] - h[0, col]
+    kkt.cholesky_solve(L, nv, v_free)
+    for col in range(nv):
+        v_free[col] = v[col] + dt * v_free[col]
+
+    # the rows: bilateral, joint limits, contacts; each block's kind, first row and friction
+    m, nb = 0, 0
+    if mb > 0:
+        kinematics.frame_motions(joints, reals, frames, q, v, none, none, motions, passes)
+        if constraint_rows(program, motions, q, v, A, gamma, phi) != 0:
+            return UNDEFINED
+        for i in range(mb):
+            for col in range(nv):
+                J[m, col] = A[i, col]
+            # A v⁺ = −φ/dt: the step closes φ to first order
+            bound[m] = -phi[i] / dt if dt > 0.0 else 0.0
+            gaps[m] = math.inf
+            block_kinds[nb], block_starts[nb], mu[nb] = complementarity.BILATERAL, m, 0.0
+            m += 1
+            nb += 1
+    margin = plan[PLAN_MARGIN]
+    start = int(plan[PLAN_LIMIT_START])
+    first_limit = m
+    for k in range(n_limits):
+        item = plan[start + k * LIMIT_COLUMNS : start + (k + 1) * LIMIT_COLUMNS]
+        iq, iv = int(item[LIMIT_IQ]), int(item[LIMIT_IV])
+        reach = margin + 2.0 * dt * (abs(v[iv]) + abs(v_free[iv]))
+        for side in range(2):
+            # lower: q − lower ≥ 0 along +e_i ; upper: upper − q ≥ 0 along −e_i
+            sign = 1.0 if side == 0 else -1.0
+            gap = q[iq] - item[LIMIT_LOWER] if side == 0 else item[LIMIT_UPPER] - q[iq]
+            if not gap < reach:
+                continue
+            for col in range(nv):
+                J[m, col] = 0.0
+            J[m, iv] = sign
+            bound[m] = lower_bound(gap, dt, sign * v[iv], sign * v_free[iv], item[LIMIT_RESTITUTION])
+            gaps[m] = gap
+            rows[m - first_limit] = k
+            block_kinds[nb], block_starts[nb], mu[nb] = complementarity.UNILATERAL, m, 0.0
+            m += 1
+            nb += 1
+    limit_rows = m - first_limit
+    pose, vel, _ = kinematics.joint_motions(joints, reals, q, v, kin, None)
+    found = detect(plan, geometry, vertices, pose, vel, dt, contacts, out, cws, R_a, p_a, R_b, p_b, normal)
+    first_contact = m
+    for k in range(found):
+        data = contacts[k]
+        contact_rows(joints, reals, pose, geometry, data, J, m, J6)
+        bound[m] = lower_bound(data[C_GAP], dt, row_dot(J, m, v), row_dot(J, m, v_free), data[C_RESTITUTION])
+        bound[m + 1] = 0.0
+        bound[m + 2] = 0.0
+        gaps[m], gaps[m + 1], gaps[m + 2] = data[C_GAP], math.inf, math.inf
+        block_kinds[nb], block_starts[nb], mu[nb] = complementarity.CONTACT, m, data[C_FRICTION]
+        m += 3
+        nb += 1
+
+    # G = J M⁻¹ Jᵀ, c = J v* − ℓ ; the impulses P of u = G P + c ; v⁺ = v* + M⁻¹ Jᵀ P
+    for col in range(nv):
+        v_next[col] = v_free[col]
+    for i in range(m):
+        x[i] = 0.0
+    if m > 0:
+        metric_rows(L, J, W, Y, m, nv)
+    if m > 0 and dt > 0.0:
+        G = G_space[: m * m].reshape((m, m))
+        for i in range(m):
+            for k in range(i + 1):
+                s = kkt.row_dot(W, i, k, nv)
+                G[i, k] = s
+                G[k, i] = s
+            c[i] = row_dot(J, i, v_free) - bound[i]
+        status, used, residual = complementarity.solve(G, c[:m], block_kinds[:nb], block_starts[:nb], mu[:nb],
+                                                       tolerance, iterations, x[:m], u[:m], sws)
+        summary[SUMMARY_RESIDUAL] = residual
+        summary[SUMMARY_ITERATIONS] = used
+        summary[SUMMARY_STATUS] = status
+        for col in range(nv):
+            s = v_free[col]
+            for i in range(m):
+                s += Y[i, col] * x[i]
+            v_next[col] = s
+
+    # q⁺ = q ⊕ dt v⁺
+    for col in range(nv):
+        dq[col] = dt * v_next[col]
+    for i in range(nj):
+        kinds.integrate(joints[i, KIND], joints[i, NV], q, dq, joints[i, IQ], joints[i, IV], q_next)
+
+    # penetration at the step's end (to first order: g + dt u⁺ₙ) removed by moving the positions alone
+    count = 0
+    for i in range(m):
+        if gaps[i] < math.inf:
+            end_gap = gaps[i] + dt * row_dot(J, i, v_next)
+            if end_gap < margin:
+                sep_gap[count], sep_rows[count] = end_gap, i
+                count += 1
+    summary[SUMMARY_SEPARATION] = separate(joints, plan, W, Y, sep_gap, sep_rows, count, G_space, sep_x, sep_u,
+                                           sep_mu, block_kinds, block_starts, sws, nq, nv, q_next, dq, moved)
+
+    # the record: each contact's force on body a (world axes, N), each limit's generalized force, each bilateral
+    # row's multiplier (its impulse / dt)
+    inverse_dt = 1.0 / dt if dt > 0.0 else 0.0
+    for i in range(mb):
+        summary[SUMMARY_COLUMNS + i] = x[i] * inverse_dt
+    n_record = 0
+    for k in range(limit_rows):
+        i = first_limit + k
+        item = plan[start + int(rows[k]) * LIMIT_COLUMNS : start + (int(rows[k]) + 1) * LIMIT_COLUMNS]
+        line = record[n_record]
+        for col in range(RECORD_COLUMNS):
+            line[col] = 0.0
+        line[RECORD_BODY], line[RECORD_OTHER] = item[LIMIT_JOINT], LIMIT
+        # the generalized force added to τ: ±P/dt (negative at an upper limit)
+        line[RECORD_FORCE] = J[i, int(item[LIMIT_IV])] * x[i] * inverse_dt
+        n_record += 1
+    for k in range(found):
+        data = contacts[k]
+        i = first_contact + 3 * k
+        line = record[n_record]
+        line[RECORD_BODY], line[RECORD_OTHER] = data[C_BODY], data[C_OTHER]
+        for col in range(3):
+            line[RECORD_POINT + col] = data[C_POINT + col]
+            line[RECORD_NORMAL + col] = data[C_NORMAL + col]
+            # f = (Pₙ n + P₁ t₁ + P₂ t₂)/dt on body a
+            line[RECORD_FORCE + col] = (x[i] * data[C_NORMAL + col] + x[i + 1] * data[C_T1 + col]
+                                        + x[i + 2] * data[C_T2 + col]) * inverse_dt
+        n_record += 1
+    summary[SUMMARY_COUNT] = n_record
+    if not (all_finite(q_next) and all_finite(v_next)):
+        return NON_FINITE_STATE
+    if m > 0 and summary[SUMMARY_STATUS] != complementarity.CONVERGED:
+        return NOT_SOLVED
+    return COMPLETED
+
+
+@njit(cache=True, error_model="numpy")
+def run(controller, joints, reals, frames, program, geometry, vertices, plan, control, times, states, record, summary,
+        io, ws, iws):
+    """Steps ``io[IO_STEP]`` up to ``io[IO_STOP]`` (exclusive) of one trajectory: ``states (n, nq + nv)`` holds
+    ``[q, v]`` at ``times (n,)``, each step ``k`` from ``states[k − 1]`` into ``states[k]``, its contact rows into
+    ``record[k]`` and its summary into ``summary[k]`` (:func:`step`). Returns with the status in ``io`` and
+    ``io[IO_STEP]`` the first step not taken (a step the solver did not finish is taken, and the run stops after
+    it)."""
+    nq, nv = int(plan[PLAN_NQ]), int(plan[PLAN_NV])
+    k, stop = int(io[IO_STEP]), int(io[IO_STOP])
+    while k < stop:
+        before, after = states[k - 1], states[k]
+        status = step(controller, joints, reals, frames, program, geometry, vertices, plan, control, times[k - 1],
+                      times[k] - times[k - 1], before[:nq], before[nq:], after[:nq], after[nq:], record[k], summary[k],
+                      ws, iws)
+        if status != COMPLETED and status != NOT_SOLVED:
+            io[IO_STEP], io[IO_STATUS], io[IO_TIME] = k, status, times[k - 1]
+            return
+        k += 1
+        if status == NOT_SOLVED:
+            io[IO_STEP], io[IO_STATUS], io[IO_TIME] = k, status, times[k - 1]
+            return
+    io[IO_STEP], io[IO_STATUS] = k, COMPLETED
