@@ -35,7 +35,7 @@ METHOD = "Moreau-Jean"
 #: Default tolerance of each step's contact problem (m/s): its residual (:mod:`multibody.kernels.complementarity`).
 TOLERANCE = 1e-12
 #: Default iterations of each step's solver.
-MAX_ITERATIONS = 2000
+MAX_ITERATIONS = 20000
 #: Distance (m, or rad for a joint limit) within which a contact or limit enters a step beyond what its speed
 #: can close in the step (its rows are inactive while it stays open).
 MARGIN = 1e-3
@@ -216,6 +216,11 @@ class JointLimits(Unilateral):
         bound.limits = [(i, int(model.idx_q[i]), int(model.idx_v[i]), float(model.lower[model.idx_q[i]]),
                          float(model.upper[model.idx_q[i]])) for i in chosen]
         return bound
+
+
+def enforced_coordinates(constrained):
+    """The indices into ``q`` of the coordinates whose limits ``constrained``'s :class:`JointLimits` enforce."""
+    return sorted({iq for c in constrained.unilateral if isinstance(c, JointLimits) for _, iq, _, _, _ in c.limits})
 
 
 def _copy(constraint):

@@ -221,7 +221,8 @@ def simulate(system, q0, v0, t_final, *, dt=None, method=None, tau=None, rtol=1e
         joint_damping: add viscous joint damping ``−D v`` (``D = diag(model.damping)``, from URDF
             ``<dynamics damping>``) to the joint forces; needs a system built on a ``Model``.
         limits: what to do, after the run, with output positions outside ``[model.lower, model.upper]``
-            (URDF ``<limit lower upper>``; limits are reported, not enforced): ``"warn"`` (default) gives
+            (URDF ``<limit lower upper>``; limits are reported, not enforced, but for the joints of a
+            :class:`multibody.JointLimits` in the system, which are held and not reported): ``"warn"`` (default) gives
             one :class:`JointLimitWarning` per joint, naming it with the first time and value outside;
             ``"error"`` raises :class:`SimulationError` at the first output time outside, naming the
             joint, time and value, with the trajectory up to that time; ``"ignore"`` does nothing.
@@ -527,15 +528,16 @@ def _simulate_unilateral(constrained, q0, v0, t_final, dt, method, tau, t0, join
     count = 1 if batch is None else batch
     trajectory = contact.run(constrained, np.broadcast_to(q, (count, nq)), np.broadcast_to(v, (count, nv)),
                              _output_times(t0, t_final, dt), controller, torque, batch, damping)
+    enforced = contact.enforced_coordinates(constrained)
     if batch is None:
         if trajectory.status != "completed":
             raise SimulationError(f"simulate ({contact.METHOD}) stopped: {trajectory.status}", trajectory)
         if limits != "ignore":
-            _report_limits(mechanical, trajectory, limits)
+            _report_limits(mechanical, trajectory, limits, enforced)
         return trajectory
     _warn_if_stopped(trajectory, 3)
     if limits != "ignore":
-        trajectory = _report_batch_limits(mechanical, trajectory, limits)
+        trajectory = _report_batch_limits(mechanical, trajectory, limits, enforced)
     return trajectory
 
 
@@ -612,17 +614,19 @@ def _with_joint_damping(torque, damping):
     return damped
 
 
-def _report_limits(system, trajectory, mode):
+def _report_limits(system, trajectory, mode, enforced=()):
     """Positions of ``trajectory`` outside ``[model.lower, model.upper]`` of ``system.model``: one
     :class:`JointLimitWarning` per joint at its first output time outside (``mode="warn"``), or a
     :class:`SimulationError` at the first output time any joint is outside, carrying the trajectory up to
     it (``mode="error"``). Unit-norm components (quaternions, planar ``(cos θ, sin θ)``) are bounded by ±1
-    by construction and not checked: rounding may take them a few ulps past."""
+    by construction and not checked: rounding may take them a few ulps past; nor are the coordinates ``enforced``
+    (indices into ``q``), which :class:`multibody.JointLimits` holds to its solver's tolerance."""
     model = system.model
     q = trajectory.q
     outside = (q < model.lower) | (q > model.upper)
     for start, stop in model._unit_norm_slices:
         outside[:, start:stop] = False
+    outside[:, list(enforced)] = False
     if not outside.any():
         return
     first = []  # (output index, coordinate) of each joint's first excursion
@@ -1381,7 +1385,7 @@ def _as_rows(tau, count, nv):
     return np.zeros((count, nv)) if tau is None else np.broadcast_to(tau, (count, nv))
 
 
-def _report_batch_limits(system, trajectory, mode):
+def _report_batch_limits(system, trajectory, mode, enforced=()):
     """:func:`_report_limits` for a batch of trajectories ``q (N, n, nq)``. ``"warn"``: one
     :class:`JointLimitWarning` per joint, with the number of trajectories that left its limits and the first
     time and value. ``"error"``: each trajectory that left a joint's limits stops at its first output time
@@ -1392,6 +1396,7 @@ def _report_batch_limits(system, trajectory, mode):
     outside = (q < model.lower) | (q > model.upper)  # (NaN compares False: stopped trajectories stay inside)
     for start, stop in model._unit_norm_slices:
         outside[..., start:stop] = False
+    outside[..., list(enforced)] = False
     if not outside.any():
         return trajectory
     count, n = q.shape[:2]

@@ -30,8 +30,12 @@ The offset of a normal (or limit) row with gap ``g`` (m or rad; < 0 when penetra
                                                  change of its normal velocity, |u*ₙ − u⁻ₙ|
 
 (``u⁻ₙ`` the normal velocity at the step's start, ``u*ₙ`` the free one): so the row is ``u = u⁺ₙ − ℓ ≥ 0``,
-``c = Jₙ v* − ℓ``. Slower approaches are inelastic: a ball whose bounces shrink below what gravity gives in one
-step comes to rest instead of bouncing ever more often (no Zeno chatter). A contact that penetrates at the end
+``c = Jₙ v* − ℓ``. Restitution applies to approaches faster than ``max(1, 2e/(1 − e²)) δ`` with ``δ = |u*ₙ − u⁻ₙ|``
+the step's free change of the normal velocity (``δ`` for ``e = 1``); slower ones are inelastic. The bound keeps
+the energy from rising at an impact: a body that bounces at ``u⁺ₙ = e|u⁻ₙ|`` under a force giving ``δ`` per step
+changes its energy (per unit mass along the normal) by ``½ u⁻ₙ² (e² − 1) + δ e |u⁻ₙ|`` in the step (the position
+moves with ``u⁺ₙ``), which is ≤ 0 exactly above that speed; and a ball whose bounces shrink comes to rest instead
+of bouncing ever more often (no Zeno chatter). A contact that penetrates at the end
 of the step (rotation and curvature, which the first-order gap leaves out) is separated by a position
 correction that leaves the velocities alone (:func:`separate`), so penetration never becomes speed.
 
@@ -49,7 +53,7 @@ from __future__ import annotations
 import math
 
 from ..tree import FRAME_JOINT, FRAME_POSITION, IQ, IV, KIND, NV
-from . import collision, complementarity, crba, kinematics, kkt, rnea, stepping
+from . import collision, complementarity, configuration, crba, kinematics, kkt, rnea, stepping
 from . import joints as kinds
 from .constraints import constraint_rows
 from .jit import njit
@@ -100,9 +104,10 @@ IO_SIZE = 4
 COMPLETED, NOT_POSITIVE_DEFINITE, UNDEFINED, NOT_SOLVED, NON_FINITE_STATE, NON_FINITE_TORQUE = range(6)
 
 #: A contact's data while the step is built: the bodies (model indices; a ground's ``other`` is GROUND), point
-#: (3), normal, tangents (3 each), gap, restitution, friction.
-C_BODY, C_OTHER, C_POINT, C_NORMAL, C_T1, C_T2, C_GAP, C_RESTITUTION, C_FRICTION = 0, 1, 2, 5, 8, 11, 14, 15, 16
-CONTACT_DATA = 17
+#: (3), normal, tangents (3 each), gap, restitution, friction, and its first row in the step's problem.
+C_BODY, C_OTHER, C_POINT, C_NORMAL, C_T1, C_T2, C_GAP, C_RESTITUTION, C_FRICTION, C_ROW = \
+    0, 1, 2, 5, 8, 11, 14, 15, 16, 17
+CONTACT_DATA = 18
 
 @njit(cache=True, error_model="numpy")
 def max_contacts(grounds, pairs):
@@ -128,7 +133,7 @@ def workspace_size(nj, nq, nv, nframes, bilateral, limits, contacts, solver_work
     """Floats of workspace of a run's step."""
     m = max_rows(bilateral, limits, contacts)
     kinematic, passes = pass_workspaces(nj, nv)
-    return (nv * nv + 5 * nv + 2 * nq + kinematic + passes
+    return (2 * nv * nv + 7 * nv + 2 * nq + kinematic + passes
             + nframes * kinematics.motion_columns(nv) + bilateral * nv + 2 * bilateral
             + collision.MAX_PAIR_CONTACTS * collision.CONTACT_COLUMNS + collision.PAIR_WORKSPACE + 9 + 9 + 3 * 3
             + 6 * nv + contacts * CONTACT_DATA + 3 * m * nv + m * m + 12 * m + solver_workspace)
@@ -300,8 +305,10 @@ def lower_bound(gap, dt, u_start, u_free, e):
     # ℓ = −max(g, 0)/dt
     bound = -max(gap, 0.0) / dt
     # Newton's restitution, u⁺ₙ ≥ −e u⁻ₙ, for a contact that closes within the step, approaching faster than
-    # the step's free change of its normal velocity
-    if e > 0.0 and gap + dt * u_free < 0.0 and u_start < -abs(u_free - u_start):
+    # 2e/(1 − e²) times the step's free change of its normal velocity, δ = |u*ₙ − u⁻ₙ| (δ itself for e = 1)
+    change = abs(u_free - u_start)
+    threshold = 2.0 * e * change / (1.0 - e * e) if e < 1.0 else change
+    if e > 0.0 and gap + dt * u_free < 0.0 and u_start < -max(threshold, change):
         bound = max(bound, -e * u_start)
     return bound
 
@@ -402,6 +409,12 @@ def step(controller, joints, reals, frames, program, geometry, vertices, plan, c
     at += nq + nv
     moved = ws[at : at + nq]
     at += nq
+    T = ws[at : at + nv * nv].reshape((nv, nv))
+    at += nv * nv
+    kappa = ws[at : at + nv].reshape((1, nv))
+    at += nv
+    w = ws[at : at + nv]
+    at += nv
     kinematic_size, passes_size = int(plan[PLAN_KINEMATICS_WORKSPACE]), int(plan[PLAN_PASSES_WORKSPACE])
     kin = ws[at : at + kinematic_size]
     at += kinematic_size
@@ -481,16 +494,18 @@ def step(controller, joints, reals, frames, program, geometry, vertices, plan, c
         for col in range(nv):
             tau[col] -= damping[col] * v[col]
 
-    # M = L Lᵀ and h at (q_k, v_k); v* = v_k + dt M⁻¹ (τ − h)
+    # M = L Lᵀ and h at (q_k, v_k); v* = v_k + dt (M⁻¹ (τ − h) + κ(v_k)): the free velocity in the parent-aligned
+    # axes of the chart at q_k, w* = T w_k + dt T (a + κ), written in the joints' axes at q_k
     crba.mass_matrix(joints, reals, frames, q, none, none, none, L, passes)
     rnea.inverse_dynamics(joints, reals, frames, q, v, none, none, h, passes)
     if not kkt.cholesky(L, nv):
         return NOT_POSITIVE_DEFINITE
+    configuration.velocity_coupling(joints, reals, frames, v, none, none, none, kappa, none)
     for col in range(nv):
         v_free[col] = tau[col] - h[0, col]
     kkt.cholesky_solve(L, nv, v_free)
     for col in range(nv):
-        v_free[col] = v[col] + dt * v_free[col]
+        v_free[col] = v[col] + dt * (v_free[col] + kappa[0, col])
 
     # the rows: bilateral, joint limits, contacts; each block's kind, first row and friction
     m, nb = 0, 0
@@ -532,7 +547,6 @@ def step(controller, joints, reals, frames, program, geometry, vertices, plan, c
     limit_rows = m - first_limit
     pose, vel, _ = kinematics.joint_motions(joints, reals, q, v, kin, None)
     found = detect(plan, geometry, vertices, pose, vel, dt, contacts, out, cws, R_a, p_a, R_b, p_b, normal)
-    first_contact = m
     for k in range(found):
         data = contacts[k]
         contact_rows(joints, reals, pose, geometry, data, J, m, J6)
@@ -540,8 +554,15 @@ def step(controller, joints, reals, frames, program, geometry, vertices, plan, c
         bound[m + 1] = 0.0
         bound[m + 2] = 0.0
         gaps[m], gaps[m + 1], gaps[m + 2] = data[C_GAP], math.inf, math.inf
-        block_kinds[nb], block_starts[nb], mu[nb] = complementarity.CONTACT, m, data[C_FRICTION]
-        m += 3
+        data[C_ROW] = m
+        if data[C_FRICTION] > 0.0:
+            block_kinds[nb], block_starts[nb], mu[nb] = complementarity.CONTACT, m, data[C_FRICTION]
+            m += 3
+        else:
+            # a frictionless contact: its normal row alone, 0 ≤ Pₙ ⊥ u ≥ 0 (the next contact's rows overwrite the
+            # tangents)
+            block_kinds[nb], block_starts[nb], mu[nb] = complementarity.UNILATERAL, m, 0.0
+            m += 1
         nb += 1
 
     # G = J M⁻¹ Jᵀ, c = J v* − ℓ ; the impulses P of u = G P + c ; v⁺ = v* + M⁻¹ Jᵀ P
@@ -570,13 +591,7 @@ def step(controller, joints, reals, frames, program, geometry, vertices, plan, c
                 s += Y[i, col] * x[i]
             v_next[col] = s
 
-    # q⁺ = q ⊕ dt v⁺
-    for col in range(nv):
-        dq[col] = dt * v_next[col]
-    for i in range(nj):
-        kinds.integrate(joints[i, KIND], joints[i, NV], q, dq, joints[i, IQ], joints[i, IV], q_next)
-
-    # penetration at the step's end (to first order: g + dt u⁺ₙ) removed by moving the positions alone
+    # the rows near closing at the step's end, and their gaps there to first order, g + dt u⁺ₙ
     count = 0
     for i in range(m):
         if gaps[i] < math.inf:
@@ -584,6 +599,26 @@ def step(controller, joints, reals, frames, program, geometry, vertices, plan, c
             if end_gap < margin:
                 sep_gap[count], sep_rows[count] = end_gap, i
                 count += 1
+
+    # w⁺ = T(q_k) v⁺ ;  q⁺ = chart(q_k, dt w⁺) ;  v_{k+1} = T(q⁺)ᵀ w⁺: the semi-implicit Euler step in the chart
+    # (multibody.integrators' "semi-implicit Euler"), which keeps a body's world velocity through the position
+    # update (a rolling ball's centre moves parallel to the ground)
+    configuration.velocity_alignment(joints, reals, frames, q, none, none, none, T, none)
+    for r in range(nv):
+        s = 0.0
+        for col in range(nv):
+            s += T[r, col] * v_next[col]
+        w[r] = s
+        dq[r] = dt * s
+    configuration.chart(joints, reals, frames, q, dq, none, none, q_next.reshape((1, nq)), none)
+    configuration.velocity_alignment(joints, reals, frames, q_next, none, none, none, T, none)
+    for col in range(nv):
+        s = 0.0
+        for r in range(nv):
+            s += T[r, col] * w[r]
+        v_next[col] = s
+
+    # penetration at the step's end (to first order: g + dt u⁺ₙ) removed by moving the positions alone
     summary[SUMMARY_SEPARATION] = separate(joints, plan, W, Y, sep_gap, sep_rows, count, G_space, sep_x, sep_u,
                                            sep_mu, block_kinds, block_starts, sws, nq, nv, q_next, dq, moved)
 
@@ -605,15 +640,18 @@ def step(controller, joints, reals, frames, program, geometry, vertices, plan, c
         n_record += 1
     for k in range(found):
         data = contacts[k]
-        i = first_contact + 3 * k
+        i = int(data[C_ROW])
+        tangential = data[C_FRICTION] > 0.0
         line = record[n_record]
         line[RECORD_BODY], line[RECORD_OTHER] = data[C_BODY], data[C_OTHER]
         for col in range(3):
             line[RECORD_POINT + col] = data[C_POINT + col]
             line[RECORD_NORMAL + col] = data[C_NORMAL + col]
             # f = (Pₙ n + P₁ t₁ + P₂ t₂)/dt on body a
-            line[RECORD_FORCE + col] = (x[i] * data[C_NORMAL + col] + x[i + 1] * data[C_T1 + col]
-                                        + x[i + 2] * data[C_T2 + col]) * inverse_dt
+            force = x[i] * data[C_NORMAL + col]
+            if tangential:
+                force += x[i + 1] * data[C_T1 + col] + x[i + 2] * data[C_T2 + col]
+            line[RECORD_FORCE + col] = force * inverse_dt
         n_record += 1
     summary[SUMMARY_COUNT] = n_record
     if not (all_finite(q_next) and all_finite(v_next)):

@@ -1,0 +1,343 @@
+"""Contact and joint limits (multibody.contact, multibody.kernels.timestepping): closed forms of the Moreau–Jean step.
+
+Each closed form is checked against the step's own discrete values, derived in the test's docstring: with step
+``dt`` the scheme is ``v_{k+1} = v_k + dt (M⁻¹ (τ − h) + κ) + M⁻¹ Jᵀ P``, ``q_{k+1} = chart(q_k, dt v_{k+1})``, so a
+body under constant forces changes its velocity by exactly ``dt`` times its acceleration per step.
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+import multibody as mb
+from multibody import contact, inertia
+from multibody.joints import FreeFlyer
+
+G = 9.81
+DT = 1e-3
+TOLERANCE = contact.TOLERANCE
+
+
+def ball_model(radius=0.1, mass=1.0):
+    b = mb.ModelBuilder("ball")
+    b.add_body("ball", joint=FreeFlyer(), inertia=inertia.sphere(mass, radius))
+    b.add_collision("ball", "sphere", radius)
+    return b.build()
+
+
+def box_model(size=(0.2, 0.2, 0.1), mass=1.0):
+    b = mb.ModelBuilder("box")
+    b.add_body("box", joint=FreeFlyer(), inertia=inertia.box(mass, size))
+    b.add_collision("box", "box", size)
+    return b.build()
+
+
+@pytest.fixture(scope="module")
+def ball():
+    return ball_model()
+
+
+@pytest.fixture(scope="module")
+def box():
+    return box_model()
+
+
+def world_velocity(trajectory):
+    """The world velocity of a free flyer's origin and its angular velocity, ``(n, 3)`` each (``v`` is in body
+    axes; quaternions ``[x, y, z, w]``, as SciPy's)."""
+    R = Rotation.from_quat(trajectory.q[:, 3:7]).as_matrix()
+    return np.einsum("kij,kj->ki", R, trajectory.v[:, :3]), np.einsum("kij,kj->ki", R, trajectory.v[:, 3:6])
+
+
+def test_ball_comes_to_rest(ball):
+    """A ball dropped with e = 0.5 bounces a finite number of times, then rests on the ground (no Zeno chatter):
+    from 2 s on it does not move (|v| ≤ 1e-9 m/s), its gap is 0 and the ground carries its weight."""
+    system = mb.ConstrainedSystem(ball, [mb.Ground(restitution=0.5)])
+    trajectory = mb.simulate(system, [0, 0, 0.6, 0, 0, 0, 1], np.zeros(6), 3.0, dt=DT)
+    assert trajectory.status == "completed"
+    rising = np.diff(np.sign(trajectory.v[:, 2])) > 0
+    assert 3 <= rising.sum() <= 20
+    late = trajectory.t >= 2.0
+    assert np.abs(trajectory.v[late]).max() <= 1e-9
+    assert np.abs(trajectory.q[late, 2] - 0.1).max() <= 1e-12
+    for entry in trajectory.contacts[-10:]:
+        assert list(entry.body) == ["ball"] and list(entry.other) == ["ground"]
+        np.testing.assert_allclose(entry.force.sum(axis=0), [0, 0, G], atol=1e-9)
+    assert len(trajectory.contacts[0]) == 0 and trajectory.complementarity[0] == 0.0
+    assert trajectory.complementarity.max() <= TOLERANCE
+
+
+def test_bounce_apexes(ball):
+    """Bounce apexes in the ratio e², within the step's discrete values.
+
+    In flight, ``v_{k+1} = v_k − g dt`` and ``z_{k+1} = z_k + dt v_{k+1}``, so the samples lie on the parabola
+    ``z(t) = z_k + (v_k − g dt/2) t − g t²/2`` whose apex ``H_k = z_k + (v_k − g dt/2)²/(2g)`` (``z`` the gap) is the
+    same at every step of a flight. At the bounce step Newton's law gives ``v_{k+1} = −e v_k`` (``v_k`` the normal
+    velocity at the step's start) and ``z_{k+1} = z_k − e v_k dt``, so the next apex is
+    ``H' = z_k − e v_k dt + (e v_k + g dt/2)²/(2g)`` exactly, and
+    ``H' − e² H = (1 − e²) z_k − e (1 − e) v_k dt/2 + (1 − e²) g dt²/8``, with ``0 ≤ z_k ≤ |v_k| dt``: the ratio is
+    ``e²`` to ``O(dt)``."""
+    e, radius = 0.8, 0.1
+    system = mb.ConstrainedSystem(ball, [mb.Ground(restitution=e)])
+    trajectory = mb.simulate(system, [0, 0, 1.0 + radius, 0, 0, 0, 1], np.zeros(6), 2.5, dt=DT)
+    z, v = trajectory.q[:, 2] - radius, trajectory.v[:, 2]
+    apex = z + (v - G * DT / 2) ** 2 / (2 * G)
+    bounces = np.flatnonzero([len(c) and c.force[:, 2].max() > 0 for c in trajectory.contacts]) - 1
+    bounces = bounces[np.r_[True, np.diff(bounces) > 1]]  # the first step of each contact
+    assert len(bounces) >= 3
+    for k in bounces[:3]:
+        flight = slice(k - 50, k + 1)
+        np.testing.assert_allclose(apex[flight], apex[k], rtol=0, atol=1e-12)
+        predicted = z[k] - e * v[k] * DT + (e * v[k] + G * DT / 2) ** 2 / (2 * G)
+        np.testing.assert_allclose(apex[k + 1], predicted, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(apex[k + 5], apex[k + 1], rtol=0, atol=1e-12)
+        bound = (1 - e * e) * abs(v[k]) * DT + e * (1 - e) * abs(v[k]) * DT / 2 + G * DT**2 / 8
+        assert abs(apex[k + 1] - e * e * apex[k]) <= bound
+        assert abs(apex[k + 1] / apex[k] - e * e) <= 0.01
+
+
+def slide_time_and_distance(v0, mu, dt):
+    """The discrete slide on the flat: ``v_k = v₀ − k μ g dt`` until the step ``K = ⌈v₀/(μ g dt)⌉`` that ends at rest
+    (a sticking contact), having moved ``dt Σ_{k=1}^{K−1} v_k``."""
+    K = int(np.ceil(v0 / (mu * G * dt)))
+    k = np.arange(1, K)
+    return K, dt * np.sum(v0 - k * mu * G * dt)
+
+
+@pytest.mark.parametrize("angle", [0.0, 0.3])
+def test_box_slides_to_a_stop_on_a_straight_line(box, angle):
+    """A box launched at v₀ along any direction on the flat decelerates by μ g and stops at v₀/(μ g) (its discrete
+    stopping step and distance), on the line it was launched along: lateral deviation ≤ 1e-9 m (the cone is
+    isotropic, not a pyramid)."""
+    mu, v0 = 0.5, 2.0
+    direction = np.array([np.cos(angle), np.sin(angle), 0.0])
+    system = mb.ConstrainedSystem(box, [mb.Ground(friction=mu)])
+    trajectory = mb.simulate(system, [0, 0, 0.05, 0, 0, 0, 1], np.r_[v0 * direction, 0, 0, 0], 0.6, dt=DT)
+    velocity, omega = world_velocity(trajectory)
+    K, distance = slide_time_and_distance(v0, mu, DT)
+    assert abs(K * DT - v0 / (mu * G)) <= DT
+    speed = velocity @ direction
+    k = np.arange(len(speed))
+    np.testing.assert_allclose(speed, np.maximum(v0 - k * mu * G * DT, 0.0), rtol=0, atol=1e-11)
+    assert np.abs(trajectory.v[K:]).max() <= 1e-9
+    np.testing.assert_allclose(trajectory.q[-1, :3] @ direction, distance, rtol=0, atol=1e-11)
+    lateral = trajectory.q[:, :2] @ np.array([-direction[1], direction[0]])
+    assert np.abs(lateral).max() <= 1e-9
+    assert np.abs(omega).max() <= 1e-9
+    assert trajectory.complementarity.max() <= TOLERANCE
+
+
+def incline(box, alpha, mu):
+    """The box resting on the plane through the origin with normal ``(sin α, 0, cos α)``, and its trajectory."""
+    normal = np.array([np.sin(alpha), 0.0, np.cos(alpha)])
+    system = mb.ConstrainedSystem(box, [mb.Ground(normal=normal, friction=mu)])
+    q0 = np.r_[0.05 * normal, 0.0, np.sin(alpha / 2), 0.0, np.cos(alpha / 2)]
+    return mb.simulate(system, q0, np.zeros(6), 2.0, dt=DT)
+
+
+def test_box_sticks_on_an_incline_without_creep(box):
+    """μ > tan α: the box holds still, |v| ≤ 1e-9 m/s at every step for 2 s at dt = 1e-3 (no creep)."""
+    alpha = 0.3
+    trajectory = incline(box, alpha, mu=0.5)
+    assert 0.5 > np.tan(alpha)
+    assert np.abs(trajectory.v).max() <= 1e-9
+    assert trajectory.complementarity.max() <= TOLERANCE
+
+
+def test_box_slides_down_an_incline(box):
+    """μ < tan α: the box slides with a = g (sin α − μ cos α) exactly, v_k = k a dt along the slope."""
+    alpha, mu = 0.3, 0.2
+    trajectory = incline(box, alpha, mu)
+    velocity, _ = world_velocity(trajectory)
+    downhill = np.array([np.cos(alpha), 0.0, -np.sin(alpha)])
+    a = G * (np.sin(alpha) - mu * np.cos(alpha))
+    np.testing.assert_allclose(velocity @ downhill, a * DT * np.arange(len(velocity)), rtol=0, atol=1e-11)
+    np.testing.assert_allclose(velocity[:, 1], 0.0, atol=1e-12)
+    assert trajectory.complementarity.max() <= TOLERANCE
+
+
+def test_sliding_sphere_starts_to_roll(ball):
+    """A sphere launched sliding at v₀ without spin decelerates by μ g and spins up by 5 μ g/(2 r) until it rolls, at
+    the step ``K = ⌈2 v₀/(7 μ g dt)⌉`` (the closed form's 2v₀/(7μg) within a step); from then on it rolls at 5 v₀/7,
+    its angular momentum about the contact point kept by every impulse there."""
+    mu, v0, radius = 0.3, 2.0, 0.1
+    system = mb.ConstrainedSystem(ball, [mb.Ground(friction=mu)])
+    trajectory = mb.simulate(system, [0, 0, radius, 0, 0, 0, 1], [v0, 0, 0, 0, 0, 0], 0.5, dt=DT)
+    velocity, omega = world_velocity(trajectory)
+    K = int(np.ceil(2 * v0 / (7 * mu * G * DT)))
+    assert abs(K * DT - 2 * v0 / (7 * mu * G)) <= DT
+    k = np.arange(len(velocity))
+    expected = np.where(k < K, v0 - k * mu * G * DT, 5 * v0 / 7)
+    np.testing.assert_allclose(velocity[:, 0], expected, rtol=0, atol=1e-11)
+    np.testing.assert_allclose(omega[:, 1] * radius, np.where(k < K, 2.5 * k * mu * G * DT, 5 * v0 / 7), atol=1e-11)
+    # (the normal velocity of a sliding contact is zero to the solver's complementarity, |P·û|/‖P‖ ≤ tolerance,
+    # which allows u_N up to tolerance · ‖P‖/P_N = tolerance · √(1 + μ²))
+    np.testing.assert_allclose(velocity[:, 2], 0.0, atol=TOLERANCE * np.sqrt(1 + mu * mu))
+    np.testing.assert_allclose(trajectory.q[:, 2], radius, atol=1e-12)
+
+
+def test_stack_interface_forces_equal_the_weight_above():
+    """Three boxes stacked on the ground: each interface carries the weight above it, to 1e-6 N, though each is
+    four redundant corner contacts (a singular Delassus matrix)."""
+    masses, h = [1.0, 2.0, 0.5], 0.1
+    b = mb.ModelBuilder("stack")
+    for i, m in enumerate(masses):
+        b.add_body(f"box{i}", joint=FreeFlyer(), inertia=inertia.box(m, (0.2, 0.2, h)))
+        b.add_collision(f"box{i}", "box", (0.2, 0.2, h))
+    model = b.build()
+    system = mb.ConstrainedSystem(model, [mb.Ground(friction=0.5), mb.ContactPair("box1", "box0", friction=0.5),
+                                          mb.ContactPair("box2", "box1", friction=0.5)])
+    q0 = np.concatenate([[0, 0, h / 2 + i * h, 0, 0, 0, 1] for i in range(3)])
+    trajectory = mb.simulate(system, q0, np.zeros(18), 0.2, dt=DT)
+    for entry in trajectory.contacts[1:]:
+        for body, other, above in (("box0", "ground", 3.5), ("box1", "box0", 2.5), ("box2", "box1", 0.5)):
+            rows = (entry.body == body) & (entry.other == other)
+            assert rows.sum() == 4
+            np.testing.assert_allclose(entry.force[rows].sum(axis=0), [0, 0, above * G], atol=1e-6)
+    assert np.abs(trajectory.v).max() <= 1e-9
+    assert trajectory.complementarity.max() <= TOLERANCE
+
+
+@pytest.fixture(scope="module")
+def panda():
+    try:
+        return mb.robots.load("panda")
+    except (ImportError, FileNotFoundError) as error:
+        pytest.skip(f"example-robot-data's Panda is not installed: {error}")
+
+
+def test_joint_limits_hold_the_panda(panda):
+    """The Panda falling under gravity from its neutral posture stays inside its limits at every step (to the
+    solver's tolerance), each limit's generalized force pushing back into the range (negative at an upper limit)."""
+    system = mb.ConstrainedSystem(panda, [mb.JointLimits()])
+    q0 = np.clip(panda.neutral(), panda.lower, panda.upper)
+    with warnings.catch_warnings():
+        # (the limits enforced are not reported as left, where rounding puts q an ulp past one)
+        warnings.simplefilter("error", mb.JointLimitWarning)
+        trajectory = mb.simulate(system, q0, np.zeros(panda.nv), 1.5, dt=DT)
+    assert (trajectory.q >= panda.lower - 1e-12).all() and (trajectory.q <= panda.upper + 1e-12).all()
+    pushed = 0
+    for q, entry in zip(trajectory.q[:-1], trajectory.contacts[1:]):
+        assert set(entry.other) <= {"limit"}
+        for joint, force in zip(entry.body, entry.force[:, 0]):
+            iq = panda.idx_q[panda.joint_index(str(joint))]
+            middle = (panda.lower[iq] + panda.upper[iq]) / 2
+            assert force * (middle - q[iq]) >= 0.0
+            pushed += force != 0.0
+    assert pushed > 0
+    assert trajectory.complementarity.max() <= TOLERANCE
+
+
+@pytest.mark.parametrize("spin", [0.0, 30.0])
+def test_energy_never_increases_at_impacts(ball, box, spin):
+    """With e < 1 every step with a contact impulse (the impacts, and the sliding and rolling after them) loses
+    energy or keeps it: the step adds none, nor does the position correction of penetration. A spinning ball thrown
+    obliquely (slip and stick at impact), and a box dropped flat onto four redundant corners."""
+    runs = [(ball, [mb.Ground(friction=0.3, restitution=0.6)], [0, 0, 0.5, 0, 0, 0, 1], [1.0, 0, -1.0, 0, spin, 0]),
+            (box, [mb.Ground(friction=0.5, restitution=0.5)], [0, 0, 0.3, 0, 0, 0, 1], [0.4, 0.2, 0, 0, 0, spin])]
+    for model, constraints, q0, v0 in runs:
+        trajectory = mb.simulate(mb.ConstrainedSystem(model, constraints), q0, v0, 1.5, dt=DT)
+        impacts = [k for k, entry in enumerate(trajectory.contacts) if len(entry) and np.abs(entry.force).max() > 0]
+        assert len(impacts) > 10
+        energy = trajectory.energy
+        for k in impacts:
+            assert energy[k] <= energy[k - 1] + 1e-12 * abs(energy[k - 1])
+        assert energy[-1] < energy[0]
+        assert trajectory.complementarity.max() <= TOLERANCE
+
+
+def test_batch_equals_single(ball):
+    """A batch runs each trajectory on its own, on all cores: each equals its single run, bit for bit, contacts and
+    residuals included."""
+    system = mb.ConstrainedSystem(ball, [mb.Ground(friction=0.4, restitution=0.5)])
+    q0 = np.array([[0.1 * r, 0, 0.2 + 0.1 * r, 0, 0, 0, 1] for r in range(4)])
+    v0 = np.array([[0.3 * r, -0.2, 0, 0, 10.0 * r, -r] for r in range(4)], dtype=float)
+    batch = mb.simulate(system, q0, v0, 0.4, dt=DT)
+    assert batch.q.shape == (4, 401, 7) and batch.complementarity.shape == (4, 401)
+    for r in range(4):
+        single = mb.simulate(system, q0[r], v0[r], 0.4, dt=DT)
+        assert np.array_equal(batch.q[r], single.q) and np.array_equal(batch.v[r], single.v)
+        assert np.array_equal(batch.complementarity[r], single.complementarity)
+        assert batch.contacts[r] == single.contacts
+        assert batch.select(r).contacts == single.contacts
+
+
+def test_controllers_inside_the_step(box):
+    """Joint forces as an array, a Python callable (called at each step's start) and a numba.njit controller give
+    the same trajectory: a box pushed with F < μ m g does not move, with F > μ m g accelerates by (F − μ m g)/m."""
+    import numba
+
+    mu = 0.5
+    system = mb.ConstrainedSystem(box, [mb.Ground(friction=mu)])
+    q0 = [0, 0, 0.05, 0, 0, 0, 1]
+    for force in (0.8 * mu * G, 1.5 * mu * G):
+        tau = np.array([force, 0, 0, 0, 0, 0])
+
+        @numba.njit
+        def push(t, q, v, out):
+            out[0] = force
+
+        runs = [mb.simulate(system, q0, np.zeros(6), 0.3, dt=DT, tau=x) for x in (tau, lambda t, q, v: tau, push)]
+        for run in runs[1:]:
+            np.testing.assert_array_equal(run.q, runs[0].q)
+        a = max(force - mu * G, 0.0)
+        np.testing.assert_allclose(runs[0].v[:, 0], a * DT * np.arange(len(runs[0].t)), rtol=0, atol=1e-11)
+
+
+def test_initial_penetration_is_projected_out(ball):
+    """An initial state 1 cm into the ground is moved out with a warning giving the depth; it then rests."""
+    system = mb.ConstrainedSystem(ball, [mb.Ground()])
+    with pytest.warns(UserWarning, match=r"penetrates by 0\.01 "):
+        trajectory = mb.simulate(system, [0, 0, 0.09, 0, 0, 0, 1], np.zeros(6), 0.1, dt=DT)
+    np.testing.assert_allclose(trajectory.q[0, 2], 0.1, atol=1e-12)
+    assert np.abs(trajectory.v).max() <= 1e-9
+
+
+def test_save_and_load_keep_contacts(ball, tmp_path):
+    system = mb.ConstrainedSystem(ball, [mb.Ground(restitution=0.5)])
+    trajectory = mb.simulate(system, [0, 0, 0.3, 0, 0, 0, 1], np.zeros(6), 0.5, dt=DT)
+    loaded = mb.Trajectory.load(trajectory.save(tmp_path / "ball"), ball)
+    assert loaded.contacts == trajectory.contacts
+    np.testing.assert_array_equal(loaded.complementarity, trajectory.complementarity)
+    batch = mb.simulate(system, [[0, 0, 0.3, 0, 0, 0, 1]] * 2, np.zeros(6), 0.2, dt=DT)
+    loaded = mb.Trajectory.load(batch.save(tmp_path / "batch"), ball)
+    assert loaded.contacts == batch.contacts
+
+
+def test_bad_input_messages(ball, panda):
+    with pytest.raises(ValueError, match=r"Ground: friction must be >= 0, got -0\.1"):
+        mb.Ground(friction=-0.1)
+    with pytest.raises(ValueError, match=r"Ground: restitution must be in \[0, 1\], got 1\.5"):
+        mb.Ground(restitution=1.5)
+    with pytest.raises(ValueError, match=r"ContactPair\('a', 'b'\): restitution must be in \[0, 1\], got -1"):
+        mb.ContactPair("a", "b", restitution=-1)
+    with pytest.raises(ValueError, match=r"ContactPair\('a', 'b'\): friction must be >= 0"):
+        mb.ContactPair("a", "b", friction=-1)
+    with pytest.raises(ValueError, match=r"JointLimits: restitution must be in \[0, 1\]"):
+        mb.JointLimits(restitution=2.0)
+    with pytest.raises(ValueError, match="Ground: normal must be a non-zero"):
+        mb.Ground(normal=(0, 0, 0))
+    with pytest.raises(ValueError, match="Ground: .*'bal'.*did you mean 'ball'"):
+        mb.ConstrainedSystem(ball, [mb.Ground(bodies=["bal"])])
+    b = mb.ModelBuilder("two")
+    b.add_body("ball", joint=FreeFlyer(), inertia=inertia.sphere(1.0, 0.1))
+    b.add_collision("ball", "sphere", 0.1)
+    b.add_body("bare", joint=FreeFlyer(), inertia=inertia.sphere(1.0, 0.1))
+    two = b.build()
+    with pytest.raises(ValueError, match="Ground: body 'bare' has no collision geometry"):
+        mb.ConstrainedSystem(two, [mb.Ground(bodies=["bare"])])
+    with pytest.raises(ValueError, match=r"ContactPair\('ball', 'bare'\): body 'bare' has no collision geometry"):
+        mb.ConstrainedSystem(two, [mb.ContactPair("ball", "bare")])
+    with pytest.raises(ValueError, match="JointLimits: .*'panda_joint8'.*did you mean"):
+        mb.ConstrainedSystem(panda, [mb.JointLimits(["panda_joint8"])])
+    continuous = mb.ModelBuilder("wheel")
+    continuous.add_body("wheel", joint=mb.joints.Continuous([0, 0, 1]), inertia=inertia.sphere(1.0, 0.1))
+    with pytest.raises(ValueError, match="JointLimits: joint .* has no finite limit"):
+        mb.ConstrainedSystem(continuous.build(), [mb.JointLimits([0])])
+    system = mb.ConstrainedSystem(ball, [mb.Ground()])
+    with pytest.raises(ValueError, match="method='RK4' cannot simulate contact or joint limits .*'Moreau-Jean'"):
+        mb.simulate(system, [0, 0, 0.3, 0, 0, 0, 1], np.zeros(6), 0.1, dt=DT, method="RK4")
