@@ -54,8 +54,9 @@ WS_EPA_EDGES = WS_EPA_FACES + 8 * EPA_FACES
 WS_EPA_STACK = WS_EPA_EDGES + 2 * EPA_EDGES
 WS_CLIP = WS_EPA_STACK + EPA_FACES
 WS_SELECT = WS_CLIP + 2 * 3 * CLIP_VERTICES
+WS_PLANE = WS_SELECT + MAX_PAIR_CONTACTS
 #: Size of ``ws`` (float64 entries) for :func:`halfspace_contacts` and :func:`pair_contacts`.
-PAIR_WORKSPACE = WS_SELECT + MAX_PAIR_CONTACTS
+PAIR_WORKSPACE = WS_PLANE + 3
 
 #: GJK/EPA outcomes.
 SEPARATED, DISTANCE, OVERLAP, DEGENERATE = 0, 1, 2, 3
@@ -1224,6 +1225,52 @@ def box_capsule(size_a, vertices_a, R_a, p_a, size_b, vertices_b, R_b, p_b, marg
                           ws)
 
 
+@njit(cache=True, error_model="numpy")
+def box_face_manifold(size_a, vertices_a, R_a, p_a, shape_b, size_b, vertices_b, R_b, p_b, margin, out, count, ws):
+    """A box (a) against a cylinder or a convex hull (b). GJK/EPA (:func:`convex_contact`) gives the
+    nearest contact and its normal ``N`` (from b into the box). Where ``N`` is a face normal of the box,
+    b is taken against that face's plane, the half-space ``m·x ≥ m·p_a + h_k`` with ``m = −N``
+    (:func:`halfspace_contacts`: a cylinder standing on the face gives its rim points, a hull its vertices),
+    keeping the points over the face (``|e_i·(x − p_a)| ≤ h_i`` on its two side axes), each moved to the
+    midpoint ``x − (gap/2) m`` of its two witnesses; if none is over the face, the GJK/EPA contact."""
+    single = convex_contact(BOX, size_a, vertices_a, R_a, p_a, shape_b, size_b, vertices_b, R_b, p_b, margin, out,
+                            count, ws)
+    if single == count:
+        return count
+    normal = row3(out, count, 3)
+    Ra = rotation9(R_a)
+    face = -1
+    for k in range(3):
+        if abs(dot3(normal, axis_of(Ra, k))) >= 1.0 - PARALLEL:
+            face = k
+    if face < 0:
+        return single
+    first = row3(out, count, 0) + row3(out, count, 3) + (out[count, 6],)
+    m = scale3(-1.0, normal)
+    pa = load3(p_a, 0)
+    e = axis_of(Ra, face)
+    outward = e if dot3(e, m) > 0.0 else scale3(-1.0, e)
+    store_row_flat(ws, WS_PLANE, outward)
+    height = dot3(outward, pa) + size_a[face]
+    found = halfspace_contacts(shape_b, size_b, vertices_b, R_b, p_b, ws[WS_PLANE:WS_PLANE + 3], height, margin,
+                               out[count:], ws)
+    kept = count
+    for i in range(count, count + found):
+        x = row3(out, i, 0)
+        gap = out[i, 6]
+        over = True
+        for k in range(3):
+            if k != face and abs(dot3(axis_of(Ra, k), sub3(x, pa))) > size_a[k] * (1.0 + PARALLEL):
+                over = False
+        if over:
+            store_row(out, kept, 0, sub3(x, scale3(0.5 * gap, outward)) + scale3(-1.0, outward) + (gap,))
+            kept += 1
+    if kept > count:
+        return kept
+    store_row(out, count, 0, first)
+    return count + 1
+
+
 # ---------------------------------------------------------------------------------------------------------------------
 # dispatch
 
@@ -1248,6 +1295,9 @@ def ordered_pair_contacts(shape_a, size_a, vertices_a, R_a, p_a, shape_b, size_b
                         load3(p_b, 0), margin, out, count)
     if shape_a == BOX and shape_b == CAPSULE:
         return box_capsule(size_a, vertices_a, R_a, p_a, size_b, vertices_b, R_b, p_b, margin, out, count, ws)
+    if shape_a == BOX and (shape_b == CYLINDER or shape_b == CONVEX):
+        return box_face_manifold(size_a, vertices_a, R_a, p_a, shape_b, size_b, vertices_b, R_b, p_b, margin, out,
+                                 count, ws)
     if shape_a == BOX and shape_b == BOX:
         return boxes(load3(size_a, 0), vertices_a, rotation9(R_a), load3(p_a, 0), load3(size_b, 0), vertices_b,
                      rotation9(R_b), load3(p_b, 0), margin, out, count, ws)
@@ -1264,8 +1314,10 @@ def pair_contacts(shape_a, size_a, vertices_a, R_a, p_a, shape_b, size_b, vertic
     Analytic: sphere–sphere, sphere–box, sphere–capsule, capsule–capsule (:func:`capsules`; two points for
     parallel axes) and box–box (:func:`boxes`; the clipped face polygon's corners, or one edge–edge
     point); box–capsule by GJK with the segment clipped on a face (:func:`box_capsule`; two points for a
-    capsule lying on a face). Any other pair (cylinder, convex hull): one contact by GJK/EPA
-    (:func:`convex_contact`). Either order: the pair is computed with the lower shape code first and its
+    capsule lying on a face); box–cylinder and box–hull by GJK/EPA, and where its normal is a box face's,
+    the other shape against that face (:func:`box_face_manifold`: a cylinder standing on a box gives its
+    rim points). Any other pair (cylinder or convex hull with a sphere, a capsule, a cylinder or a hull):
+    one contact by GJK/EPA (:func:`convex_contact`). Either order: the pair is computed with the lower shape code first and its
     normals flipped when a and b were swapped, so the gaps and points are the same and the normals
     opposite."""
     if shape_a <= shape_b:
