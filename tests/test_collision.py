@@ -210,8 +210,8 @@ def test_sphere_capsule():
 def test_capsule_capsule_crossed_and_parallel():
     along_x = Rotation.from_euler("y", np.pi / 2).as_matrix()
     along_y = Rotation.from_euler("x", np.pi / 2).as_matrix()
-    rows = run_pair((C.CAPSULE, (0.1, 0.5, 0), along_y, (0.2, 0.1, 0.25)), (C.CAPSULE, (0.2, 0.5, 0), along_x, (0, 0, 0)),
-                    margin=0.1)
+    rows = run_pair((C.CAPSULE, (0.1, 0.5, 0), along_y, (0.2, 0.1, 0.25)),
+                    (C.CAPSULE, (0.2, 0.5, 0), along_x, (0, 0, 0)), margin=0.1)
     np.testing.assert_allclose(rows, [[0.2, 0, 0.175, 0, 0, 1, -0.05]], atol=TOL)
     # one lying on the other along x, shifted by 0.3: the overlap x ∈ [−0.2, 0.5] gives two points
     rows = run_pair((C.CAPSULE, (0.1, 0.5, 0), along_x, (0.3, 0.0, 0.3 - 1e-4)),
@@ -467,10 +467,9 @@ def test_cylinder_standing_and_lying_on_a_box():
     rows = run_pair((C.CYLINDER, (0.2, 0.3, 0), lying, (0.1, 0.2, 0.7 + 1e-4)), box)
     expected = [[0.1, 0.2 + y, 0.5 + 0.5e-4, 0, 0, 1, 1e-4] for y in (-0.3, 0.3)]
     np.testing.assert_allclose(rows_as_set(rows), rows_as_set(expected), atol=1e-9)
-    # standing over the face's edge x = 1: the two rim points over the face (the disc's x axis is the world's)
+    # standing over the face's edge x = 1 (rim points at x = 0.85, 1.25 and (1.05, ±0.2)): the one over the face
     rows = run_pair((C.CYLINDER, (0.2, 0.3, 0), I3, (1.05, 0.0, 0.8 - 1e-4)), box)
-    expected = [[0.85, 0, 0.5 - 0.5e-4, 0, 0, 1, -1e-4]] + [[1.05, y, 0.5 - 0.5e-4, 0, 0, 1, -1e-4] for y in (-0.2, 0.2)]
-    expected = [row for row in expected if row[0] <= 1.0]
+    expected = [[0.85, 0, 0.5 - 0.5e-4, 0, 0, 1, -1e-4]]
     np.testing.assert_allclose(rows_as_set(rows), rows_as_set(expected), atol=1e-9)
 
 
@@ -536,7 +535,8 @@ def test_detection_compiles_for_the_cuda_target():
     root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
     env = dict(os.environ)
     env.pop("NUMBA_DISABLE_JIT", None)
-    result = subprocess.run([sys.executable, "-c", PTX], capture_output=True, text=True, timeout=900, env=env, cwd=root)
+    result = subprocess.run([sys.executable, "-c", PTX], capture_output=True, text=True, timeout=900, env=env, cwd=root,
+                            check=False)
     if "NO-NVVM" in result.stdout or "No module named 'numba.cuda" in result.stderr:
         pytest.skip("no CUDA compiler toolchain (libNVVM): " + result.stdout.strip())
     assert "COLLISION-PTX-OK" in result.stdout, result.stdout + result.stderr[-3000:]

@@ -29,7 +29,18 @@ from __future__ import annotations
 import math
 
 from .jit import njit
-from .spatial import add3, cross, dot3, load3, rotate, rotate_back, row3, scale3, store_row, sub3
+from .spatial import (
+    add3,
+    cross,
+    dot3,
+    load3,
+    rotate,
+    rotate_back,
+    row3,
+    scale3,
+    store_row,
+    sub3,
+)
 
 #: Shape codes (``CollisionTable.shapes``).
 SPHERE, BOX, CAPSULE, CYLINDER, CONVEX = 0, 1, 2, 3, 4
@@ -464,8 +475,8 @@ def spheres(c_a, r_a, c_b, r_b, margin, out, count):
 def sphere_box(c, r, size, R, p, margin, out, count):
     """A sphere (centre ``c``, radius ``r``: object a) against a box (object b). In the box frame
     ``c' = Rᵀ (c − p)``; outside, the box's nearest point is ``q = clamp(c', −h, h)`` (RTCD §5.1.4,
-    ``ClosestPtPointOBB``, and the sphere–OBB test on it) and ``n = R (c' − q)/|c' − q|``, ``gap = |c' − q| − r``; inside, the face of least depth
-    ``k = argmin (hₖ − |c'ₖ|)`` gives ``n = sign(c'ₖ) R eₖ`` and ``gap = −(hₖ − |c'ₖ|) − r``."""
+    ``ClosestPtPointOBB``, and the sphere–OBB test on it) and ``n = R (c' − q)/|c' − q|``,
+    ``gap = |c' − q| − r``; inside, the face of least depth ``k = argmin (hₖ − |c'ₖ|)`` gives ``n = sign(c'ₖ) R eₖ`` and ``gap = −(hₖ − |c'ₖ|) − r``."""
     cl = rotate_back(R, sub3(c, p))
     q = (clamp(cl[0], -size[0], size[0]), clamp(cl[1], -size[1], size[1]), clamp(cl[2], -size[2], size[2]))
     d = sub3(cl, q)
@@ -1111,10 +1122,10 @@ def epa(shape_a, size_a, vertices_a, R_a, p_a, shape_b, size_b, vertices_b, R_b,
         if least3(m0, m1, m2) > least3(l0, l1, l2):
             i, j, k = fi, fj, fk
             l0, l1, l2 = m0, m1, m2
-    x_a = add3(add3(scale3(l0, load3(ws, WS_EPA_VERTICES + 9 * i + 3)), scale3(l1, load3(ws, WS_EPA_VERTICES + 9 * j + 3))),
-               scale3(l2, load3(ws, WS_EPA_VERTICES + 9 * k + 3)))
-    x_b = add3(add3(scale3(l0, load3(ws, WS_EPA_VERTICES + 9 * i + 6)), scale3(l1, load3(ws, WS_EPA_VERTICES + 9 * j + 6))),
-               scale3(l2, load3(ws, WS_EPA_VERTICES + 9 * k + 6)))
+    # x_a = Σ λ a, x_b = Σ λ b over the face's vertices [w, a, b]
+    vi, vj, vk = WS_EPA_VERTICES + 9 * i, WS_EPA_VERTICES + 9 * j, WS_EPA_VERTICES + 9 * k
+    x_a = add3(add3(scale3(l0, load3(ws, vi + 3)), scale3(l1, load3(ws, vj + 3))), scale3(l2, load3(ws, vk + 3)))
+    x_b = add3(add3(scale3(l0, load3(ws, vi + 6)), scale3(l1, load3(ws, vj + 6))), scale3(l2, load3(ws, vk + 6)))
     return OVERLAP, best_distance, n, x_a, x_b
 
 
@@ -1181,7 +1192,7 @@ def box_capsule(size_a, vertices_a, R_a, p_a, size_b, vertices_b, R_b, p_b, marg
     hb, Rb, pb = as_tuples(size_b, R_b, p_b)
     r = hb[0]
     scale = pair_scale(BOX, ha, vertices_a, pa, CAPSULE, hb, vertices_b, pb)
-    status, v, x_a, x_b, _ = gjk(BOX, ha, vertices_a, Ra, pa, CAPSULE, hb, vertices_b, Rb, pb, False, margin + r,
+    status, v, _, _, _ = gjk(BOX, ha, vertices_a, Ra, pa, CAPSULE, hb, vertices_b, Rb, pb, False, margin + r,
                                  scale, ws)
     if status == SEPARATED:
         return count
@@ -1317,9 +1328,9 @@ def pair_contacts(shape_a, size_a, vertices_a, R_a, p_a, shape_b, size_b, vertic
     capsule lying on a face); box–cylinder and box–hull by GJK/EPA, and where its normal is a box face's,
     the other shape against that face (:func:`box_face_manifold`: a cylinder standing on a box gives its
     rim points). Any other pair (cylinder or convex hull with a sphere, a capsule, a cylinder or a hull):
-    one contact by GJK/EPA (:func:`convex_contact`). Either order: the pair is computed with the lower shape code first and its
-    normals flipped when a and b were swapped, so the gaps and points are the same and the normals
-    opposite."""
+    one contact by GJK/EPA (:func:`convex_contact`). Either order: the pair is computed with the lower
+    shape code first and its normals flipped when a and b were swapped, so the gaps and points are the
+    same and the normals opposite."""
     if shape_a <= shape_b:
         return ordered_pair_contacts(shape_a, size_a, vertices_a, R_a, p_a, shape_b, size_b, vertices_b, R_b, p_b,
                                      margin, out, ws)
