@@ -397,23 +397,24 @@ class Contacts:
 
 
 def _entries(records, summaries, program):
-    """The :class:`Contacts` of each step of one trajectory from its ``records (n, R, 11)`` and ``summaries``."""
-    body_names, joint_names = program.body_names, program.joint_names
-    entries = []
-    for record, summary in zip(records, summaries):
-        count = int(summary[timestepping.SUMMARY_COUNT]) if np.isfinite(summary[timestepping.SUMMARY_COUNT]) else 0
-        rows = record[:count]
-        other = rows[:, timestepping.RECORD_OTHER]
-        limit = other == timestepping.LIMIT
-        body = [joint_names[int(b)] if is_limit else body_names[int(b)]
-                for b, is_limit in zip(rows[:, timestepping.RECORD_BODY], limit)]
-        others = ["limit" if o == timestepping.LIMIT else "ground" if o == timestepping.GROUND else body_names[int(o)]
-                  for o in other]
-        entries.append(Contacts(np.array(body, dtype=str), np.array(others, dtype=str),
-                                rows[:, timestepping.RECORD_POINT : timestepping.RECORD_POINT + 3].copy(),
-                                rows[:, timestepping.RECORD_NORMAL : timestepping.RECORD_NORMAL + 3].copy(),
-                                rows[:, timestepping.RECORD_FORCE : timestepping.RECORD_FORCE + 3].copy()))
-    return entries
+    """The :class:`Contacts` of each step of one trajectory from its ``records (n, R, 11)`` and ``summaries``: the
+    rows of all steps gathered and named at once, then split by step."""
+    counts = np.nan_to_num(summaries[:, timestepping.SUMMARY_COUNT]).astype(np.int64)
+    rows = records[np.arange(records.shape[1])[None, :] < counts[:, None]]
+    body, other = rows[:, timestepping.RECORD_BODY].astype(np.int64), rows[:, timestepping.RECORD_OTHER]
+    limit = other == timestepping.LIMIT
+    # names: bodies, then joints (a limit's body), then "ground" and "limit" (a row's other)
+    names = np.array(list(program.body_names) + list(program.joint_names) + ["ground", "limit"], dtype=str)
+    nb, nj = len(program.body_names), len(program.joint_names)
+    body_names = names[np.where(limit, nb + body, body)]
+    other_names = names[np.where(limit, nb + nj + 1, np.where(other == timestepping.GROUND, nb + nj,
+                                                               other.astype(np.int64)))]
+    point = rows[:, timestepping.RECORD_POINT : timestepping.RECORD_POINT + 3]
+    normal = rows[:, timestepping.RECORD_NORMAL : timestepping.RECORD_NORMAL + 3]
+    force = rows[:, timestepping.RECORD_FORCE : timestepping.RECORD_FORCE + 3]
+    ends = np.cumsum(counts)
+    return [Contacts(body_names[a:b], other_names[a:b], point[a:b], normal[a:b], force[a:b])
+            for a, b in zip(ends - counts, ends)]
 
 
 def separate_initial(constrained, program, q, tree):

@@ -376,11 +376,53 @@ def separate(joints, plan, W, Y, gaps, normal_rows, count, G, x, u, mu, kinds_, 
 
 
 @njit(cache=True, error_model="numpy")
+def warm_start(plan, J, contacts, found, limit_rows, first_limit, limit_items, mb, previous, previous_summary, dt, x):
+    """The impulses ``x`` of the step's rows guessed from the previous step's record (its forces times ``dt``), which
+    the solver starts from (a resting contact's are its solution): a bilateral row's multiplier; a limit's force on
+    the same joint and side; a contact's force at the nearest of the previous step's points of the same two bodies,
+    within the plan's margin, in the contact's frame. Rows without a match start at zero."""
+    start = int(plan[PLAN_LIMIT_START])
+    for i in range(mb):
+        x[i] = previous_summary[SUMMARY_COLUMNS + i] * dt
+    count = int(previous_summary[SUMMARY_COUNT])
+    for k in range(limit_rows):
+        i = first_limit + k
+        item = plan[start + int(limit_items[k]) * LIMIT_COLUMNS : start + (int(limit_items[k]) + 1) * LIMIT_COLUMNS]
+        sign = J[i, int(item[LIMIT_IV])]
+        for r in range(count):
+            line = previous[r]
+            if line[RECORD_OTHER] == LIMIT and line[RECORD_BODY] == item[LIMIT_JOINT] and sign * line[RECORD_FORCE] > 0.0:
+                x[i] = sign * line[RECORD_FORCE] * dt
+    margin = plan[PLAN_MARGIN]
+    for k in range(found):
+        data = contacts[k]
+        i = int(data[C_ROW])
+        nearest, best = -1, margin * margin
+        for r in range(count):
+            line = previous[r]
+            if line[RECORD_BODY] != data[C_BODY] or line[RECORD_OTHER] != data[C_OTHER]:
+                continue
+            d = 0.0
+            for c in range(3):
+                d += (line[RECORD_POINT + c] - data[C_POINT + c]) ** 2
+            if d <= best:
+                nearest, best = r, d
+        if nearest < 0:
+            continue
+        f = previous[nearest, RECORD_FORCE : RECORD_FORCE + 3]
+        x[i] = max(dt * (f[0] * data[C_NORMAL] + f[1] * data[C_NORMAL + 1] + f[2] * data[C_NORMAL + 2]), 0.0)
+        if data[C_FRICTION] > 0.0:
+            x[i + 1] = dt * (f[0] * data[C_T1] + f[1] * data[C_T1 + 1] + f[2] * data[C_T1 + 2])
+            x[i + 2] = dt * (f[0] * data[C_T2] + f[1] * data[C_T2 + 1] + f[2] * data[C_T2 + 2])
+
+
+@njit(cache=True, error_model="numpy")
 def step(controller, joints, reals, frames, program, geometry, vertices, plan, control, t, dt, q, v, q_next, v_next,
-         record, summary, ws, iws):
+         record, summary, previous, previous_summary, ws, iws):
     """One step of ``dt`` (s) from ``q (nq,)``, ``v (nv,)`` at ``t`` into ``q_next``, ``v_next`` (module docstring),
     the contact rows into ``record (R, RECORD_COLUMNS)`` and ``summary (SUMMARY_COLUMNS + m_b,)`` (its last ``m_b``
-    entries the bilateral rows' multipliers, impulse / dt). A step of zero length moves ``q`` by the position
+    entries the bilateral rows' multipliers, impulse / dt); the solver starts from the previous step's ``previous``
+    record and ``previous_summary`` (:func:`warm_start`). A step of zero length moves ``q`` by the position
     correction alone (:func:`separate`), which projects an initial state out of penetration. Returns a status
     (:data:`COMPLETED` ...). ``controller``, ``control`` as :func:`multibody.kernels.stepping.advance` takes them
     (the plan's controller kind: none, constant, PD, or a compiled function)."""
@@ -570,6 +612,7 @@ def step(controller, joints, reals, frames, program, geometry, vertices, plan, c
         v_next[col] = v_free[col]
     for i in range(m):
         x[i] = 0.0
+    warm_start(plan, J, contacts, found, limit_rows, first_limit, rows, mb, previous, previous_summary, dt, x)
     if m > 0:
         metric_rows(L, J, W, Y, m, nv)
     if m > 0 and dt > 0.0:
@@ -675,7 +718,7 @@ def run(controller, joints, reals, frames, program, geometry, vertices, plan, co
         before, after = states[k - 1], states[k]
         status = step(controller, joints, reals, frames, program, geometry, vertices, plan, control, times[k - 1],
                       times[k] - times[k - 1], before[:nq], before[nq:], after[:nq], after[nq:], record[k], summary[k],
-                      ws, iws)
+                      record[k - 1], summary[k - 1], ws, iws)
         if status != COMPLETED and status != NOT_SOLVED:
             io[IO_STEP], io[IO_STATUS], io[IO_TIME] = k, status, times[k - 1]
             return
