@@ -33,7 +33,14 @@ on everything the motion reaches:
   constraint acts on (the bead, the rod's end, the frame origin of a loop closure). A force's couple
   about that line (loop closures that hold orientations) is not drawn. Constraints that act on
   coordinates rather than through body points (joint couplings, user constraints) have no arrows; the
-  panel names them.
+  panel names them;
+* for a trajectory with contact (``trajectory.contacts``, see :mod:`multibody.contact`): at each frame the
+  contact points of the step ending then, as small spheres, and the contact forces on ``body`` (N, world
+  axes), as arrows from those points along the force, drawn to the same scale as the constraint forces.
+  Joint-limit rows are not drawn (they act on a coordinate). A ``contacts`` checkbox hides both.
+
+The arrows' length per newton (m/N) is the ``force scale`` box in the panel (``Viewer.force_scale``),
+starting at ``force_scale=`` when given.
 
 The handle, :class:`Viewer`, is also the programmatic interface: ``time``, ``play()``, ``pause()``,
 ``layers`` (the show/hide checkboxes), ``save_html(path)``, ``close()``. Scene computation
@@ -64,6 +71,9 @@ SHAPE_COLOR = (130, 150, 190)
 SPHERE_COLORS = ((220, 60, 50), (245, 245, 240))
 TRACE_COLORS = ((230, 120, 20), (20, 150, 120), (150, 60, 200), (200, 40, 120))
 FORCE_COLORS = ((200, 30, 30), (30, 90, 200), (20, 150, 60), (180, 120, 0))
+#: Colours of the contact points and of the contact force arrows.
+CONTACT_POINT_COLOR = (250, 190, 0)
+CONTACT_FORCE_COLOR = (220, 40, 160)
 
 #: Above this many frames, the offline page (:meth:`Viewer.save_html`) keeps every k-th.
 OFFLINE_FRAMES = 1000
@@ -96,7 +106,11 @@ class Scene:
         traces: label -> ``(n, 3)`` world path of a traced point (m).
         arrows: ``(n, k, 2, 3)`` tail and head of each force arrow (m), already scaled.
         arrow_labels: ``(k,)`` constraint and body of each arrow; arrow_colors: ``(k, 3)``.
-        force_scale: arrow length per force (m/N).
+        contact_points: per frame, ``(c, 3)`` the contact points (m, world) of ``trajectory.contacts``' entry,
+            joint limits left out; ``()`` for a trajectory without contacts.
+        contact_arrows: per frame, ``(a, 2, 3)`` tail and head (m) of the arrows of the nonzero contact forces
+            of those points, already scaled; ``()`` without contacts.
+        force_scale: arrow length per force (m/N), of the constraint and contact arrows alike.
         largest_force: largest force drawn (N).
         no_arrows: names of constraints with no body forces to draw.
         planes: ``(E (3, 3), origin (3,))`` of each constraint plane: columns ``[t₁ t₂ n]`` and a point.
@@ -116,6 +130,8 @@ class Scene:
     arrows: np.ndarray = field(default_factory=lambda: np.zeros((1, 0, 2, 3)))
     arrow_labels: tuple = ()
     arrow_colors: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), dtype=np.uint8))
+    contact_points: tuple = ()
+    contact_arrows: tuple = ()
     force_scale: float = 0.0
     largest_force: float = 0.0
     no_arrows: tuple = ()
@@ -345,6 +361,36 @@ def _constraint_forces(model, constraints, q, lam, X_WB):
     return stack(forces), stack(points), tuple(labels), owners, tuple(without)
 
 
+def _contact_forces(trajectory, n):
+    """``(points, forces)``: per frame, the contact points ``(c, 3)`` (m, world) and the forces on their
+    bodies ``(c, 3)`` (N, world axes) of ``trajectory.contacts``, joint-limit rows (``other == "limit"``)
+    left out; ``None`` for a trajectory without contacts."""
+    entries = getattr(trajectory, "contacts", None)
+    if entries is None:
+        return None
+    if len(entries) != n:
+        raise ValueError(f"trajectory.contacts has {len(entries)} entries but the trajectory {n} times; "
+                         f"view one trajectory at a time (trajectory.select(k))")
+    points, forces = [], []
+    for k, entry in enumerate(entries):
+        try:
+            other, point, force = (np.asarray(getattr(entry, name)) for name in ("other", "point", "force"))
+        except AttributeError:
+            raise TypeError(f"trajectory.contacts[{k}] must have other (c,), point (c, 3) and force (c, 3), "
+                            f"got {type(entry).__name__}") from None
+        c = len(other)
+        if other.shape != (c,) or point.shape != (c, 3) or force.shape != (c, 3):
+            raise ValueError(f"trajectory.contacts[{k}]: other, point and force must have shapes (c,), (c, 3) and "
+                             f"(c, 3), got {other.shape}, {point.shape} and {force.shape}")
+        touching = other.astype(str) != "limit"
+        point, force = point[touching].astype(float), force[touching].astype(float)
+        if not (np.all(np.isfinite(point)) and np.all(np.isfinite(force))):
+            raise ValueError(f"trajectory.contacts[{k}] (t = {trajectory.t[k]:g} s) has non-finite points or forces")
+        points.append(point)
+        forces.append(force)
+    return points, forces
+
+
 def _planes(constraints):
     """``(E, point)`` of the planes of rolling constraints."""
     return tuple((np.asarray(c.frame, dtype=float), np.asarray(c.plane_point, dtype=float))
@@ -383,21 +429,38 @@ def scene_of(model, q=None, trajectory=None, *, constraints=None, trace=(), forc
     start_low, start_high = points[0].min(axis=0), points[0].max(axis=0)
     size = _extent(start_low, start_high)
 
-    arrows, labels, colors, scale, largest, without = np.zeros((len(times), 0, 2, 3)), (), np.zeros((0, 3)), 0.0, 0.0, ()
+    if force_scale is not None and not (np.isfinite(force_scale) and force_scale > 0.0):
+        raise ValueError(f"force_scale must be a positive length per force (m/N), got {force_scale!r}")
+    forces, points, labels, owners, without = np.zeros((len(times), 0, 3)), np.zeros((len(times), 0, 3)), (), [], ()
     if constraints:
         forces, points, labels, owners, without = _constraint_forces(model, constraints, qs, trajectory.lam, X_WB)
-        largest = float(np.linalg.norm(forces, axis=-1).max(initial=0.0))
-        if force_scale is not None:
-            if not (np.isfinite(force_scale) and force_scale > 0.0):
-                raise ValueError(f"force_scale must be a positive length per force (m/N), got {force_scale!r}")
-            scale = float(force_scale)
-        else:
-            # the largest force a quarter of the bodies' size long, rounded to 1, 2 or 5 × 10^k m/N
-            scale = _nice(0.25 * size / largest) if largest > 0.0 else 1.0
-        arrows = np.stack([points, points + scale * forces], axis=2)
-        colors = np.array([FORCE_COLORS[k % len(FORCE_COLORS)] for k in owners], dtype=np.uint8).reshape(-1, 3)
+    contacts = _contact_forces(trajectory, len(times)) if trajectory is not None else None
+    if contacts is not None and not any(len(frame) for frame in contacts[0]):
+        contacts = None                                        # joint limits only: nothing to draw
+    largest = max([float(np.linalg.norm(forces, axis=-1).max(initial=0.0))]
+                  + ([float(np.linalg.norm(f, axis=-1).max(initial=0.0)) for f in contacts[1]] if contacts else []))
+    weight = model.total_mass * float(np.linalg.norm(model.gravity))
+    scale = 0.0
+    if force_scale is not None:
+        scale = float(force_scale)
+    elif contacts and weight > 0.0:
+        # the weight as long as the bodies' size, so that each of a few supports' shares shows; an impact's
+        # impulse / dt, hundreds of weights, sets no scale
+        scale = _nice(size / weight)
+    elif forces.shape[1] or contacts:
+        # the largest force a quarter of the bodies' size long, rounded to 1, 2 or 5 × 10^k m/N
+        scale = _nice(0.25 * size / largest) if largest > 0.0 else 1.0
+    arrows = np.stack([points, points + scale * forces], axis=2)
+    colors = np.array([FORCE_COLORS[k % len(FORCE_COLORS)] for k in owners], dtype=np.uint8).reshape(-1, 3)
+    contact_points, contact_arrows = (), ()
+    if contacts:
+        contact_points = tuple(contacts[0])
+        # a zero force (a contact the step found but did not push) has no direction to draw
+        pushing = [np.linalg.norm(f, axis=-1) > 0.0 for f in contacts[1]]
+        contact_arrows = tuple(np.stack([p[m], p[m] + scale * f[m]], axis=1) for p, f, m in zip(*contacts, pushing))
     return Scene(body_names=tuple(model.body_names), times=times, positions=positions, wxyz=wxyz, shapes=shapes,
-                 traces=traces, arrows=arrows, arrow_labels=tuple(labels), arrow_colors=colors, force_scale=scale,
+                 traces=traces, arrows=arrows, arrow_labels=tuple(labels), arrow_colors=colors,
+                 contact_points=contact_points, contact_arrows=contact_arrows, force_scale=scale,
                  largest_force=largest, no_arrows=without, planes=_planes(constraints), low=low, high=high,
                  start_low=start_low, start_high=start_high)
 
@@ -421,6 +484,11 @@ def _quiet():
 def _node_name(body):
     """A scene-tree name for a body: Viser reads ``/`` as nesting."""
     return "/bodies/" + str(body).replace("/", "_").replace(" ", "_")
+
+
+def _identities(count):
+    """``(count, 4)`` Viser's ``[w, x, y, z]`` of the identity rotation, one per instance."""
+    return np.tile([1.0, 0.0, 0.0, 0.0], (count, 1))
 
 
 def _frame_wxyz(E):
@@ -518,10 +586,20 @@ class Viewer:
                     f"/paths/path_{k}", segments, TRACE_COLORS[k % len(TRACE_COLORS)], thickness=2.0,
                     thickness_units="screen"))
         self._arrows = None
+        arrow_shape = dict(shaft_radius=0.004 * s, head_radius=0.01 * s, head_length=0.025 * s)
         if scene.arrows.shape[1]:
-            self._arrows = server.scene.add_arrows(
-                "/forces", scene.arrows[0], scene.arrow_colors, shaft_radius=0.004 * s, head_radius=0.01 * s,
-                head_length=0.025 * s)
+            self._arrows = server.scene.add_arrows("/forces", scene.arrows[0], scene.arrow_colors, **arrow_shape)
+        self._contacts = []
+        if scene.contact_points:
+            import trimesh
+
+            dot = trimesh.creation.icosphere(subdivisions=2, radius=0.012 * s)
+            self._contacts = [
+                server.scene.add_batched_meshes_simple(
+                    "/contacts/points", dot.vertices.astype(np.float32), dot.faces.astype(np.uint32),
+                    batched_wxyzs=_identities(len(scene.contact_points[0])), batched_positions=scene.contact_points[0],
+                    batched_colors=CONTACT_POINT_COLOR, cast_shadow=False, receive_shadow=False),
+                server.scene.add_arrows("/contacts/forces", scene.contact_arrows[0], CONTACT_FORCE_COLOR, **arrow_shape)]
 
         gui = server.gui
         self.slider = None
@@ -540,18 +618,28 @@ class Viewer:
         shown = {"bodies": (list(self.nodes.values()), "visible", True),
                  "body frames": (list(self.nodes.values()), "show_axes", frames),
                  "ground": (ground, "visible", True), "paths": (self._traces, "visible", True),
-                 "forces": ([self._arrows] if self._arrows is not None else [], "visible", True)}
+                 "forces": ([self._arrows] if self._arrows is not None else [], "visible", True),
+                 "contacts": (self._contacts, "visible", True)}
         self.layers = {}
         for name, (nodes, prop, initial) in shown.items():
             if nodes:
                 box = gui.add_checkbox(name, initial_value=bool(initial))
                 box.on_update(lambda _, nodes=nodes, prop=prop, box=box: [setattr(node, prop, box.value) for node in nodes])
                 self.layers[name] = box
+        self._force_scale = scene.force_scale
+        self._scale_input = None
+        if self._arrows is not None or self._contacts:
+            # steps of a hundredth of the starting scale, down to one step
+            fine = scene.force_scale / 100.0
+            self._scale_input = gui.add_number("force scale (m/N)", initial_value=scene.force_scale, min=fine, step=fine)
+            self._scale_input.on_update(lambda _: self._set_force_scale(max(self._scale_input.value, fine)))
         notes = []
         if self._traces:
             notes.append("paths: " + ", ".join(scene.traces))
-        if self._arrows is not None:
-            notes.append(f"constraint forces: 1 N ↦ {scene.force_scale:.3g} m (largest {scene.largest_force:.3g} N)")
+        if self._arrows is not None or self._contacts:
+            notes.append(f"force arrows: largest force {scene.largest_force:.3g} N")
+        if self._contacts:
+            notes.append("contacts: points and forces on the bodies (joint limits not drawn)")
         if scene.no_arrows:
             notes.append("no force arrows (they act on coordinates): " + ", ".join(scene.no_arrows))
         if notes:
@@ -602,7 +690,40 @@ class Viewer:
                     node.wxyz = scene.wxyz[k, b]
                     node.position = scene.positions[k, b]
                 if self._arrows is not None:
-                    self._arrows.points = scene.arrows[k].astype(np.float32)
+                    self._arrows.points = self._scaled(scene.arrows[k])
+                if self._contacts:
+                    points, arrows = self._contacts
+                    # the instances' count follows the entry's: orientations and positions change together
+                    points.batched_wxyzs = _identities(len(scene.contact_points[k]))
+                    points.batched_positions = scene.contact_points[k]
+                    arrows.points = self._scaled(scene.contact_arrows[k])
+
+    @property
+    def force_scale(self):
+        """The force arrows' length per force (m/N); setting it redraws them and sets the panel's box."""
+        return self._force_scale
+
+    @force_scale.setter
+    def force_scale(self, scale):
+        self._set_force_scale(scale)
+        if self._scale_input is not None:
+            self._scale_input.value = float(scale)
+
+    def _set_force_scale(self, scale):
+        if not (np.isfinite(scale) and scale > 0.0):
+            raise ValueError(f"force_scale must be a positive length per force (m/N), got {scale!r}")
+        with self._lock:
+            self._force_scale = float(scale)
+            self._show(self._frame)
+
+    def _scaled(self, arrows):
+        """``(k, 2, 3)`` float32 tails and heads of ``arrows`` (drawn at the scene's scale) at the chosen
+        force scale: the tails stay, the heads move along the forces."""
+        if self._force_scale == self.scene.force_scale:
+            return arrows.astype(np.float32)
+        tails = arrows[:, 0]
+        heads = tails + (self._force_scale / self.scene.force_scale) * (arrows[:, 1] - tails)
+        return np.stack([tails, heads], axis=1).astype(np.float32)
 
     # ------------------------------------------------------------------ playback
 
@@ -704,15 +825,18 @@ def view(model, q=None, trajectory=None, *, constraints=None, port=8080, **optio
     Args:
         model: a :class:`~multibody.model.Model`.
         q: one configuration ``(nq,)`` to show (default ``model.neutral()``); not with ``trajectory``.
-        trajectory: a :class:`~multibody.trajectory.Trajectory` (``t (n,)``, ``q (n, nq)``) to play.
+        trajectory: a :class:`~multibody.trajectory.Trajectory` (``t (n,)``, ``q (n, nq)``) to play; its
+            ``contacts``, when it has them, are drawn as points and force arrows.
         constraints: the constraints that were simulated (a ``ConstrainedSystem`` or a list, in its order),
             to draw their forces from ``trajectory.lam`` as arrows (see the module docstring).
         port: where to listen (the next free one when taken; ``0``: any free port). ``viewer.port`` is
             the one used.
         **options:
             trace: bodies whose paths are drawn: names, or ``(name, point (3,) in the body frame, m)``.
-            force_scale: arrow length per newton (m/N); default: the largest force a quarter as long as
-                the bodies' bounding box at the first frame, rounded to 1, 2 or 5 × 10^k.
+            force_scale: arrow length per newton (m/N) of the constraint and contact forces; default: the
+                largest force a quarter as long as the bodies' bounding box at the first frame, or, with
+                contacts, the model's weight (total mass × |g|) as long (an impact's impulse / dt can
+                be hundreds of weights), rounded to 1, 2 or 5 × 10^k. The panel's box changes it.
             speed: playback speed, a factor of real time (default 1).
             frames: draw each body's frame axes (default ``True``).
             host: the interface to listen on (default ``"127.0.0.1"``, this machine only; ``"0.0.0.0"``:

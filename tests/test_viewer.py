@@ -17,6 +17,8 @@ import sys
 import tempfile
 import time
 import urllib.request
+from types import SimpleNamespace
+from typing import NamedTuple
 
 import numpy as np
 import pytest
@@ -231,6 +233,141 @@ def test_missing_viser_names_the_viz_extra(monkeypatch, pendulum):
 def test_importing_multibody_does_not_import_viser():
     code = "import sys, multibody as mb; assert 'viser' not in sys.modules; mb.view; assert 'viser' not in sys.modules"
     subprocess.run([sys.executable, "-c", code], check=True, timeout=120)
+
+
+# ============================================================================= contacts
+
+class Entry(NamedTuple):
+    """One entry of ``Trajectory.contacts`` as the API gives it (multibody.contact.Contacts' attributes)."""
+
+    body: np.ndarray
+    other: np.ndarray
+    point: np.ndarray
+    normal: np.ndarray
+    force: np.ndarray
+
+
+def entry(rows):
+    """An :class:`Entry` from ``[(body, other, point, normal, force), ...]``."""
+    columns = list(zip(*rows)) if rows else [(), (), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3))]
+    return Entry(np.array(columns[0], dtype=str), np.array(columns[1], dtype=str),
+                 *(np.array(c, dtype=float).reshape(-1, 3) for c in columns[2:]))
+
+
+def contact_trajectory(q, t, entries):
+    """A trajectory of configurations ``q (n, nq)`` at ``t (n,)`` with ``contacts`` ``entries``."""
+    return SimpleNamespace(t=np.asarray(t, float), q=np.asarray(q, float), contacts=entries)
+
+
+@pytest.fixture(scope="module")
+def slab():
+    """A free 0.4 × 0.2 × 0.1 m box of 2 kg (drawn as its inertia box) on a slider, with a joint limit."""
+    builder = mb.ModelBuilder("slab")
+    builder.add_body("rail", joint=mb.joints.Prismatic(axis=(1.0, 0.0, 0.0)), inertia=mb.inertia.point_mass(0.5))
+    builder.add_body("slab", joint=mb.joints.FreeFlyer(), parent="rail", inertia=mb.inertia.box(2.0, [0.4, 0.2, 0.1]))
+    return builder.build()
+
+
+@pytest.fixture(scope="module")
+def sliding(slab):
+    """The slab resting on the ground (t = 0.1 s), then slid 0.3 m along x (t = 0.2 s): its four lower corners
+    pushed up by the ground, one corner not pushed at 0.2 s, the rail at its limit; entries 0 and 3 empty."""
+    t = [0.0, 0.1, 0.2, 0.3]
+    q = np.tile(slab.neutral(), (4, 1))
+    q[:, 3] = 0.05                                      # the slab's centre 5 cm up: its lower face on z = 0
+    q[2:, 1] = 0.3
+    corners = np.array([[x, y, 0.0] for x in (-0.2, 0.2) for y in (-0.1, 0.1)])
+    up, zero = np.array([0.0, 0.0, 1.0]), np.zeros(3)
+    resting = [("slab", "ground", c, up, [0.0, 0.0, 2.5 * 9.81 / 4]) for c in corners]
+    slid = [("slab", "ground", c + [0.3, 0.0, 0.0], up, [-1.0 - k, 0.5, 4.0 + k]) for k, c in enumerate(corners[:3])]
+    slid.append(("slab", "ground", corners[3] + [0.3, 0.0, 0.0], up, zero))
+    limit = ("rail", "limit", zero, zero, [-3.0, 0.0, 0.0])
+    return contact_trajectory(q, t, [entry([]), entry(resting + [limit]), entry([limit] + slid), entry([])])
+
+
+def test_contact_points_and_force_arrows_per_frame_joint_limits_left_out(slab, sliding):
+    scene = scene_of(slab, trajectory=sliding, force_scale=0.01)
+    assert len(scene.contact_points) == len(scene.contact_arrows) == 4
+    assert scene.contact_points[0].shape == (0, 3) and scene.contact_arrows[0].shape == (0, 2, 3)
+    assert scene.contact_points[3].shape == (0, 3) and scene.contact_arrows[3].shape == (0, 2, 3)
+    for k in (1, 2):
+        touching = sliding.contacts[k].other != "limit"
+        points, forces = sliding.contacts[k].point[touching], sliding.contacts[k].force[touching]
+        np.testing.assert_array_equal(scene.contact_points[k], points)
+        pushing = np.linalg.norm(forces, axis=1) > 0.0
+        arrows = scene.contact_arrows[k]
+        assert arrows.shape == (pushing.sum(), 2, 3)
+        np.testing.assert_array_equal(arrows[:, 0], points[pushing])
+        np.testing.assert_allclose(arrows[:, 1] - arrows[:, 0], 0.01 * forces[pushing], rtol=1e-15, atol=1e-15)
+    assert len(scene.contact_points[2]) == 4 and len(scene.contact_arrows[2]) == 3   # the unpushed corner: no arrow
+    assert scene.largest_force == pytest.approx(np.linalg.norm([-3.0, 0.5, 6.0]))   # the limit's 3 N·m not counted
+
+
+def test_contact_arrows_default_to_the_weight_as_long_as_the_bodies_size(slab, sliding):
+    scene = scene_of(slab, trajectory=sliding)
+    weight = 2.5 * 9.81
+    assert scene.force_scale == viewer_module._nice(scene.size / weight)
+    assert scene.force_scale * weight <= scene.size < 2.5 * scene.force_scale * weight
+
+
+def test_joint_limits_alone_draw_no_contacts(slab, sliding):
+    limit_only = [entry([]), entry([("rail", "limit", np.zeros(3), np.zeros(3), [-3.0, 0.0, 0.0])]), entry([]),
+                  entry([])]
+    scene = scene_of(slab, trajectory=contact_trajectory(sliding.q, sliding.t, limit_only))
+    assert scene.contact_points == () and scene.contact_arrows == () and scene.force_scale == 0.0
+    plain = scene_of(slab, trajectory=contact_trajectory(sliding.q, sliding.t, None))
+    assert plain.contact_points == ()
+
+
+def test_bad_contacts_are_refused_naming_the_entry(slab, sliding):
+    good = list(sliding.contacts)
+    wrong_shape = good[:1] + [good[1]._replace(point=good[1].point[:, :2])] + good[2:]
+    infinite = good[:2] + [good[2]._replace(force=np.full((5, 3), np.inf))] + good[3:]
+    cases = [(good[:3], ValueError, "3 entries but the trajectory 4 times"),
+             (good[:1] + ["contact"] + good[2:], TypeError, r"trajectory.contacts\[1\] must have"),
+             (wrong_shape, ValueError, r"trajectory.contacts\[1\]: other, point and force"),
+             (infinite, ValueError, r"trajectory.contacts\[2\] \(t = 0.2 s\) has non-finite")]
+    for entries, error, words in cases:
+        with pytest.raises(error, match=words):
+            scene_of(slab, trajectory=contact_trajectory(sliding.q, sliding.t, entries))
+
+
+@needs_viser
+def test_the_viewer_draws_contacts_moving_with_the_frame_scaled_and_hidden_by_a_checkbox(slab, sliding):
+    with mb.view(slab, trajectory=sliding, port=0, force_scale=0.01) as viewer:
+        scene = viewer.scene
+        points, arrows = viewer._contacts
+        assert (points.name, arrows.name) == ("/contacts/points", "/contacts/forces")
+        assert "contacts" in viewer.layers and "forces" not in viewer.layers
+        # entry 0 is empty: nothing drawn
+        assert points.batched_positions.shape == (0, 3) and arrows.points.shape == (0, 2, 3)
+        for k in (1, 2, 3, 1):
+            viewer.time = sliding.t[k]
+            assert points.batched_positions.shape == points.batched_wxyzs.shape[:1] + (3,)
+            np.testing.assert_allclose(points.batched_positions, scene.contact_points[k], atol=1e-6)
+            np.testing.assert_allclose(arrows.points, scene.contact_arrows[k], atol=1e-6)
+        # an arrow is as long as its force times the scale
+        viewer.time = sliding.t[2]
+        forces = sliding.contacts[2].force[1:4]
+        lengths = np.linalg.norm(arrows.points[:, 1] - arrows.points[:, 0], axis=1)
+        np.testing.assert_allclose(lengths, 0.01 * np.linalg.norm(forces, axis=1), rtol=1e-6)
+        # the panel's scale (as a browser sets it) and Viewer.force_scale redraw the arrows from the same tails
+        viewer._scale_input.value = 0.03
+        assert viewer.force_scale == 0.03
+        np.testing.assert_allclose(arrows.points[:, 1] - arrows.points[:, 0], 0.03 * forces, rtol=1e-6, atol=1e-7)
+        viewer.force_scale = 0.005
+        assert viewer._scale_input.value == 0.005
+        np.testing.assert_allclose(arrows.points[:, 0], scene.contact_arrows[2][:, 0], atol=1e-6)
+        np.testing.assert_allclose(arrows.points[:, 1] - arrows.points[:, 0], 0.005 * forces, rtol=1e-6, atol=1e-7)
+        viewer.time = sliding.t[1]                         # another frame keeps the chosen scale
+        np.testing.assert_allclose(arrows.points[:, 1] - arrows.points[:, 0],
+                                   0.005 * sliding.contacts[1].force[:4], rtol=1e-6, atol=1e-7)
+        with pytest.raises(ValueError, match="force_scale"):
+            viewer.force_scale = 0.0
+        viewer.layers["contacts"].value = False
+        assert not points.visible and not arrows.visible
+        viewer.layers["contacts"].value = True
+        assert points.visible and arrows.visible
 
 
 # ============================================================================= the server and its controls
