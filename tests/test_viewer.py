@@ -6,6 +6,7 @@ when no ``chromium`` binary is on PATH (``apt-get install chromium``).
 """
 
 import base64
+import dataclasses
 import importlib.util
 import io
 import json
@@ -17,8 +18,6 @@ import sys
 import tempfile
 import time
 import urllib.request
-from types import SimpleNamespace
-from typing import NamedTuple
 
 import numpy as np
 import pytest
@@ -26,6 +25,7 @@ import pytest
 import multibody as mb
 from multibody import viewer as viewer_module
 from multibody.cli import main
+from multibody.contact import Contacts
 from multibody.viewer import equivalent_inertia_box, scene_of
 
 needs_viser = pytest.mark.skipif(importlib.util.find_spec("viser") is None,
@@ -237,26 +237,16 @@ def test_importing_multibody_does_not_import_viser():
 
 # ============================================================================= contacts
 
-class Entry(NamedTuple):
-    """One entry of ``Trajectory.contacts`` as the API gives it (multibody.contact.Contacts' attributes)."""
-
-    body: np.ndarray
-    other: np.ndarray
-    point: np.ndarray
-    normal: np.ndarray
-    force: np.ndarray
-
-
 def entry(rows):
-    """An :class:`Entry` from ``[(body, other, point, normal, force), ...]``."""
+    """One entry of ``Trajectory.contacts`` from its rows ``[(body, other, point, normal, force), ...]``."""
     columns = list(zip(*rows)) if rows else [(), (), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3))]
-    return Entry(np.array(columns[0], dtype=str), np.array(columns[1], dtype=str),
-                 *(np.array(c, dtype=float).reshape(-1, 3) for c in columns[2:]))
+    return Contacts(np.array(columns[0], dtype=str), np.array(columns[1], dtype=str),
+                    *(np.array(c, dtype=float).reshape(-1, 3) for c in columns[2:]))
 
 
 def contact_trajectory(q, t, entries):
     """A trajectory of configurations ``q (n, nq)`` at ``t (n,)`` with ``contacts`` ``entries``."""
-    return SimpleNamespace(t=np.asarray(t, float), q=np.asarray(q, float), contacts=entries)
+    return dataclasses.replace(synthetic_trajectory(q, t), contacts=entries)
 
 
 @pytest.fixture(scope="module")
@@ -321,8 +311,8 @@ def test_joint_limits_alone_draw_no_contacts(slab, sliding):
 
 def test_bad_contacts_are_refused_naming_the_entry(slab, sliding):
     good = list(sliding.contacts)
-    wrong_shape = good[:1] + [good[1]._replace(point=good[1].point[:, :2])] + good[2:]
-    infinite = good[:2] + [good[2]._replace(force=np.full((5, 3), np.inf))] + good[3:]
+    wrong_shape = good[:1] + [dataclasses.replace(good[1], point=good[1].point[:, :2])] + good[2:]
+    infinite = good[:2] + [dataclasses.replace(good[2], force=np.full((5, 3), np.inf))] + good[3:]
     cases = [(good[:3], ValueError, "3 entries but the trajectory 4 times"),
              (good[:1] + ["contact"] + good[2:], TypeError, r"trajectory.contacts\[1\] must have"),
              (wrong_shape, ValueError, r"trajectory.contacts\[1\]: other, point and force"),
@@ -330,6 +320,31 @@ def test_bad_contacts_are_refused_naming_the_entry(slab, sliding):
     for entries, error, words in cases:
         with pytest.raises(error, match=words):
             scene_of(slab, trajectory=contact_trajectory(sliding.q, sliding.t, entries))
+
+
+def test_a_simulated_box_slides_with_its_contacts_drawn():
+    builder = mb.ModelBuilder("box")
+    builder.add_body("box", joint=mb.joints.FreeFlyer(), inertia=mb.inertia.box(1.0, (0.2, 0.2, 0.1)))
+    builder.add_collision("box", "box", (0.2, 0.2, 0.1))
+    box = builder.build()
+    system = mb.ConstrainedSystem(box, [mb.Ground(friction=0.5)])
+    # dropped 1 cm, sliding along x
+    slide = mb.simulate(system, [0, 0, 0.06, 0, 0, 0, 1], [1.0, 0, 0, 0, 0, 0], 0.1, dt=1e-3)
+    scene = scene_of(box, trajectory=slide, force_scale=0.02)
+    assert len(slide.contacts[0]) == 0 and scene.contact_points[0].shape == (0, 3)
+    touching = [k for k, found in enumerate(slide.contacts) if len(found)]
+    assert touching and len(slide.contacts[-1]) == 4            # the four lower corners, on the ground at the end
+    for k in touching:
+        np.testing.assert_array_equal(scene.contact_points[k], slide.contacts[k].point)
+        pushing = np.linalg.norm(slide.contacts[k].force, axis=1) > 0.0
+        np.testing.assert_allclose(scene.contact_arrows[k][:, 1] - scene.contact_arrows[k][:, 0],
+                                   0.02 * slide.contacts[k].force[pushing], rtol=1e-15, atol=1e-15)
+    # the corners move with the box: centred under it as it was at the start of the step (where the step
+    # detects its contacts), one step before the entry's time
+    flat = [k for k in touching if len(slide.contacts[k]) == 4]
+    assert slide.q[flat[-1], 0] - slide.q[flat[0], 0] > 0.01
+    np.testing.assert_allclose([scene.contact_points[k].mean(axis=0)[:2] for k in flat],
+                               slide.q[np.array(flat) - 1, :2], atol=1e-9)
 
 
 @needs_viser
