@@ -176,11 +176,12 @@ def simulate(system, q0, v0, t_final, *, dt=None, method=None, tau=None, rtol=1e
             CUDA arrays (CuPy, PyTorch or Numba device arrays) ``q0 (N, nq)``, ``v0 (N, nv)`` run the same
             compiled step on the GPU, one trajectory per thread (:func:`multibody.gpu.advance_batch`), and the
             result is the same ``Trajectory`` of host (NumPy) arrays: a fixed-step method, joint forces
-            ``None``, an array, :class:`multibody.PD` or a ``numba.njit`` function, and a ``Model`` or a
-            ``ConstrainedSystem`` with built-in constraints; anything else (a Python callable, an adaptive or the
-            variational method, user constraints, one initial state) raises ``ValueError``. The initial states'
-            projection onto the constraints, a step that starts near a singular configuration of them and the
-            steps after it, and the outputs' multipliers, energies and residuals are computed on the host.
+            ``None``, an array (on the host or the device), :class:`multibody.PD` or a ``numba.njit`` function,
+            and a ``Model`` or a ``ConstrainedSystem`` with built-in constraints; anything else (a Python callable,
+            an adaptive or the variational method, user constraints, one initial state) raises ``ValueError``. The
+            initial states' projection onto the constraints, a step that starts near a singular configuration of
+            them and the steps after it, and the outputs' multipliers, energies and residuals are computed on the
+            host.
         t_final: end time (s).
         dt: output interval (s), and the step of the fixed-step methods; default ``(t_final − t0) / 500``.
         method: ``"RK45"`` (the default), ``"DOP853"``, ``"Radau"`` (or ``"RK23"``, ``"BDF"``, ``"LSODA"``); the fixed-step
@@ -248,7 +249,7 @@ def simulate(system, q0, v0, t_final, *, dt=None, method=None, tau=None, rtol=1e
     device = gpu.is_device_array(q0) or gpu.is_device_array(v0)
     if device:
         _check_device_run(method, tau)
-        q0, v0 = (gpu.to_host(x) if gpu.is_device_array(x) else x for x in (q0, v0))
+        q0, v0, tau = (gpu.to_host(x) if gpu.is_device_array(x) else x for x in (q0, v0, tau))
     if method == "variational":  # the discrete Hamilton's principle, in its own module
         from . import variational
         tau = as_controller(tau, system.system if isinstance(system, ConstrainedSystem) else as_system(system))

@@ -105,16 +105,19 @@ SIMULATED = textwrap.dedent(r"""
     assert all(run.completed), run.status
     print("PARALLELOGRAMS-OK")
 
-    # a double pendulum, explicit Euler: constant joint forces per trajectory, one initial velocity (a host array)
-    # for all; then a numba.njit controller whose joint forces are NaN past q[0] = 1.5, which stops trajectory 2 alone
-    # with the CPU's status
+    # a double pendulum, explicit Euler: constant joint forces per trajectory (a device array), one initial velocity
+    # (a host array) for all; then a numba.njit controller whose joint forces are NaN past q[0] = 1.5, which stops
+    # trajectory 2 alone with the CPU's status
     pendulum = mb.robots.load("double_pendulum")
     q0 = np.clip(0.3 * rng.standard_normal((5, 2)), -1.0, 1.0)
     v0 = rng.standard_normal(2)
     calls.update(device=0, cpu=0)
-    device = mb.simulate(pendulum, cuda.to_device(q0), v0, 0.03, dt=0.01, method="Euler",
-                         tau=rng.standard_normal((5, 2)), limits="ignore")
+    tau = rng.standard_normal((5, 2))
+    device = mb.simulate(pendulum, cuda.to_device(q0), v0, 0.03, dt=0.01, method="Euler", tau=cuda.to_device(tau),
+                         limits="ignore")
     assert calls == {"device": 1, "cpu": 0}, calls
+    host = mb.simulate(pendulum, q0, v0, 0.03, dt=0.01, method="Euler", tau=tau, limits="ignore")
+    assert np.array_equal(device.q, host.q) and np.array_equal(device.v, host.v)
     same(pendulum, q0, np.broadcast_to(v0, (5, 2)).copy(), 0.03, dt=0.01, method="Euler",
          tau=rng.standard_normal((5, 2)), limits="ignore")
 
@@ -212,5 +215,6 @@ PTX = textwrap.dedent(r"""
 def test_the_run_compiles_for_the_cuda_target():
     result = run_python(PTX, timeout=1200)
     if "NO-TOOLCHAIN" in result.stdout or "No module named 'numba.cuda" in result.stderr:
-        pytest.skip("no CUDA toolchain that compiles the kernels (libNVVM, NVRTC, numba-cuda): " + result.stdout.strip())
+        pytest.skip("no CUDA toolchain that compiles the kernels (libNVVM, NVRTC, numba-cuda): "
+                    + result.stdout.strip())
     assert "GPU-RUN-PTX-OK" in result.stdout, result.stdout + result.stderr
