@@ -25,7 +25,7 @@ from numba import prange, types
 from . import driver
 from .integrators import CONTROLLER_TYPES, CompiledController, PDController, as_controller
 from .contact_problem import STATUS_MESSAGES
-from .kernels import collision, complementarity, stepping, timestepping
+from .kernels import collision, complementarity, kkt, stepping, timestepping
 from .model import Model
 from .trajectory import Trajectory, recorded_names
 from .tree import frame_rows
@@ -41,6 +41,10 @@ MAX_ITERATIONS = 20000
 MARGIN = 1e-3
 #: Depth (m or rad) of a step's end penetration that its position correction removes (shallower is left alone).
 PENETRATION = 1e-10
+#: The projection of each step's end onto the bilateral rows (:func:`multibody.kernels.kkt.project`): the largest
+#: ``|φ|`` and step left (m or rad), and its Gauss–Newton iterations.
+PROJECTION_TOLERANCE = 1e-12
+PROJECTION_ITERATIONS = 50
 
 
 class Unilateral:
@@ -291,10 +295,14 @@ def contact_program(constrained, *, tolerance=TOLERANCE, max_iterations=MAX_ITER
             timestepping.PLAN_MAX_ITERATIONS, timestepping.PLAN_BILATERAL, timestepping.PLAN_DAMPED,
             timestepping.PLAN_GROUND_START, timestepping.PLAN_PAIR_START, timestepping.PLAN_LIMIT_START,
             timestepping.PLAN_DAMPING_START, timestepping.PLAN_PENETRATION, timestepping.PLAN_KINEMATICS_WORKSPACE,
-            timestepping.PLAN_PASSES_WORKSPACE]] = (
+            timestepping.PLAN_PASSES_WORKSPACE, timestepping.PLAN_SETTINGS_START]] = (
         nq, nv, len(grounds), len(pairs), len(limits), margin, tolerance, max_iterations, constrained.num_rows, damped,
-        starts[0], starts[1], starts[2], starts[3], penetration, *timestepping.pass_workspaces(model.njoints, nv))
-    plan = np.concatenate([header, *blocks, np.zeros(nv) if damping is None else np.asarray(damping, dtype=float)])
+        starts[0], starts[1], starts[2], starts[3], penetration, *timestepping.pass_workspaces(model.njoints, nv),
+        starts[3] + nv)
+    # the projection onto the bilateral rows: [tolerance, iterations, position mask]
+    settings = np.concatenate(([PROJECTION_TOLERANCE, PROJECTION_ITERATIONS], constrained.position_rows.astype(float)))
+    plan = np.concatenate([header, *blocks, np.zeros(nv) if damping is None else np.asarray(damping, dtype=float),
+                           settings])
     # the bilateral rows' program and frames (the compiled constraint program of the constrained step)
     if constrained.num_rows:
         compiled = constrained.compiled_program()
@@ -308,8 +316,11 @@ def contact_program(constrained, *, tolerance=TOLERANCE, max_iterations=MAX_ITER
     contacts = timestepping.max_contacts(len(grounds), len(pairs))
     m = timestepping.max_rows(constrained.num_rows, len(limits), contacts)
     solver_workspace = complementarity.workspace_size(m)
+    projection_workspace = kkt.projection_workspace_size(model.njoints, nq, nv, len(frames), constrained.num_rows) \
+        if constrained.num_rows else 0
+    plan[timestepping.PLAN_PROJECTION_WORKSPACE] = projection_workspace
     workspace = timestepping.workspace_size(model.njoints, nq, nv, len(frames), constrained.num_rows, len(limits),
-                                            contacts, solver_workspace)
+                                            contacts, solver_workspace, projection_workspace)
     return ContactProgram(np.ascontiguousarray(program, dtype=float), np.ascontiguousarray(frames, dtype=float),
                           np.ascontiguousarray(geometry), np.ascontiguousarray(table.vertices, dtype=float),
                           np.ascontiguousarray(plan), workspace,
@@ -357,6 +368,7 @@ _STATUS = {
     timestepping.UNDEFINED: "a bilateral constraint's rows are undefined at this configuration",
     timestepping.NON_FINITE_STATE: "the state is not finite",
     timestepping.NON_FINITE_TORQUE: "the joint forces are not finite",
+    timestepping.NOT_PROJECTED: "the projection onto the bilateral constraints did not converge",
 }
 
 

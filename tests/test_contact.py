@@ -343,3 +343,20 @@ def test_bad_input_messages(ball, panda):
     system = mb.ConstrainedSystem(ball, [mb.Ground()])
     with pytest.raises(ValueError, match="method='RK4' cannot simulate contact or joint limits .*'Moreau-Jean'"):
         mb.simulate(system, [0, 0, 0.3, 0, 0, 0, 1], np.zeros(6), 0.1, dt=DT, method="RK4")
+
+
+def test_bilateral_rows_in_the_same_solve(ball):
+    """A ball on a massless rod (mb.Distance to a world pivot) swings into the ground: the rod's rows are solved
+    with the contact, each step's end is projected onto them (|φ| ≤ 1e-12 m, |A v| ≤ 1e-12 m/s), the ground stops the
+    ball (its gap ≥ 0), the rod's tension comes out in lam, and the energy never rises."""
+    rod = mb.Distance("ball", None, 0.5, point_b=[0.0, 0.0, 0.55])
+    system = mb.ConstrainedSystem(ball, [rod, mb.Ground(friction=0.5)])
+    trajectory = mb.simulate(system, [0.5, 0, 0.55, 0, 0, 0, 1], np.zeros(6), 1.0, dt=DT)
+    assert trajectory.residual.max() <= 1e-12
+    assert trajectory.q[:, 2].min() >= 0.1 - 1e-12
+    touching = [k for k, entry in enumerate(trajectory.contacts) if len(entry) and entry.force[:, 2].max() > 0]
+    assert touching
+    # the rod pulls while the ball swings free (a pendulum's tension m (g cos θ + v²/L) > 0 below the pivot's height)
+    assert (trajectory.lam[2 : touching[0], 0] > 0).all()
+    assert (np.diff(trajectory.energy) <= 1e-12).all()
+    assert trajectory.complementarity.max() <= TOLERANCE

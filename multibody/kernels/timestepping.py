@@ -63,11 +63,14 @@ from .spatial import all_finite, cross, dot3, load3, scale3
 
 #: The plan's header (one float each): sizes, the controller, the counts of ground items, contact pairs and
 #: limited coordinates, the solver's settings, where the blocks that follow start, the penetration the position
-#: correction leaves, and the workspaces of the kinematics and of the dynamics passes (:func:`pass_workspaces`).
+#: correction leaves, the workspaces of the kinematics and of the dynamics passes (:func:`pass_workspaces`), and
+#: where the settings of the bilateral rows' projection start (:func:`multibody.kernels.kkt.project`: tolerance,
+#: iterations, position mask) and its workspace.
 (PLAN_NQ, PLAN_NV, PLAN_CONTROL, PLAN_GROUNDS, PLAN_PAIRS, PLAN_LIMITS, PLAN_MARGIN, PLAN_TOLERANCE,
  PLAN_MAX_ITERATIONS, PLAN_BILATERAL, PLAN_DAMPED, PLAN_GROUND_START, PLAN_PAIR_START, PLAN_LIMIT_START,
- PLAN_DAMPING_START, PLAN_PENETRATION, PLAN_KINEMATICS_WORKSPACE, PLAN_PASSES_WORKSPACE) = range(18)
-PLAN_HEADER = 18
+ PLAN_DAMPING_START, PLAN_PENETRATION, PLAN_KINEMATICS_WORKSPACE, PLAN_PASSES_WORKSPACE, PLAN_SETTINGS_START,
+ PLAN_PROJECTION_WORKSPACE) = range(20)
+PLAN_HEADER = 20
 
 #: A ground item: a geometry against the half-space ``n · x ≥ height``, with its friction and restitution.
 GROUND_GEOMETRY, GROUND_NORMAL, GROUND_HEIGHT, GROUND_FRICTION, GROUND_RESTITUTION = 0, 1, 4, 5, 6
@@ -100,8 +103,9 @@ SUMMARY_COLUMNS = 5
 IO_STEP, IO_STOP, IO_STATUS, IO_TIME = 0, 1, 2, 3
 IO_SIZE = 4
 #: Status of a run: completed; ``M`` not positive definite; a bilateral row undefined; the solver did not reach
-#: its tolerance (the step is taken, and the run stops after it); a non-finite state; non-finite joint forces.
-COMPLETED, NOT_POSITIVE_DEFINITE, UNDEFINED, NOT_SOLVED, NON_FINITE_STATE, NON_FINITE_TORQUE = range(6)
+#: its tolerance (the step is taken, and the run stops after it); a non-finite state; non-finite joint forces; the
+#: step's end not projected onto the bilateral rows (positions that do not converge).
+COMPLETED, NOT_POSITIVE_DEFINITE, UNDEFINED, NOT_SOLVED, NON_FINITE_STATE, NON_FINITE_TORQUE, NOT_PROJECTED = range(7)
 
 #: A contact's data while the step is built: the bodies (model indices; a ground's ``other`` is GROUND), point
 #: (3), normal, tangents (3 each), gap, restitution, friction, and its first row in the step's problem.
@@ -129,11 +133,11 @@ def pass_workspaces(nj, nv):
             max(crba.workspace_size(nj, nv), rnea.workspace_size(nj, nv), kinematics.workspace_size(nj, nv)))
 
 
-def workspace_size(nj, nq, nv, nframes, bilateral, limits, contacts, solver_workspace):
+def workspace_size(nj, nq, nv, nframes, bilateral, limits, contacts, solver_workspace, projection_workspace):
     """Floats of workspace of a run's step."""
     m = max_rows(bilateral, limits, contacts)
     kinematic, passes = pass_workspaces(nj, nv)
-    return (2 * nv * nv + 7 * nv + 2 * nq + kinematic + passes
+    return (2 * nv * nv + 7 * nv + 2 * nq + kinematic + passes + kkt.projection_columns(nq, nv) + projection_workspace
             + nframes * kinematics.motion_columns(nv) + bilateral * nv + 2 * bilateral
             + collision.MAX_PAIR_CONTACTS * collision.CONTACT_COLUMNS + collision.PAIR_WORKSPACE + 9 + 9 + 3 * 3
             + 6 * nv + contacts * CONTACT_DATA + 3 * m * nv + m * m + 12 * m + solver_workspace)
@@ -457,6 +461,10 @@ def step(controller, joints, reals, frames, program, geometry, vertices, plan, c
     at += nv
     w = ws[at : at + nv]
     at += nv
+    projected = ws[at : at + nq + nv + 3].reshape((1, nq + nv + 3))
+    at += nq + nv + 3
+    projection_ws = ws[at : at + int(plan[PLAN_PROJECTION_WORKSPACE])]
+    at += int(plan[PLAN_PROJECTION_WORKSPACE])
     kinematic_size, passes_size = int(plan[PLAN_KINEMATICS_WORKSPACE]), int(plan[PLAN_PASSES_WORKSPACE])
     kin = ws[at : at + kinematic_size]
     at += kinematic_size
@@ -664,6 +672,20 @@ def step(controller, joints, reals, frames, program, geometry, vertices, plan, c
     # penetration at the step's end (to first order: g + dt u⁺ₙ) removed by moving the positions alone
     summary[SUMMARY_SEPARATION] = separate(joints, plan, W, Y, sep_gap, sep_rows, count, G_space, sep_x, sep_u,
                                            sep_mu, block_kinds, block_starts, sws, nq, nv, q_next, dq, moved)
+
+    # the step's end projected onto the bilateral rows, φ = 0 and A v = 0 (the projection of the fixed-step runs,
+    # multibody.kernels.kkt.project: the smallest moves in the metric of M, which take no energy from the rows' rates
+    # but what they violate)
+    if mb > 0:
+        settings = plan[int(plan[PLAN_SETTINGS_START]) : int(plan[PLAN_SETTINGS_START]) + 2 + mb]
+        kkt.project(joints, reals, frames, q_next, v_next, settings, program, projected, projection_ws)
+        if projected[0, nq + nv + 2] != kkt.SOLVED:
+            return NOT_PROJECTED
+        for col in range(nq + nv):
+            if col < nq:
+                q_next[col] = projected[0, col]
+            else:
+                v_next[col - nq] = projected[0, col]
 
     # the record: each contact's force on body a (world axes, N), each limit's generalized force, each bilateral
     # row's multiplier (its impulse / dt)
