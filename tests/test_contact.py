@@ -360,3 +360,56 @@ def test_bilateral_rows_in_the_same_solve(ball):
     assert (trajectory.lam[2 : touching[0], 0] > 0).all()
     assert (np.diff(trajectory.energy) <= 1e-12).all()
     assert trajectory.complementarity.max() <= TOLERANCE
+
+
+def test_elastic_collision_of_two_balls_exchanges_their_velocities():
+    """Two equal balls without gravity, one moving at v₀ onto the other (mb.ContactPair, e = 1, frictionless): the
+    step of the impact leaves the first at rest and the second at v₀ (momentum and energy kept exactly); the
+    force is reported on body_a, along the normal from body_b into it."""
+    b = mb.ModelBuilder("two balls", gravity=(0.0, 0.0, 0.0))
+    for name in ("a", "b"):
+        b.add_body(name, joint=FreeFlyer(), inertia=inertia.sphere(1.0, 0.1))
+        b.add_collision(name, "sphere", 0.1)
+    model = b.build()
+    system = mb.ConstrainedSystem(model, [mb.ContactPair("a", "b", friction=0.0, restitution=1.0)])
+    v0 = 2.0
+    q0 = np.r_[0, 0, 0, 0, 0, 0, 1, 0.3, 0, 0, 0, 0, 0, 1]
+    trajectory = mb.simulate(system, q0, np.r_[v0, 0, 0, 0, 0, 0, np.zeros(6)], 0.1, dt=DT)
+    hit = next(k for k, entry in enumerate(trajectory.contacts) if len(entry) and np.abs(entry.force).max() > 0)
+    np.testing.assert_allclose(trajectory.v[hit:, 0], 0.0, atol=1e-12)
+    np.testing.assert_allclose(trajectory.v[hit:, 6], v0, rtol=0, atol=1e-12)
+    entry = trajectory.contacts[hit]
+    np.testing.assert_allclose(entry.normal, [[-1.0, 0.0, 0.0]], atol=1e-12)
+    # the impulse on a, −m v₀, over the step
+    np.testing.assert_allclose(entry.force[0], [-v0 / DT, 0, 0], rtol=1e-12)
+    assert list(entry.body) == ["a"] and list(entry.other) == ["b"]
+    np.testing.assert_allclose(trajectory.energy, trajectory.energy[0], rtol=1e-12)
+    assert trajectory.q[:, 7].min() - trajectory.q[:, 0].max() >= 0.2 - 1e-12
+
+
+def test_python_controller_on_a_batch_equals_single_runs(box):
+    """A Python callable on a batch is called once per step with the states of the trajectories still running;
+    each trajectory equals its single run."""
+    system = mb.ConstrainedSystem(box, [mb.Ground(friction=0.5)])
+
+    def push(t, q, v):
+        return np.where(np.arange(6) == 0, 6.0 * np.cos(10 * t), 0.0) * np.ones(q.shape[:-1] + (1,))
+
+    q0 = np.array([[0, 0, 0.05, 0, 0, 0, 1], [0, 0, 0.05, 0, 0, 0, 1]], dtype=float)
+    v0 = np.array([[0, 0, 0, 0, 0, 0], [0.5, 0, 0, 0, 0, 0]], dtype=float)
+    batch = mb.simulate(system, q0, v0, 0.3, dt=DT, tau=push)
+    for r in range(2):
+        single = mb.simulate(system, q0[r], v0[r], 0.3, dt=DT, tau=push)
+        np.testing.assert_array_equal(batch.q[r], single.q)
+        np.testing.assert_array_equal(batch.v[r], single.v)
+
+
+def test_initial_state_past_a_joint_limit_is_projected_back(panda):
+    q0 = np.clip(panda.neutral(), panda.lower, panda.upper)
+    iq = panda.idx_q[panda.joint_index("panda_joint4")]
+    q0[iq] = panda.upper[iq] + 0.05
+    system = mb.ConstrainedSystem(panda, [mb.JointLimits()])
+    with pytest.warns(UserWarning, match=r"penetrates by 0\.05 ") as caught:
+        trajectory = mb.simulate(system, q0, np.zeros(panda.nv), 0.01, dt=DT)
+    assert len(caught) == 1
+    assert (trajectory.q >= panda.lower - 1e-12).all() and (trajectory.q <= panda.upper + 1e-12).all()
