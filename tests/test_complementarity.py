@@ -7,6 +7,7 @@
 * A box flat on the ground from the box's own Jacobians and mass matrix (four contacts, ``G`` of rank 6
   for 12 rows): the normal impulses sum to ``m g dt`` at rest and when sliding, where the friction
   impulse is ``μ m g dt`` against the motion.
+* A stack of three boxes: each interface carries the weight above it.
 * Bilateral, unilateral and frictionless contact blocks against an exact enumeration of active sets.
 * Pinocchio 4's ``ADMMConstraintSolver`` on the same Delassus problem (three contacts: two slide, one sticks).
 * Warm start, NaN input, an iteration limit, an indefinite ``G``, and every status's message.
@@ -184,6 +185,39 @@ def test_box_sliding_on_the_ground_is_braked_by_mu_m_g_dt_against_its_motion():
     np.testing.assert_allclose(friction, -mu * weight * direction[:2], rtol=1e-9)
 
 
+def test_stack_of_boxes_carries_the_weight_above_each_interface():
+    # three boxes of 2, 1 and 0.5 kg stacked on the ground, four corner contacts per interface, from the
+    # Jacobians of the corners (relative ones between boxes) and the mass matrix: G (36, 36) of rank 18
+    masses, size, dt = (2.0, 1.0, 0.5), (0.4, 0.3, 0.2), 1e-3
+    builder = mb.ModelBuilder("stack")
+    for k, mass in enumerate(masses):
+        builder.add_body(f"box{k}", joint=FreeFlyer(), inertia=box_inertia(mass, size))
+    model = builder.build()
+    q = model.neutral()
+    for k in range(3):
+        q[7 * k + 2] = (k + 0.5) * size[2]
+    rows = []
+    for k in range(3):
+        for sx, sy in itertools.product((-1, 1), (-1, 1)):
+            corner = np.array([sx * size[0] / 2, sy * size[1] / 2, -size[2] / 2])
+            J = mb.jacobian(model, q, f"box{k}", point=corner)[:3]
+            if k > 0:  # the velocity relative to the same point of the box below
+                J = J - mb.jacobian(model, q, f"box{k - 1}", point=corner + [0.0, 0.0, size[2]])[:3]
+            rows += [J[2], J[0], J[1]]
+    J = np.array(rows)
+    v = np.zeros(model.nv)
+    G = J @ np.linalg.solve(mb.mass_matrix(model, q), J.T)
+    c = J @ (v + dt * mb.forward_dynamics(model, q, v, np.zeros(model.nv)))
+    assert np.linalg.matrix_rank(G, tol=1e-9) == 18
+    result = solve(G, c, ["contact"] * 12, 0.5, tolerance=TOLERANCE)
+    assert result.status == complementarity.CONVERGED, result.message
+    assert result.residual <= TOLERANCE
+    for k in range(3):
+        above = sum(masses[k:]) * G_EARTH * dt
+        assert result.x[12 * k : 12 * k + 12 : 3].sum() == pytest.approx(above, rel=1e-10)
+        np.testing.assert_allclose(result.x[12 * k : 12 * k + 12 : 3], above / 4, rtol=1e-9)
+
+
 # ----------------------------------------------------------------------------- mixed blocks
 
 def enumerate_frictionless(G, c, kinds):
@@ -224,6 +258,24 @@ def test_bilateral_unilateral_and_frictionless_contact_blocks_match_an_enumerati
         assert result.status == complementarity.CONVERGED, (trial, result.message, result.residual)
         np.testing.assert_allclose(result.x, expected, rtol=0, atol=1e-9 * max(1.0, np.max(np.abs(expected))))
         assert natural_residual(G, c, kinds, np.zeros(len(kinds)), result.x) <= 2 * TOLERANCE
+
+
+def test_bilateral_unilateral_and_frictional_contact_blocks_meet_their_conditions():
+    # a physical problem (c = J v) with every kind of block: the conditions checked here from their
+    # definition, and the bilateral rows' velocities zero
+    rng = np.random.default_rng(7)
+    kinds = [CONTACT, BILATERAL, UNILATERAL, CONTACT, BILATERAL, CONTACT, UNILATERAL]
+    mus = [0.6, 0.0, 0.0, 0.3, 0.0, 0.9, 0.0]
+    m = 13
+    for trial in range(5):
+        J = rng.standard_normal((m, 18))
+        G = J @ np.linalg.solve(spd(rng, 18, 50.0), J.T)
+        c = J @ rng.standard_normal(18)
+        result = solve(G, c, kinds, mus, tolerance=TOLERANCE)
+        assert result.status == complementarity.CONVERGED, (trial, result.message, result.residual)
+        assert natural_residual(G, c, kinds, mus, result.x) <= 2 * TOLERANCE
+        assert np.max(np.abs(result.u[[3, 8]])) <= TOLERANCE
+        np.testing.assert_allclose(result.u, G @ result.x + c, rtol=0, atol=1e-14 * np.max(np.abs(c)) * m)
 
 
 # ----------------------------------------------------------------------------- Pinocchio

@@ -82,11 +82,16 @@ POWER_ITERATIONS = 12
 RELAX = 1.5
 #: The polish (:func:`polish`) runs after this many ADMM iterations (at once from a nonzero warm start),
 #: then after twice as many as before each time, at most :data:`POLISH_STEPS` Newton steps each time.
-POLISH_FIRST = 4
+POLISH_FIRST = 1
 POLISH_STEPS = 8
-#: The Levenberg–Marquardt damping of the polish, ``λ = ‖f‖/‖x‖``, kept within these bounds.
-DAMPING = 1e-3
-DAMPING_FLOOR = 1e-12
+#: The Levenberg–Marquardt damping ``λ = ‖f‖/‖x‖`` of the polish (dimensionless: ``f`` is in impulse
+#: units), within these bounds, against ``Jᵀ J`` whose largest eigenvalues are about 1 (``r = 1/λ_max``).
+#: Far above the rounding of ``Jᵀ J``, so that its factorisation succeeds where ``G`` is singular; small
+#: enough that Newton steps stay nearly full along the small eigenvalues of a stack of boxes; and
+#: ``‖f‖/‖x‖`` itself near the solution, so that rounding in ``Jᵀ f`` moves ``x`` along the null space of
+#: ``J`` by about ``ε ‖x‖`` a step.
+DAMPING = 1e-7
+DAMPING_FLOOR = 1e-14
 #: Halvings of a polish step before the polish gives up.
 LINE_SEARCH = 12
 
@@ -313,9 +318,8 @@ def polish(G, c, kinds, starts, mu, r, steps, tolerance, x, u, s, w, f, dx, tria
 
         (Jᵀ J + λ I) δ = −Jᵀ f,   x ← x + t δ,
 
-    ``J`` from :func:`natural_map_jacobian`, ``λ = ‖f‖/‖x‖`` (dimensionless, as ``f`` is in impulse
-    units; between :data:`DAMPING_FLOOR` and :data:`DAMPING`), ``t`` halved until ``‖f‖²`` falls by
-    ``10⁻⁴ t`` of itself (Armijo).
+    ``J`` from :func:`natural_map_jacobian`, ``λ = ‖f‖/‖x‖`` between :data:`DAMPING_FLOOR` and
+    :data:`DAMPING`, ``t`` halved until ``‖f‖²`` falls by ``10⁻⁴ t`` of itself (Armijo).
     Along singular directions of ``G`` the damping keeps the step small: among equal solutions, the one
     near the start. Stops when the natural residual at ``P_K(x)`` is within ``tolerance`` or no step
     decreases ``‖f‖``. Returns ``(steps taken, residual)``, with ``P_K(x)`` in ``trial`` and the velocities
@@ -328,8 +332,9 @@ def polish(G, c, kinds, starts, mu, r, steps, tolerance, x, u, s, w, f, dx, tria
         size = 0.0
         for i in range(m):
             size += x[i] * x[i]
-        damping = math.sqrt(norm / size) if size > 0.0 else 1.0
-        damping = larger(DAMPING if damping > DAMPING else damping, DAMPING_FLOOR)
+        damping = math.sqrt(norm / size) if size > 0.0 else DAMPING
+        damping = DAMPING if damping > DAMPING else damping
+        damping = DAMPING_FLOOR if damping < DAMPING_FLOOR else damping
         # H = Jᵀ J + λ I (lower triangle), δ = −Jᵀ f
         for i in range(m):
             for j in range(i + 1):
@@ -436,10 +441,12 @@ def solve(G, c, kinds, starts, mu, tolerance, max_iterations, x, u, ws):
     status = MAX_ITERATIONS
     iteration = 0
     polish_at = 0 if warm else POLISH_FIRST
+    polish_gap = POLISH_FIRST if POLISH_FIRST > 0 else 1
     while iteration < max_iterations:
         if iteration >= polish_at:
             # Newton steps from z, kept if they bring the residual down; ADMM goes on from there otherwise
-            polish_at = 2 * iteration if iteration > POLISH_FIRST else 2 * POLISH_FIRST
+            polish_at = iteration + polish_gap
+            polish_gap *= 2
             for i in range(m):
                 point[i] = z[i]
             steps = max_iterations - iteration if max_iterations - iteration < POLISH_STEPS else POLISH_STEPS
