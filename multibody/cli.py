@@ -269,11 +269,12 @@ def _compiled_by_default():
 
 def _loops():
     """The compiled loops that ``multibody compile`` compiles with or without ``--all``, as ``(function, argument
-    types)``: the batches' (:data:`multibody.driver.ENTRY_POINTS`) and the fixed-step run's
-    (:data:`multibody.integrators.ENTRY_POINTS`), which a first batch or fixed-step simulation would compile."""
-    from . import driver, integrators
+    types)``: the batches' (:data:`multibody.driver.ENTRY_POINTS`), the fixed-step run's
+    (:data:`multibody.integrators.ENTRY_POINTS`) and the variational run's (:data:`multibody.variational.ENTRY_POINTS`),
+    which a first batch, fixed-step or variational simulation would compile."""
+    from . import driver, integrators, variational
 
-    return driver.ENTRY_POINTS + integrators.ENTRY_POINTS
+    return driver.ENTRY_POINTS + integrators.ENTRY_POINTS + variational.ENTRY_POINTS
 
 
 def cmd_compile(args):
@@ -283,8 +284,8 @@ def cmd_compile(args):
 
     from . import driver
 
-    which = ("every kernel and the loops of batches and fixed-step runs" if args.all else
-             "the kernels of the demos and the common dynamics calls, and the loops of batches and fixed-step runs")
+    which = ("every kernel and the loops of batches, fixed-step and variational runs" if args.all else
+             "the kernels of the demos and the common dynamics calls, and the loops of batches, fixed-step and variational runs")
     kernels = driver.ALL_KERNELS + _loops() if args.all else _compiled_by_default()
     if not all(is_jitted(kernel) for kernel in driver.ALL_KERNELS):
         print("nothing to compile: NUMBA_DISABLE_JIT=1 runs the kernels as Python")
@@ -301,7 +302,7 @@ def cmd_compile(args):
     failed = [kernel for kernel in missing if not driver.compiled_before((kernel,))]
     if failed:
         print(f"multibody compile: {len(failed)} of {len(missing)} functions did not compile (each compiles on its "
-              f"first use instead): {', '.join(driver._qualified_name(kernel) for kernel in failed)}", file=sys.stderr)
+              f"first use instead): {', '.join(driver.qualified_name(kernel) for kernel in failed)}", file=sys.stderr)
         return 2
     print(f"compiled {len(missing)} functions in {elapsed:.1f} s; later processes load them from Numba's cache")
     return 0

@@ -18,7 +18,7 @@ from functools import cached_property
 import numpy as np
 
 from . import derivatives, differences, driver, dynamics, kinematics, linalg, spatial
-from .constraints import CompiledRows, _frame_key, constraint_program
+from .constraints import CompiledRows, frame_key, constraint_program
 from .contact import Unilateral
 from .kernels import aba, integration, kkt
 from .kernels import constraints as compiled_rows
@@ -130,9 +130,9 @@ class _ModelAtState(ModelSystem):
             return None
         value = self._declared.get((body, id(placement)))
         if value is None:  # the same frame given by other objects (a body index, an equal placement)
-            key = _frame_key(self.model, body, placement)
+            key = frame_key(self.model, body, placement)
             value = next((value for frame, value in zip(self._frames, self._values)
-                          if _frame_key(self.model, *frame) == key), None)
+                          if frame_key(self.model, *frame) == key), None)
         return value
 
 
@@ -224,7 +224,7 @@ class ConstrainedSystem:
         # The body frames that constraints evaluated in Python read, once each: the NumPy step computes
         # them with M and h (compiled rows compute their own frames).
         frames = {} if not isinstance(self.system, ModelSystem) else {
-            _frame_key(self.system.model, *frame): frame for c in self.constraints
+            frame_key(self.system.model, *frame): frame for c in self.constraints
             if not isinstance(c, CompiledRows) or c.moving for frame in c.body_frames}
         self._body_frames = list(frames.values())
 
@@ -238,12 +238,12 @@ class ConstrainedSystem:
         if any(getattr(c, "moving", False) for c in self.constraints):
             return None
         model = self.system.model
-        frames = list({_frame_key(model, *frame): frame for c in self.constraints for frame in c.body_frames}.values())
+        frames = list({frame_key(model, *frame): frame for c in self.constraints for frame in c.body_frames}.values())
         alpha, beta = self.baumgarte or (0.0, 0.0)
         program = constraint_program(model, self.constraints, frames, (alpha, beta), self.rank_tolerance)
         if program is None:
             return None
-        frames = frame_rows(model, [kinematics._frame_arguments(model, *frame) for frame in frames])
+        frames = frame_rows(model, [kinematics.frame_arguments(model, *frame) for frame in frames])
         workspace = kkt.workspace_size(model.njoints, self.nv, len(frames), self.num_rows)
         return program, frames, workspace
 

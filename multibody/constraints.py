@@ -29,11 +29,11 @@ from .tree import frame_rows
 
 # Steps of the numerical derivatives: fourth-order stencils keep the truncation error near
 # (h/L)⁴ for features of size L, and the rounding error near ε/h (first) or ε/h² (second derivative).
-_FIRST_STEP = 1e-3
+FIRST_STEP = 1e-3
 _SECOND_STEP = 2e-3
 
 
-def _first_derivative(f, h=_FIRST_STEP):
+def first_derivative(f, h=FIRST_STEP):
     """``f'(0)`` by the five-point stencil ``(8 (f(h) − f(−h)) − (f(2h) − f(−2h))) / 12h``."""
     return (8.0 * (f(h) - f(-h)) - (f(2.0 * h) - f(-2.0 * h))) / (12.0 * h)
 
@@ -48,7 +48,7 @@ def _along_path(system, q, v, t, fn):
     return lambda s: fn(system.integrate(q, v, s), t + s)
 
 
-def _path_step(v, step):
+def path_step(v, step):
     """The stencil step in ``s`` along ``q ⊕ v s``: ``step / max(1, |v|_∞)``, so that one step moves every
     coordinate by at most ``step`` (rad or m) whatever the speed, and time by at most ``step`` s. A step
     in time alone would carry a fast mechanism a radian through one stencil."""
@@ -97,7 +97,7 @@ class Constraint:
         """
         bodies = [body for body, _ in self.body_frames if body is not None]
         if bodies:
-            model = _require_model(system, self)
+            model = require_model(system, self)
             for body in bodies:
                 try:
                     model.body_index(body)
@@ -174,8 +174,8 @@ def constraint_program(model, constraints, frames, baumgarte=(0.0, 0.0), rank_to
     constraint's :meth:`~Constraint.program_entry`, its rows numbered in order, its frames indexed in
     ``frames`` (``(body, placement)`` pairs, matched by body and pose). ``None`` when a constraint has no
     compiled rows."""
-    keys = [_frame_key(model, *frame) for frame in frames]
-    entries = [c.program_entry(model, lambda body, placement: keys.index(_frame_key(model, body, placement)))
+    keys = [frame_key(model, *frame) for frame in frames]
+    entries = [c.program_entry(model, lambda body, placement: keys.index(frame_key(model, body, placement)))
                for c in constraints]
     if any(entry is None for entry in entries):
         return None
@@ -191,9 +191,9 @@ def constraint_program(model, constraints, frames, baumgarte=(0.0, 0.0), rank_to
     return program
 
 
-def _frame_key(model, body, placement):
+def frame_key(model, body, placement):
     """A frame as ``(body index or None, pose bytes)``: equal for the same frame given by other objects."""
-    b, X_BF = kinematics._frame_arguments(model, body, placement)
+    b, X_BF = kinematics.frame_arguments(model, body, placement)
     return b, X_BF.tobytes()
 
 
@@ -213,7 +213,7 @@ class CompiledRows(Constraint):
 
     def _levels(self, system, q, v, t):
         """``(A (..., m, nv), b (..., m), γ (..., m), φ (..., m))`` at ``(q, v, t)`` (``v`` ``None``: zero)."""
-        model = _require_model(system, self)
+        model = require_model(system, self)
         m, nv = self.rows(model), model.nv
         program, rows = self._program_on(model)
         columns, workspace = compiled.levels_columns(nv, m), compiled.workspace_size(model.njoints, nv, len(rows))
@@ -236,7 +236,7 @@ class CompiledRows(Constraint):
         if kept is None or kept[0] is not model:
             frames = self.body_frames
             kept = (model, constraint_program(model, [self], frames),
-                    frame_rows(model, [kinematics._frame_arguments(model, *frame) for frame in frames]))
+                    frame_rows(model, [kinematics.frame_arguments(model, *frame) for frame in frames]))
             self._kept_program = kept
         return kept[1], kept[2]
 
@@ -297,25 +297,25 @@ class Holonomic(Constraint):
             return np.atleast_2d(np.asarray(self._jacobian(q, t), dtype=float))
         # Column k: dφ/dε along q ⊕ ε e_k.
         eye = np.eye(system.nv)
-        columns = [_first_derivative(lambda s, e=e: self.position(system, system.integrate(q, e, s), t)) for e in eye]
+        columns = [first_derivative(lambda s, e=e: self.position(system, system.integrate(q, e, s), t)) for e in eye]
         return np.stack(columns, axis=-1)
 
     def velocity_bias(self, system, q, t=0.0):
         if self._dphi_dt is not None:
             return np.atleast_1d(np.asarray(self._dphi_dt(q, t), dtype=float))
-        return _first_derivative(lambda s: self.position(system, q, t + s))
+        return first_derivative(lambda s: self.position(system, q, t + s))
 
     def acceleration_rhs(self, system, q, v, t=0.0):
         if self._gamma is not None:
             return np.atleast_1d(np.asarray(self._gamma(q, v, t), dtype=float))
         if self._jacobian is not None:
             # γ = −d/ds [J v + ∂φ/∂t] along the path with a = 0.
-            return -_first_derivative(_along_path(
+            return -first_derivative(_along_path(
                 system, q, v, t, lambda qs, ts: self.jacobian(system, qs, ts) @ v + self.velocity_bias(system, qs, ts)),
-                _path_step(v, _FIRST_STEP))
+                path_step(v, FIRST_STEP))
         # γ = −d²/ds² φ(q ⊕ v s, t + s)
         return -_second_derivative(_along_path(system, q, v, t, lambda qs, ts: self.position(system, qs, ts)),
-                                   _path_step(v, _SECOND_STEP))
+                                   path_step(v, _SECOND_STEP))
 
 
 class Pfaffian(Constraint):
@@ -347,9 +347,9 @@ class Pfaffian(Constraint):
         if self._gamma is not None:
             return np.atleast_1d(np.asarray(self._gamma(q, v, t), dtype=float))
         # γ = −d/ds [A v + b] along the path with a = 0.
-        return -_first_derivative(_along_path(
+        return -first_derivative(_along_path(
             system, q, v, t, lambda qs, ts: self.jacobian(system, qs, ts) @ v + self.velocity_bias(system, qs, ts)),
-            _path_step(v, _FIRST_STEP))
+            path_step(v, FIRST_STEP))
 
 
 def _neutral(system):
@@ -358,7 +358,7 @@ def _neutral(system):
 
 # ============================================================================= built-in holonomic constraints
 
-def _require_model(system, constraint):
+def require_model(system, constraint):
     """The :class:`Model` behind ``system`` (a Model or its ``ModelSystem`` adapter)."""
     system = getattr(system, "model", system)
     if not isinstance(system, Model):
@@ -366,7 +366,7 @@ def _require_model(system, constraint):
     return system
 
 
-def _frame(system, constraint, q, v, body, placement):
+def frame_terms(system, constraint, q, v, body, placement):
     """``(R_WF, p_WF, J, J̇v)`` of a frame fixed in ``body`` (``None``: the world); see ``frame_kinematics``.
 
     A system that already holds the frame's kinematics at this very state (``known_frame``: a
@@ -377,12 +377,12 @@ def _frame(system, constraint, q, v, body, placement):
     value = None if known is None else known(q, v, body, placement)
     if value is not None:
         return value
-    model = _require_model(system, constraint)
+    model = require_model(system, constraint)
     v = np.zeros(np.shape(q)[:-1] + (model.nv,)) if v is None else v
     return kinematics.frame_kinematics(model, q, v, body, placement)
 
 
-def _wrenches(model, q, loads):
+def wrenches_of_loads(model, q, loads):
     """``f_ext (njoints, 6)`` from world-frame loads ``(body, force (3,), application point (3,), moment (3,))``."""
     R_WJ, p_WJ = kinematics.joint_world_poses(model, q)
     f_ext = np.zeros((model.njoints, 6))
@@ -398,7 +398,9 @@ def _wrenches(model, q, loads):
     return f_ext
 
 
-def _point_placement(point):
+def point_placement(point):
+    """The 4×4 placement in its body of a frame at ``point (3,)`` (m, body frame; ``None``: the origin), with the
+    body's axes; ``ValueError`` for another shape."""
     placement = np.eye(4)
     if point is not None:
         point = np.asarray(point, dtype=float)
@@ -471,9 +473,9 @@ class PointOnCurve(Constraint):
     def __init__(self, body, curve, *, point=None, s_range=(0.0, 1.0), samples=2001, derivative=None,
                  second_derivative=None, name=None):
         super().__init__(name or f"point of {body} on curve")
-        self.body, self.curve, self.placement = body, curve, _point_placement(point)
+        self.body, self.curve, self.placement = body, curve, point_placement(point)
         self.s_grid = np.linspace(float(s_range[0]), float(s_range[1]), int(samples))
-        self._d1 = derivative or (lambda s: _first_derivative(lambda h: curve(s + h)))
+        self._d1 = derivative or (lambda s: first_derivative(lambda h: curve(s + h)))
         self._d2 = second_derivative or (lambda s: _second_derivative(lambda h: curve(s + h)))
 
     def rows(self, system):
@@ -515,25 +517,25 @@ class PointOnCurve(Constraint):
         return s, d1, tangent, projector
 
     def position(self, system, q, t=0.0):
-        _, x, _, _ = _frame(system, self, q, None, self.body, self.placement)
+        _, x, _, _ = frame_terms(system, self, q, None, self.body, self.placement)
         s, _, _, projector = self._geometry(x)
         return matvec(projector, x - self.curve(s))
 
     def body_forces(self, system, q, lam, t=0.0):
-        model = _require_model(system, self)
-        _, x, _, _ = _frame(system, self, q, None, self.body, self.placement)
+        model = require_model(system, self)
+        _, x, _, _ = frame_terms(system, self, q, None, self.body, self.placement)
         # Aᵀλ = Jᵀ P λ: the force P λ at the bead
-        return _wrenches(model, q, [(self.body, self._geometry(x)[3] @ lam, x, np.zeros(3))])
+        return wrenches_of_loads(model, q, [(self.body, self._geometry(x)[3] @ lam, x, np.zeros(3))])
 
     def jacobian(self, system, q, t=0.0):
-        _, x, J, _ = _frame(system, self, q, None, self.body, self.placement)
+        _, x, J, _ = frame_terms(system, self, q, None, self.body, self.placement)
         return self._geometry(x)[3] @ J[..., :3, :]
 
     def acceleration_rhs(self, system, q, v, t=0.0):
         return self.evaluate(system, q, v, t)[2]
 
     def evaluate(self, system, q, v, t=0.0):
-        _, x, J, J_dot_v = _frame(system, self, q, v, self.body, self.placement)
+        _, x, J, J_dot_v = frame_terms(system, self, q, v, self.body, self.placement)
         s, d1, tangent, projector = self._geometry(x)
         x_dot = matvec(J[..., :3, :], v)
         # ṫ = P r'' ṡ / |r'| with ṡ = r'·ẋ / |r'|²;  Ṗ ẋ = −ṫ (t·ẋ) − t (ṫ·ẋ)
@@ -565,12 +567,12 @@ class PointOnSurface(Constraint):
 
     def __init__(self, body, surface, *, point=None, gradient=None, hessian=None, name=None):
         super().__init__(name or f"point of {body} on surface")
-        self.body, self.surface, self.placement = body, surface, _point_placement(point)
+        self.body, self.surface, self.placement = body, surface, point_placement(point)
         eye = np.eye(3)
         self._gradient = gradient or (lambda x: np.stack(
-            [_first_derivative(lambda h, e=e: surface(x + h * e)) for e in eye], axis=-1))
+            [first_derivative(lambda h, e=e: surface(x + h * e)) for e in eye], axis=-1))
         self._hessian = hessian or (lambda x: np.stack(
-            [_first_derivative(lambda h, e=e: self._gradient(x + h * e)) for e in eye], axis=-1))
+            [first_derivative(lambda h, e=e: self._gradient(x + h * e)) for e in eye], axis=-1))
 
     def rows(self, system):
         return 1
@@ -580,24 +582,24 @@ class PointOnSurface(Constraint):
         return ((self.body, self.placement),)
 
     def position(self, system, q, t=0.0):
-        _, x, _, _ = _frame(system, self, q, None, self.body, self.placement)
+        _, x, _, _ = frame_terms(system, self, q, None, self.body, self.placement)
         return np.asarray(self.surface(x), dtype=float)[..., None]
 
     def body_forces(self, system, q, lam, t=0.0):
-        model = _require_model(system, self)
-        _, x, _, _ = _frame(system, self, q, None, self.body, self.placement)
+        model = require_model(system, self)
+        _, x, _, _ = frame_terms(system, self, q, None, self.body, self.placement)
         # Aᵀλ = Jᵀ ∇f λ: the force ∇f λ at the point
-        return _wrenches(model, q, [(self.body, self._gradient(x) * lam[0], x, np.zeros(3))])
+        return wrenches_of_loads(model, q, [(self.body, self._gradient(x) * lam[0], x, np.zeros(3))])
 
     def jacobian(self, system, q, t=0.0):
-        _, x, J, _ = _frame(system, self, q, None, self.body, self.placement)
+        _, x, J, _ = frame_terms(system, self, q, None, self.body, self.placement)
         return matvec(transpose(J[..., :3, :]), self._gradient(x))[..., None, :]
 
     def acceleration_rhs(self, system, q, v, t=0.0):
         return self.evaluate(system, q, v, t)[2]
 
     def evaluate(self, system, q, v, t=0.0):
-        _, x, J, J_dot_v = _frame(system, self, q, v, self.body, self.placement)
+        _, x, J, J_dot_v = frame_terms(system, self, q, v, self.body, self.placement)
         gradient = self._gradient(x)
         x_dot = matvec(J[..., :3, :], v)
         # γ = −(ẋᵀ ∇²f ẋ + ∇f · J̇v)
@@ -626,7 +628,7 @@ class Distance(CompiledRows):
         if not distance > 0.0:
             raise ValueError(f"distance must be positive, got {distance!r}")
         self.body_a, self.body_b, self.distance = body_a, body_b, float(distance)
-        self.placement_a, self.placement_b = _point_placement(point_a), _point_placement(point_b)
+        self.placement_a, self.placement_b = point_placement(point_a), point_placement(point_b)
 
     def rows(self, system):
         return 1
@@ -636,7 +638,7 @@ class Distance(CompiledRows):
         return ((self.body_a, self.placement_a), (self.body_b, self.placement_b))
 
     def _points(self, system, q, v):
-        return tuple(_frame(system, self, q, v, body, placement) for body, placement in self.body_frames)
+        return tuple(frame_terms(system, self, q, v, body, placement) for body, placement in self.body_frames)
 
     def program_entry(self, model, frame_index):
         return compiled.DISTANCE, [self.distance], *(frame_index(*frame) for frame in self.body_frames)
@@ -646,7 +648,7 @@ class Distance(CompiledRows):
         u = (x_a - x_b) / np.linalg.norm(x_a - x_b)
         # Aᵀλ = J_aᵀ(−u λ) + J_bᵀ(u λ): the rod pulls a towards b and b towards a
         zero = np.zeros(3)
-        return _wrenches(_require_model(system, self), q,
+        return wrenches_of_loads(require_model(system, self), q,
                          [(self.body_a, -u * lam[0], x_a, zero), (self.body_b, u * lam[0], x_b, zero)])
 
 
@@ -760,7 +762,7 @@ class LoopClosure(CompiledRows):
         super().bind(system)
         if not self._plane_unknown:
             return self
-        model = _require_model(system, self)
+        model = require_model(system, self)
         kept = self.__dict__.get("_kept_binding")
         if kept is None or kept[0] is not model:
             kept = (model, LoopClosure(self.body_a, self.body_b, frame_a=self.frame_a, frame_b=self.frame_b,
@@ -817,7 +819,7 @@ class LoopClosure(CompiledRows):
         return super()._levels(system, q, v, t)
 
     def _frames(self, system, q, v):
-        return tuple(_frame(system, self, q, v, body, placement) for body, placement in self.body_frames)
+        return tuple(frame_terms(system, self, q, v, body, placement) for body, placement in self.body_frames)
 
     def branch_error(self, system, q):
         """Where frame B's axes point away from frame A's at ``q (..., nq)``, on another zero of the orientation
@@ -827,10 +829,10 @@ class LoopClosure(CompiledRows):
         axes = self.BRANCH_AXES.get(self.kind)
         if axes is None:
             return None
-        model = _require_model(system, self)
+        model = require_model(system, self)
         q = model.check_configuration(q)
         # World placements (..., 2, 4, 4) of frames A and B: one compiled pass for both.
-        X = kinematics._placements(model, q, self._program_on(model)[1], q.shape[:-1])
+        X = kinematics.frame_world_placements(model, q, self._program_on(model)[1], q.shape[:-1])
         # e_k^A · e_k^B: the sum over world axes of the products of the columns k of R_WA and R_WB
         cosines = (X[..., 0, :3, axes] * X[..., 1, :3, axes]).sum(axis=-2)
         wrong = cosines <= self.BRANCH_COSINE  # (NaN states compare False: they have no branch)
@@ -871,7 +873,7 @@ class LoopClosure(CompiledRows):
         # Orientation rows: the moment Σ (e_i × f_j) λ on A, and its opposite on B.
         moment = sum((spatial.cross(R_a[:, i], R_b[:, j]) * lam[k + r] for r, (i, j) in enumerate(self.aligned_axes)),
                      np.zeros(3))
-        return _wrenches(_require_model(system, self), q,
+        return wrenches_of_loads(require_model(system, self), q,
                          [(self.body_b, force, p_b, -moment), (self.body_a, -force, p_b, moment)])
 
 
@@ -937,7 +939,7 @@ class JointCoupling(CompiledRows):
         return super().bind(system)
 
     def _indices(self, system):
-        model = _require_model(system, self)
+        model = require_model(system, self)
         out = []
         for joint in (self.joint_a, self.joint_b):
             if joint is None:

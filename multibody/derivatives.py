@@ -13,7 +13,7 @@ in :mod:`multibody.dynamics`.
 
 from __future__ import annotations
 
-from .dynamics import _check, _evaluate
+from .dynamics import checked_arguments, evaluate_checked
 from .kernels import derivatives as kernels
 
 
@@ -25,9 +25,9 @@ def inverse_dynamics_derivatives(model, q, v, a, f_ext=None):
     ``f_ext (..., njoints, 6)`` (each joint's body, its frame). Pinocchio counterpart:
     ``computeRNEADerivatives`` (``dtau_dq``, ``dtau_dv``).
     """
-    q, v, a, _, f_ext, batch = _check(model, q, v, a, f_ext=f_ext)
+    q, v, a, _, f_ext, batch = checked_arguments(model, q, v, a, f_ext=f_ext)
     nv = model.nv
-    out = _evaluate(model, kernels.inverse_dynamics_derivatives, (q, v, a, f_ext), (2 * nv, nv), batch)
+    out = evaluate_checked(model, kernels.inverse_dynamics_derivatives, (q, v, a, f_ext), (2 * nv, nv), batch)
     return out[..., :nv, :], out[..., nv:, :]
 
 
@@ -37,7 +37,7 @@ def gravity_derivatives(model, q):
     ``q (..., nq)``. Pinocchio counterpart: ``computeGeneralizedGravityDerivatives``.
     """
     q = model.check_configuration(q)
-    return _evaluate(model, kernels.inverse_dynamics_derivatives, (q,), (model.nv, model.nv), q.shape[:-1])
+    return evaluate_checked(model, kernels.inverse_dynamics_derivatives, (q,), (model.nv, model.nv), q.shape[:-1])
 
 
 def forward_dynamics_derivatives(model, q, v, tau, f_ext=None):
@@ -48,7 +48,7 @@ def forward_dynamics_derivatives(model, q, v, tau, f_ext=None):
     ``numpy.linalg.LinAlgError`` naming it. Pinocchio counterpart: ``computeABADerivatives``
     (``ddq_dq``, ``ddq_dv``, ``Minv``).
     """
-    q, v, _, tau, f_ext, batch = _check(model, q, v, tau=tau, f_ext=f_ext)
+    q, v, _, tau, f_ext, batch = checked_arguments(model, q, v, tau=tau, f_ext=f_ext)
     nv = model.nv
-    out = _evaluate(model, kernels.forward_dynamics_derivatives, (q, v, tau, f_ext), (3 * nv, nv), batch)
+    out = evaluate_checked(model, kernels.forward_dynamics_derivatives, (q, v, tau, f_ext), (3 * nv, nv), batch)
     return out[..., :nv, :], out[..., nv : 2 * nv, :], out[..., 2 * nv :, :]

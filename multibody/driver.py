@@ -37,11 +37,11 @@ import numpy as np
 from numba import njit, prange
 from numba.extending import is_jitted
 
-from . import numba_hooks
+from . import numba_hooks, spatial
 from .numba_hooks import event
 
 from .kernels import (aba, centroidal, configuration, constraints, coriolis, crba, derivatives, energy, ik, integration,
-                      kinematics, kkt, lagrangian, rnea, stepping, variational)
+                      kinematics, kkt, lagrangian, rnea, stepping)
 
 #: Every kernel the driver runs (``multibody compile --all`` compiles them).
 ALL_KERNELS = (
@@ -54,7 +54,7 @@ ALL_KERNELS = (
     constraints.constraint_levels, integration.chart_derivative, integration.constrained_chart_derivative,
     derivatives.inverse_dynamics_derivatives, derivatives.forward_dynamics_derivatives, centroidal.center_of_mass,
     centroidal.centroidal_momentum, centroidal.centroidal_map, centroidal.centroidal_map_time_variation,
-    ik.inverse_kinematics, lagrangian.lagrangian_terms, variational.midpoint_iterate, kkt.project,
+    ik.inverse_kinematics, lagrangian.lagrangian_terms, kkt.project,
     configuration.exponential_terms, configuration.coadjoint, stepping.pd_kernel, stepping.aligned_velocity,
     stepping.chart_state)
 _WORKSPACE = {kernel: module.workspace_size for module in (rnea, crba, aba, coriolis, energy, kinematics, configuration,
@@ -80,7 +80,7 @@ def _signature(entry):
 def compile_kernels(kernels=None, processes=None) -> None:
     """Compile the machine code of those ``kernels`` (default: every kernel) that Numba's on-disk cache lacks,
     sharing them among ``processes`` (default: the cores this process may use), so that later processes load
-    them in a fraction of a second. An entry is a kernel, compiled for its single call (:func:`_direct`), or a
+    them in a fraction of a second. An entry is a kernel, compiled for its single call (:func:`direct`), or a
     pair ``(function, argument types)``, compiled for those types: a loop that Python calls (:data:`ENTRY_POINTS`,
     :data:`multibody.integrators.ENTRY_POINTS`) or a function passed to one as a first-class function.
 
@@ -153,7 +153,7 @@ _COMPILE_NOTICES = _CompileNotices()
 event.register("numba:compile", _COMPILE_NOTICES)
 
 
-def _qualified_name(kernel) -> str:
+def qualified_name(kernel) -> str:
     """``"module:function"`` of a kernel (or of the function of a pair ``(function, types)``), the name a worker
     process of :func:`compile_kernels` imports."""
     function = _signature(kernel)[0].py_func
@@ -162,7 +162,7 @@ def _qualified_name(kernel) -> str:
 
 def _named(entries) -> bytes:
     """The pickled ``[("module:function", argument types), ...]`` of entries of :func:`compile_kernels`."""
-    return pickle.dumps([(_qualified_name(function), types) for function, types in map(_signature, entries)])
+    return pickle.dumps([(qualified_name(function), types) for function, types in map(_signature, entries)])
 
 
 def _compile_named(entries) -> None:
@@ -175,9 +175,9 @@ def _compile_named(entries) -> None:
 
 def _compile(function, types) -> None:
     """Compile ``function`` for ``types`` (or load it from Numba's cache): a kernel's single call as
-    :func:`_direct` keeps it, any other function as Numba keeps it (:func:`_direct` keeps one entry per function)."""
+    :func:`direct` keeps it, any other function as Numba keeps it (:func:`direct` keeps one entry per function)."""
     if types == _SINGLE_CALL_TYPES:
-        _direct(function)
+        direct(function)
     else:
         function.compile(types)
 
@@ -278,7 +278,7 @@ def first_class(function, types):
     function: a value that compiled code whose argument is ``numba.types.FunctionType`` of that signature calls
     through a pointer, so that one compiled loop serves every such function (:func:`_loop_kernel`; the compiled
     run of :mod:`multibody.integrators`; :func:`multibody.numba_hooks.first_class`). Kept per function, for one
-    signature each as :func:`_direct` keeps its entry: making the value costs about 30 µs, and a compiled run
+    signature each as :func:`direct` keeps its entry: making the value costs about 30 µs, and a compiled run
     asks for it at every chunk of steps. Under ``NUMBA_DISABLE_JIT=1``: the Python function."""
     pointer = _FIRST_CLASS.get(function)
     if pointer is None:
@@ -326,14 +326,14 @@ def evaluate_one(kernel, tree, out_shape, x0=NO_INPUT, x1=NO_INPUT, x2=NO_INPUT,
     ``frames`` (C-contiguous float64 rows) and ``workspace`` as :func:`evaluate`; ``out``: a C-contiguous
     float64 array of ``out_shape`` to write into (default a new one).
 
-    The kernel's machine code is called without Numba's dispatch (:func:`_direct`), so the types
+    The kernel's machine code is called without Numba's dispatch (:func:`direct`), so the types
     above are the caller's to guarantee: every caller has checked them already, and a second look
     would cost as much as the kernel's own arithmetic on a small robot."""
     joints, reals, bodies, _, _, nv, nj = tree
     call = _SINGLE_CALLS.get((kernel, nj, nv))
     if call is None:
-        size = _workspace_size(kernel, nj, nv) if kernel in _WORKSPACE else None  # (else always given)
-        call = _SINGLE_CALLS[kernel, nj, nv] = (_direct(kernel), size)
+        size = kernel_workspace_size(kernel, nj, nv) if kernel in _WORKSPACE else None  # (else always given)
+        call = _SINGLE_CALLS[kernel, nj, nv] = (direct(kernel), size)
     entry, size = call
     if out is None:
         out = np.empty(out_shape)
@@ -346,7 +346,7 @@ def evaluate_one(kernel, tree, out_shape, x0=NO_INPUT, x1=NO_INPUT, x2=NO_INPUT,
 _SINGLE_CALLS = {}
 
 
-def _workspace_size(kernel, nj, nv):
+def kernel_workspace_size(kernel, nj, nv):
     """Floats of workspace one state of ``kernel`` needs on a tree of ``nj`` joints and ``nv`` velocities."""
     return _WORKSPACE[kernel](nj, nv)
 
@@ -372,12 +372,12 @@ ENTRY_POINTS = ((_batch, _BATCH_TYPES),)
 
 
 def entry_point(function, types):
-    """The compiled entry point of ``function`` for the argument ``types`` (:func:`_direct`): a run loop's, called
+    """The compiled entry point of ``function`` for the argument ``types`` (:func:`direct`): a run loop's, called
     from Python with arguments of those types (read-only arrays where they say writable)."""
-    return _direct(function, types)
+    return direct(function, types)
 
 
-def _direct(kernel, types=_SINGLE_CALL_TYPES):
+def direct(kernel, types=_SINGLE_CALL_TYPES):
     """``kernel``'s compiled entry point for ``types`` (a kernel's: :data:`_SINGLE_CALL_TYPES`), compiled
     (or loaded from Numba's cache) on first use: a call that skips the dispatcher's look at every
     argument's type, a third of a small robot's single call, and that takes a read-only array where
@@ -415,6 +415,15 @@ def output(out, shape):
                      f"{got + ' ' if got else ''}{out.dtype} array of shape {out.shape}")
 
 
+def configuration_map(kernel, tree, a, b, shape):
+    """``kernel`` of :mod:`multibody.kernels.configuration` on the float arrays ``a`` and ``b`` (``None`` when
+    unused), of checked sizes, their leading axes broadcast, through :func:`evaluate`: ``(..., *shape)`` with
+    ``shape`` ``(size,)`` or, for a matrix, ``(rows, cols)``. No other checks."""
+    batch = a.shape[:-1] if b is None else spatial.batch_shape(a.shape[:-1], b.shape[:-1])
+    out = evaluate(kernel, tree, (a, b), shape if len(shape) == 2 else (1,) + shape, batch)
+    return out if len(shape) == 2 else out.reshape(batch + shape)
+
+
 def evaluate(kernel, tree, inputs, out_shape, batch=(), frames=None, workspace=None, out=None, shape=None):
     """Run ``kernel`` on every state of ``batch``: ``-> batch + shape``.
 
@@ -439,19 +448,19 @@ def evaluate(kernel, tree, inputs, out_shape, batch=(), frames=None, workspace=N
                      out=result.reshape(out_shape))
         return result
     frames = tree.bodies if frames is None else frames
-    workspace = np.empty(_workspace_size(kernel, tree.njoints, tree.nv) if workspace is None else workspace)
+    workspace = np.empty(kernel_workspace_size(kernel, tree.njoints, tree.nv) if workspace is None else workspace)
     x0, x1, x2, x3 = inputs + _UNUSED[len(inputs):]
     n = math.prod(batch)
     out = result.reshape((n,) + tuple(out_shape))  # (a view: the result is C-contiguous)
     if n == 1:  # one state with batch axes: the kernel directly, as for no batch axes
-        _direct(kernel)(tree.joints, tree.reals, frames, _rows(x0, batch, 1)[0], _rows(x1, batch, 1)[0],
+        direct(kernel)(tree.joints, tree.reals, frames, _rows(x0, batch, 1)[0], _rows(x1, batch, 1)[0],
                         _rows(x2, batch, 1)[0], _rows(x3, batch, 1)[0], out[0], workspace)
     elif n:
         # A small batch runs on fewer threads: waking a sleeping thread costs more than it would compute.
         shares = max(1, min(get_num_threads(), n // STATES_PER_THREAD))
         with parallel_shares(shares):
             rows = (_rows(x0, batch, n), _rows(x1, batch, n), _rows(x2, batch, n), _rows(x3, batch, n))
-            _direct(_batch, _BATCH_TYPES)(_loop_kernel(kernel), tree.joints, tree.reals, frames, *rows, out,
+            direct(_batch, _BATCH_TYPES)(_loop_kernel(kernel), tree.joints, tree.reals, frames, *rows, out,
                                           workspace.size, shares)
     return result
 

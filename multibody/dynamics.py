@@ -37,13 +37,13 @@ from . import driver, gpu, spatial
 from .driver import NO_INPUT
 from .kernels import aba, coriolis, crba, energy, rnea
 from .kernels import derivatives as derivative_kernels
-from .kinematics import _frame_arguments, frame_motions, joint_world_poses
+from .kinematics import frame_arguments, frame_motions, joint_world_poses
 from .model import NOT_GIVEN, all_finite
 
 
 # ============================================================================= shared pieces
 
-def _check(model, q, v=NOT_GIVEN, a=NOT_GIVEN, tau=NOT_GIVEN, f_ext=None):
+def checked_arguments(model, q, v=NOT_GIVEN, a=NOT_GIVEN, tau=NOT_GIVEN, f_ext=None):
     """Validated float arrays and their common batch shape (``f_ext`` flattened to ``(..., 6 nj)``);
     the arguments a function does not take come back as ``None``."""
     if f_ext is None and model._is_one_state(q, v, tau if a is NOT_GIVEN else a):
@@ -100,11 +100,11 @@ def _on_gpu(model, kernel, inputs, out_shape, template, out=None):
 
 
 def _vector(model, kernel, inputs, batch, out=None):
-    """A kernel whose per-state output is one vector ``(nv,)``: ``-> batch + (nv,)`` (:func:`_evaluate`)."""
-    return _evaluate(model, kernel, inputs, (1, model.nv), batch, out, (model.nv,))
+    """A kernel whose per-state output is one vector ``(nv,)``: ``-> batch + (nv,)`` (:func:`evaluate_checked`)."""
+    return evaluate_checked(model, kernel, inputs, (1, model.nv), batch, out, (model.nv,))
 
 
-def _evaluate(model, kernel, inputs, out_shape, batch, out=None, shape=None):
+def evaluate_checked(model, kernel, inputs, out_shape, batch, out=None, shape=None):
     """``kernel`` on ``inputs`` through the batch driver (:func:`multibody.driver.evaluate`, whose
     arguments these are), its result checked by :func:`_require_finite`: every dynamics kernel's result
     passes here."""
@@ -203,7 +203,7 @@ def inverse_dynamics(model, q, v, a, f_ext=None, *, out=None):
     if _on_device(q):
         return _on_gpu(model, rnea.inverse_dynamics, (("q", q, model.nq), ("v", v, model.nv), ("a", a, model.nv),
                                                       ("f_ext", f_ext, (model.njoints, 6))), (model.nv,), q, out)
-    q, v, a, _, f_ext, batch = _check(model, q, v, a, f_ext=f_ext)
+    q, v, a, _, f_ext, batch = checked_arguments(model, q, v, a, f_ext=f_ext)
     return _vector(model, rnea.inverse_dynamics, (q, v, a, f_ext), batch, out)
 
 
@@ -217,8 +217,8 @@ def joint_reaction_forces(model, q, v, a, f_ext=None, *, out=None):
     Constraint forces enter through ``f_ext`` (see ``ConstrainedSystem.body_forces``). Shapes, ``out`` and
     errors as :func:`inverse_dynamics`.
     """
-    q, v, a, _, f_ext, batch = _check(model, q, v, a, f_ext=f_ext)
-    return _evaluate(model, rnea.joint_reaction_forces, (q, v, a, f_ext), (model.njoints, 6), batch, out)
+    q, v, a, _, f_ext, batch = checked_arguments(model, q, v, a, f_ext=f_ext)
+    return evaluate_checked(model, rnea.joint_reaction_forces, (q, v, a, f_ext), (model.njoints, 6), batch, out)
 
 
 def generalized_gravity(model, q, *, out=None):
@@ -245,7 +245,7 @@ def bias_forces(model, q, v, *, out=None):
         return h[0]
     if _on_device(q):
         return _on_gpu(model, rnea.inverse_dynamics, (("q", q, model.nq), ("v", v, model.nv)), (model.nv,), q, out)
-    q, v, *_, batch = _check(model, q, v)
+    q, v, *_, batch = checked_arguments(model, q, v)
     return _vector(model, rnea.inverse_dynamics, (q, v), batch, out)
 
 
@@ -270,7 +270,7 @@ def mass_matrix(model, q, method="crba", *, out=None):
         return _on_gpu(model, crba.mass_matrix, (("q", q, model.nq),), (model.nv, model.nv), q, out)
     q = model.check_configuration(q)
     if method == "crba":
-        return _evaluate(model, crba.mass_matrix, (q,), (model.nv, model.nv), q.shape[:-1], out)
+        return evaluate_checked(model, crba.mass_matrix, (q,), (model.nv, model.nv), q.shape[:-1], out)
     jacobians, inertias = _world_body_jacobians_and_inertias(model, q)
     # M = Σ_i J_iᵀ I_i J_i + diag(armature)
     M = np.einsum("...ick,...icd,...idl->...kl", jacobians, inertias, jacobians, optimize=True)
@@ -288,12 +288,12 @@ def mass_matrix_and_bias(model, q, v):
 def mass_matrix_bias_and_frames(model, q, v, frames=()):
     """:func:`mass_matrix_and_bias` and the :func:`~multibody.kinematics.frame_kinematics` of each
     ``(body, placement)`` in ``frames``. Returns ``(M, h, [(R_WF, p_WF, J, J̇v), ...])``."""
-    q, v, *_, batch = _check(model, q, v)
-    M = _evaluate(model, crba.mass_matrix, (q,), (model.nv, model.nv), batch)
+    q, v, *_, batch = checked_arguments(model, q, v)
+    M = evaluate_checked(model, crba.mass_matrix, (q,), (model.nv, model.nv), batch)
     h = _vector(model, rnea.inverse_dynamics, (q, v), batch)
     if not frames:
         return M, h, []
-    return M, h, frame_motions(model, q, v, [_frame_arguments(model, body, placement) for body, placement in frames],
+    return M, h, frame_motions(model, q, v, [frame_arguments(model, body, placement) for body, placement in frames],
                                batch)
 
 
@@ -337,9 +337,9 @@ def coriolis_matrix(model, q, v, method="recursive", *, out=None):
     if (method == "recursive" and out is None
             and (C := _single(model, coriolis.coriolis_matrix, (model.nv, model.nv), q, v)) is not None):
         return C
-    q, v, *_, batch = _check(model, q, v)
+    q, v, *_, batch = checked_arguments(model, q, v)
     if method == "recursive":
-        return _evaluate(model, coriolis.coriolis_matrix, (q, v), (model.nv, model.nv), batch, out)
+        return evaluate_checked(model, coriolis.coriolis_matrix, (q, v), (model.nv, model.nv), batch, out)
     if any(joint.nq != joint.nv for joint in model.joints):
         raise ValueError("method='lagrangian' needs v = q̇ (revolute, continuous, prismatic and translation "
                          "joints only); use method='recursive'")
@@ -409,7 +409,7 @@ def forward_dynamics(model, q, v, tau, f_ext=None, *, out=None):
     if _on_device(q):
         return _on_gpu(model, aba.forward_dynamics, (("q", q, model.nq), ("v", v, model.nv), ("tau", tau, model.nv),
                                                      ("f_ext", f_ext, (model.njoints, 6))), (model.nv,), q, out)
-    q, v, _, tau, f_ext, batch = _check(model, q, v, tau=tau, f_ext=f_ext)
+    q, v, _, tau, f_ext, batch = checked_arguments(model, q, v, tau=tau, f_ext=f_ext)
     return articulated_body_accelerations(model, q, v, tau, f_ext, batch, out)
 
 
@@ -427,7 +427,7 @@ def inverse_mass_matrix(model, q, *, out=None):
     ``numpy.linalg.LinAlgError`` naming it. Pinocchio counterpart: ``computeMinverse``.
     """
     q = model.check_configuration(q)
-    return _evaluate(model, crba.inverse_mass_matrix, (q,), (model.nv, model.nv), q.shape[:-1], out)
+    return evaluate_checked(model, crba.inverse_mass_matrix, (q,), (model.nv, model.nv), q.shape[:-1], out)
 
 
 # ============================================================================= energies
@@ -441,8 +441,8 @@ def kinetic_energy(model, q, v, *, out=None):
     """
     if out is None and (T := _single(model, energy.kinetic_energy, (1, 1), q, v)) is not None:
         return T[0, 0]
-    q, v, *_, batch = _check(model, q, v)
-    T = _evaluate(model, energy.kinetic_energy, (q, v), (1, 1), batch, out, ())
+    q, v, *_, batch = checked_arguments(model, q, v)
+    T = evaluate_checked(model, energy.kinetic_energy, (q, v), (1, 1), batch, out, ())
     return T[()] if out is None else T
 
 
@@ -456,5 +456,5 @@ def potential_energy(model, q, *, out=None):
     if out is None and (U := _single(model, energy.potential_energy, (1, 1), q)) is not None:
         return U[0, 0]
     q = model.check_configuration(q)
-    U = _evaluate(model, energy.potential_energy, (q,), (1, 1), q.shape[:-1], out, ())
+    U = evaluate_checked(model, energy.potential_energy, (q,), (1, 1), q.shape[:-1], out, ())
     return U[()] if out is None else U

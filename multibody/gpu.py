@@ -188,7 +188,7 @@ def evaluate_device(kernel, tree: DeviceTree, inputs, out_shape, batch=()):
     Mirrors :func:`multibody.driver.evaluate`: ``tree`` from :func:`device_tree`; ``inputs``: up to four
     C-contiguous float64 device arrays ``(..., k)``, each of the batch's leading axes or of one state
     (``None``: unused); ``out_shape``: ``(rows, cols)`` of one state's output."""
-    from .driver import _workspace_size
+    from .driver import kernel_workspace_size
     cuda = _cuda()
     n = math.prod(batch)
     rows = []
@@ -202,7 +202,7 @@ def evaluate_device(kernel, tree: DeviceTree, inputs, out_shape, batch=()):
     if n:
         threads = min(n, MAX_THREADS)
         blocks = -(-threads // THREADS_PER_BLOCK)
-        workspace = cuda.device_array((blocks * THREADS_PER_BLOCK, max(1, _workspace_size(kernel, tree.joints.shape[0],
+        workspace = cuda.device_array((blocks * THREADS_PER_BLOCK, max(1, kernel_workspace_size(kernel, tree.joints.shape[0],
                                                                                              tree.nv))))
         launcher(kernel)[blocks, THREADS_PER_BLOCK](tree.joints, tree.reals, tree.bodies, *rows, out, workspace)
     return out.reshape(tuple(batch) + tuple(out_shape))

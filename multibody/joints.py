@@ -35,6 +35,11 @@ from typing import ClassVar
 
 import numpy as np
 
+from .kernels import joints as kinds
+from .kernels.layout import AXIS, FRAME_POSITION, FRAME_ROTATION, FRAME_SIZE, INERTIA, POSITION, REAL_SIZE, ROTATION, \
+    CompiledTree
+from .spatial import float_array
+
 #: Largest accepted ``| |q| − 1 |`` for a quaternion or a planar ``(cos θ, sin θ)`` pair.
 UNIT_NORM_TOLERANCE = 1e-6
 UNIT_SQUARED_NORMS = ((1.0 - UNIT_NORM_TOLERANCE) ** 2, (1.0 + UNIT_NORM_TOLERANCE) ** 2)
@@ -121,9 +126,6 @@ class Joint:
     def transform(self, q):
         """Pose ``(R (..., 3, 3), p (..., 3))`` of the joint frame in the pre-joint frame, by the compiled
         joint transform (:func:`multibody.kernels.joints.transform`), state by state."""
-        from .kernels import joints as kinds
-        from .tree import kind_code
-
         q = np.asarray(q, dtype=float)
         rows = np.ascontiguousarray(q.reshape(-1, self.nq))
         code, axis = kind_code(self), tuple(float(x) for x in getattr(self, "axis", (0.0, 0.0, 1.0)))
@@ -187,22 +189,28 @@ class Joint:
 
     def _map(self, name, a, b, shape):
         """The kernel ``name`` of :mod:`multibody.kernels.configuration` on the inputs ``a`` and ``b``,
-        each ``(array, size, name)`` (``b``: ``None`` when unused), on :attr:`_model`: ``(..., *shape)``."""
+        each ``(array, size, name)`` (``b``: ``None`` when unused), on :attr:`_tree`: ``(..., *shape)``."""
+        from . import driver
         from .kernels import configuration
 
-        model = self._model
-        a = model._array(*a)
-        b = None if b is None else model._array(*b)
-        return model._configuration_map(getattr(configuration, name), a, b, shape)
+        a = float_array(*a)
+        b = None if b is None else float_array(*b)
+        return driver.configuration_map(getattr(configuration, name), self._tree, a, b, shape)
 
     @cached_property
-    def _model(self):
-        """A model of this joint alone, whose compiled tree runs its configuration-space maps."""
-        from .model import ModelBuilder
-
-        builder = ModelBuilder(self.kind)
-        builder.add_body("body", self)
-        return builder.build(check_inertia=False)
+    def _tree(self) -> CompiledTree:
+        """The compiled tree of this joint alone (at the world's origin, without inertia), which runs its
+        configuration-space maps (:mod:`multibody.kernels.layout`)."""
+        joints = np.array([[-1, kind_code(self), 0, 0, self.nq, self.nv]], dtype=np.int64)
+        reals = np.zeros((2, REAL_SIZE))
+        reals[0, ROTATION:POSITION] = np.eye(3).reshape(9)
+        reals[0, AXIS:INERTIA] = getattr(self, "axis", (0.0, 0.0, 1.0))
+        frame = np.zeros((1, FRAME_SIZE))
+        frame[0, FRAME_ROTATION:FRAME_POSITION] = np.eye(3).reshape(9)
+        arrays = [np.ascontiguousarray(x) for x in (joints, reals, frame, frame.copy())]
+        for x in arrays:
+            x.setflags(write=False)
+        return CompiledTree(*arrays, self.nq, self.nv, 1)
 
     def random(self, rng, lower, upper, shape=()):
         """Random configurations within ``[lower, upper]`` (each ``(nq,)``), batch ``shape``."""
@@ -371,3 +379,15 @@ class Fixed(Joint):
     def transform(self, q):
         q = np.asarray(q, dtype=float)
         return np.broadcast_to(np.eye(3), q.shape[:-1] + (3, 3)).copy(), np.zeros(q.shape[:-1] + (3,))
+
+
+_KIND_CODES = {Revolute: kinds.REVOLUTE, Continuous: kinds.REVOLUTE, Prismatic: kinds.PRISMATIC, Spherical: kinds.SPHERICAL,
+               FreeFlyer: kinds.FREE_FLYER, Planar: kinds.PLANAR, Translation: kinds.TRANSLATION}
+
+
+def kind_code(joint) -> int:
+    """The kernel kind code (:mod:`multibody.kernels.joints`) of a joint."""
+    try:
+        return _KIND_CODES[type(joint)]
+    except KeyError:
+        raise TypeError(f"joint type {type(joint).__name__} has no compiled kind") from None

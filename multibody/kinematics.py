@@ -33,7 +33,7 @@ from .spatial import matvec
 from .tree import frame_rows
 
 
-def _placements(model, q, rows, batch, out=None, shape=None):
+def frame_world_placements(model, q, rows, batch, out=None, shape=None):
     """World placements ``(..., k, 4, 4)`` of the frame ``rows (k, 13)`` (``shape``: another shape of one
     state's, such as ``(4, 4)`` for one frame), into ``out`` when given (:func:`multibody.driver.evaluate`)."""
     return driver.evaluate(kernels.frame_placements, model.tree, (q,), (len(rows), 16), batch, rows, out=out,
@@ -43,7 +43,7 @@ def _placements(model, q, rows, batch, out=None, shape=None):
 def joint_world_poses(model, q):
     """World pose of every joint frame: ``R_WJ (..., nj, 3, 3)``, ``p_WJ (..., nj, 3)``."""
     q = model.check_configuration(q)
-    X = _placements(model, q, model.tree.joint_frames, q.shape[:-1])
+    X = frame_world_placements(model, q, model.tree.joint_frames, q.shape[:-1])
     return X[..., :3, :3], X[..., :3, 3]
 
 
@@ -54,7 +54,7 @@ def forward_kinematics(model, q, *, out=None):
     returned. Pinocchio counterpart: ``forwardKinematics`` + ``updateFramePlacements``.
     """
     q = model.check_configuration(q)
-    return _placements(model, q, model.tree.bodies, q.shape[:-1], out)
+    return frame_world_placements(model, q, model.tree.bodies, q.shape[:-1], out)
 
 
 def _point(point):
@@ -104,7 +104,7 @@ def frame_placement(model, q, name, *, out=None):
     ``updateFramePlacements`` + ``data.oMf``.
     """
     q, rows = model.check_configuration(q), _body_frame(model, name)
-    return _placements(model, q, rows, q.shape[:-1], out, (4, 4))
+    return frame_world_placements(model, q, rows, q.shape[:-1], out, (4, 4))
 
 
 def jacobian(model, q, body, point=None, reference="local_world_aligned", *, out=None):
@@ -144,7 +144,7 @@ def jacobian_time_variation(model, q, v, body, point=None, reference="local_worl
                            (6, model.nv), spatial.batch_shape(*shapes), rows, out=out)
 
 
-def _frame_arguments(model, body, placement):
+def frame_arguments(model, body, placement):
     """``(b, X_BF)``: the index of ``body`` (``None`` for the world) and the frame's 4×4 pose in it,
     validated (identity for ``None``)."""
     X_BF = np.eye(4) if placement is None else np.asarray(placement, dtype=float)
@@ -174,7 +174,7 @@ def frame_kinematics(model, q, v, body, placement=None):
     (classical linear acceleration of the origin and angular acceleration when ``a = 0``).
     """
     q, v = model.check_configuration(q), model.check_velocity(v)
-    return frame_motions(model, q, v, [_frame_arguments(model, body, placement)],
+    return frame_motions(model, q, v, [frame_arguments(model, body, placement)],
                          spatial.batch_shape(q.shape[:-1], v.shape[:-1]))[0]
 
 

@@ -408,12 +408,12 @@ class Model:
         """
         q = self.check_configuration(q)
         v = self.check_velocity(v) * dt
-        return self._configuration_map(configuration.integrate, q, v, (self.nq,))
+        return driver.configuration_map(configuration.integrate, self.tree, q, v, (self.nq,))
 
     def difference(self, q0, q1) -> np.ndarray:
         """Configuration logarithm: the ``v`` with ``integrate(q0, v) = q1``. ``-> (..., nv)``."""
         q0, q1 = self.check_configuration(q0, "q0"), self.check_configuration(q1, "q1")
-        return self._configuration_map(configuration.difference, q0, q1, (self.nv,))
+        return driver.configuration_map(configuration.difference, self.tree, q0, q1, (self.nv,))
 
     def configuration_rate(self, q, v) -> np.ndarray:
         """``q̇`` of a configuration moving with velocity ``v``: ``(..., nq)``.
@@ -422,7 +422,7 @@ class Model:
         positions ``R v_lin``, planar joints ``R(θ) (vx, vy)`` and ``ω (−sin θ, cos θ)``.
         """
         q, v = self.check_configuration(q), self.check_velocity(v)
-        return self._configuration_map(configuration.configuration_rate, q, v, (self.nq,))
+        return driver.configuration_map(configuration.configuration_rate, self.tree, q, v, (self.nq,))
 
     # ------------------------------------------------------------------ charts for Lie-group integration
 
@@ -434,21 +434,21 @@ class Model:
         :func:`multibody.simulate` integrates ``δ`` with :meth:`chart_rate` and starts a new chart
         at the end of every step.
         """
-        q0, delta = self._array(q0, self.nq, "q0"), self._array(delta, self.nv, "delta")
-        return self._configuration_map(configuration.chart, q0, delta, (self.nq,))
+        q0, delta = spatial.float_array(q0, self.nq, "q0"), spatial.float_array(delta, self.nv, "delta")
+        return driver.configuration_map(configuration.chart, self.tree, q0, delta, (self.nq,))
 
     def chart_coordinates(self, q0, q) -> np.ndarray:
         """Chart coordinates ``δ (..., nv)`` of ``q (..., nq)`` around ``q0 (..., nq)``: the inverse of
         :meth:`chart`, ``chart(q0, δ) = q`` (rotation vectors of angle at most π). ``q − q0`` for angles
         and displacements; ``log(q ⊗ q₀*)`` for quaternions, in the parent frame (rad)."""
         q0, q = self.check_configuration(q0, "q0"), self.check_configuration(q, "q")
-        return self._configuration_map(configuration.chart_coordinates, q0, q, (self.nv,))
+        return driver.configuration_map(configuration.chart_coordinates, self.tree, q0, q, (self.nv,))
 
     def chart_rate(self, delta, w) -> np.ndarray:
         """``δ̇ (..., nv)`` of chart coordinates ``delta`` moving with aligned velocity ``w`` (see
         :meth:`velocity_alignment`): ``w`` itself, but ``J_l(δ)⁻¹ ω`` for rotation vectors."""
-        delta, w = self._array(delta, self.nv, "delta"), self._array(w, self.nv, "w")
-        return self._configuration_map(configuration.chart_rate, delta, w, (self.nv,))
+        delta, w = spatial.float_array(delta, self.nv, "delta"), spatial.float_array(w, self.nv, "w")
+        return driver.configuration_map(configuration.chart_rate, self.tree, delta, w, (self.nv,))
 
     def velocity_alignment(self, q) -> np.ndarray:
         """Orthogonal ``T(q) (..., nv, nv)`` that rotates free-flyer, spherical and planar velocity
@@ -459,21 +459,21 @@ class Model:
         at 2π: :data:`multibody.simulation.CHART_TURN`). Their rate is
         ``ẇ = T (a + κ(v))`` (:meth:`velocity_coupling`).
         """
-        return self._configuration_map(configuration.velocity_alignment, self._array(q, self.nq, "q"), None,
+        return driver.configuration_map(configuration.velocity_alignment, self.tree, spatial.float_array(q, self.nq, "q"), None,
                                        (self.nv, self.nv))
 
     def velocity_coupling(self, v) -> np.ndarray:
         """``κ(v) (..., nv)`` with ``d/dt (T v) = T (v̇ + κ(v))`` (see :meth:`velocity_alignment`):
         ``[ω × v_lin; 0]`` for a free flyer, ``ω (−vy, vx, 0)`` for a planar joint, zero for spherical
         joints, angles and displacements."""
-        return self._configuration_map(configuration.velocity_coupling, self._array(v, self.nv, "v"), None, (self.nv,))
+        return driver.configuration_map(configuration.velocity_coupling, self.tree, spatial.float_array(v, self.nv, "v"), None, (self.nv,))
 
     def chart_magnitude(self, q) -> np.ndarray:
         """Size ``(..., nv)`` of the configuration ``q`` in each chart direction (see :meth:`chart`): ``|q|``
         for angles and displacements, 1 (rad) for rotation vectors. :func:`multibody.simulate` measures
         the relative error of the chart coordinates ``δ`` against it, as against ``q`` itself, rather
         than against ``δ``, which starts at zero in every step."""
-        return self._configuration_map(configuration.chart_magnitude, self._array(q, self.nq, "q"), None, (self.nv,))
+        return driver.configuration_map(configuration.chart_magnitude, self.tree, spatial.float_array(q, self.nq, "q"), None, (self.nv,))
 
     @cached_property
     def is_vector_space(self) -> bool:
@@ -483,15 +483,7 @@ class Model:
 
     def normalize(self, q) -> np.ndarray:
         """``q`` with every quaternion (and planar ``(cos θ, sin θ)`` pair) scaled to unit norm."""
-        return self._configuration_map(configuration.normalize, self._array(q, self.nq, "q"), None, (self.nq,))
-
-    def _configuration_map(self, kernel, a, b, shape):
-        """``kernel`` of :mod:`multibody.kernels.configuration` on the float arrays ``a`` and ``b`` (``None``
-        when unused), of checked sizes, their leading axes broadcast, through the batch driver: ``(..., *shape)``
-        with ``shape`` ``(size,)`` or, for a matrix, ``(rows, cols)``. No other checks."""
-        batch = a.shape[:-1] if b is None else spatial.batch_shape(a.shape[:-1], b.shape[:-1])
-        out = driver.evaluate(kernel, self.tree, (a, b), shape if len(shape) == 2 else (1,) + shape, batch)
-        return out if len(shape) == 2 else out.reshape(batch + shape)
+        return driver.configuration_map(configuration.normalize, self.tree, spatial.float_array(q, self.nq, "q"), None, (self.nq,))
 
     # ------------------------------------------------------------------ input checking
 
@@ -499,13 +491,6 @@ class Model:
     def _require_last_axis(x, size, name):
         if x.ndim == 0 or x.shape[-1] != size:
             raise ValueError(f"{name} must have shape (..., {size}), got {x.shape}")
-
-    @classmethod
-    def _array(cls, x, size, name):
-        """``x`` as a float array of shape ``(..., size)``, or ``ValueError`` (the maps that take any numbers)."""
-        x = np.asarray(x, dtype=float)
-        cls._require_last_axis(x, size, name)
-        return x
 
     @staticmethod
     def _as_float_array(x, name):

@@ -41,7 +41,7 @@ import os
 
 import numba
 from numba.core import event  # noqa: F401  (documented: Numba's Event API, re-exported for the driver)
-from numba.core.errors import NumbaError, TypingError  # noqa: F401  (documented errors, re-exported)
+from numba.core.errors import NumbaError, NumbaExperimentalFeatureWarning, TypingError  # noqa: F401  (documented, re-exported)
 from numba.extending import is_jitted
 
 #: The exceptions by which a missing or changed internal member shows itself.

@@ -25,8 +25,8 @@ import numpy as np
 
 from . import spatial
 from .kernels import constraints as compiled
-from .constraints import (_FIRST_STEP, CompiledRows, Constraint, _first_derivative, _frame, _path_step, _point_placement,
-                          _require_model, _wrenches)
+from .constraints import (FIRST_STEP, CompiledRows, Constraint, first_derivative, frame_terms, path_step, point_placement,
+                          require_model, wrenches_of_loads)
 from .spatial import matvec
 
 
@@ -50,7 +50,7 @@ class _RollingOnPlane(CompiledRows):
         if not radius > 0.0:
             raise ValueError(f"radius must be positive, got {radius!r}")
         self.body, self.radius = body, float(radius)
-        self.placement = _point_placement(center)
+        self.placement = point_placement(center)
         self.normal, self.frame = _plane_frame(plane_normal)
         self.plane_point = np.asarray(plane_point, dtype=float)
         self.surface_velocity = surface_velocity
@@ -92,7 +92,7 @@ class _RollingOnPlane(CompiledRows):
         return self.surface_velocity is not None
 
     def _contact(self, system, q, v, t):
-        R_WB, x_O, J, J_dot_v = _frame(system, self, q, v, self.body, self.placement)
+        R_WB, x_O, J, J_dot_v = frame_terms(system, self, q, v, self.body, self.placement)
         omega = matvec(J[..., 3:, :], v)
         d, d_dot = self._offset(R_WB, omega)
         return x_O, J, J_dot_v, omega, d, d_dot
@@ -115,7 +115,7 @@ class _RollingOnPlane(CompiledRows):
             x_s, _, _, _, d_s, _ = self._contact(system, system.integrate(q, v, s), v, t + s)
             return self._surface_velocity(x_s + d_s, t + s)
 
-        return A, b, gamma + E_T @ _first_derivative(surface_at, _path_step(v, _FIRST_STEP)), phi
+        return A, b, gamma + E_T @ first_derivative(surface_at, path_step(v, FIRST_STEP)), phi
 
     def contact_point(self, system, q):
         """World position of the contact point ``(3,)``."""
@@ -123,9 +123,9 @@ class _RollingOnPlane(CompiledRows):
         return x_O + d
 
     def body_forces(self, system, q, lam, t=0.0):
-        model = _require_model(system, self)
+        model = require_model(system, self)
         # Aᵀλ = (J_O − [d]× J_ω)ᵀ E λ: the contact force E λ applied at the contact point.
-        return _wrenches(model, q, [(self.body, self.frame[:, self._row_axes] @ lam, self.contact_point(system, q),
+        return wrenches_of_loads(model, q, [(self.body, self.frame[:, self._row_axes] @ lam, self.contact_point(system, q),
                                      np.zeros(3))])
 
 
@@ -210,7 +210,7 @@ class KnifeEdge(CompiledRows):
 
     def __init__(self, body, *, point=None, direction=(1.0, 0.0, 0.0), plane_normal=(0.0, 0.0, 1.0), name=None):
         super().__init__(name or f"knife edge {body}")
-        self.body, self.placement = body, _point_placement(point)
+        self.body, self.placement = body, point_placement(point)
         direction = np.asarray(direction, dtype=float)
         if direction.shape != (3,) or not np.linalg.norm(direction) > 0:
             raise ValueError(f"blade direction must be a non-zero 3-vector, got {direction.tolist()}")
@@ -237,6 +237,6 @@ class KnifeEdge(CompiledRows):
     position = Constraint.position  # no position level
 
     def body_forces(self, system, q, lam, t=0.0):
-        model = _require_model(system, self)
-        R_WB, x, _, _ = _frame(system, self, q, None, self.body, self.placement)
-        return _wrenches(model, q, [(self.body, self._sideways(R_WB)[0] * lam[0], x, np.zeros(3))])
+        model = require_model(system, self)
+        R_WB, x, _, _ = frame_terms(system, self, q, None, self.body, self.placement)
+        return wrenches_of_loads(model, q, [(self.body, self._sideways(R_WB)[0] * lam[0], x, np.zeros(3))])

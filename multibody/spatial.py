@@ -36,6 +36,15 @@ def batch_shape(*shapes):
     return shapes[0] if shapes.count(shapes[0]) == len(shapes) else np.broadcast_shapes(*shapes)
 
 
+def float_array(x, size, name):
+    """``x`` as a float array of shape ``(..., size)``, or ``ValueError`` naming ``name`` (the maps that take
+    any numbers)."""
+    x = np.asarray(x, dtype=float)
+    if x.ndim == 0 or x.shape[-1] != size:
+        raise ValueError(f"{name} must have shape (..., {size}), got {x.shape}")
+    return x
+
+
 def skew(w):
     """Cross-product matrix ``[w]×`` with ``[w]× x = w × x``. ``(..., 3) -> (..., 3, 3)``."""
     w = np.asarray(w, dtype=float)

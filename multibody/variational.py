@@ -112,10 +112,11 @@ iteration reduces the residual less than tenfold. The iteration stops when the r
 equation is at most ``tolerance`` (default ``1e-12``) times the size of its momentum terms, and the
 holonomic rows at most ``tolerance · max(1, |q_{k+1}|)``; otherwise :class:`SimulationError`.
 
-For a :class:`~multibody.model.Model` stepped by the midpoint rule without forces, and without
-constraints or with built-in rows fixed in time, each iterate's terms (``q̄``, ``q_{k+1}``, ``M``,
-``∂L/∂q``, the exponential terms, the first equation and the rows) come from one compiled call
-(:func:`multibody.kernels.variational.midpoint_iterate`); other systems evaluate the same equations here.
+For a :class:`~multibody.model.Model` without constraints or with built-in rows fixed in time, whose joint forces
+are none, constant, a :class:`~multibody.integrators.PD` controller or a ``numba.njit`` function ``f(t, q, v, out)``
+(with the joints' damping), every step, Newton's iteration included, is compiled
+(:func:`multibody.kernels.variational.advance`, one call per chunk of steps); other systems (symbolic ones, user
+constraints) and joint forces from a Python callable take the same steps here, in Python.
 
 Limitations: a system other than a :class:`~multibody.model.Model` needs configurations in a vector
 space with ``q̇ = v``; ``order=4`` is for systems without constraints.
@@ -127,14 +128,17 @@ import functools
 import math
 import warnings
 
+import numba
 import numpy as np
 
-from . import driver, linalg, spatial
+from . import driver, linalg, numba_hooks, spatial
+from .integrators import CONTROLLER_TYPES, CompiledController, PDController
 from .constrained import ConstrainedSystem, ConstraintError, ModelSystem
 from .model import all_finite
 from .tree import IQ, IV, KIND
 from .kernels import configuration, coriolis, crba
 from .kernels import lagrangian as lagrangian_kernels
+from .kernels import stepping
 from .kernels import variational as iteration_kernels
 from .kernels import joints as kinds
 from .kernels import derivatives as derivative_kernels
@@ -180,7 +184,7 @@ class _ModelLagrangian:
     def _run(self, kernel, shape, q, v=_EMPTY, a=_EMPTY):
         out = np.empty(shape)
         # (the step's own C-contiguous float64 vectors: the types driver.evaluate_one's callers guarantee)
-        driver._direct(kernel)(*self._tree, np.ascontiguousarray(q, dtype=float), v, a, _EMPTY, out,
+        driver.direct(kernel)(*self._tree, np.ascontiguousarray(q, dtype=float), v, a, _EMPTY, out,
                                self._workspaces[kernel])
         return out
 
@@ -337,7 +341,7 @@ class _LieGroupChart:
         rotation ``R exp(ω)`` does not depend on the linear part)."""
         q, x = np.ascontiguousarray(q, dtype=float), np.ascontiguousarray(x, dtype=float)
         out = np.empty((1, self.nq))
-        driver._direct(configuration.integrate)(*self._tree, q, x, _EMPTY, _EMPTY, out, _EMPTY)
+        driver.direct(configuration.integrate)(*self._tree, q, x, _EMPTY, _EMPTY, out, _EMPTY)
         moved = out[0]
         for iq, iv in self._free_flyers:
             moved[iq:iq + 3] = q[iq:iq + 3] + x[iv:iv + 3]  # (the rotation is Model.integrate's, R exp(ω))
@@ -356,7 +360,7 @@ class _LieGroupChart:
             return T
         # the compiled velocity_alignment holds each free flyer's R (parent from body) on its diagonal
         aligned = np.empty((self.nv, self.nv))
-        driver._direct(configuration.velocity_alignment)(*self._tree, q, _EMPTY, _EMPTY, _EMPTY, aligned, _EMPTY)
+        driver.direct(configuration.velocity_alignment)(*self._tree, q, _EMPTY, _EMPTY, _EMPTY, aligned, _EMPTY)
         T = np.eye(self.nv)
         for _, iv in self._free_flyers:
             T[iv:iv + 3, iv:iv + 3] = aligned[iv:iv + 3, iv:iv + 3].T
@@ -369,7 +373,7 @@ class _LieGroupChart:
     def exponential_terms(self, x):
         """``(Ad_exp(x), J_l(x))``, both ``(nv, nv)`` (:func:`multibody.kernels.configuration.exponential_terms`)."""
         out = np.empty((2 * self.nv, self.nv))
-        driver._direct(configuration.exponential_terms)(*self._tree, np.ascontiguousarray(x, dtype=float), _EMPTY, _EMPTY,
+        driver.direct(configuration.exponential_terms)(*self._tree, np.ascontiguousarray(x, dtype=float), _EMPTY, _EMPTY,
                                                         _EMPTY, out, self._workspace)
         return out[:self.nv], out[self.nv:]
 
@@ -484,64 +488,6 @@ class _Rows:
         return bool(sigma.size) and sigma[0] > 0 and bool(self.constrained._kept_directions(sigma)[0].all())
 
 
-class _CompiledIterate:
-    """The terms of a midpoint step at a Newton iterate by one compiled call
-    (:func:`multibody.kernels.variational.midpoint_iterate`): for a :class:`~multibody.model.Model` with no
-    forces, without constraints or with compiled rows fixed in time. It gives what :func:`_step`'s
-    ``evaluate`` and ``constraint_terms`` give, with the rows at ``q_{k+1}`` always."""
-
-    def __init__(self, model, constrained, rows, grouped):
-        self.model, self.nq, self.nv = model, model.nq, model.nv
-        self.m = 0 if rows is None else rows.m
-        if self.m:
-            program, frames, _ = constrained._compiled_step
-            holonomic = np.asarray(constrained._position_mask, dtype=bool)
-        else:
-            program, frames, holonomic = driver.NO_INPUT, model.tree.bodies, np.zeros(0, dtype=bool)
-        self._program, self._frames = program, frames
-        self._settings = (1.0 if grouped else 0.0,) + tuple(1.0 if row else 0.0 for row in holonomic)
-        self._chart = grouped or not model.is_vector_space
-        self._out_shape = (1, iteration_kernels.output_columns(self.nq, self.nv, self.m))
-        self._workspace = iteration_kernels.workspace_size(model.njoints, self.nv, len(frames), self.m)
-
-    @staticmethod
-    def applies(lagrangian, constrained, rule, force):
-        """Whether the compiled iterate computes this step: a model's Lagrangian, the midpoint rule, no forces,
-        and no rows or only compiled rows fixed in time."""
-        inner = getattr(lagrangian, "inner", lagrangian)
-        return (isinstance(inner, _ModelLagrangian) and rule == "midpoint" and force is None
-                and (not constrained.num_rows or constrained._compiled_step is not None))
-
-    def __call__(self, q0, delta, h):
-        """``(start, scale, state, (c, C, scales, levels1, q1))`` at ``Δ`` as ``evaluate`` and
-        ``constraint_terms`` give them; ``None`` where a row is undefined or a term is not finite (the
-        Python terms then give the error)."""
-        nq, nv, m = self.nq, self.nv, self.m
-        row = driver.evaluate_one(iteration_kernels.midpoint_iterate, self.model.tree, self._out_shape,
-                                  np.ascontiguousarray(q0, dtype=float), np.ascontiguousarray(delta, dtype=float),
-                                  np.array((h,) + self._settings), self._program, frames=self._frames,
-                                  workspace=self._workspace)[0]
-        scale = row[nv]
-        if row[-1] != 0.0 or not math.isfinite(scale):
-            return None
-        o = nv + 1
-        q_mid, q1 = row[o : o + nq], row[o + nq : o + 2 * nq]
-        o += 2 * nq
-        M = row[o : o + nv * nv].reshape(nv, nv)
-        o += nv * nv
-        pull = row[o : o + nv]
-        o += nv
-        blocks = row[o : o + 4 * nv * nv].reshape(4 * nv, nv)
-        exponentials = ((blocks[:nv], blocks[nv : 2 * nv]), (blocks[2 * nv : 3 * nv], blocks[3 * nv :])) if self._chart else None
-        o += 4 * nv * nv
-        c, C = row[o : o + m], row[o + m : o + m + m * nv].reshape(m, nv)
-        o += m + m * nv
-        scales = row[o : o + m]
-        o += m
-        levels1 = (row[o : o + m], row[o + m : o + m + m * nv].reshape(m, nv), np.zeros(m))
-        return row[:nv], float(scale), (q_mid, delta / h, M, pull, exponentials), (c, C, scales, levels1, q1)
-
-
 def _add(q, delta):
     """``q + Δ``: the step of configurations in a vector space."""
     return q + delta
@@ -554,8 +500,7 @@ def _norm(x):
     return max(map(abs, values), default=0.0) if math.isfinite(sum(values)) else math.nan
 
 
-def _step(lagrangian, rows, rule, force, t, h, q0, p0, levels0, guess, tolerance, max_iterations, impulse_guess=None,
-          compiled=None):
+def _step(lagrangian, rows, rule, force, t, h, q0, p0, levels0, guess, tolerance, max_iterations, impulse_guess=None):
     """One step ``(q_k, p_k) → (q_{k+1}, p_{k+1})`` of size ``h`` (s, may be negative in a composition).
 
     Args:
@@ -568,7 +513,6 @@ def _step(lagrangian, rows, rule, force, t, h, q0, p0, levels0, guess, tolerance
         guess: predicted increment ``Δ`` ``(nv,)``, ``q_{k+1} = q_k ⊕ Δ``.
         impulse_guess: predicted start impulses ``μ⁻ (m,)`` (the last step's, scaled to this step), or
             ``None`` (zero).
-        compiled: :class:`_CompiledIterate` where it applies: each iterate's terms by one compiled call.
     Returns:
         ``(q1, p1, v1, μ⁻ (m,), μ⁺ (m,), levels1, Δ)``: the impulses ``μ`` (N s per row) that act at the
         start and at the end of the step, and the step's increment ``Δ (nv,)``, ``q1 = q0 ⊕ Δ``.
@@ -693,13 +637,9 @@ def _step(lagrangian, rows, rule, force, t, h, q0, p0, levels0, guess, tolerance
     J_inverse, fresh = None, False  # fresh: J_inverse is this step's analytical one (Broyden-updated since)
     delta_before = F_before = None  # the previous iterate and its −D1 L_d − f⁻ − p_k, for Broyden's update
     for iteration in range(1, max_iterations + 1):
-        terms = None if compiled is None else compiled(q0, delta, h)
-        if terms is None:
-            start, scale, state = evaluate(delta)
-            if m:
-                c, C, row_scales, levels1, q1 = constraint_terms(delta, state)
-        else:
-            start, scale, state, (c, C, row_scales, levels1, q1) = terms
+        start, scale, state = evaluate(delta)
+        if m:
+            c, C, row_scales, levels1, q1 = constraint_terms(delta, state)
         residual = start - p0
         if m:
             impulse = B.T @ mu
@@ -797,6 +737,119 @@ class _NotConverged(Exception):
         self.error, self.iterations, self.reason = error, iterations, reason
 
 
+# ============================================================================= the compiled run
+
+_CONTROLLER = numba.types.FunctionType(numba.types.none(*CONTROLLER_TYPES))
+_READ_ONLY_INTS = numba.types.Array(numba.types.int64, 2, "C", readonly=True)
+_READ_ONLY_FLOATS = numba.types.Array(numba.types.float64, 2, "C", readonly=True)
+_VECTOR, _MATRIX = numba.types.float64[::1], numba.types.float64[:, ::1]
+#: The argument types of :func:`multibody.kernels.variational.advance`: a compiled controller, the tree's arrays and
+#: the constraint frames (read-only), the program, times, plan, control row, states, impulses, io and workspace.
+ADVANCE_TYPES = (_CONTROLLER, _READ_ONLY_INTS, _READ_ONLY_FLOATS, _READ_ONLY_FLOATS, _VECTOR, _VECTOR, _VECTOR, _VECTOR,
+                 _MATRIX, _MATRIX, _VECTOR, _VECTOR)
+#: The compiled run's entry point, which ``multibody compile`` compiles beside the kernels.
+ENTRY_POINTS = ((iteration_kernels.advance, ADVANCE_TYPES),)
+
+#: Steps per compiled call: the progress bar moves between calls.
+_CHUNK = 1000
+
+
+class _CompiledSteps:
+    """Every step of a run by :func:`multibody.kernels.variational.advance`, a chunk of steps per call: a
+    :class:`~multibody.model.Model` without constraints or with compiled rows fixed in time, and joint forces
+    none, constant, :class:`~multibody.integrators.PD` or a ``numba.njit`` function (with the joints' damping)."""
+
+    def __init__(self, model, constrained, tau, damping, rule, weights, tolerance, max_iterations, grouped, times):
+        nq, nv, m = model.nq, model.nv, constrained.num_rows
+        if m:
+            program, frames, _ = constrained._compiled_step
+            holonomic = np.asarray(constrained._position_mask, dtype=float)
+        else:
+            program, frames, holonomic = driver.NO_INPUT, model.tree.bodies, np.zeros(0)
+        self.model, self.times, self.m = model, np.ascontiguousarray(times, dtype=float), m
+        self.program, self.frames = np.ascontiguousarray(program, dtype=float), frames
+        kind, self.control, self.pointer = self.controls(tau, nv)
+        header = np.zeros(iteration_kernels.PLAN_HEADER)
+        header[[iteration_kernels.PLAN_NQ, iteration_kernels.PLAN_NV, iteration_kernels.PLAN_M,
+                iteration_kernels.PLAN_TRAPEZOIDAL, iteration_kernels.PLAN_GROUPED, iteration_kernels.PLAN_CHART,
+                iteration_kernels.PLAN_CONTROL, iteration_kernels.PLAN_DAMPED, iteration_kernels.PLAN_TOLERANCE,
+                iteration_kernels.PLAN_MAX_ITERATIONS, iteration_kernels.PLAN_RANK_TOLERANCE,
+                iteration_kernels.PLAN_SUBSTEPS]] = (
+            nq, nv, m, rule == "trapezoidal", grouped, not model.is_vector_space, kind, damping is not None, tolerance,
+            max_iterations, constrained.rank_tolerance, len(weights))
+        header[iteration_kernels.PLAN_WEIGHTS : iteration_kernels.PLAN_WEIGHTS + len(weights)] = weights
+        self.plan = np.concatenate([header, holonomic, np.zeros(nv) if damping is None else damping])
+        self.ws = np.empty(iteration_kernels.workspace_size(model.njoints, nq, nv, m, len(frames)))
+        self.io = np.zeros(iteration_kernels.io_size(nv))
+
+    @staticmethod
+    def applies(lagrangian, constrained, tau):
+        """Whether the compiled run takes the steps: a model's Lagrangian, no rows or only compiled ones, and
+        joint forces that are data or compiled (a Python callable is called from the Python loop)."""
+        return (isinstance(lagrangian, _ModelLagrangian)
+                and (not constrained.num_rows or constrained._compiled_step is not None)
+                and (tau is None or isinstance(tau, (PDController, CompiledController)) or not callable(tau)))
+
+    @staticmethod
+    def controls(tau, nv):
+        """``(kind, control row, compiled controller)`` of the joint forces ``tau``
+        (:data:`multibody.kernels.stepping.NO_CONTROL` …)."""
+        none = driver.first_class(stepping.no_controller, CONTROLLER_TYPES)
+        if tau is None:
+            return stepping.NO_CONTROL, np.zeros(nv), none
+        if isinstance(tau, PDController):
+            return stepping.PD, np.ascontiguousarray(np.concatenate([np.zeros(nv), tau.rows[0]])), none
+        if isinstance(tau, CompiledController):
+            return stepping.FUNCTION, np.zeros(nv), tau.pointer
+        return stepping.CONSTANT, np.array(tau, dtype=float).reshape(nv), none
+
+    def run(self, qs, vs, mu_start, mu_end, bar, mechanical):
+        """All the steps, into ``qs (n, nq)``, ``vs (n, nv)`` (their first rows the initial state) and the impulses
+        ``mu_start``, ``mu_end (n, m)``: ``(the states done, None)``, or the message of the failure that stopped
+        the run at the first state not done."""
+        from .simulation import _non_finite_torque
+
+        n, nq, m, io = len(self.times), qs.shape[1], self.m, self.io
+        states = np.zeros((n, nq + vs.shape[1]))
+        states[0, :nq], states[0, nq:] = qs[0], vs[0]
+        impulses = np.zeros((n, 2 * m))
+        tree = self.model.tree
+        with warnings.catch_warnings():
+            # (Numba's note, when it compiles the run, that passing the controller on as a first-class function is
+            # an experimental feature: the fixed-step run relies on it as well)
+            warnings.simplefilter("ignore", numba_hooks.NumbaExperimentalFeatureWarning)
+            entry = driver.entry_point(iteration_kernels.advance, ADVANCE_TYPES)
+        k, status = 1, iteration_kernels.COMPLETED
+        while k < n and status == iteration_kernels.COMPLETED:
+            io[iteration_kernels.IO_STEP], io[iteration_kernels.IO_STOP] = k, min(n, k + _CHUNK)
+            entry(self.pointer, tree.joints, tree.reals, self.frames, self.program, self.times, self.plan, self.control,
+                  states, impulses, io, self.ws)
+            k, status = int(io[iteration_kernels.IO_STEP]), int(io[iteration_kernels.IO_STATUS])
+            bar.update(self.times[k - 1])
+        qs[:k], vs[:k] = states[:k, :nq], states[:k, nq:]
+        mu_start[:k], mu_end[:k] = impulses[:k, :m], impulses[:k, m:]
+        if status == iteration_kernels.COMPLETED:
+            return n, None
+        t, h = io[iteration_kernels.IO_TIME], io[iteration_kernels.IO_STEP_SIZE]
+        error, iterations = io[iteration_kernels.IO_ERROR], int(io[iteration_kernels.IO_ITERATIONS])
+        reasons = {
+            iteration_kernels.NON_FINITE_RESIDUAL: "the residual is not finite",
+            iteration_kernels.SINGULAR: "the Newton Jacobian or the constraints' Schur complement is singular",
+            iteration_kernels.NOT_POSITIVE_DEFINITE: "the mass matrix is not positive definite",
+            iteration_kernels.UNDEFINED_ROW: "a constraint row is undefined at the step's configuration",
+        }
+        if status == iteration_kernels.NOT_CONVERGED:
+            message = _failure_message(_NotConverged(error, iterations, None), t, h, self.plan[
+                iteration_kernels.PLAN_TOLERANCE])
+        elif status == iteration_kernels.NON_FINITE_TORQUE:
+            message = _non_finite_torque(mechanical, t, io[iteration_kernels.IO_HEADER :].copy())
+        elif status == iteration_kernels.NON_FINITE_STATE:
+            message = f"the state became non-finite at t = {t:.6g} s"
+        else:
+            message = _failure_message(_NotConverged(error, iterations, reasons[status]), t, h, 0.0)
+        return k, message
+
+
 # ============================================================================= simulate
 
 def simulate(system, q0, v0, t_final, *, dt=None, tau=None, rule="midpoint", order=2, t0=0.0, joint_damping=False,
@@ -869,13 +922,19 @@ def simulate(system, q0, v0, t_final, *, dt=None, tau=None, rule="midpoint", ord
     if not 0.0 < tolerance < 1.0:
         raise ValueError(f"tolerance must be in (0, 1), got {tolerance}")
     model = getattr(mechanical, "model", None)
+    damping = None
     if joint_damping:
         if model is None:
             raise ValueError(f"joint_damping=True needs a system built on a Model (model.damping); "
                              f"{type(mechanical).__name__} has none: give the damping as tau(t, q, v) instead")
         if np.any(model.damping):
-            tau = _with_joint_damping(_torque_function(tau, nv, system=mechanical), model.damping)
+            damping = np.array(model.damping, dtype=float)
+    # (checks an array tau: its shape, and that it is finite)
     force = _total_force(tau, nv, lagrangian, functools.partial(_torque_function, system=mechanical))
+    compiled = _CompiledSteps.applies(lagrangian, constrained, tau)
+    if damping is not None:
+        force = _total_force(_with_joint_damping(_torque_function(tau, nv, system=mechanical), damping), nv, lagrangian,
+                             functools.partial(_torque_function, system=mechanical))
 
     q, v = np.array(q0, dtype=float), np.array(v0, dtype=float)
     chart = lagrangian.chart
@@ -904,45 +963,50 @@ def simulate(system, q0, v0, t_final, *, dt=None, tau=None, rule="midpoint", ord
         lagrangian, force = _GroupLagrangian(lagrangian), _group_force(force, chart)
         rows = None if rows is None else _GroupRows(rows, chart)
         v = chart.alignment(q).T @ v
-    levels = rows.levels(q, t0) if m else None
-    p = lagrangian.mass_matrix(q) @ v
-    compiled = (_CompiledIterate(model, constrained, rows, aligned)
-                if _CompiledIterate.applies(lagrangian, constrained, rule, force) else None)
     weights = (YOSHIDA_W1, YOSHIDA_W0, YOSHIDA_W1) if order == 4 else (1.0,)
-    last_velocity, last_h, last_impulse = v, None, None
-    increments = []  # the last three steps' (h, Δ), newest first
     done = 1
     bar = _Progress(progress, t0, t_final)
     try:
-        for k in range(1, len(times)):
-            step = times[k] - times[k - 1]
-            t = times[k - 1]
-            for weight in weights:
-                h = weight * step
-                guess = _predict(h, v, last_velocity, last_h, increments)
-                # the constraint impulses change little from step to step: the last one, per unit time
-                impulse_guess = None if last_impulse is None else last_impulse * (h / last_h)
-                try:
-                    q, p, v_new, start, end, levels, delta = _step(
-                        lagrangian, rows, rule, force, t, h, q, p, levels, guess, tolerance, max_iterations,
-                        impulse_guess, compiled)
-                except _NotConverged as failure:
-                    raise SimulationError(_failure_message(failure, t, h, tolerance), None) from None
-                except (np.linalg.LinAlgError, ConstraintError, FloatingPointError) as error:
-                    raise SimulationError(f"variational step failed at t = {t:.6g} s (h = {h:.3g} s): {error}",
-                                          None) from error
-                last_velocity, last_h, v, last_impulse = v, h, v_new, (start if m else None)
-                increments = [(h, delta)] + increments[:2]
-                t = t + h
-            if m:
-                mu_start[k - 1] += start
-                mu_end[k] = end
-            qs[k], vs[k] = q, (chart.alignment(q) @ v if aligned else v)
-            # (a step's equations can hold with v = M⁻¹ p overflowing: such a state is not kept)
-            if not (all_finite(qs[k]) and all_finite(vs[k])):
-                raise SimulationError(f"the state became non-finite at t = {times[k]:.6g} s", None)
-            done = k + 1
-            bar.update(times[k])
+        if compiled:
+            steps = _CompiledSteps(model, constrained, tau, damping, rule, weights, tolerance, max_iterations, aligned,
+                                   times)
+            done, failure = steps.run(qs, vs, mu_start, mu_end, bar, mechanical)
+            if failure is not None:
+                raise SimulationError(failure, None)
+        else:
+            levels = rows.levels(q, t0) if m else None
+            p = lagrangian.mass_matrix(q) @ v
+            last_velocity, last_h, last_impulse = v, None, None
+            increments = []  # the last three steps' (h, Δ), newest first
+            for k in range(1, len(times)):
+                step = times[k] - times[k - 1]
+                t = times[k - 1]
+                for weight in weights:
+                    h = weight * step
+                    guess = _predict(h, v, last_velocity, last_h, increments)
+                    # the constraint impulses change little from step to step: the last one, per unit time
+                    impulse_guess = None if last_impulse is None else last_impulse * (h / last_h)
+                    try:
+                        q, p, v_new, start, end, levels, delta = _step(
+                            lagrangian, rows, rule, force, t, h, q, p, levels, guess, tolerance, max_iterations,
+                            impulse_guess)
+                    except _NotConverged as failure:
+                        raise SimulationError(_failure_message(failure, t, h, tolerance), None) from None
+                    except (np.linalg.LinAlgError, ConstraintError, FloatingPointError) as error:
+                        raise SimulationError(f"variational step failed at t = {t:.6g} s (h = {h:.3g} s): {error}",
+                                              None) from error
+                    last_velocity, last_h, v, last_impulse = v, h, v_new, (start if m else None)
+                    increments = [(h, delta)] + increments[:2]
+                    t = t + h
+                if m:
+                    mu_start[k - 1] += start
+                    mu_end[k] = end
+                qs[k], vs[k] = q, (chart.alignment(q) @ v if aligned else v)
+                # (a step's equations can hold with v = M⁻¹ p overflowing: such a state is not kept)
+                if not (all_finite(qs[k]) and all_finite(vs[k])):
+                    raise SimulationError(f"the state became non-finite at t = {times[k]:.6g} s", None)
+                done = k + 1
+                bar.update(times[k])
     except SimulationError as error:
         message = f"simulation stopped at t = {times[done - 1]:.6g} s: {error}"
         partial = _trajectory(constrained, times[:done], qs[:done], vs[:done], mu_start[:done], mu_end[:done], message)

@@ -24,6 +24,7 @@ from sympy.physics.mechanics import dynamicsymbols  # noqa: E402
 
 import multibody as mb  # noqa: E402
 from multibody import variational  # noqa: E402
+from multibody.kernels import variational as kernels  # noqa: E402
 from multibody.spatial import pose_from_xyz_rpy  # noqa: E402
 
 from constraint_helpers import Helix, four_bar, particle_model  # noqa: E402
@@ -396,17 +397,23 @@ def test_predicted_increment_is_fourth_order_after_three_equal_steps():
     assert np.array_equal(variational._predict(h, v, None, None, []), h * v)
 
 
-def _rolling_ball_rows_per_step(monkeypatch, velocity, spin, steps):
+def _rolling_ball_evaluations_per_step(monkeypatch, velocity, spin, steps):
     """The rolling ball on its tilted plane started at ``velocity`` (m/s) and ``spin`` (rad/s, body axes),
-    projected onto its constraints, by ``steps`` variational steps of 1 ms: its trajectory and the
-    evaluations of its rows per step (one more is made at the start). Per step and Newton iteration the rows
-    are evaluated twice: at q_{k+1} (the holonomic contact row) and at the midpoint (the rolling rows)."""
+    projected onto its constraints, by ``steps`` variational steps of 1 ms: its trajectory, and the evaluations
+    of the discrete equations per step, one per Newton iterate, by the compiled run and by the Python steps (whose
+    rows, evaluated at q_{k+1} for the holonomic contact row and at the midpoint for the rolling rows, are counted:
+    two per iterate, one more at the start)."""
     ball = mb.load_urdf(mb.robots.path("ball"), floating_base=True)
     normal = np.array([np.sin(0.1), 0.0, np.cos(0.1)])
     system = mb.ConstrainedSystem(ball, [mb.RollingSphere("ball", 0.1, plane_normal=tuple(normal))])
     q0 = ball.neutral()
     q0[:3] = 0.1 * normal
     q0, v0 = system.project(q0, np.concatenate([velocity, spin]))
+    runs = []
+    run = variational._CompiledSteps.run
+    monkeypatch.setattr(variational._CompiledSteps, "run", lambda self, *args: runs.append(self) or run(self, *args))
+    trajectory = mb.simulate(system, q0, v0, steps * 1e-3, dt=1e-3, method="variational")
+    compiled = runs[0].io[kernels.IO_EVALUATIONS] / steps
     evaluations = []
     original = variational._Rows.levels
 
@@ -415,27 +422,33 @@ def _rolling_ball_rows_per_step(monkeypatch, velocity, spin, steps):
         return original(self, q, t)
 
     monkeypatch.setattr(variational._Rows, "levels", counted)
-    trajectory = mb.simulate(system, q0, v0, steps * 1e-3, dt=1e-3, method="variational")
-    return trajectory, (len(evaluations) - 1) / steps
+    monkeypatch.setattr(variational._CompiledSteps, "applies", staticmethod(lambda *args: False))
+    mb.simulate(system, q0, v0, steps * 1e-3, dt=1e-3, method="variational")
+    return trajectory, compiled, (len(evaluations) - 1) / (2 * steps)
 
 
 def test_a_rolling_ball_step_converges_in_two_newton_iterations(monkeypatch):
     """With the extrapolated increment, the first Newton step of the rolling ball's smooth motion already
     meets the tolerance: two evaluations of the discrete equations per step once three steps are known."""
-    trajectory, per_step = _rolling_ball_rows_per_step(monkeypatch, np.array([0.0, 1.0, 0.0]), np.zeros(3), 40)
+    trajectory, compiled, python = _rolling_ball_evaluations_per_step(monkeypatch, np.array([0.0, 1.0, 0.0]),
+                                                                       np.zeros(3), 40)
     assert trajectory.residual.max() <= 1e-11
-    # 4 with two iterations, 6 with three (the first three steps, before the extrapolation, may take three)
-    assert per_step <= 4.5, per_step
+    # 2 with two iterations, 3 with three (the first three steps, before the extrapolation, may take three)
+    assert compiled <= 2.25, compiled
+    assert python <= 2.25, python
 
 
 def test_a_fast_rolling_ball_still_takes_two_newton_iterations(monkeypatch):
     """At 10 rad/s the Newton Jacobian's terms in the free flyer's group velocities (with the derivatives of
-    ``T(q)``, :meth:`variational._GroupLagrangian.jacobian_terms`) keep the iteration at two evaluations per
-    step; without the derivatives of ``T`` it takes three on every step."""
+    ``T(q)``, :meth:`variational._GroupLagrangian.jacobian_terms` and
+    :func:`multibody.kernels.variational.jacobian_terms`) keep the iteration at two evaluations per step; without
+    the derivatives of ``T`` it takes three on every step."""
     normal = np.array([np.sin(0.1), 0.0, np.cos(0.1)])
     velocity = np.array([0.0, 1.0, 0.0])  # m/s, with the spin of rolling without slipping, ω = n × v / r
-    trajectory, per_step = _rolling_ball_rows_per_step(monkeypatch, velocity, np.cross(normal, velocity) / 0.1, 200)
+    trajectory, compiled, python = _rolling_ball_evaluations_per_step(monkeypatch, velocity,
+                                                                       np.cross(normal, velocity) / 0.1, 200)
     assert np.abs(trajectory.v[-1, 3:]).max() >= 9.5  # rad/s
     assert trajectory.residual.max() <= 1e-11
     # at most one step in twenty takes a third iteration
-    assert per_step <= 4.1, per_step
+    assert compiled <= 2.05, compiled
+    assert python <= 2.05, python

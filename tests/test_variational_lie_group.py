@@ -13,12 +13,15 @@ from __future__ import annotations
 import functools
 import os
 
+import numba
 import numpy as np
 import pytest
 
 import multibody as mb
 from multibody import demos, spatial, variational
+from multibody.integrators import as_controller
 from multibody.kernels import configuration
+from multibody.kernels import variational as kernels
 from multibody.spatial import pose_from_xyz_rpy
 
 LONG_STEPS = 100_000 if os.environ.get("MULTIBODY_LONG_RUNS") == "1" else 10_000
@@ -436,33 +439,61 @@ def _heavy_top():
     return model, model.neutral(), np.array([0.3, -0.2, 8.0])
 
 
+def _pd(system):
+    """A PD controller toward the neutral configuration, bound to the system as simulate binds it."""
+    mechanical = system.system if isinstance(system, mb.ConstrainedSystem) else system
+    model = getattr(mechanical, "model", mechanical)
+    return as_controller(mb.PD(2.0, 0.3, model.neutral()), mechanical)
+
+
+@pytest.mark.parametrize("rule", variational.RULES)
+@pytest.mark.parametrize("forced", [False, True], ids=["free", "PD"])
 @pytest.mark.parametrize("make", [_rolling_ball, chaplygin_sleigh, _parallelograms, _free_chain, _heavy_top],
                          ids=["rolling ball", "sleigh", "parallelograms", "free chain", "heavy top"])
-def test_the_compiled_iterate_gives_the_python_terms(make, monkeypatch):
-    """Each Newton iterate's terms by one compiled call (:class:`variational._CompiledIterate`) give the
-    trajectory of the Python terms: on a free flyer with holonomic and rolling rows, a planar joint with a
-    knife edge, redundant loop closures on a vector space, and free and spherical joints without rows."""
+def test_the_compiled_run_gives_the_python_steps(make, forced, rule, monkeypatch):
+    """Every step by one compiled run (:func:`multibody.kernels.variational.advance`) gives the trajectory of the
+    Python steps, with either rule and with or without a PD controller: on a free flyer with holonomic and
+    rolling rows, a planar joint with a knife edge, redundant loop closures on a vector space, and free and
+    spherical joints without rows."""
     system, q0, v0 = make()
-    answered = []
-    call = variational._CompiledIterate.__call__
-    monkeypatch.setattr(variational._CompiledIterate, "__call__",
-                        lambda self, *args: answered.append(call(self, *args)) or answered[-1])
-    compiled = mb.simulate(system, q0, v0, 0.2, dt=1e-3, method="variational")
-    assert answered and all(terms is not None for terms in answered)
-    monkeypatch.setattr(variational._CompiledIterate, "applies", staticmethod(lambda *args: False))
-    python = mb.simulate(system, q0, v0, 0.2, dt=1e-3, method="variational")
+    tau = _pd(system) if forced else None
+    runs = []
+    run = variational._CompiledSteps.run
+    monkeypatch.setattr(variational._CompiledSteps, "run", lambda self, *args: runs.append(self) or run(self, *args))
+    compiled = variational.simulate(system, q0, v0, 0.2, dt=1e-3, rule=rule, tau=tau)
+    assert len(runs) == 1 and runs[0].io[kernels.IO_STATUS] == kernels.COMPLETED
+    monkeypatch.setattr(variational._CompiledSteps, "applies", staticmethod(lambda *args: False))
+    python = variational.simulate(system, q0, v0, 0.2, dt=1e-3, rule=rule, tau=tau)
+    assert len(runs) == 1
     np.testing.assert_allclose(compiled.q, python.q, rtol=0, atol=1e-10)
     np.testing.assert_allclose(compiled.v, python.v, rtol=0, atol=1e-9 * max(1.0, np.abs(python.v).max()))
     if python.lam.size:
         np.testing.assert_allclose(compiled.lam, python.lam, rtol=0, atol=1e-8 * max(1.0, np.abs(python.lam).max()))
+    np.testing.assert_allclose(compiled.energy, python.energy, rtol=0, atol=1e-9 * max(1.0, np.abs(python.energy).max()))
     assert compiled.residual.max() <= 1e-11
 
 
-def test_the_compiled_iterate_applies_to_models_without_forces():
-    """The compiled iterate takes a model's midpoint steps without forces; forces, the trapezoidal rule and
-    systems that give their own Lagrangian keep the Python terms."""
+def test_the_compiled_run_applies_to_models_with_data_or_compiled_forces():
+    """The compiled run takes a model's steps with joint forces none, constant, PD or a ``numba.njit`` function;
+    a Python callable, user constraints and systems that give their own Lagrangian keep the Python steps."""
     system, q0, v0 = _rolling_ball()
     lagrangian = variational._lagrangian_of(system.system)
-    assert variational._CompiledIterate.applies(lagrangian, system, "midpoint", None)
-    assert not variational._CompiledIterate.applies(lagrangian, system, "trapezoidal", None)
-    assert not variational._CompiledIterate.applies(lagrangian, system, "midpoint", lambda t, q, v: np.zeros(6))
+    applies = variational._CompiledSteps.applies
+    assert applies(lagrangian, system, None)
+    assert applies(lagrangian, system, np.zeros(6))
+    assert applies(lagrangian, system, _pd(system))
+    assert applies(lagrangian, system, as_controller(_zero_forces, system.system))
+    assert not applies(lagrangian, system, lambda t, q, v: np.zeros(6))
+    # a user's row, z = 0.1 for the ball's centre (the rolling ball's contact height)
+    user = mb.ConstrainedSystem(system.system, [mb.Holonomic(lambda q, t: np.array([q[2] - 0.1]))])
+    assert not applies(variational._lagrangian_of(user.system), user, None)
+    from sympy.physics.mechanics import dynamicsymbols
+
+    x = dynamicsymbols("x")
+    oscillator = mb.ConstrainedSystem(mb.LagrangianSystem([x], x.diff() ** 2 / 2, x**2 / 2).numeric())
+    assert not applies(variational._lagrangian_of(oscillator.system), oscillator, None)
+
+
+@numba.njit
+def _zero_forces(t, q, v, out):
+    pass

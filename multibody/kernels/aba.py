@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import math
 
-from ..tree import AXIS, GRAVITY, INERTIA, IV, KIND, NV, PARENT
+from .layout import AXIS, GRAVITY, INERTIA, IV, KIND, NV, PARENT
 from . import joints as kinds
 from .jit import njit
 from .placement import armature, joint_pose

@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import math
 
-from ..tree import AXIS, INERTIA, IV, KIND, NV, PARENT
+from .layout import AXIS, INERTIA, IV, KIND, NV, PARENT
 from . import joints as kinds
 from .jit import njit
 from .kinematics import joint_motions, joint_placements, world_position

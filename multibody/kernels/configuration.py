@@ -11,7 +11,7 @@ results, ``IV`` for ``v``-shaped ones). Only :func:`exponential_terms` needs a w
 
 from __future__ import annotations
 
-from ..tree import IQ, IV, KIND, NV
+from .layout import IQ, IV, KIND, NV
 from . import joints as kinds
 from .jit import njit
 from .spatial import nan_unless_finite

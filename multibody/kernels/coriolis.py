@@ -16,7 +16,7 @@ alike): ``Ṁ = C + Cᵀ`` holds with it.
 
 from __future__ import annotations
 
-from ..tree import AXIS, INERTIA, IV, KIND, NV, PARENT
+from .layout import AXIS, INERTIA, IV, KIND, NV, PARENT
 from . import joints as kinds
 from .jit import njit
 from .placement import joint_pose

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..tree import AXIS, INERTIA, IV, KIND, NV, PARENT
+from .layout import AXIS, INERTIA, IV, KIND, NV, PARENT
 from . import joints as kinds
 from .jit import njit
 from .placement import armature, joint_pose

@@ -36,7 +36,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..tree import AXIS, GRAVITY, INERTIA, IV, KIND, NV, PARENT
+from .layout import AXIS, GRAVITY, INERTIA, IV, KIND, NV, PARENT
 from . import aba, crba, rnea
 from . import joints as kinds
 from .jit import njit

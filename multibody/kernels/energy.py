@@ -12,7 +12,7 @@ forward pass in joint coordinates, plus the joints' armature ``½ Σₖ armature
 
 from __future__ import annotations
 
-from ..tree import AXIS, GRAVITY, INERTIA, IV, KIND, NV, PARENT
+from .layout import AXIS, GRAVITY, INERTIA, IV, KIND, NV, PARENT
 from . import joints as kinds
 from .jit import njit
 from .placement import armature, joint_pose

@@ -32,7 +32,7 @@ Each time variation is the time derivative of the Jacobian in the same reference
 
 from __future__ import annotations
 
-from ..tree import AXIS, FRAME_JOINT, FRAME_POSITION, FRAME_ROTATION, IV, KIND, NV, PARENT
+from .layout import AXIS, FRAME_JOINT, FRAME_POSITION, FRAME_ROTATION, IV, KIND, NV, PARENT
 from . import joints as kinds
 from .jit import njit
 from .placement import joint_pose

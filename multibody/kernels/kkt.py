@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import math
 
-from ..tree import IQ, IV, KIND, NV
+from .layout import IQ, IV, KIND, NV
 from . import crba, kinematics, rnea
 from . import joints as kinds
 from .constraints import constraint_rows

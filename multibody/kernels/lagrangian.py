@@ -22,7 +22,7 @@ the second term from turning the body under a fixed parent-frame velocity
 
 from __future__ import annotations
 
-from ..tree import IQ, IV, KIND
+from .layout import IQ, IV, KIND
 from . import coriolis, crba, rnea
 from . import joints as kinds
 from .configuration import coadjoint

@@ -3,7 +3,7 @@ first step of every pass down the tree, and the armature of its coordinates."""
 
 from __future__ import annotations
 
-from ..tree import ARMATURE, AXIS, IQ, KIND, POSITION, ROTATION
+from .layout import ARMATURE, AXIS, IQ, KIND, POSITION, ROTATION
 from . import joints as kinds
 from .jit import njit
 from .spatial import compose, row3, row9

@@ -9,7 +9,7 @@ adds ``armature ⊙ a`` to ``τ``, the term ``diag(armature) a`` of ``M a`` (Pin
 
 from __future__ import annotations
 
-from ..tree import AXIS, GRAVITY, INERTIA, IV, KIND, NV, PARENT
+from .layout import AXIS, GRAVITY, INERTIA, IV, KIND, NV, PARENT
 from . import joints as kinds
 from .jit import njit
 from .placement import armature, joint_pose

@@ -29,7 +29,7 @@ are a run's chart maps as kernels, by which the Python loop takes its states.
 
 from __future__ import annotations
 
-from ..tree import IQ, IV, KIND, NV
+from .layout import IQ, IV, KIND, NV
 from . import aba, configuration, integration, kkt
 from . import joints as kinds
 from .jit import njit
