@@ -16,6 +16,7 @@ import functools
 import inspect
 import os
 
+import numba
 import numpy as np
 import pytest
 
@@ -452,3 +453,57 @@ def test_a_fast_rolling_ball_still_takes_two_newton_iterations(monkeypatch):
     # at most one step in twenty takes a third iteration
     assert compiled <= 2.05, compiled
     assert python <= 2.05, python
+
+
+# ----------------------------------------------------------------------------- the compiled run's joint forces
+
+@numba.njit
+def _compiled_forces(t, q, v, out):
+    for c in range(v.shape[0]):
+        out[c] = -0.5 * v[c] + 0.2 * np.sin(3.0 * t) - 0.1 * q[c]
+
+
+def _python_forces(t, q, v):
+    return -0.5 * v + 0.2 * np.sin(3.0 * t) - 0.1 * q
+
+
+@pytest.mark.parametrize("rule", variational.RULES)
+def test_compiled_joint_forces_equal_the_same_forces_from_python(rule):
+    """The compiled run's joint forces (a ``numba.njit`` function, a constant array, the joints' damping) give the
+    trajectory that the same forces as a Python callable give through the Python steps, to 1e-12."""
+    model = mb.robots.load("double_pendulum")
+    q0, v0 = np.array([1.0, 0.5]), np.array([0.0, 0.3])
+    compiled = mb.simulate(model, q0, v0, 0.5, method="variational", dt=1e-3, rule=rule, tau=_compiled_forces)
+    python = mb.simulate(model, q0, v0, 0.5, method="variational", dt=1e-3, rule=rule, tau=_python_forces)
+    np.testing.assert_allclose(compiled.q, python.q, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(compiled.v, python.v, rtol=0, atol=1e-12 * max(1.0, np.abs(python.v).max()))
+    constant = np.array([0.3, -0.2])
+    compiled = mb.simulate(model, q0, v0, 0.5, method="variational", dt=1e-3, rule=rule, tau=constant)
+    python = mb.simulate(model, q0, v0, 0.5, method="variational", dt=1e-3, rule=rule, tau=lambda t, q, v: constant)
+    np.testing.assert_allclose(compiled.q, python.q, rtol=0, atol=1e-12)
+    panda = mb.robots.load("panda")
+    damping = panda.damping.copy()
+    assert np.any(damping)
+    q0, v0 = panda.neutral(), np.linspace(-0.5, 0.5, panda.nv)
+    compiled = mb.simulate(panda, q0, v0, 0.05, method="variational", dt=1e-3, rule=rule, joint_damping=True,
+                           limits="ignore")
+    python = mb.simulate(panda, q0, v0, 0.05, method="variational", dt=1e-3, rule=rule, limits="ignore",
+                         tau=lambda t, q, v: -damping * v)
+    np.testing.assert_allclose(compiled.q, python.q, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(compiled.v, python.v, rtol=0, atol=1e-11)
+
+
+@numba.njit
+def _failing_forces(t, q, v, out):
+    for c in range(v.shape[0]):
+        out[c] = np.nan if t > 0.05 else 0.0
+
+
+def test_non_finite_compiled_joint_forces_stop_the_run_naming_time_and_joints():
+    """A compiled controller's non-finite joint forces stop the compiled run with the message of the Python steps:
+    the time and the joints, with the states before them in ``.trajectory``."""
+    model = mb.robots.load("double_pendulum")
+    with pytest.raises(mb.SimulationError, match=r"joint forces tau\(t, q, v\) are not finite at t = 0\.05") as caught:
+        mb.simulate(model, [1.0, 0.5], [0.0, 0.0], 1.0, method="variational", dt=1e-2, tau=_failing_forces)
+    partial = caught.value.trajectory
+    assert partial is not None and partial.t[-1] == pytest.approx(0.05) and np.isfinite(partial.q).all()
