@@ -27,7 +27,7 @@ from .integrators import CONTROLLER_TYPES, CompiledController, PDController, as_
 from .contact_problem import STATUS_MESSAGES
 from .kernels import collision, complementarity, kkt, stepping, timestepping
 from .model import Model
-from .trajectory import Trajectory, recorded_names
+from .trajectory import Contacts, Trajectory, recorded_names
 from .tree import frame_rows
 
 #: The one time-stepping method of systems with unilateral constraints (``simulate(..., method=...)``).
@@ -384,28 +384,6 @@ def _control(controller, nv):
     if isinstance(controller, CompiledController):
         return stepping.FUNCTION, np.zeros((1, nv))
     return stepping.PYTHON, np.zeros((1, nv))
-
-
-@dataclass
-class Contacts:
-    """The contact rows of one step (entry ``k`` of :attr:`multibody.Trajectory.contacts`, the step that ends at
-    ``t[k]``): ``body (c,)`` a body's name (a joint's for a limit), ``other (c,)`` the other body's name, ``"ground"``
-    or ``"limit"``, ``point (c, 3)`` (world, m), ``normal (c, 3)`` (world, from ``other`` into ``body``), ``force
-    (c, 3)`` (world axes, on ``body``, the step's impulse / dt, N); a joint limit has zero point and normal and its
-    generalized force (N·m or N, negative at an upper limit) in ``force[:, 0]``."""
-
-    body: np.ndarray
-    other: np.ndarray
-    point: np.ndarray
-    normal: np.ndarray
-    force: np.ndarray
-
-    def __len__(self):
-        return len(self.body)
-
-    def __eq__(self, other):
-        return (isinstance(other, Contacts) and all(np.array_equal(getattr(self, name), getattr(other, name))
-                                                    for name in ("body", "other", "point", "normal", "force")))
 
 
 def _entries(records, summaries, program):

@@ -11,7 +11,30 @@ from dataclasses import MISSING, dataclass, field, fields, replace
 
 import numpy as np
 
+from .model import Model
 from .spatial import matvec
+
+
+@dataclass
+class Contacts:
+    """The contact rows of one step (entry ``k`` of :attr:`multibody.Trajectory.contacts`, the step that ends at
+    ``t[k]``): ``body (c,)`` a body's name (a joint's for a limit), ``other (c,)`` the other body's name, ``"ground"``
+    or ``"limit"``, ``point (c, 3)`` (world, m), ``normal (c, 3)`` (world, from ``other`` into ``body``), ``force
+    (c, 3)`` (world axes, on ``body``, the step's impulse / dt, N); a joint limit has zero point and normal and its
+    generalized force (N·m or N, negative at an upper limit) in ``force[:, 0]``."""
+
+    body: np.ndarray
+    other: np.ndarray
+    point: np.ndarray
+    normal: np.ndarray
+    force: np.ndarray
+
+    def __len__(self):
+        return len(self.body)
+
+    def __eq__(self, other):
+        return (isinstance(other, Contacts) and all(np.array_equal(getattr(self, name), getattr(other, name))
+                                                    for name in ("body", "other", "point", "normal", "force")))
 
 
 @dataclass(repr=False)
@@ -33,7 +56,7 @@ class Trajectory:
             constraints (``simulate``'s ``projection_tolerance``), ``None`` when they were not.
         contacts: with contact or joint limits (:mod:`multibody.contact`), one entry per output time (a list of
             them per trajectory of a batch), entry ``k`` the contact rows of the step that ends at ``t[k]`` (entry 0
-            empty): a :class:`multibody.contact.Contacts` with ``body``, ``other``, ``point``, ``normal`` and
+            empty): a :class:`Contacts` with ``body``, ``other``, ``point``, ``normal`` and
             ``force``; ``None`` otherwise.
         complementarity: with contact or joint limits, ``(n,)`` (``(N, n)``) the residual of each step's contact
             problem (non-penetration, the cone, complementarity; m/s), 0 at ``t[0]``; ``None`` otherwise.
@@ -126,7 +149,7 @@ class Trajectory:
         from . import dynamics, robotics
 
         mechanical = _system_of(system)
-        model = getattr(mechanical, "model", None)
+        model = _model_of(mechanical)
         q, v = np.asarray(self.q), np.asarray(self.v)
         stopped = ~(np.isfinite(q).all(axis=-1) & np.isfinite(v).all(axis=-1))
         if model is not None:
@@ -293,8 +316,6 @@ def _stored_contacts(contacts, batch):
 
 def _restored_contacts(archive):
     """:attr:`Trajectory.contacts` from the arrays of :func:`_stored_contacts`."""
-    from .contact import Contacts
-
     count, body, other, point, normal, force = (archive[key] for key in _CONTACT_KEYS)
     ends = np.cumsum(count.reshape(-1))
     starts = ends - count.reshape(-1)
@@ -369,15 +390,19 @@ def _check_arrays(trajectory, what):
 
 
 def _system_of(system):
-    """The mechanical system of a Model, a ConstrainedSystem or a mechanical system."""
-    from .constrained import ConstrainedSystem, as_system
+    """The mechanical system of a ConstrainedSystem (its ``system``), else ``system`` itself (a Model or a
+    mechanical system)."""
+    return getattr(system, "system", system)
 
-    return system.system if isinstance(system, ConstrainedSystem) else as_system(system)
+
+def _model_of(mechanical):
+    """The :class:`~multibody.model.Model` of a mechanical system (a Model is its own), or ``None``."""
+    return mechanical if isinstance(mechanical, Model) else getattr(mechanical, "model", None)
 
 
 def _names_of(mechanical):
     """The joint names of a mechanical system's model, or its coordinate names; ``None`` when it has neither."""
-    model = getattr(mechanical, "model", None)
+    model = _model_of(mechanical)
     names = list(model.joint_names) if model is not None else getattr(mechanical, "coordinate_names", None)
     return list(names) if names is not None else None
 
@@ -394,7 +419,7 @@ def _check_model(trajectory, system, source):
     """Raise ``ValueError`` when ``trajectory`` (from ``source``) does not belong to ``system``: other widths
     ``nq``, ``nv``, or other recorded joint names."""
     mechanical = _system_of(system)
-    model = getattr(mechanical, "model", None)
+    model = _model_of(mechanical)
     of = f"the model {model.name!r}" if model is not None else f"the system {type(mechanical).__name__}"
     sizes = [f"{name} = {got} in the file, {want} in {of}" for name, got, want in
              (("nq", trajectory.nq, mechanical.nq), ("nv", trajectory.nv, mechanical.nv)) if got != want]
