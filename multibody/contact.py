@@ -467,7 +467,7 @@ def run(constrained, q, v, times, controller, torque, batch, damping=None, toler
     compiled controller, run inside the step; or ``torque(t, q, v)``, a Python function of the state at each step's
     start (``controller`` then ``None``). ``damping (nv,)`` or ``None``: joint damping ``−D v``. ``tolerance`` (m/s)
     and ``max_iterations``: each step's contact problem; a step that does not reach the tolerance ends its
-    trajectory. An initial state in penetration is projected out (the smallest move in the metric of ``M``) with a
+    trajectory before it (its record stays in ``contacts``, its residual in ``complementarity``). An initial state in penetration is projected out (the smallest move in the metric of ``M``) with a
     warning giving the depth."""
     model = constrained.system.model
     nq, nv = constrained.nq, constrained.nv
@@ -516,15 +516,19 @@ def run(constrained, q, v, times, controller, torque, batch, damping=None, toler
             statuses.append("completed")
             continue
         if status == timestepping.NOT_SOLVED:
-            summary = summaries[r, last - 1]
+            summary = summaries[r, last]
             solver = int(summary[timestepping.SUMMARY_STATUS])
-            statuses.append(f"the contact problem of the step ending at t = {times[last - 1]:.6g} s did not reach the "
+            statuses.append(f"the contact problem of the step from t = {times[last - 1]:.6g} s did not reach the "
                             f"tolerance {tolerance:.3g} m/s in {int(summary[timestepping.SUMMARY_ITERATIONS])} "
                             f"iterations (residual {summary[timestepping.SUMMARY_RESIDUAL]:.3g} m/s: "
                             f"{STATUS_MESSAGES.get(solver, 'failed')})")
         else:
             statuses.append(f"{_STATUS[status]} at t = {io[r, timestepping.IO_TIME]:.6g} s")
+            summaries[r, last, timestepping.SUMMARY_RESIDUAL] = np.nan
+        # the steps not taken: no state, no residual (the failed step's record and residual stay, as the solver left
+        # them)
         states[r, last:] = np.nan
+        summaries[r, last + 1 :, timestepping.SUMMARY_RESIDUAL] = np.nan
     return _trajectory(constrained, program, times, states, records, summaries, statuses, batch)
 
 
@@ -549,8 +553,9 @@ def _trajectory(constrained, program, times, states, records, summaries, statuse
     nq, m = constrained.nq, constrained.num_rows
     q, v = states[..., :nq], states[..., nq:]
     finite = np.isfinite(q).all(axis=-1) & np.isfinite(v).all(axis=-1)
-    safe_q = np.where(finite[..., None], q, constrained.system.model.neutral())
-    safe_v = np.where(finite[..., None], v, 0.0)
+    # (C-contiguous, as the batched kernels read them)
+    safe_q = np.ascontiguousarray(np.where(finite[..., None], q, constrained.system.model.neutral()))
+    safe_v = np.ascontiguousarray(np.where(finite[..., None], v, 0.0))
     energy = np.where(finite, constrained.energy(safe_q, safe_v), np.nan)
     if m:
         residual = np.where(finite, constrained.residual(safe_q, safe_v, times), np.nan)

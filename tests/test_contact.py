@@ -413,3 +413,16 @@ def test_initial_state_past_a_joint_limit_is_projected_back(panda):
         trajectory = mb.simulate(system, q0, np.zeros(panda.nv), 0.01, dt=DT)
     assert len(caught) == 1
     assert (trajectory.q >= panda.lower - 1e-12).all() and (trajectory.q <= panda.upper + 1e-12).all()
+
+
+def test_a_step_the_solver_does_not_finish_stops_the_run_before_it(box):
+    """With too few iterations for a resting box's first step, the run stops before that step, its status naming
+    the step, the tolerance and the residual: the trajectory holds the initial state, NaN after it, and the failed
+    step's residual."""
+    system = mb.ConstrainedSystem(box, [mb.Ground(friction=0.5)])
+    trajectory = contact.run(system, np.array([[0, 0, 0.05, 0, 0, 0, 1.0]]), np.zeros((1, 6)), DT * np.arange(5),
+                             None, None, None, max_iterations=1)
+    assert trajectory.status.startswith("the contact problem of the step from t = 0 s did not reach the tolerance "
+                                        "1e-12 m/s in 2 iterations (residual")
+    assert np.isfinite(trajectory.q[0]).all() and np.isnan(trajectory.q[1:]).all()
+    assert trajectory.complementarity[1] > TOLERANCE and np.isnan(trajectory.complementarity[2:]).all()

@@ -633,6 +633,13 @@ def step(controller, joints, reals, frames, program, geometry, vertices, plan, c
             c[i] = row_dot(J, i, v_free) - bound[i]
         status, used, residual = complementarity.solve(G, c[:m], block_kinds[:nb], block_starts[:nb], mu[:nb],
                                                        tolerance, iterations, x[:m], u[:m], sws)
+        if status != complementarity.CONVERGED:
+            # once more from zero impulses: the previous step's forces can start the iteration where it stalls
+            for i in range(m):
+                x[i] = 0.0
+            status, again, residual = complementarity.solve(G, c[:m], block_kinds[:nb], block_starts[:nb], mu[:nb],
+                                                            tolerance, iterations, x[:m], u[:m], sws)
+            used += again
         summary[SUMMARY_RESIDUAL] = residual
         summary[SUMMARY_ITERATIONS] = used
         summary[SUMMARY_STATUS] = status
@@ -732,8 +739,8 @@ def run(controller, joints, reals, frames, program, geometry, vertices, plan, co
     """Steps ``io[IO_STEP]`` up to ``io[IO_STOP]`` (exclusive) of one trajectory: ``states (n, nq + nv)`` holds
     ``[q, v]`` at ``times (n,)``, each step ``k`` from ``states[k − 1]`` into ``states[k]``, its contact rows into
     ``record[k]`` and its summary into ``summary[k]`` (:func:`step`). Returns with the status in ``io`` and
-    ``io[IO_STEP]`` the first step not taken (a step the solver did not finish is taken, and the run stops after
-    it)."""
+    ``io[IO_STEP]`` the first step not taken (a step whose contact problem the solver did not finish is not taken:
+    its record and summary say how far it got)."""
     nq, nv = int(plan[PLAN_NQ]), int(plan[PLAN_NV])
     k, stop = int(io[IO_STEP]), int(io[IO_STOP])
     while k < stop:
@@ -741,11 +748,8 @@ def run(controller, joints, reals, frames, program, geometry, vertices, plan, co
         status = step(controller, joints, reals, frames, program, geometry, vertices, plan, control, times[k - 1],
                       times[k] - times[k - 1], before[:nq], before[nq:], after[:nq], after[nq:], record[k], summary[k],
                       record[k - 1], summary[k - 1], ws, iws)
-        if status != COMPLETED and status != NOT_SOLVED:
+        if status != COMPLETED:
             io[IO_STEP], io[IO_STATUS], io[IO_TIME] = k, status, times[k - 1]
             return
         k += 1
-        if status == NOT_SOLVED:
-            io[IO_STEP], io[IO_STATUS], io[IO_TIME] = k, status, times[k - 1]
-            return
     io[IO_STEP], io[IO_STATUS] = k, COMPLETED
