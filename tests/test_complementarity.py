@@ -132,6 +132,18 @@ def test_separating_contact_has_zero_impulse():
     np.testing.assert_array_equal(result.u, c)
 
 
+def test_projection_on_the_cone_keeps_tiny_impulses_inside_it():
+    # impulses whose squares underflow (a contact about to open, its impulse decayed to 1e-167 N·s)
+    for scale in (1.0, 1e-160, 1e-300):
+        w = scale * np.array([0.1, -1.2, -1.6])
+        z = np.zeros(3)
+        complementarity.project_primal(CONTACT, 0.6, w, z, 0)
+        # on the cone's edge: z_N = (w_N + μ‖w_T‖)/(1 + μ²), z_T along w_T
+        normal = scale * (0.1 + 0.6 * 2.0) / 1.36
+        np.testing.assert_allclose(z, [normal, 0.6 * normal * -0.6, 0.6 * normal * -0.8], rtol=1e-14)
+        assert np.hypot(z[1], z[2]) <= 0.6 * z[0] * (1 + 1e-15)
+
+
 # ----------------------------------------------------------------------------- a box on the ground
 
 def box_on_ground(v, mass=2.0, size=(0.4, 0.3, 0.2), dt=1e-3):

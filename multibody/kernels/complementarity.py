@@ -83,7 +83,7 @@ RELAX = 1.5
 #: The polish (:func:`polish`) runs after this many ADMM iterations (at once from a nonzero warm start),
 #: then after twice as many as before each time, at most :data:`POLISH_STEPS` Newton steps each time.
 POLISH_FIRST = 1
-POLISH_STEPS = 8
+POLISH_STEPS = 50
 #: The Levenberg–Marquardt damping ``λ = ‖f‖/‖x‖`` of the polish (dimensionless: ``f`` is in impulse
 #: units), within these bounds, against ``Jᵀ J`` whose largest eigenvalues are about 1 (``r = 1/λ_max``).
 #: Far above the rounding of ``Jᵀ J``, so that its factorisation succeeds where ``G`` is singular; small
@@ -129,7 +129,8 @@ def project_primal(kind, mu, w, z, i):
         z[i] = larger(w[i], 0.0)
         return
     n, t1, t2 = w[i], w[i + 1], w[i + 2]
-    t = math.sqrt(t1 * t1 + t2 * t2)
+    # (hypot: squares of impulses of 1e-160 N·s would underflow, and the cone's test with them)
+    t = math.hypot(t1, t2)
     if t <= mu * n:
         z[i], z[i + 1], z[i + 2] = n, t1, t2
     elif mu * t <= -n:
@@ -138,7 +139,7 @@ def project_primal(kind, mu, w, z, i):
     else:
         # x_N = (w_N + μ‖w_T‖)/(1 + μ²),  x_T = μ x_N w_T/‖w_T‖  (t > 0 here)
         normal = (n + mu * t) / (1.0 + mu * mu)
-        z[i], z[i + 1], z[i + 2] = normal, mu * normal * t1 / t, mu * normal * t2 / t
+        z[i], z[i + 1], z[i + 2] = normal, mu * normal * (t1 / t), mu * normal * (t2 / t)
 
 
 @njit(cache=True, error_model="numpy")
@@ -150,7 +151,7 @@ def dual_distance(n, t, mu):
     if mu * t <= n:
         return 0.0
     if t <= -mu * n:
-        return math.sqrt(n * n + t * t)
+        return math.hypot(n, t)
     return (mu * t - n) / math.sqrt(1.0 + mu * mu)
 
 
@@ -172,12 +173,12 @@ def shift_and_residual(kinds, starts, mu, x, u, s):
             if x[i] != 0.0:
                 residual = larger(residual, abs(u[i]))
         else:
-            tangential = math.sqrt(u[i + 1] * u[i + 1] + u[i + 2] * u[i + 2])
+            tangential = math.hypot(u[i + 1], u[i + 2])
             # û = u + μ ‖u_T‖ e_N
             s[i], s[i + 1], s[i + 2] = mu[b] * tangential, 0.0, 0.0
             normal = u[i] + s[i]
             residual = larger(residual, dual_distance(normal, tangential, mu[b]))
-            size = math.sqrt(x[i] * x[i] + x[i + 1] * x[i + 1] + x[i + 2] * x[i + 2])
+            size = math.hypot(x[i], math.hypot(x[i + 1], x[i + 2]))
             if size > 0.0:
                 residual = larger(residual, abs(x[i] * normal + x[i + 1] * u[i + 1] + x[i + 2] * u[i + 2]) / size)
     return residual
@@ -271,7 +272,7 @@ def natural_map_jacobian(G, kinds, starts, mu, r, u, w, J):
     for b in range(kinds.shape[0]):
         i = starts[b]
         if kinds[b] == CONTACT:
-            tangential = math.sqrt(u[i + 1] * u[i + 1] + u[i + 2] * u[i + 2])
+            tangential = math.hypot(u[i + 1], u[i + 2])
             if tangential > 0.0:
                 # S: ∂(μ‖u_T‖)/∂u_T = μ u_T/‖u_T‖ on the normal row
                 e1, e2 = mu[b] * u[i + 1] / tangential, mu[b] * u[i + 2] / tangential
@@ -288,7 +289,7 @@ def natural_map_jacobian(G, kinds, starts, mu, r, u, w, J):
                 J[i, j] = 1.0 if i == j else 0.0
         else:
             n, t1, t2 = w[i], w[i + 1], w[i + 2]
-            t = math.sqrt(t1 * t1 + t2 * t2)
+            t = math.hypot(t1, t2)
             friction = mu[b]
             if t <= friction * n:
                 d00, d01, d02, d11, d12, d22 = 1.0, 0.0, 0.0, 1.0, 0.0, 1.0
