@@ -37,7 +37,9 @@ iteration, so the iteration has converged when ``y⁺`` is the velocity ``û`` a
 linearly; from time to time (:data:`POLISH_FIRST`) a few damped semismooth Newton steps on the natural
 map ``x − P_K(x − r û(x)) = 0`` (:func:`polish`) take its iterate to the tolerance quadratically once
 the contacts' modes (separating, sticking, sliding) are found, and ADMM goes on from the better of the
-two otherwise.
+two otherwise. Neither is proven to converge on De Saxcé's problem, which is not convex (the shift
+depends on the solution): a problem with large ``μ`` and strongly coupled contacts can end at
+:data:`MAX_ITERATIONS`, with the last iterate and its residual.
 
 Singular ``G`` (a box flat on the ground touching at four corners, redundant bilateral rows): the
 impulses are then not unique, and the solver returns the one its iterations reach from the warm start:
