@@ -117,6 +117,164 @@ def _weighted(y, h, position_weights, velocity_weights, K, nv):
     return out
 
 
+@dataclass(frozen=True)
+class EmbeddedPair:
+    """An explicit embedded Runge–Kutta pair with a continuous extension (E. Hairer, S. P. Nørsett and G. Wanner,
+    *Solving Ordinary Differential Equations I*, 2nd ed., Springer 1993, §II.4–II.6), as
+    :mod:`multibody.kernels.stepping`'s adaptive run takes its steps. The rows ``i`` of ``a`` are the evaluations of
+    one step from ``(t₀, y₀)`` with step ``h``: the ``s`` stages, then the end ``y₁ = y₀ + h Σ_j b_j K_j`` (row ``s``,
+    ``c_s = 1``, whose rate starts the next step), then the extra stages of the dense output; each is
+
+        K_i = f(t₀ + c_i h, y₀ + h Σ_{j<i} a_ij K_j).
+
+    The error estimate is ``h Σ_j e_j K_j`` (``j ≤ s``) of order ``error_order``, its norm ``‖·‖`` the root mean square
+    of its entries each over ``atol_i + rtol max(|y₀ᵢ|, |y₁ᵢ|)`` (HNW eq. (4.11)); with ``e3`` (DOP853) the norm
+    is ``|h| ‖e₅‖² / √(‖e₅‖² + 0.01 ‖e₃‖²)`` (E. Hairer's code DOP853), whose ``e₃`` is a third-order estimate.
+    The dense output at ``t₀ + x h`` is
+
+        y(x) = y₀ + h x (F₀ + g₁(x) (F₁ + g₂(x) (F₂ + …))),   F_k = Σ_j dense[j][k] K_j,
+
+    with ``g_k(x) = x``, or ``1 − x`` where ``flips[k]`` (HNW §II.6: a polynomial in ``x``, or DOP853's form in
+    powers of ``x`` and ``1 − x``)."""
+
+    c: tuple
+    a: tuple
+    stages: int
+    order: int
+    error_order: int
+    e: tuple
+    e3: tuple | None
+    dense: tuple
+    flips: tuple
+
+    @property
+    def rows(self) -> int:
+        return len(self.c)
+
+    def block(self) -> np.ndarray:
+        """The coefficients as :func:`multibody.kernels.stepping.adaptive` reads them: ``s``, the rows, the
+        degree of the dense output, ``error_order``, whether there is ``e3``, then ``c``, ``a`` (rows × rows,
+        row-major), ``e``, ``e3`` (zeros without it), ``dense`` (rows × degree) and ``flips``."""
+        rows, s, degree = self.rows, self.stages, len(self.flips)
+        a = np.zeros((rows, rows))
+        for i, row in enumerate(self.a):
+            a[i, : len(row)] = row
+        dense = np.zeros((rows, degree))
+        dense[: len(self.dense)] = self.dense
+        e3 = np.zeros(s + 1) if self.e3 is None else self.e3
+        return np.concatenate([[s, rows, degree, self.error_order, self.e3 is not None], self.c, a.ravel(), self.e,
+                               e3, dense.ravel(), np.asarray(self.flips, dtype=float)]).astype(float)
+
+
+def _by_stage(weights):
+    """``dense[j][k]`` of ``F_k = Σ_j dense[j][k] K_j`` from the rows ``weights[k]`` (one weight per stage)."""
+    return tuple(tuple(float(row[j]) for row in weights) for j in range(len(weights[0])))
+
+
+def _bogacki_shampine():
+    """Bogacki–Shampine 3(2) (P. Bogacki and L. F. Shampine, Appl. Math. Lett. 2, 1989; HNW §II.4) with its
+    cubic Hermite dense output: FSAL, three stages and the end's rate."""
+    c = (0.0, 1 / 2, 3 / 4, 1.0)
+    a = ((), (1 / 2,), (0.0, 3 / 4), (2 / 9, 1 / 3, 4 / 9))
+    b_hat = (7 / 24, 1 / 4, 1 / 3, 1 / 8)
+    e = tuple(b - b_h for b, b_h in zip(a[3] + (0.0,), b_hat))
+    # y(x) = y₀ + h x (K₀ + x (−4/3 K₀ + K₁ + 4/3 K₂ − K₃) + x² (5/9 K₀ − 2/3 K₁ − 8/9 K₂ + K₃))
+    dense = ((1.0, -4 / 3, 5 / 9), (0.0, 1.0, -2 / 3), (0.0, 4 / 3, -8 / 9), (0.0, -1.0, 1.0))
+    return EmbeddedPair(c, a, 3, 3, 2, e, None, dense, (False, False, False))
+
+
+def _dormand_prince():
+    """Dormand–Prince 5(4) (J. R. Dormand and P. J. Prince, J. Comput. Appl. Math. 6, 1980; HNW Table II.5.2),
+    FSAL, with its continuous extension of order 4 (HNW §II.6, eq. (6.12); L. F. Shampine, Math. Comp. 46, 1986)."""
+    c = (0.0, 1 / 5, 3 / 10, 4 / 5, 8 / 9, 1.0, 1.0)
+    a = ((),
+         (1 / 5,),
+         (3 / 40, 9 / 40),
+         (44 / 45, -56 / 15, 32 / 9),
+         (19372 / 6561, -25360 / 2187, 64448 / 6561, -212 / 729),
+         (9017 / 3168, -355 / 33, 46732 / 5247, 49 / 176, -5103 / 18656),
+         (35 / 384, 0.0, 500 / 1113, 125 / 192, -2187 / 6784, 11 / 84))
+    b_hat = (5179 / 57600, 0.0, 7571 / 16695, 393 / 640, -92097 / 339200, 187 / 2100, 1 / 40)
+    e = tuple(b - b_h for b, b_h in zip(a[6] + (0.0,), b_hat))
+    # the coefficients of x, x², x³, x⁴ in y(x) = y₀ + h Σ_j p_j(x) K_j
+    dense = ((1.0, -8048581381 / 2820520608, 8663915743 / 2820520608, -12715105075 / 11282082432),
+             (0.0, 0.0, 0.0, 0.0),
+             (0.0, 131558114200 / 32700410799, -68118460800 / 10900136933, 87487479700 / 32700410799),
+             (0.0, -1754552775 / 470086768, 14199869525 / 1410260304, -10690763975 / 1880347072),
+             (0.0, 127303824393 / 49829197408, -318862633887 / 49829197408, 701980252875 / 199316789632),
+             (0.0, -282668133 / 205662961, 2019193451 / 616988883, -1453857185 / 822651844),
+             (0.0, 40617522 / 29380423, -110615467 / 29380423, 69997945 / 29380423))
+    return EmbeddedPair(c, a, 6, 5, 4, e, None, dense, (False,) * 4)
+
+
+def _dop853():
+    """DOP853: Dormand–Prince 8(5,3) with its dense output of order 7 (HNW §II.5, Table 5.4, and §II.6; E. Hairer's
+    code DOP853, whose coefficients these are). Twelve stages and the end's rate; a fifth-order error estimate
+    ``e₅`` and a third-order one ``e₃``; three more stages for the dense output."""
+    c = (0.0, 0.05260015195876773, 0.0789002279381516, 0.1183503419072274, 0.2816496580927726, 1 / 3, 0.25,
+         0.3076923076923077, 0.6512820512820513, 0.6, 0.8571428571428571, 1.0, 1.0, 0.1, 0.2, 0.7777777777777778)
+    a = ((),
+         (0.05260015195876773,),
+         (0.0197250569845379, 0.0591751709536137),
+         (0.02958758547680685, 0.0, 0.08876275643042054),
+         (0.2413651341592667, 0.0, -0.8845494793282861, 0.924834003261792),
+         (0.037037037037037035, 0.0, 0.0, 0.17082860872947386, 0.12546768756682242),
+         (0.037109375, 0.0, 0.0, 0.17025221101954405, 0.06021653898045596, -0.017578125),
+         (0.03709200011850479, 0.0, 0.0, 0.17038392571223998, 0.10726203044637328, -0.015319437748624402,
+          0.008273789163814023),
+         (0.6241109587160757, 0.0, 0.0, -3.3608926294469414, -0.868219346841726, 27.59209969944671,
+          20.154067550477894, -43.48988418106996),
+         (0.47766253643826434, 0.0, 0.0, -2.4881146199716677, -0.590290826836843, 21.230051448181193,
+          15.279233632882423, -33.28821096898486, -0.020331201708508627),
+         (-0.9371424300859873, 0.0, 0.0, 5.186372428844064, 1.0914373489967295, -8.149787010746927,
+          -18.52006565999696, 22.739487099350505, 2.4936055526796523, -3.0467644718982196),
+         (2.273310147516538, 0.0, 0.0, -10.53449546673725, -2.0008720582248625, -17.9589318631188,
+          27.94888452941996, -2.8589982771350235, -8.87285693353063, 12.360567175794303, 0.6433927460157636),
+         # b: the end
+         (0.054293734116568765, 0.0, 0.0, 0.0, 0.0, 4.450312892752409, 1.8915178993145003, -5.801203960010585,
+          0.3111643669578199, -0.1521609496625161, 0.20136540080403034, 0.04471061572777259),
+         # the dense output's stages
+         (0.056167502283047954, 0.0, 0.0, 0.0, 0.0, 0.0, 0.25350021021662483, -0.2462390374708025,
+          -0.12419142326381637, 0.15329179827876568, 0.00820105229563469, 0.007567897660545699, -0.008298),
+         (0.03183464816350214, 0.0, 0.0, 0.0, 0.0, 0.028300909672366776, 0.053541988307438566,
+          -0.05492374857139099, 0.0, 0.0, -0.00010834732869724932, 0.0003825710908356584,
+          -0.00034046500868740456, 0.1413124436746325),
+         (-0.42889630158379194, 0.0, 0.0, 0.0, 0.0, -4.697621415361164, 7.683421196062599, 4.06898981839711,
+          0.3567271874552811, 0.0, 0.0, 0.0, -0.0013990241651590145, 2.9475147891527724, -9.15095847217987))
+    b = a[12] + (0.0,)
+    e5 = (0.01312004499419488, 0.0, 0.0, 0.0, 0.0, -1.2251564463762044, -0.4957589496572502, 1.6643771824549864,
+          -0.35032884874997366, 0.3341791187130175, 0.08192320648511571, -0.022355307863886294, 0.0)
+    # e₃ = b − b̂₃, b̂₃ nonzero at stages 0, 8 and 11
+    b3 = dict(((0, 0.244094488188976377952755905512), (8, 0.733846688281611857341361741547),
+               (11, 0.220588235294117647058823529412e-01)))
+    e3 = tuple(b[j] - b3.get(j, 0.0) for j in range(13))
+    # F₃..F₆ = h Σ_j d_kj K_j
+    d = ((-8.428938276109013, 0.0, 0.0, 0.0, 0.0, 0.5667149535193777, -3.0689499459498917, 2.38466765651207,
+          2.117034582445028, -0.871391583777973, 2.2404374302607883, 0.6315787787694688, -0.08899033645133331,
+          18.148505520854727, -9.194632392478356, -4.436036387594894),
+         (10.427508642579134, 0.0, 0.0, 0.0, 0.0, 242.28349177525817, 165.20045171727028, -374.5467547226902,
+          -22.113666853125306, 7.733432668472264, -30.674084731089398, -9.332130526430229, 15.697238121770845,
+          -31.139403219565178, -9.35292435884448, 35.81684148639408),
+         (19.985053242002433, 0.0, 0.0, 0.0, 0.0, -387.0373087493518, -189.17813819516758, 527.8081592054236,
+          -11.57390253995963, 6.8812326946963, -1.0006050966910838, 0.7777137798053443, -2.778205752353508,
+          -60.19669523126412, 84.32040550667716, 11.99229113618279),
+         (-25.69393346270375, 0.0, 0.0, 0.0, 0.0, -154.18974869023643, -231.5293791760455, 357.6391179106141,
+          93.40532418362432, -37.45832313645163, 104.0996495089623, 29.8402934266605, -43.53345659001114,
+          96.32455395918828, -39.17726167561544, -149.72683625798564))
+    rows = len(c)
+    b = b + (0.0,) * (rows - len(b))
+    first, end = np.eye(rows)[0], np.eye(rows)[12]
+    # Δy = h Σ b_j K_j: F₀ = Δy / h, F₁ = K₀ − Δy / h, F₂ = 2 Δy / h − K₀ − K₁₂, then the d rows (HNW §II.6, DOP853's
+    # CONTD8), in y(x) = y₀ + h x (F₀ + (1 − x) (F₁ + x (F₂ + (1 − x) (F₃ + x (F₄ + (1 − x) (F₅ + x F₆)))))).
+    weights = (np.array(b), first - np.array(b), 2.0 * np.array(b) - first - end) + tuple(np.array(row) for row in d)
+    return EmbeddedPair(c, a, 12, 8, 7, e5, e3, _by_stage(weights), (False, True, False, True, False, True,
+                                                                               False))
+
+
+#: The adaptive methods of :func:`multibody.simulate` by name: embedded pairs with step-size control and dense output.
+EMBEDDED = {"RK23": _bogacki_shampine(), "RK45": _dormand_prince(), "DOP853": _dop853()}
+
+
 # ============================================================================= controllers
 
 

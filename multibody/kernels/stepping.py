@@ -216,6 +216,100 @@ def chart_state(joints, reals, frames, q_chart, y, x2, x3, out, ws):
 
 
 @njit(cache=True, error_model="numpy")
+def stage_state(joints, reals, frames, charts, q_chart, y, maps):
+    """The state of a stage's chart state ``y = [δ, w] (2 nv,)`` around ``q_chart (nq,)`` into ``maps`` (``q``, ``v``,
+    ``κ``, ``T``: :func:`multibody.kernels.integration.unchart`): ``q = chart(q₀, δ)``, ``v = Tᵀ w``, or without
+    ``charts`` ``q = q₀ + δ``, ``v = w``."""
+    nq, nv = q_chart.shape[0], y.shape[0] // 2
+    if charts:
+        integration.unchart(joints, reals, frames, q_chart, y, maps)
+    else:
+        for c in range(nq):
+            maps[c] = q_chart[c] + y[c]
+        for c in range(nv):
+            maps[nq + c] = y[nv + c]
+
+
+@njit(cache=True, error_model="numpy")
+def stage_torque(controller, joints, kind, control, t, q, v, tau, scratch):
+    """The joint forces ``τ (nv,)`` of the controller ``kind`` (not :data:`PYTHON`) at ``t`` (s), ``q``, ``v``: none,
+    the constant ``control[:nv]``, the PD law of ``control[nv:]`` (:func:`pd_torque`, ``scratch (nq + nv)``) or the
+    compiled ``controller(t, q, v, τ)``. Returns whether they are finite."""
+    nv = v.shape[0]
+    if kind == CONSTANT:
+        for c in range(nv):
+            tau[c] = control[c]
+    elif kind == PD:
+        pd_torque(joints, t, q, v, control[nv:], tau, scratch)
+    elif kind == FUNCTION and controller is not None:
+        for c in range(nv):
+            tau[c] = 0.0
+        controller(t, q, v, tau)
+    else:
+        for c in range(nv):
+            tau[c] = 0.0
+    return kind == NO_CONTROL or kind == CONSTANT or all_finite(tau)
+
+
+@njit(cache=True, error_model="numpy")
+def stage_rates(joints, reals, frames, program, charts, damped, damping, y, maps, tau, step, step_ws, rates, K_i):
+    """A stage's rates ``K_i = [δ̇, ẇ] (2 nv,)`` at the state :func:`stage_state` put in ``maps``, with joint forces
+    ``τ`` (less ``D v`` when ``damped``): the accelerations ``a`` by :func:`multibody.kernels.kkt.constrained_accelerations`
+    (``program`` of constraints) or ABA, then ``ẇ = T (a + κ)``, ``δ̇ = chart_rate(δ, w)``
+    (:func:`multibody.kernels.integration.chart_rates`), or without ``charts`` ``[w, a]``. Returns whether the step
+    solved and the rates are finite."""
+    nv = y.shape[0] // 2
+    nq = maps.shape[0] - 2 * nv - nv * nv
+    q, v = maps[:nq], maps[nq : nq + nv]
+    if damped:
+        # − D v
+        for c in range(nv):
+            tau[c] = tau[c] - damping[c] * v[c]
+    step_columns = step.shape[1]
+    if program.shape[0] > 0:
+        kkt.constrained_accelerations(joints, reals, frames, q, v, tau, program, step, step_ws)
+        status = step[0, step_columns - 1]
+    else:
+        aba.forward_dynamics(joints, reals, frames, q, v, tau, program, step, step_ws)
+        status = 0.0
+    if charts:
+        T = maps[nq + 2 * nv :].reshape((nv, nv))
+        kappa = maps[nq + nv : nq + 2 * nv].reshape((1, nv))
+        integration.chart_rates(joints, reals, frames, y, v, kappa, T, step[0, :nv], status, rates)
+        for c in range(2 * nv):
+            K_i[c] = rates[0, c]
+    else:
+        for c in range(nv):
+            K_i[c] = y[nv + c]
+            K_i[nv + c] = step[0, c]
+    return status == kkt.SOLVED and all_finite(K_i)
+
+
+@njit(cache=True, error_model="numpy")
+def settle(joints, reals, frames, program, settings, tolerance, near_singular, nq, end, projected, projection_ws, io):
+    """The state ``end = [q, v] (nq + nv,)`` of a step's end projected onto the constraints
+    (:func:`multibody.kernels.kkt.project`, ``settings``) when that moves a coordinate by more than ``tolerance``, in
+    place. Returns ``(status, near)``: :data:`COMPLETED`, :data:`NOT_CONVERGED` (``|φ|`` in ``io[IO_VALUE]``) or
+    :data:`PROJECTION_UNSOLVED`; and whether the rows' conditioning there is below ``near_singular``."""
+    size = end.shape[0]
+    columns = projected.shape[1]
+    kkt.project(joints, reals, frames, end[:nq], end[nq:], settings, program, projected, projection_ws)
+    status = projected[0, columns - 1]
+    if status == kkt.NOT_CONVERGED:
+        io[IO_VALUE] = projected[0, columns - 2]
+        return NOT_CONVERGED, False
+    if status != kkt.SOLVED:
+        return PROJECTION_UNSOLVED, False
+    moved = 0.0
+    for c in range(size):
+        moved = max(moved, abs(projected[0, c] - end[c]))
+    if moved > tolerance:
+        for c in range(size):
+            end[c] = projected[0, c]
+    return COMPLETED, projected[0, columns - 3] < near_singular
+
+
+@njit(cache=True, error_model="numpy")
 def advance(controller, joints, reals, frames, program, times, plan, control, states, io, ws):
     """Steps ``io[IO_STEP]`` up to ``io[IO_STOP]`` (exclusive) of one trajectory: ``states (n, nq + nv)`` holds
     ``[q, v]`` at ``times (n,)``, each step ``k`` from ``states[k − 1]`` into ``states[k]``. Returns with the
@@ -245,7 +339,6 @@ def advance(controller, joints, reals, frames, program, times, plan, control, st
     settings = plan[int(plan[PLAN_SETTINGS]) : int(plan[PLAN_SETTINGS]) + 2 + m]
     step_columns, step_size = int(plan[PLAN_STEP_COLUMNS]), int(plan[PLAN_STEP_WORKSPACE])
     projection_columns, projection_size = int(plan[PLAN_PROJECTION_COLUMNS]), int(plan[PLAN_PROJECTION_WORKSPACE])
-    constrained = program.shape[0] > 0
     none = plan[:0]
     # workspace
     at = 0
@@ -277,7 +370,6 @@ def advance(controller, joints, reals, frames, program, times, plan, control, st
     v = maps[nq : nq + nv]
     io_q, io_v, io_tau = io[IO_HEADER : IO_HEADER + nq], io[IO_HEADER + nq : IO_HEADER + nq + nv], \
         io[IO_HEADER + nq + nv : IO_HEADER + nq + 2 * nv]
-    pd = control[nv:]
 
     k, stop = int(io[IO_STEP]), int(io[IO_STOP])
     first_stage = int(io[IO_STAGE])
@@ -320,14 +412,7 @@ def advance(controller, joints, reals, frames, program, times, plan, control, st
                 if not all_finite(y):
                     io[IO_STEP], io[IO_STAGE], io[IO_STATUS] = k, 0, STAGE_UNSOLVED
                     return
-                # the stage's state: q = chart(q₀, δ), v = Tᵀ w, or q₀ + δ and w
-                if charts:
-                    integration.unchart(joints, reals, frames, q_chart, y, maps)
-                else:
-                    for c in range(nq):
-                        q[c] = q_chart[c] + y[c]
-                    for c in range(nv):
-                        v[c] = y[nv + c]
+                stage_state(joints, reals, frames, charts, q_chart, y, maps)
             # the joint forces
             if kind == PYTHON:
                 if not resumed:
@@ -340,46 +425,14 @@ def advance(controller, joints, reals, frames, program, times, plan, control, st
                     return
                 for c in range(nv):
                     tau[c] = io_tau[c]
-            elif kind == CONSTANT:
-                for c in range(nv):
-                    tau[c] = control[c]
-            elif kind == PD:
-                pd_torque(joints, t, q, v, pd, tau, scratch)
-            elif kind == FUNCTION and controller is not None:
-                for c in range(nv):
-                    tau[c] = 0.0
-                controller(t, q, v, tau)
-            else:
-                for c in range(nv):
-                    tau[c] = 0.0
-            if kind != NO_CONTROL and kind != CONSTANT and not all_finite(tau):
+            elif not stage_torque(controller, joints, kind, control, t, q, v, tau, scratch):
                 io[IO_TIME] = t
                 for c in range(nv):
                     io_tau[c] = tau[c]
                 io[IO_STEP], io[IO_STAGE], io[IO_STATUS] = k, 0, NON_FINITE_TORQUE
                 return
-            if damped:
-                # − D v
-                for c in range(nv):
-                    tau[c] = tau[c] - damping[c] * v[c]
-            # the accelerations, and the stage's rates K_i = [δ̇, T (a + κ)]
-            if constrained:
-                kkt.constrained_accelerations(joints, reals, frames, q, v, tau, program, step, step_ws)
-                status = step[0, step_columns - 1]
-            else:
-                aba.forward_dynamics(joints, reals, frames, q, v, tau, program, step, step_ws)
-                status = 0.0
-            if charts:
-                T = maps[nq + 2 * nv :].reshape((nv, nv))
-                kappa = maps[nq + nv : nq + 2 * nv].reshape((1, nv))
-                integration.chart_rates(joints, reals, frames, y, v, kappa, T, step[0, :nv], status, rates)
-                for c in range(2 * nv):
-                    K[i, c] = rates[0, c]
-            else:
-                for c in range(nv):
-                    K[i, c] = y[nv + c]
-                    K[i, nv + c] = step[0, c]
-            if status != kkt.SOLVED or not all_finite(K[i]):
+            if not stage_rates(joints, reals, frames, program, charts, damped, damping, y, maps, tau, step, step_ws,
+                               rates, K[i]):
                 io[IO_STEP], io[IO_STAGE], io[IO_STATUS] = k, 0, STAGE_UNSOLVED
                 return
         first_stage, given = 0, False
@@ -387,40 +440,20 @@ def advance(controller, joints, reals, frames, program, times, plan, control, st
         weighted_sum(y0, h, b_delta, K, 0, nv, y_end)
         weighted_sum(y0, h, b_w, K, nv, 2 * nv, y_end)
         end = states[k]
-        if charts:
-            integration.unchart(joints, reals, frames, q_chart, y_end, maps)
-            for c in range(nq):
-                end[c] = q[c]
-            for c in range(nv):
-                end[nq + c] = v[c]
-        else:
-            for c in range(nq):
-                end[c] = y_end[c] + q_chart[c]
-            for c in range(nv):
-                end[nq + c] = y_end[nv + c]
+        stage_state(joints, reals, frames, charts, q_chart, y_end, maps)
+        for c in range(nq + nv):
+            end[c] = maps[c]
         if not all_finite(end):
             io[IO_TIME] = times[k]
             io[IO_STEP], io[IO_STAGE], io[IO_STATUS] = k, 0, NON_FINITE_STATE
             return
         near = False
         if project:
-            # onto the constraints when that moves a coordinate by more than the tolerance
-            kkt.project(joints, reals, frames, end[:nq], end[nq:], settings, program, projected, projection_ws)
-            status = projected[0, projection_columns - 1]
-            if status == kkt.NOT_CONVERGED:
-                io[IO_VALUE] = projected[0, projection_columns - 2]
-                io[IO_STEP], io[IO_STAGE], io[IO_STATUS] = k, 0, NOT_CONVERGED
+            status, near = settle(joints, reals, frames, program, settings, tolerance, near_singular, nq, end,
+                                  projected, projection_ws, io)
+            if status != COMPLETED:
+                io[IO_STEP], io[IO_STAGE], io[IO_STATUS] = k, 0, status
                 return
-            if status != kkt.SOLVED:
-                io[IO_STEP], io[IO_STAGE], io[IO_STATUS] = k, 0, PROJECTION_UNSOLVED
-                return
-            moved = 0.0
-            for c in range(nq + nv):
-                moved = max(moved, abs(projected[0, c] - end[c]))
-            if moved > tolerance:
-                for c in range(nq + nv):
-                    end[c] = projected[0, c]
-            near = projected[0, projection_columns - 3] < near_singular
         k += 1
         if near:
             io[IO_STEP], io[IO_STAGE], io[IO_STATUS] = k, 0, NEAR_SINGULAR
