@@ -245,8 +245,8 @@ def _dop853():
     e5 = (0.01312004499419488, 0.0, 0.0, 0.0, 0.0, -1.2251564463762044, -0.4957589496572502, 1.6643771824549864,
           -0.35032884874997366, 0.3341791187130175, 0.08192320648511571, -0.022355307863886294, 0.0)
     # e₃ = b − b̂₃, b̂₃ nonzero at stages 0, 8 and 11
-    b3 = dict(((0, 0.244094488188976377952755905512), (8, 0.733846688281611857341361741547),
-               (11, 0.220588235294117647058823529412e-01)))
+    b3 = {0: 0.244094488188976377952755905512, 8: 0.733846688281611857341361741547,
+          11: 0.220588235294117647058823529412e-01}
     e3 = tuple(b[j] - b3.get(j, 0.0) for j in range(13))
     # F₃..F₆ = h Σ_j d_kj K_j
     d = ((-8.428938276109013, 0.0, 0.0, 0.0, 0.0, 0.5667149535193777, -3.0689499459498917, 2.38466765651207,
@@ -594,7 +594,8 @@ def _trajectories(advance, controller, joints, reals, frames, program, times, pl
 #: types)``: ``multibody compile`` compiles them beside the kernels (:func:`multibody.driver.compile_kernels`), so
 #: that a first fixed-step :func:`multibody.simulate` loads them from Numba's cache instead of compiling them.
 ENTRY_POINTS = ((stepping.run, _RUN_TYPES), (stepping.advance, _ADVANCE_TYPES), (_trajectories, _TRAJECTORIES_TYPES),
-                (stepping.no_controller, CONTROLLER_TYPES), (stepping.controller_rows, _CONTROLLER_ROWS_TYPES))
+                (stepping.no_controller, CONTROLLER_TYPES), (stepping.controller_rows, _CONTROLLER_ROWS_TYPES),
+                (stepping.adaptive_run, _RUN_TYPES), (stepping.adaptive_run_function, _ADVANCE_TYPES))
 
 
 class CompiledRun:
@@ -708,3 +709,95 @@ class CompiledRun:
             entry(driver.first_class(stepping.advance, _ADVANCE_TYPES), self.pointer, tree.joints, tree.reals,
                   self.frames, self.program, self.times, self.plan, self.control, states, io, rows, self.workspace,
                   shares)
+
+
+class AdaptiveRun:
+    """The adaptive run of one system, embedded pair and controller to the output ``times (n,)`` (s)
+    (:func:`multibody.kernels.stepping.adaptive`): compiled where the system's step is, else, and for the steps the
+    compiled run leaves, the same function run as Python with the system's maps from Python.
+
+    Args:
+        tree, frames, program, step_columns, step_workspace, projection, controller, damping, projection_tolerance,
+            near_singular: as :class:`CompiledRun` takes them (``tree`` ``None``: a system without a compiled step,
+            which runs as Python only).
+        charts: whether the stages go through the chart maps; ``curved``: whether each step's end starts a new chart.
+        pair: the method (:data:`EMBEDDED`); ``rtol``, ``atol``: its tolerances; ``max_step``: its longest step (s).
+        turn: the largest turn of a rotation vector of the chart in a step (rad), at the angular speeds of its start;
+            ``rotations``: the first index in ``v`` of each rotation vector's three.
+    """
+
+    def __init__(self, tree, frames, program, step_columns, step_workspace, projection, charts, curved, pair,
+                 controller, damping, projection_tolerance, near_singular, times, nq, nv, rtol, atol, max_step, turn,
+                 rotations):
+        self.tree, self.frames = tree, frames
+        self.program = np.ascontiguousarray(program, dtype=float)
+        self.times, self.nq, self.nv = np.ascontiguousarray(times, dtype=float), nq, nv
+        settings, projection_columns, projection_workspace = projection or (np.zeros(2), 0, 0)
+        kind, control = CompiledRun._control(controller, nv)
+        self.kind, self.control = kind, control
+        self.pointer = controller.pointer if kind == stepping.FUNCTION else None
+        block = pair.block()
+        rotations = np.asarray(rotations, dtype=float).ravel()
+        header = np.zeros(stepping.PLAN_HEADER)
+        start = stepping.PLAN_HEADER
+        header[[stepping.PLAN_NQ, stepping.PLAN_NV, stepping.PLAN_CHARTS, stepping.PLAN_STAGES, stepping.PLAN_CONTROL,
+                stepping.PLAN_PROJECT, stepping.PLAN_PROJECTION_TOLERANCE, stepping.PLAN_NEAR_SINGULAR,
+                stepping.PLAN_DAMPED, stepping.PLAN_TABLEAU, stepping.PLAN_DAMPING, stepping.PLAN_SETTINGS,
+                stepping.PLAN_STEP_COLUMNS, stepping.PLAN_STEP_WORKSPACE, stepping.PLAN_PROJECTION_COLUMNS,
+                stepping.PLAN_PROJECTION_WORKSPACE, stepping.PLAN_CURVED, stepping.PLAN_RTOL, stepping.PLAN_ATOL,
+                stepping.PLAN_MAX_STEP, stepping.PLAN_CHART_TURN, stepping.PLAN_ROTATIONS,
+                stepping.PLAN_ROTATION_COUNT]] = (
+            nq, nv, charts, pair.stages, kind, projection_tolerance is not None, projection_tolerance or 0.0,
+            near_singular, damping is not None, start, start + block.size, start + block.size + nv, step_columns,
+            step_workspace, projection_columns, projection_workspace, curved, rtol, atol, max_step, turn,
+            start + block.size + nv + settings.size, rotations.size)
+        self.plan = np.concatenate([header, block, np.zeros(nv) if damping is None else damping, settings, rotations])
+        self.ws = np.zeros(stepping.adaptive_workspace_size(nq, nv, pair.rows, len(pair.flips), step_columns,
+                                                            step_workspace, projection_columns, projection_workspace))
+        self.io = np.zeros(stepping.io_size(nq, nv))
+
+    def start(self, state, near):
+        """The run from ``state = [q, v] (nq + nv,)`` at ``times[0]``, its first output (``near``: whether the rows
+        are near singular there)."""
+        scalars = self.ws[: stepping.SCALARS]
+        scalars[:] = 0.0
+        scalars[[stepping.S_T, stepping.S_H_ABS, stepping.S_NEAR, stepping.S_PHASE]] = (
+            self.times[0], np.nan, bool(near), stepping.PHASE_RESTART)
+        self.ws[stepping.SCALARS + self.nq : stepping.SCALARS + 2 * self.nq + self.nv] = state
+        self.io[stepping.IO_STEP] = 1
+
+    @property
+    def t(self) -> float:
+        """The time (s) the next step starts at."""
+        return float(self.ws[stepping.S_T])
+
+    @property
+    def near(self) -> bool:
+        """Whether the rows are near singular where the next step starts."""
+        return bool(self.ws[stepping.S_NEAR])
+
+    @property
+    def done(self) -> int:
+        """The outputs filled so far."""
+        return int(self.io[stepping.IO_STEP])
+
+    def advance(self, states, stop, python=None):
+        """The steps up to the one that fills the output ``stop − 1`` of ``states (n, nq + nv)``: ``(outputs filled,
+        status)``. Compiled without ``python``, else as Python with its maps (:func:`multibody.kernels.stepping.
+        adaptive`)."""
+        io = self.io
+        io[stepping.IO_STOP] = stop
+        tree = self.tree
+        if python is not None:
+            function = getattr(stepping.adaptive, "py_func", stepping.adaptive)
+            function(python, None, None, None, None, self.program, self.times, self.plan, self.control[0], states, io,
+                     self.ws)
+        elif self.kind == stepping.FUNCTION:
+            driver.entry_point(stepping.adaptive_run_function, _ADVANCE_TYPES)(
+                self.pointer, tree.joints, tree.reals, self.frames, self.program, self.times, self.plan,
+                self.control[0], states, io, self.ws)
+        else:
+            driver.entry_point(stepping.adaptive_run, _RUN_TYPES)(
+                tree.joints, tree.reals, self.frames, self.program, self.times, self.plan, self.control[0], states,
+                io, self.ws)
+        return int(io[stepping.IO_STEP]), int(io[stepping.IO_STATUS])

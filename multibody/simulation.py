@@ -41,50 +41,26 @@ import warnings
 from dataclasses import fields, replace
 
 import numpy as np
-from scipy.integrate import BDF, DOP853, LSODA, RK23, RK45, Radau
+from scipy.integrate import BDF, LSODA, Radau
 
 from . import contact, driver, gpu
 from .constrained import ConstrainedSystem, ConstraintError, ModelSystem, as_system
 from .constraints import CompiledRows
-from .integrators import (PD, TABLEAUS, CompiledController, CompiledRun, PDController, as_controller,
-                          is_compiled_controller, tableau_step)
+from .integrators import (EMBEDDED, PD, TABLEAUS, AdaptiveRun, CompiledController, CompiledRun, PDController,
+                          as_controller, is_compiled_controller, tableau_step)
 from .kernels import aba, kkt, stepping
 from .model import all_finite
 from .spatial import matvec, transpose
 from .trajectory import Trajectory, recorded_names
 
-METHODS = {"RK45": RK45, "DOP853": DOP853, "Radau": Radau, "RK23": RK23, "BDF": BDF, "LSODA": LSODA}
-ADAPTIVE_METHODS = tuple(METHODS)
+#: The implicit methods, SciPy's solvers through their public interface.
+METHODS = {"Radau": Radau, "BDF": BDF, "LSODA": LSODA}
+#: The adaptive methods: the embedded pairs of :data:`multibody.integrators.EMBEDDED` and SciPy's implicit ones.
+ADAPTIVE_METHODS = ("RK45", "DOP853", "Radau", "RK23", "BDF", "LSODA")
 #: The fixed-step methods (:data:`multibody.integrators.TABLEAUS`): one step of ``dt`` per output interval.
 FIXED_STEP_METHODS = tuple(TABLEAUS)
 #: What ``simulate(..., limits=...)`` does with positions outside ``[model.lower, model.upper]``.
 LIMIT_MODES = ("warn", "error", "ignore")
-
-
-class _TangentErrors:
-    """An explicit Runge–Kutta solver of SciPy that measures its local error on the constraints' tangent
-    space: the stage derivatives ``K`` less their parts along the rows, which the projection at the step's
-    end removes (E. Hairer, G. Wanner, *Solving Ordinary Differential Equations II*, §VII.2: projected
-    Runge–Kutta methods control the error of the projected solution). Near a singular configuration the
-    stages' accelerations along a nearly dependent row are set to within rounding divided by the distance to
-    it; measured there, that noise would shrink the steps without end, though the projection removes it.
-
-    ``tangent(t, y)``, set after construction, gives the map ``K (s, n) -> K`` at a step's start ``(t, y)``."""
-
-    tangent = None
-    _tangent_at = None
-
-    def _estimate_error_norm(self, K, h, scale):
-        if self.tangent is not None:
-            if self._tangent_at != self.t:  # (a rejected step tries again from the same start)
-                self._tangent_map, self._tangent_at = self.tangent(self.t, self.y), self.t
-            K = self._tangent_map(K)
-        return super()._estimate_error_norm(K, h, scale)
-
-
-#: The solvers of :data:`METHODS` that measure their error on the tangent space in the steps that start near a
-#: singular configuration.
-_TANGENT_SOLVERS = {solver: type(solver.__name__, (_TangentErrors, solver), {}) for solver in (RK23, RK45, DOP853)}
 
 
 class JointLimitWarning(UserWarning):
@@ -410,22 +386,47 @@ def simulate(system, q0, v0, t_final, *, dt=None, method=None, tau=None, rtol=1e
                 states[k], _, near = settle(instants[k], from_chart(q_chart, y))
                 k = done = k + 1
                 bar.update(instants[k - 1])
+        elif method in EMBEDDED:
+            # An embedded pair of our own (multibody.kernels.stepping.adaptive): compiled where the system's step
+            # is and the joint forces are data or compiled, else the same run as Python with the maps below; the
+            # steps that start near a singular configuration, or whose stage or projection the compiled step did
+            # not solve, run as Python too, after which the compiled run goes on.
+            run = _adaptive_run(constrained, charts, EMBEDDED[method], controller, damping, project,
+                                projection_tolerance, times, rtol, atol, max_step, compiled)
+            stages = _ChartStages(constrained, charts, derivative, on_constraints, settle)
+            stages.hand_back = run.tree is not None and not callable(tau)
+            run.start(states[0], near)
+            chunk, handed = _FIRST_CHUNK, False
+            while done < len(times):
+                python = stages if handed or run.near or not stages.hand_back else None
+                started = time.perf_counter()
+                try:
+                    _, status = run.advance(states, min(len(times), done + chunk), python)
+                finally:
+                    done = run.done
+                chunk = _next_chunk(chunk, time.perf_counter() - started)
+                bar.update(run.t)
+                # (a stage or projection the compiled step did not solve: the next step runs as Python)
+                handed = status in (stepping.STAGE_UNSOLVED, stepping.PROJECTION_UNSOLVED)
+                if status in (stepping.COMPLETED, stepping.NEAR_SINGULAR, stepping.HANDED_BACK) or handed:
+                    continue
+                if status == stepping.STEP_TOO_SMALL:
+                    raise SimulationError(f"{method} failed at t = {run.io[stepping.IO_TIME]:.6g} s: the step size "
+                                          "fell below ten roundings of the time", None)
+                if status == stepping.STALLED:
+                    raise SimulationError(_stalled(method, run.io[stepping.IO_TIME], run.io[stepping.IO_VALUE],
+                                                   run.near, t_final - t0), None)
+                raise _RUN_FAILURES[status](mechanical, run.io, run.plan)
         else:
             solver_class = METHODS[method]
 
-            def start(t, state, step_size, w_dot=None):
-                """A solver from ``state`` at ``t`` in the chart around it, evaluating its stages on the
-                constraints when ``near``. ``w_dot``: the aligned acceleration there when already known
-                (the end of an unprojected step: the same state in another chart), which then stands in
-                for the solver's first evaluation, as ``δ̇ = J_l(0)⁻¹ w = w`` at the chart's centre."""
+            def start(t, state, step_size):
+                """An implicit SciPy solver from ``state`` at ``t`` in the chart around it, evaluating its stages on
+                the constraints when ``near``."""
                 q_chart, y0 = state[:nq], to_chart(state)
-                first = [None if w_dot is None else np.concatenate([y0[nv:], w_dot])]
                 stage = on_constraints if near else derivative
 
                 def fun(t_, y):
-                    if first[0] is not None and t_ == t and np.array_equal(y, y0):
-                        known, first[0] = first[0], None
-                        return known
                     y_dot = stage(t_, y, q_chart)
                     # SciPy's solvers answer a non-finite derivative by shrinking the step, to no end
                     if not all_finite(y_dot):
@@ -434,14 +435,11 @@ def simulate(system, q0, v0, t_final, *, dt=None, method=None, tau=None, rtol=1e
 
                 longest = min(max_step, charts.step_limit(state))
                 first_step = None if step_size is None else min(step_size, t_final - t, longest)
-                tangent = near and solver_class in _TANGENT_SOLVERS
                 # Errors of δ relative to the configuration's size, as when integrating q itself; the solver
                 # would measure them against δ, which is zero at every step's start.
                 atol_chart = np.concatenate([atol + rtol * charts.chart_magnitude(q_chart), np.full(nv, atol)])
-                solver = (_TANGENT_SOLVERS[solver_class] if tangent else solver_class)(
-                    fun, t, y0, t_final, rtol=rtol, atol=atol_chart, max_step=longest, first_step=first_step)
-                if tangent:
-                    solver.tangent = lambda t_, y: _tangent_map(constrained, charts, q_chart, t_, y)
+                solver = solver_class(fun, t, y0, t_final, rtol=rtol, atol=atol_chart, max_step=longest,
+                                      first_step=first_step)
                 return solver, q_chart
 
             # One solver runs on to t_final; the output states inside each of its steps come from its
@@ -457,7 +455,8 @@ def simulate(system, q0, v0, t_final, *, dt=None, method=None, tau=None, rtol=1e
                     raise SimulationError(f"{method} failed at t = {t_before:.6g} s: {message}", None)
                 recent.append(solver.t)
                 if len(recent) == STALLED_STEPS and recent[-1] - recent[0] < STALLED_SPAN * (t_final - t0):
-                    raise SimulationError(_stalled(method, recent, near, t_final - t0), None)
+                    raise SimulationError(_stalled(method, recent[-1], recent[-1] - recent[0], near, t_final - t0),
+                                          None)
                 bar.update(solver.t)
                 inside = done + int(np.searchsorted(times[done:], solver.t, side="left"))
                 if inside > done:
@@ -469,10 +468,7 @@ def simulate(system, q0, v0, t_final, *, dt=None, method=None, tau=None, rtol=1e
                     states[done] = end
                     done += 1
                 if done < len(times) and (projected or charts.curved or near != was_near):
-                    # (explicit Runge–Kutta solvers keep the derivative at their end state in .f; a step
-                    # that changes how stages are evaluated starts from its own)
-                    w_dot = None if projected or near != was_near or not hasattr(solver, "f") else solver.f[nv:]
-                    solver, q_chart = start(solver.t, end, getattr(solver, "h_abs", solver.step_size), w_dot)
+                    solver, q_chart = start(solver.t, end, solver.step_size)
     except (SimulationError, ConstraintError, np.linalg.LinAlgError, ValueError, FloatingPointError) as exc:
         t_fail = times[max(done - 1, 0)]
         message = f"simulation stopped at t = {t_fail:.6g} s: {_grown(mechanical, states[:done], nq, v) or exc}"
@@ -491,7 +487,7 @@ def simulate(system, q0, v0, t_final, *, dt=None, method=None, tau=None, rtol=1e
     finally:
         bar.close()
     trajectory = _trajectory(constrained, times, states, torque, "completed", tolerance,
-                             settled=method in FIXED_STEP_METHODS)
+                             settled=method in FIXED_STEP_METHODS, state_dependent=callable(tau))
     if model is not None and limits != "ignore":
         _report_limits(mechanical, trajectory, limits)
     return trajectory
@@ -564,6 +560,70 @@ def _compiled_run(constrained, charts, tableau, controller, damping, project, pr
     return CompiledRun(model.tree, frames, program, step_columns, step_workspace, projection,
                        not constrained._by_aba_alone, tableau, controller, damping,
                        projection_tolerance if project and m else None, near, times, nq, nv)
+
+
+def _adaptive_run(constrained, charts, pair, controller, damping, project, projection_tolerance, times, rtol, atol,
+                  max_step, compiled):
+    """The :class:`~multibody.integrators.AdaptiveRun` of ``constrained`` with the embedded ``pair``: compiled where
+    ``compiled`` (the system's step is) and the ``controller`` is data or compiled (as :func:`_compiled_run` makes
+    it), else one that runs as Python only. ``damping`` enters the compiled run's plan (its Python stages have it in
+    their joint forces already)."""
+    nq, nv = constrained.nq, constrained.nv
+    rotations = charts.rotations[:, 0]
+    near = NEAR_SINGULAR if bool(_near_singular(0.0, project, constrained, charts)) else -np.inf
+    tolerance = projection_tolerance if project and constrained.num_rows else None
+    data = controller is None or isinstance(controller, (np.ndarray, PDController, CompiledController))
+    if not (compiled and data):
+        return AdaptiveRun(None, None, np.zeros(0), 0, 0, None, False, charts.curved, pair, None, None, tolerance,
+                           near, times, nq, nv, rtol, atol, max_step, CHART_TURN, rotations)
+    fixed = _compiled_run(constrained, charts, TABLEAUS["RK4"], controller, damping, project, projection_tolerance,
+                          times)
+    plan = fixed.plan
+    projection = None
+    if constrained.num_rows:
+        settings = plan[int(plan[stepping.PLAN_SETTINGS]) : int(plan[stepping.PLAN_SETTINGS]) + 2 + constrained.num_rows]
+        projection = (settings, int(plan[stepping.PLAN_PROJECTION_COLUMNS]),
+                      int(plan[stepping.PLAN_PROJECTION_WORKSPACE]))
+    return AdaptiveRun(fixed.tree, fixed.frames, fixed.program, int(plan[stepping.PLAN_STEP_COLUMNS]),
+                       int(plan[stepping.PLAN_STEP_WORKSPACE]), projection, bool(plan[stepping.PLAN_CHARTS]),
+                       charts.curved, pair, controller, damping, tolerance, near, times, nq, nv, rtol, atol, max_step,
+                       CHART_TURN, rotations)
+
+
+class _ChartStages:
+    """The maps by which :func:`multibody.kernels.stepping.adaptive` runs as Python (a system without a compiled step,
+    a Python controller, the steps near a singular configuration): the chart maps of ``charts``, the stages'
+    rates ``derivative(t, y, q_chart)`` or, near a singular configuration, ``on_constraints(t, y, q_chart)``, and
+    the projection ``settle(t, state) -> (state, projected, near)`` of :func:`simulate`."""
+
+    def __init__(self, constrained, charts, derivative, on_constraints, settle):
+        self.constrained, self.charts = constrained, charts
+        self.derivative, self.on_constraints, self._settle = derivative, on_constraints, settle
+        self.stage = derivative
+        #: whether the run returns after a step that ends away from a singular configuration, to go on compiled
+        self.hand_back = False
+
+    def restart(self, t, state, near, y0, magnitude):
+        self.stage = self.on_constraints if near else self.derivative
+        y0[:] = self.charts.to_chart(state)
+        magnitude[:] = self.charts.chart_magnitude(state[: self.charts.nq])
+
+    def rates(self, t, q_chart, y, out):
+        y_dot = self.stage(t, y, q_chart)
+        if not all_finite(y_dot):
+            raise SimulationError(_non_finite_rates(self.constrained.system, t, y, y_dot), None)
+        out[:] = y_dot
+
+    def tangent(self, t, q_chart, y, out):
+        out[:] = _tangent_map(self.constrained, self.charts, q_chart, t, y)
+
+    def unchart(self, q_chart, y, out):
+        out[:] = self.charts.from_chart(q_chart, y)
+
+    def settle(self, t, state):
+        end, projected, near = self._settle(t, state)
+        state[:] = end
+        return projected, bool(near)
 
 
 #: The tolerance and iterations of the projection at a step's end (those :meth:`ConstrainedSystem._projection`
@@ -845,18 +905,20 @@ def _numpy_chart_derivative(constrained, charts, t, q_chart, y, torque):
 
 
 def _tangent_map(constrained, charts, q_chart, t, y):
-    """The map that takes stage derivatives ``K = [δ̇, ẇ] (s, 2 nv)`` in the chart around ``q_chart`` to their
-    tangent parts at the chart state ``y`` (a step's start) and time ``t``: ``δ̇`` less its part along the rows
-    with a position level, ``ẇ`` less its part along all rows, each ``M``-orthogonal, as the projection removes
-    them (``δ`` and ``v = T⁻¹ w`` are velocity-space vectors)."""
+    """The map ``Π (2 nv, 2 nv)`` that takes an error estimate ``[δ, w]`` of a step in the chart around ``q_chart`` to
+    its tangent part at the chart state ``y`` (the step's start) and time ``t``: ``δ`` less its part along the rows
+    with a position level, ``w`` less its part along all rows, each ``M``-orthogonal, as the projection removes them
+    (``δ`` and ``v = T⁻¹ w`` are velocity-space vectors): ``Π = diag(1 − P_position, T (1 − P_velocity) T⁻¹)``."""
     nv = charts.nv
     q_t, T, _ = charts.unchart(q_chart, y)
     position, velocity = constrained._row_space_projectors(q_t, t)
     if T is not None:
         # on w = T v: T P T⁻¹
         velocity = T @ np.linalg.solve(T.T, velocity.T).T
-    keep_position, keep_velocity = (np.eye(nv) - position).T, (np.eye(nv) - velocity).T
-    return lambda K: np.concatenate([K[:, :nv] @ keep_position, K[:, nv:] @ keep_velocity], axis=1)
+    tangent = np.zeros((2 * nv, 2 * nv))
+    tangent[:nv, :nv] = np.eye(nv) - position
+    tangent[nv:, nv:] = np.eye(nv) - velocity
+    return tangent
 
 
 #: Conditioning of the constraint rows at a step's start (the smallest singular value of ``A L⁻ᵀ`` above
@@ -875,7 +937,7 @@ CHART_TURN = np.pi
 
 #: An adaptive method has stalled when its last ``STALLED_STEPS`` steps together advance the time by less
 #: than ``STALLED_SPAN`` of the whole run: at that pace the run would take a billion steps.
-STALLED_STEPS, STALLED_SPAN = 1000, 1e-6
+STALLED_STEPS, STALLED_SPAN = stepping.STALLED_STEPS, stepping.STALLED_SPAN
 
 
 def _near_singular(conditioning, project, constrained, charts):
@@ -885,11 +947,11 @@ def _near_singular(conditioning, project, constrained, charts):
     return bool(project and constrained.num_rows and charts.invertible) & (np.asarray(conditioning) < NEAR_SINGULAR)
 
 
-def _stalled(method, recent, near, span):
-    """The message of an adaptive method that has stalled (see :data:`STALLED_STEPS`), at the end times
-    ``recent`` of its latest steps; ``near``: whether the rows are near singular there."""
-    advanced = recent[-1] - recent[0]
-    message = (f"{method} stalled at t = {recent[-1]:.6g} s: its last {len(recent)} steps advanced {advanced:.3g} s "
+def _stalled(method, last, advanced, near, span):
+    """The message of an adaptive method that has stalled (see :data:`STALLED_STEPS`): its latest steps ended at
+    ``last`` (s) and advanced ``advanced`` (s) in all, of a run of ``span`` (s); ``near``: whether the rows are near
+    singular there."""
+    message = (f"{method} stalled at t = {last:.6g} s: its last {STALLED_STEPS} steps advanced {advanced:.3g} s "
                f"in all ({advanced / span:.2g} of the run)")
     if near:
         message += (". The constraints are near a singular configuration there, where they fix the motion only to "
@@ -990,8 +1052,10 @@ def _rk4_step(derivative, t, y, h):
     return y + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
 
 
-def _trajectory(constrained, times, states, torque, status, projection_tolerance=None, settled=False):
-    """The :class:`Trajectory` of output ``states (n, nq + nv)`` at ``times (n,)``.
+def _trajectory(constrained, times, states, torque, status, projection_tolerance=None, settled=False,
+                state_dependent=True):
+    """The :class:`Trajectory` of output ``states (n, nq + nv)`` at ``times (n,)``, with the joint forces
+    ``torque(t, q, v)`` (called once, at the first time, where not ``state_dependent``).
 
     The states are on the configuration manifold already (charts keep them there); with a
     ``projection_tolerance``, states that their projection onto the constraints moves by more than it
@@ -1026,7 +1090,12 @@ def _trajectory(constrained, times, states, torque, status, projection_tolerance
             q[off], v[off] = q_p[off], v_p[off]
             residual[off] = residuals(off)
     # The joint forces enter only the multipliers: without constraint rows there are none to solve for.
-    taus = [torque(t, q_k, v_k) for t, q_k, v_k in zip(times, q, v)] if m else None
+    if not m:
+        taus = None
+    elif state_dependent:
+        taus = [torque(t, q_k, v_k) for t, q_k, v_k in zip(times, q, v)]
+    else:
+        taus = [torque(times[0], None, None)] * n if n else []
     if not m:
         lam = np.zeros((n, 0))
     elif batched:

@@ -15,9 +15,8 @@ FOREIGN = ("scipy", "numba")
 
 #: Members Python's abc module puts in every class of an abstract base, not code of ours.
 ABC_MADE = {"_abc_impl"}
-#: The one private override left: SciPy's error norm of its RK solvers, which simulation.py replaces by the
-#: tangent-space norm. It goes when the adaptive methods are multibody's own embedded Runge–Kutta pairs.
-KNOWN = [("multibody.simulation._TangentErrors", "_estimate_error_norm", "overrides")]
+#: Private members of SciPy or Numba that multibody subclasses or overrides: none.
+KNOWN = []
 
 
 def _private(name):
@@ -123,7 +122,6 @@ def _public_reexport(cls):
 def test_no_module_subclasses_or_overrides_a_private_scipy_or_numba_member():
     findings = sorted(set(_class_findings()) | {f for path in sorted(PACKAGE.rglob("*.py"))
                                                  for f in _static_findings(path)})
-    # Strict: a new private use fails, and so does the known one's removal until KNOWN drops it.
     assert findings == KNOWN
 
 

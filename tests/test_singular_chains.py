@@ -424,38 +424,35 @@ def test_row_space_projectors_give_what_the_projection_removes():
     assert np.linalg.matrix_rank(ball._row_space_projectors(setup.q0)[0]) == 1  # the contact height only
 
 
-def test_tangent_error_solvers_measure_what_the_map_leaves():
-    """A solver of ``_TANGENT_SOLVERS`` measures its local error on the stage derivatives its ``tangent`` map
-    returns, the map made once for each step's start (a rejected step tries again from it); without a map it
-    is SciPy's solver."""
-    from scipy.integrate import RK45
+def test_the_error_norm_near_a_singular_configuration_measures_what_the_tangent_map_leaves():
+    """The adaptive run's error norm (``stepping.error_norm``) with a tangent map ``Π`` measures the estimates
+    ``Π Σ_j e_j K_j`` (for DOP853 both of its estimates), and without one the estimates themselves: a component
+    that the map removes leaves the norm, which falls."""
+    from multibody.integrators import EMBEDDED
+    from multibody.kernels import stepping
 
-    def harmonic(t, y):
-        return np.array([y[1], -y[0], 3.0 * y[0]])
-
-    calls = []
-
-    def tangent(t, y):
-        calls.append(t)
-        return lambda K: K * np.array([1.0, 1.0, 0.0])  # the third component leaves the measure
-
-    solver = mb.simulation._TANGENT_SOLVERS[RK45](harmonic, 0.0, np.array([1.0, 0.0, 0.0]), 1.0, rtol=1e-6)
-    plain = RK45(harmonic, 0.0, np.array([1.0, 0.0, 0.0]), 1.0, rtol=1e-6)
-    assert solver.step() is None and plain.step() is None
-    assert solver.t == plain.t and np.array_equal(solver.y, plain.y)  # no map: the same steps
-    solver.tangent = tangent
-    scale = np.ones(3)
-    K = np.random.default_rng(0).standard_normal(solver.K.shape)
-    left = K * np.array([1.0, 1.0, 0.0])
-    assert solver._estimate_error_norm(K, 0.1, scale) == RK45._estimate_error_norm(solver, left, 0.1, scale)
-    assert solver._estimate_error_norm(K, 0.05, scale) == RK45._estimate_error_norm(solver, left, 0.05, scale)
-    assert calls == [solver.t]
-    assert solver._estimate_error_norm(K, 0.1, scale) < RK45._estimate_error_norm(solver, K, 0.1, scale)
+    rng = np.random.default_rng(0)
+    n = 3
+    tangent = np.diag([1.0, 1.0, 0.0])  # the third component leaves the measure
+    y0, y1, atol = rng.standard_normal(n), rng.standard_normal(n), np.full(n, 1e-3)
+    scratch = [np.zeros(n) for _ in range(3)]
+    for name, pair in EMBEDDED.items():
+        e = np.array(pair.e)
+        e3 = np.zeros(e.size) if pair.e3 is None else np.array(pair.e3)
+        K = rng.standard_normal((pair.stages + 1, n))
+        left = K @ tangent.T
+        for h in (0.1, 0.05):
+            near = stepping.error_norm(K, e, e3, pair.e3 is not None, h, y0, y1, atol, 1e-6, True, tangent, *scratch)
+            plain = stepping.error_norm(left, e, e3, pair.e3 is not None, h, y0, y1, atol, 1e-6, False, tangent,
+                                        *scratch)
+            assert near == pytest.approx(plain, rel=1e-14), name
+            assert near < stepping.error_norm(K, e, e3, pair.e3 is not None, h, y0, y1, atol, 1e-6, False, tangent,
+                                              *scratch), name
 
 
 def test_tangent_map_removes_the_normal_parts_on_a_curved_configuration_space():
     """``_tangent_map`` on the rolling ball (a free body: its chart's velocity alignment ``T`` is not the
-    identity; one row with a position level, two rolling rows): a stage derivative whose ``δ̇`` lies along the
+    identity; one row with a position level, two rolling rows): an error estimate whose ``δ`` lies along the
     position row and whose ``ẇ = T v`` has ``v`` along the rows' range (``P`` of
     ``ConstrainedSystem._row_space_projectors``) maps to zero, and a tangent one maps to itself."""
     from multibody.demos import rolling_ball_setup
@@ -472,6 +469,6 @@ def test_tangent_map_removes_the_normal_parts_on_a_curved_configuration_space():
     e = rng.standard_normal((4, system.nv))
     normal = np.concatenate([position @ e[0], T @ velocity @ e[1]])
     tangent = np.concatenate([e[2] - position @ e[2], T @ (e[3] - velocity @ e[3])])
-    mapped = _tangent_map(system, charts, q, 0.0, y)(np.array([normal, tangent]))
+    mapped = np.array([normal, tangent]) @ _tangent_map(system, charts, q, 0.0, y).T
     np.testing.assert_allclose(mapped[0], 0.0, atol=1e-12)
     np.testing.assert_allclose(mapped[1], tangent, atol=1e-12)
