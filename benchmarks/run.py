@@ -186,7 +186,7 @@ def crba_peak_memory(n, rng):
     return peak / 1e6
 
 
-def rolling_ball(duration, rate, budget, adaptive=("DOP853", 1e-8)):
+def rolling_ball(duration, rate, budget, adaptive=("DOP853", 1e-10)):
     """The rolling ball on a plane tilted by 0.1 rad: one constrained (KKT) step (µs), and the wall time
     (s) of simulating ``duration`` s with output at ``rate`` Hz, both by the adaptive ``(method, rtol)``
     (dense output between its own steps; best of three runs) and by fixed-step RK4 with step ``1/rate``; for each, the

@@ -8,16 +8,18 @@ start of a step, the integrator's state is ``y = [δ, w]`` with ``δ̇ = J_l(δ)
 vectors and ``w`` the velocity with free-flyer, spherical and planar coordinates rotated into the
 parent frame (:meth:`multibody.model.Model.chart`). Quaternions stay exactly on the unit sphere,
 and since aligned velocities do not turn with a spinning body, a step may span half a revolution
-(:data:`CHART_TURN`: rotation vectors are singular at 2π). Adaptive methods run through a ``scipy.integrate`` solver (RK45, DOP853, Radau, ...)
-to ``t_final``, the output states at the requested times coming from its dense output
-(continuous extension) inside each step, so a high output rate does not restrict the step size;
-on a curved configuration space it restarts in a new chart at the end of every step, with the
-step size it proposed next, measuring the error of ``δ`` against the configuration's size
-(:meth:`multibody.model.Model.chart_magnitude`), as for ``q`` itself. The fixed-step methods (``"Euler"``,
+(:data:`CHART_TURN`: rotation vectors are singular at 2π). The adaptive explicit methods (RK23, RK45, DOP853) are
+embedded Runge–Kutta pairs with step-size control (:data:`multibody.integrators.EMBEDDED`, run by
+:func:`multibody.kernels.stepping.adaptive`), the implicit ones (Radau, BDF, LSODA) SciPy's solvers; each runs on to
+``t_final``, the output states at the requested times coming from its dense output (continuous extension) inside
+each step, so a high output rate does not restrict the step size; on a curved configuration space it restarts in a
+new chart at the end of every step, with the step size it proposed next, measuring the error of ``δ`` against the
+configuration's size (:meth:`multibody.model.Model.chart_magnitude`), as for ``q`` itself. The fixed-step methods (``"Euler"``,
 ``"semi-implicit Euler"``, ``"RK4"``: :data:`multibody.integrators.TABLEAUS`) take one step of ``dt`` per output
 interval, one chart per step. Where the system's step is compiled (a ``Model``, or built-in constraints) and the
 joint forces are ``None``, an array, :class:`multibody.PD` or a ``numba.njit`` function, every step runs in compiled
-calls (:mod:`multibody.kernels.stepping`); a Python callable is called from there once per stage. A step that the
+calls (:mod:`multibody.kernels.stepping`); a Python callable is called from there once per stage (fixed-step), or
+the adaptive run's same loop runs as Python with a call per stage. A step that the
 compiled run leaves (one that starts near a singular configuration, a stage or a projection its compiled step does
 not solve) is taken by the Python loop, whose numbers it shares. They also integrate ``N`` trajectories from
 ``q0 (N, nq)``, ``v0 (N, nv)``: each on its own in compiled calls on all cores, or, with a Python callable, in
@@ -394,7 +396,7 @@ def simulate(system, q0, v0, t_final, *, dt=None, method=None, tau=None, rtol=1e
             run = _adaptive_run(constrained, charts, EMBEDDED[method], controller, damping, project,
                                 projection_tolerance, times, rtol, atol, max_step, compiled)
             stages = _ChartStages(constrained, charts, derivative, on_constraints, settle)
-            stages.hand_back = run.tree is not None and not callable(tau)
+            stages.hand_back = run.tree is not None
             run.start(states[0], near)
             chunk, handed = _FIRST_CHUNK, False
             while done < len(times):

@@ -498,10 +498,10 @@ def adaptive_workspace_size(nq, nv, rows, degree, step_columns, step_workspace, 
                             projection_workspace):
     """Floats of an adaptive run's workspace (:func:`adaptive`) for a pair of ``rows`` evaluations per step and a
     dense output of ``degree``: the scalars, the chart's centre, the current state, ``y₀``, the rates, a stage
-    state, the end's, the tolerances, the sizes, the error estimates, the tangent map, the dense output's
+    state, the end's, the tolerances, the sizes, the error estimates, the tangent maps at both ends, the dense output's
     coefficients, the end state, the latest steps' ends, then a stage's blocks as :func:`workspace_size` has them."""
     size = 2 * nv
-    return (SCALARS + nq + (nq + nv) + size * (rows + 7) + nv + size * size + degree * size + (nq + nv)
+    return (SCALARS + nq + (nq + nv) + size * (rows + 7) + nv + 2 * size * size + degree * size + (nq + nv)
             + STALLED_STEPS + (nq + 2 * nv + nv * nv) + (size + 1) + nv + (nq + nv) + step_columns + step_workspace
             + projection_columns + projection_workspace)
 
@@ -716,8 +716,9 @@ def adaptive(python, controller, joints, reals, frames, program, times, plan, co
     :func:`advance` has it. Otherwise this function runs as Python (``adaptive.py_func``) and ``python`` gives the
     system's maps: ``restart(t, state, near, y0, magnitude)`` (the chart state ``y₀`` of ``state`` in the chart
     around it and the chart magnitudes; ``near``: the stages of the steps from there go through the constraints),
-    ``rates(t, q_chart, y, out)``, ``tangent(t, q_chart, y, out)`` (the map of :func:`error_norm` at a step's start
-    near a singular configuration), ``unchart(q_chart, y, out)``, ``settle(t, state) -> (projected, near)`` (in
+    ``rates(t, q_chart, y, out)``, ``tangent(t, q_chart, y, out)`` (the map of :func:`error_norm` at a chart state,
+    near a singular configuration: the error is the larger of those on the tangent spaces at the step's start and
+    end), ``unchart(q_chart, y, out)``, ``settle(t, state) -> (projected, near)`` (in
     place) and ``hand_back`` (return :data:`HANDED_BACK` after a step that ends away from a singular configuration);
     they raise the errors of a failure."""
     nq, nv = int(plan[PLAN_NQ]), int(plan[PLAN_NV])
@@ -777,6 +778,8 @@ def adaptive(python, controller, joints, reals, frames, program, times, plan, co
     scratch = ws[at : at + size]
     at += size
     tangent = ws[at : at + size * size].reshape((size, size))
+    at += size * size
+    tangent_end = ws[at : at + size * size].reshape((size, size))
     at += size * size
     F = ws[at : at + degree * size].reshape((degree, size))
     at += degree * size
@@ -895,6 +898,12 @@ def adaptive(python, controller, joints, reals, frames, program, times, plan, co
                         python.rates(t + c_nodes[i] * h, q_chart, target, K[i])
                 error = error_norm(K[: s + 1], e, e3, two_estimates, h, y0, y_new, atol_chart, rtol, near, tangent, err,
                                    err3, scratch)
+                if near and python is not None:
+                    # and on the tangent space at the step's end, where the projection removes the normal part: a
+                    # step through the singular configuration turns the rows
+                    python.tangent(t_new, q_chart, y_new, tangent_end)
+                    error = max(error, error_norm(K[: s + 1], e, e3, two_estimates, h, y0, y_new, atol_chart, rtol,
+                                                  near, tangent_end, err, err3, scratch))
                 # h_new = h · min(MAX_FACTOR, max(MIN_FACTOR, SAFETY · err^(−1/(q+1)))), no growth after a rejection
                 if error < 1.0:
                     factor = MAX_FACTOR if error == 0.0 else min(MAX_FACTOR, SAFETY * error ** exponent)
