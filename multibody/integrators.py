@@ -1,4 +1,5 @@
-"""Fixed-step methods and controllers of :func:`multibody.simulate`, and the compiled run that takes every step.
+"""Fixed-step and adaptive methods and controllers of :func:`multibody.simulate`, and the compiled runs that take every
+step.
 
 A fixed-step method is a table of coefficients (:class:`Tableau`): an explicit partitioned Runge–Kutta method on
 the chart state ``y = [δ, w]`` (E. Hairer, C. Lubich and G. Wanner, *Geometric Numerical Integration*, 2nd ed.,
@@ -7,6 +8,11 @@ Springer 2006, §II.2.2). :func:`tableau_step` takes one step of it in Python, w
 :mod:`multibody.kernels.stepping`, with the same arithmetic, where the system's step is compiled and the joint
 forces are data (:class:`PD`), compiled (a ``numba.njit`` function ``f(t, q, v, out)``) or Python (one call
 per stage).
+
+An adaptive method is an embedded Runge–Kutta pair with a dense output (:class:`EmbeddedPair`, :data:`EMBEDDED`: RK23,
+RK45, DOP853); :class:`AdaptiveRun` takes all its steps with step-size control in one call of
+:func:`multibody.kernels.stepping.adaptive`, compiled where the fixed-step run is, else the same function run as Python
+with the system's maps.
 """
 
 from __future__ import annotations

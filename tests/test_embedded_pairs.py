@@ -158,3 +158,22 @@ def test_the_compiled_run_with_an_njit_controller_equals_the_run_with_a_python_o
     np.testing.assert_allclose(compiled.q, python.q, rtol=0.0, atol=1e-12)
     np.testing.assert_allclose(compiled.v, python.v, rtol=0.0, atol=1e-12)
     assert compiled.energy[-1] < compiled.energy[0]
+
+
+@numba.njit
+def _cubic(t, q, v, out):
+    out[0] = 100.0 * q[0] ** 3
+
+
+def test_a_solution_that_blows_up_stops_where_the_step_falls_below_the_time_s_rounding():
+    """``ẍ = 100 x³`` from ``x = 1`` at rest (the oscillator's cart pushed by a compiled controller, and by the same
+    law from Python) goes to infinity in finite time (about 0.26 s): the steps shrink with the distance to it until
+    they fall below ten roundings of the time, and the run stops there, saying so, with the trajectory so far."""
+    model, _ = oscillator()
+    for tau in (_cubic, lambda t, q, v: 100.0 * q**3):
+        with pytest.raises(mb.SimulationError) as info:
+            mb.simulate(model, np.array([1.0]), np.array([0.0]), 1.0, dt=0.01, method="DOP853", tau=tau)
+        cause = str(info.value.__cause__)
+        assert "DOP853 failed at t = 0.2" in cause and "fell below ten roundings of the time" in cause, cause
+        partial = info.value.trajectory
+        assert 0.2 <= partial.t[-1] < 0.3 and np.isfinite(partial.q).all()

@@ -25,6 +25,10 @@ the entry point of one trajectory whose controller is not a compiled function; :
 first-class function, serves :mod:`multibody.integrators`' loop over many trajectories on all cores (which
 allocates their workspaces, and so lives outside the kernels). :func:`chart_state` and :func:`aligned_velocity`
 are a run's chart maps as kernels, by which the Python loop takes its states.
+
+An adaptive run (:func:`adaptive`) takes the steps of an embedded pair with step-size control and dense output by the
+same stages and projection, to the end of the run in one call; it runs as Python too (``adaptive.py_func``), with
+the system's maps from Python, for the systems and steps its compiled form does not take.
 """
 
 from __future__ import annotations
