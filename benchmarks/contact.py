@@ -31,11 +31,11 @@ import time
 import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from run import example_robot_data, load  # noqa: E402 (the benchmarks' shared helpers, beside this script)
+from run import example_robot_data, load  # (the benchmarks' shared helpers, beside this script)
 
-import multibody as mb  # noqa: E402
-from multibody import inertia  # noqa: E402
-from multibody.joints import FreeFlyer  # noqa: E402
+import multibody as mb
+from multibody import inertia
+from multibody.joints import FreeFlyer
 
 G = 9.81
 #: The incline of the no-creep scene: slope α (rad), friction μ, box edge lengths (m) and mass (kg).
@@ -86,7 +86,7 @@ def incline_creep(alpha=ALPHA, mu=MU, duration=2.0, dt=1e-3):
     trajectory = mb.simulate(system, q0, np.zeros(6), duration, dt=dt)
     downhill = np.array([np.cos(alpha), 0.0, -np.sin(alpha)])
     steps = len(trajectory.t) - 1
-    window = min(int(round(1.0 / dt)), steps // 2)
+    window = min(round(1.0 / dt), steps // 2)
     # v[:3] is the velocity of the box's centre in its own axes: its norm is the speed
     result = {"alpha_deg": float(np.degrees(alpha)), "mu": mu, "duration_s": duration, "dt": dt,
               "ours_max_speed": float(np.linalg.norm(trajectory.v[:, :3], axis=1).max()),
@@ -160,8 +160,8 @@ def mujoco_go1(path, model, q_ref, dt):
         return None
     with open(path) as handle:
         text = handle.read()
-    text = re.sub(r"<visual>.*?</visual>", "", text, flags=re.S)
-    text = re.sub(r'(<link name="base">\s*)<inertial>.*?</inertial>', r"\1", text, flags=re.S)
+    text = re.sub(r"<visual>.*?</visual>", "", text, flags=re.DOTALL)
+    text = re.sub(r'(<link name="base">\s*)<inertial>.*?</inertial>', r"\1", text, flags=re.DOTALL)
     text = text.replace('<joint name="floating_base" type="fixed">', '<joint name="floating_base" type="floating">')
     spec = mujoco.MjSpec.from_string(text)
     for geom in spec.geoms:
@@ -211,7 +211,7 @@ def go1_single(duration=1.0, dt=1e-3, repeats=3):
     q0, v0 = go1_standing(model), np.zeros(model.nv)
     system = mb.ConstrainedSystem(model, [mb.Ground(friction=GO1_FRICTION)])
     pd = go1_pd(model, q0)
-    steps = int(round(duration / dt))
+    steps = round(duration / dt)
     built = mujoco_go1(path, model, q0, dt)
     threads = mb.get_num_threads()
     mb.set_num_threads(1)
@@ -270,8 +270,8 @@ def go1_batch(n=4096, duration=0.1, dt=1e-3, repeats=1):
     system = mb.ConstrainedSystem(model, [mb.Ground(friction=GO1_FRICTION)])
     # the joints' PD (its free-flyer gains are zero, so the one reference serves every place and heading)
     pd = go1_pd(model, standing)
-    steps = int(round(duration / dt))
-    options = dict(dt=dt, tau=pd, progress=False)
+    steps = round(duration / dt)
+    options = {"dt": dt, "tau": pd, "progress": False}
     mb.simulate(system, q0[:2], v0[:2], 3 * dt, **options)  # compiled (or loaded) before timing
     ours = []
     for _ in range(repeats):

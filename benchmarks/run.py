@@ -13,7 +13,8 @@ double-pendulum and Panda trajectories by batched RK4 for 1 s at 1 kHz, against 
 with Dask installed, the overhead of chunks of 1e5 states on two local worker processes; on a CUDA GPU, Panda
 RNEA, CRBA and ABA states/s and batched RK4 trajectory-steps/s under mb.PD against the CPU (or one line saying no GPU
 was found); and the time to load gymnasium's MJCF humanoid against MuJoCo's own compiler.
-The table is printed and saved as JSON and Markdown.
+The table is printed and saved as JSON and Markdown. Simulation with contact, beside MuJoCo, is measured by
+benchmarks/contact.py.
 
     python benchmarks/run.py                      # the full table (several minutes)
     python benchmarks/run.py --quick              # small sizes, a smoke run
