@@ -80,7 +80,7 @@ def _signature(entry):
 def compile_kernels(kernels=None, processes=None) -> None:
     """Compile the machine code of those ``kernels`` (default: every kernel) that Numba's on-disk cache lacks,
     sharing them among ``processes`` (default: the cores this process may use), so that later processes load
-    them in a fraction of a second. An entry is a kernel, compiled for its single call (:func:`direct`), or a
+    them in a fraction of a second. An entry is a kernel, compiled for its single call (:func:`entry_point`), or a
     pair ``(function, argument types)``, compiled for those types: a loop that Python calls (:data:`ENTRY_POINTS`,
     :data:`multibody.integrators.ENTRY_POINTS`) or a function passed to one as a first-class function.
 
@@ -175,9 +175,9 @@ def _compile_named(entries) -> None:
 
 def _compile(function, types) -> None:
     """Compile ``function`` for ``types`` (or load it from Numba's cache): a kernel's single call as
-    :func:`direct` keeps it, any other function as Numba keeps it (:func:`direct` keeps one entry per function)."""
+    :func:`entry_point` keeps it, any other function as Numba keeps it (:func:`entry_point` keeps one entry per function)."""
     if types == _SINGLE_CALL_TYPES:
-        direct(function)
+        entry_point(function)
     else:
         function.compile(types)
 
@@ -278,7 +278,7 @@ def first_class(function, types):
     function: a value that compiled code whose argument is ``numba.types.FunctionType`` of that signature calls
     through a pointer, so that one compiled loop serves every such function (:func:`_loop_kernel`; the compiled
     run of :mod:`multibody.integrators`; :func:`multibody.numba_hooks.first_class`). Kept per function, for one
-    signature each as :func:`direct` keeps its entry: making the value costs about 30 µs, and a compiled run
+    signature each as :func:`entry_point` keeps its entry: making the value costs about 30 µs, and a compiled run
     asks for it at every chunk of steps. Under ``NUMBA_DISABLE_JIT=1``: the Python function."""
     pointer = _FIRST_CLASS.get(function)
     if pointer is None:
@@ -326,14 +326,14 @@ def evaluate_one(kernel, tree, out_shape, x0=NO_INPUT, x1=NO_INPUT, x2=NO_INPUT,
     ``frames`` (C-contiguous float64 rows) and ``workspace`` as :func:`evaluate`; ``out``: a C-contiguous
     float64 array of ``out_shape`` to write into (default a new one).
 
-    The kernel's machine code is called without Numba's dispatch (:func:`direct`), so the types
+    The kernel's machine code is called without Numba's dispatch (:func:`entry_point`), so the types
     above are the caller's to guarantee: every caller has checked them already, and a second look
     would cost as much as the kernel's own arithmetic on a small robot."""
     joints, reals, bodies, _, _, nv, nj = tree
     call = _SINGLE_CALLS.get((kernel, nj, nv))
     if call is None:
         size = kernel_workspace_size(kernel, nj, nv) if kernel in _WORKSPACE else None  # (else always given)
-        call = _SINGLE_CALLS[kernel, nj, nv] = (direct(kernel), size)
+        call = _SINGLE_CALLS[kernel, nj, nv] = (entry_point(kernel), size)
     entry, size = call
     if out is None:
         out = np.empty(out_shape)
@@ -371,14 +371,9 @@ _BATCH_TYPES = (numba.types.FunctionType(numba.types.none(*_SINGLE_CALL_TYPES)),
 ENTRY_POINTS = ((_batch, _BATCH_TYPES),)
 
 
-def entry_point(function, types):
-    """The compiled entry point of ``function`` for the argument ``types`` (:func:`direct`): a run loop's, called
-    from Python with arguments of those types (read-only arrays where they say writable)."""
-    return direct(function, types)
-
-
-def direct(kernel, types=_SINGLE_CALL_TYPES):
-    """``kernel``'s compiled entry point for ``types`` (a kernel's: :data:`_SINGLE_CALL_TYPES`), compiled
+def entry_point(kernel, types=_SINGLE_CALL_TYPES):
+    """``kernel``'s compiled entry point for ``types`` (a kernel's: :data:`_SINGLE_CALL_TYPES`; a run loop's, called
+    from Python with arguments of its types), compiled
     (or loaded from Numba's cache) on first use: a call that skips the dispatcher's look at every
     argument's type, a third of a small robot's single call, and that takes a read-only array where
     the types say writable (Numba's dispatch would compile the function again for it);
@@ -453,14 +448,14 @@ def evaluate(kernel, tree, inputs, out_shape, batch=(), frames=None, workspace=N
     n = math.prod(batch)
     out = result.reshape((n,) + tuple(out_shape))  # (a view: the result is C-contiguous)
     if n == 1:  # one state with batch axes: the kernel directly, as for no batch axes
-        direct(kernel)(tree.joints, tree.reals, frames, _rows(x0, batch, 1)[0], _rows(x1, batch, 1)[0],
+        entry_point(kernel)(tree.joints, tree.reals, frames, _rows(x0, batch, 1)[0], _rows(x1, batch, 1)[0],
                         _rows(x2, batch, 1)[0], _rows(x3, batch, 1)[0], out[0], workspace)
     elif n:
         # A small batch runs on fewer threads: waking a sleeping thread costs more than it would compute.
         shares = max(1, min(get_num_threads(), n // STATES_PER_THREAD))
         with parallel_shares(shares):
             rows = (_rows(x0, batch, n), _rows(x1, batch, n), _rows(x2, batch, n), _rows(x3, batch, n))
-            direct(_batch, _BATCH_TYPES)(_loop_kernel(kernel), tree.joints, tree.reals, frames, *rows, out,
+            entry_point(_batch, _BATCH_TYPES)(_loop_kernel(kernel), tree.joints, tree.reals, frames, *rows, out,
                                           workspace.size, shares)
     return result
 

@@ -184,7 +184,7 @@ class _ModelLagrangian:
     def _run(self, kernel, shape, q, v=_EMPTY, a=_EMPTY):
         out = np.empty(shape)
         # (the step's own C-contiguous float64 vectors: the types driver.evaluate_one's callers guarantee)
-        driver.direct(kernel)(*self._tree, np.ascontiguousarray(q, dtype=float), v, a, _EMPTY, out,
+        driver.entry_point(kernel)(*self._tree, np.ascontiguousarray(q, dtype=float), v, a, _EMPTY, out,
                                self._workspaces[kernel])
         return out
 
@@ -341,7 +341,7 @@ class _LieGroupChart:
         rotation ``R exp(ω)`` does not depend on the linear part)."""
         q, x = np.ascontiguousarray(q, dtype=float), np.ascontiguousarray(x, dtype=float)
         out = np.empty((1, self.nq))
-        driver.direct(configuration.integrate)(*self._tree, q, x, _EMPTY, _EMPTY, out, _EMPTY)
+        driver.entry_point(configuration.integrate)(*self._tree, q, x, _EMPTY, _EMPTY, out, _EMPTY)
         moved = out[0]
         for iq, iv in self._free_flyers:
             moved[iq:iq + 3] = q[iq:iq + 3] + x[iv:iv + 3]  # (the rotation is Model.integrate's, R exp(ω))
@@ -360,7 +360,7 @@ class _LieGroupChart:
             return T
         # the compiled velocity_alignment holds each free flyer's R (parent from body) on its diagonal
         aligned = np.empty((self.nv, self.nv))
-        driver.direct(configuration.velocity_alignment)(*self._tree, q, _EMPTY, _EMPTY, _EMPTY, aligned, _EMPTY)
+        driver.entry_point(configuration.velocity_alignment)(*self._tree, q, _EMPTY, _EMPTY, _EMPTY, aligned, _EMPTY)
         T = np.eye(self.nv)
         for _, iv in self._free_flyers:
             T[iv:iv + 3, iv:iv + 3] = aligned[iv:iv + 3, iv:iv + 3].T
@@ -373,7 +373,7 @@ class _LieGroupChart:
     def exponential_terms(self, x):
         """``(Ad_exp(x), J_l(x))``, both ``(nv, nv)`` (:func:`multibody.kernels.configuration.exponential_terms`)."""
         out = np.empty((2 * self.nv, self.nv))
-        driver.direct(configuration.exponential_terms)(*self._tree, np.ascontiguousarray(x, dtype=float), _EMPTY, _EMPTY,
+        driver.entry_point(configuration.exponential_terms)(*self._tree, np.ascontiguousarray(x, dtype=float), _EMPTY, _EMPTY,
                                                         _EMPTY, out, self._workspace)
         return out[:self.nv], out[self.nv:]
 

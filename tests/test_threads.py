@@ -80,7 +80,7 @@ def _recording_batches(monkeypatch):
     """Record ``(shares, Numba's thread count)`` of every parallel loop the driver runs, then run the loop
     (the results are checked for overflow, so they must be computed)."""
     calls = []
-    loop = mb.driver.direct(mb.driver._batch, mb.driver._BATCH_TYPES)
+    loop = mb.driver.entry_point(mb.driver._batch, mb.driver._BATCH_TYPES)
 
     def recorded(*args):
         calls.append((args[-1], numba.get_num_threads()))
