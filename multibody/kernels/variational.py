@@ -77,7 +77,7 @@ def workspace_size(nj, nq, nv, m, nframes):
     :func:`advance`), the constraint solves' (:func:`multibody.kernels.kkt.solve_workspace`), and the largest
     workspace of the kernels it calls."""
     columns = m * nv + 2 * m + 1  # constraints.levels_columns(nv, m)
-    vectors = 16 * nv + 3 * nq + 8 * m + (nv + 1) * nv
+    vectors = 16 * nv + 3 * nq + 7 * m + (nv + 1) * nv
     matrices = 18 * nv * nv + 3 * columns + 4 * m * nv + 2 * m * m
     solves = 4 * m * nv + m * m + 8 * m
     kernels = max(lagrangian.workspace_size(nj, nv), derivatives.workspace_size(nj, nv), coriolis.workspace_size(nj, nv),
@@ -607,7 +607,7 @@ def advance(controller, joints, reals, frames, program, times, plan, control, st
     ``plan``: :data:`PLAN_HEADER` and its blocks; ``control``: ``[τ (nv) | PD block]``
     (:func:`multibody.kernels.stepping.pd_torque`)."""
     nq, nv, m = int(plan[PLAN_NQ]), int(plan[PLAN_NV]), int(plan[PLAN_M])
-    grouped, chart = plan[PLAN_GROUPED] != 0.0, plan[PLAN_CHART] != 0.0
+    grouped = plan[PLAN_GROUPED] != 0.0
     trapezoidal = plan[PLAN_TRAPEZOIDAL] != 0.0
     tolerance, max_iterations = plan[PLAN_TOLERANCE], int(plan[PLAN_MAX_ITERATIONS])
     rank_tolerance = plan[PLAN_RANK_TOLERANCE]
@@ -642,10 +642,10 @@ def advance(controller, joints, reals, frames, program, times, plan, control, st
                                  vectors[15 * nv : 16 * nv])
     q_mid, q1, q_shift = ws[at : at + nq], ws[at + nq : at + 2 * nq], ws[at + 2 * nq : at + 3 * nq]
     at += 3 * nq
-    mu, mu_new, c, scales = ws[at : at + m], ws[at + m : at + 2 * m], ws[at + 2 * m : at + 3 * m], ws[at + 3 * m : at + 4 * m]
-    rhs, mu_plus, sigma, pivots = (ws[at + 4 * m : at + 5 * m], ws[at + 5 * m : at + 6 * m], ws[at + 6 * m : at + 7 * m],
-                                   ws[at + 7 * m : at + 8 * m])
-    at += 8 * m
+    mu, c, scales = ws[at : at + m], ws[at + m : at + 2 * m], ws[at + 2 * m : at + 3 * m]
+    rhs, mu_plus, sigma, pivots = (ws[at + 3 * m : at + 4 * m], ws[at + 4 * m : at + 5 * m], ws[at + 5 * m : at + 6 * m],
+                                   ws[at + 6 * m : at + 7 * m])
+    at += 7 * m
     terms = ws[at : at + (nv + 1) * nv].reshape((nv + 1, nv))
     at += (nv + 1) * nv
     # the step's matrices
