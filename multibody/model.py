@@ -488,11 +488,6 @@ class Model:
     # ------------------------------------------------------------------ input checking
 
     @staticmethod
-    def _require_last_axis(x, size, name):
-        if x.ndim == 0 or x.shape[-1] != size:
-            raise ValueError(f"{name} must have shape (..., {size}), got {x.shape}")
-
-    @staticmethod
     def _as_float_array(x, name):
         if type(x) is np.ndarray and x.dtype == np.float64:
             if not all_finite(x):
@@ -553,7 +548,7 @@ class Model:
         if self._is_one_state(q):
             return q
         q = self._as_float_array(q, name)
-        self._require_last_axis(q, self.nq, name)
+        spatial.require_last_axis(q, self.nq, name)
         # NaN norms compare false, so non-finite entries pass here and propagate (with the warning above).
         for joint, joint_name, start in self._unit_norm_blocks:
             joint.validate(q[..., start : start + joint.nq], joint_name)
@@ -575,7 +570,7 @@ class Model:
         if self._is_one_state(NOT_GIVEN, v):
             return v
         v = self._as_float_array(v, name)
-        self._require_last_axis(v, self.nv, name)
+        spatial.require_last_axis(v, self.nv, name)
         return v
 
     def __repr__(self):

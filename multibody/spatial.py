@@ -36,12 +36,17 @@ def batch_shape(*shapes):
     return shapes[0] if shapes.count(shapes[0]) == len(shapes) else np.broadcast_shapes(*shapes)
 
 
+def require_last_axis(x, size, name):
+    """``ValueError`` naming ``name`` unless the array ``x`` has the shape ``(..., size)``."""
+    if x.ndim == 0 or x.shape[-1] != size:
+        raise ValueError(f"{name} must have shape (..., {size}), got {x.shape}")
+
+
 def float_array(x, size, name):
     """``x`` as a float array of shape ``(..., size)``, or ``ValueError`` naming ``name`` (the maps that take
     any numbers)."""
     x = np.asarray(x, dtype=float)
-    if x.ndim == 0 or x.shape[-1] != size:
-        raise ValueError(f"{name} must have shape (..., {size}), got {x.shape}")
+    require_last_axis(x, size, name)
     return x
 
 

@@ -513,3 +513,14 @@ def test_batch_shape_broadcasts_only_when_shapes_differ():
     assert sp.batch_shape((4, 1), (3,), ()) == (4, 3)
     with pytest.raises(ValueError):
         sp.batch_shape((4,), (3,))
+
+
+def test_float_array_takes_any_numbers_of_the_right_last_axis():
+    """``sp.float_array``: numbers of shape ``(..., size)`` as floats; another last axis, or a scalar, is a
+    ``ValueError`` naming the argument and both shapes (``require_last_axis``)."""
+    x = sp.float_array([[1, 2, 3]], 3, "q")
+    assert x.dtype == np.float64 and x.shape == (1, 3)
+    with pytest.raises(ValueError, match=r"q must have shape \(\.\.\., 3\), got \(2, 4\)"):
+        sp.float_array(np.zeros((2, 4)), 3, "q")
+    with pytest.raises(ValueError, match=r"v must have shape \(\.\.\., 2\), got \(\)"):
+        sp.require_last_axis(np.float64(1.0), 2, "v")

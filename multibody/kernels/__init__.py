@@ -20,8 +20,8 @@ def _machine_code_directory():
 
 
 def _forget_stale_machine_code():
-    """Remove the cached machine code of every kernel when any kernel source (or the tree's layout, whose
-    column numbers the kernels compile in as constants) differs from the one it was compiled from.
+    """Remove the cached machine code of every kernel when any kernel source (the tree's layout, whose column
+    numbers the kernels compile in as constants, among them) differs from the one it was compiled from.
 
     Numba checks a cached function against its own file only, while a kernel's machine code holds its
     helpers from other files, inlined: after an edit of ``crba.py`` (a ``git pull``, or an upgrade that
@@ -30,7 +30,7 @@ def _forget_stale_machine_code():
     package = os.path.dirname(os.path.abspath(__file__))
     sources = sorted(os.path.join(package, name) for name in os.listdir(package) if name.endswith(".py"))
     # (and numba_hooks.py, whose options and typing the kernels compile with)
-    sources += [os.path.join(os.path.dirname(package), name) for name in ("tree.py", "numba_hooks.py")]
+    sources.append(os.path.join(os.path.dirname(package), "numba_hooks.py"))
     digest = hashlib.sha256()
     for path in sources:
         with open(path, "rb") as source:
