@@ -17,9 +17,10 @@ from functools import cached_property
 
 import numpy as np
 
-from . import derivatives, differences, driver, dynamics, kinematics, linalg, spatial
+from . import derivatives, differences, driver, dynamics, kinematics, spatial
 from .constraints import CompiledRows, frame_key, constraint_program
 from .contact import Unilateral
+from .integrators import vector_space_tree
 from .kernels import aba, integration, kkt
 from .kernels import constraints as compiled_rows
 from .model import Model
@@ -40,6 +41,36 @@ class RankDeficientWarning(UserWarning):
     (``warnings.filterwarnings("ignore", category=mb.RankDeficientWarning)``); where it is not, a
     constraint holds less than it seems to (a planar loop closure in a plane that is not the loop's).
     """
+
+
+#: The tree :func:`multibody.kernels.kkt.solve_arrays` and ``correction_arrays`` are called with: they read no tree.
+_NO_TREE = vector_space_tree(0)
+
+
+def _failing_constraint(system, row):
+    """The constraint of ``system`` (a :class:`ConstrainedSystem`) that holds constraint row ``row``."""
+    return system.constraints[int(np.searchsorted(np.cumsum(system._rows), row, side="right"))]
+
+
+#: The one table of the compiled solve's and projection's failures (:mod:`multibody.kernels.kkt`): each status
+#: as the exception it raises, from the system and the status outputs: the rank, the row the failure concerns
+#: (:data:`~multibody.kernels.kkt.ROW`), the value reported (how far that row is off, or the ``|φ|`` a projection
+#: left) and the iterations of the projection. A state with a non-finite input gets NaN results from
+#: :meth:`ConstrainedSystem.solve`; a projection of it raises the message below.
+STATUS_ERRORS = {
+    kkt.NOT_POSITIVE_DEFINITE: lambda system, rank, row, value, iterations: ConstraintError(
+        "the mass matrix is not positive definite at this configuration"),
+    kkt.INCONSISTENT: lambda system, rank, row, value, iterations: ConstraintError(
+        f"inconsistent constraints: no accelerations satisfy all {system.num_rows} rows (rank {int(rank)}); "
+        f"row {system.row_names[int(row)]!r} is off by {value:.3g}"),
+    kkt.UNDEFINED: lambda system, rank, row, value, iterations: ValueError(
+        f"{_failing_constraint(system, row).name}: {_failing_constraint(system, row).undefined}"),
+    kkt.NOT_CONVERGED: lambda system, rank, row, value, iterations: ConstraintError(
+        f"projection onto the position constraints did not converge: |φ| = {value:.3g} after {int(iterations)} "
+        "iterations"),
+    kkt.NON_FINITE: lambda system, rank, row, value, iterations: ConstraintError(
+        "the constrained step has a non-finite input: a NaN or infinite entry of q, v, tau or the constraint rows"),
+}
 
 
 class ModelSystem:
@@ -221,8 +252,8 @@ class ConstrainedSystem:
         self._position_mask = np.concatenate(masks) if masks else np.zeros(0, dtype=bool)
         self._has_position = [bool(mask.any()) for mask in masks]
         self.row_names = [f"{c.name}[{k}]" for c, m in zip(self.constraints, self._rows) for k in range(m)]
-        # The body frames that constraints evaluated in Python read, once each: the NumPy step computes
-        # them with M and h (compiled rows compute their own frames).
+        # The body frames that constraints evaluated in Python read, once each: solve computes them with M
+        # and h before it evaluates those rows (compiled rows compute their own frames).
         frames = {} if not isinstance(self.system, ModelSystem) else {
             frame_key(self.system.model, *frame): frame for c in self.constraints
             if not isinstance(c, CompiledRows) or c.moving for frame in c.body_frames}
@@ -279,29 +310,44 @@ class ConstrainedSystem:
         return (program, frames, (1, compiled_rows.levels_columns(self.nv, self.num_rows)),
                 compiled_rows.workspace_size(model.njoints, self.nv, len(frames)))
 
-    def _solve_compiled(self, q, v, tau):
-        """:meth:`solve` by the compiled step, or ``None`` where it does not apply or did not solve (a
-        singular ``M``, inconsistent rows, undefined geometry): the NumPy path then raises the error
-        that explains why. A state with a non-finite input gets NaN results and rank 0."""
-        if self._compiled_step is None:
-            return None
+    def _solve_program(self, q, v, tau):
+        """``(a, λ, A, γ, tail)`` of :meth:`solve` by the compiled step on the program's rows
+        (:func:`multibody.kernels.kkt.constrained_accelerations`), with leading batch axes as ``q`` and ``tau``;
+        ``tail (..., TAIL)``: the status outputs (:data:`multibody.kernels.kkt.TAIL`)."""
         program, frames, workspace = self._compiled_step
         nv, m = self.nv, self.num_rows
         batch = q.shape[:-1] if tau is None else spatial.batch_shape(q.shape[:-1], tau.shape[:-1])
         row = driver.evaluate(kkt.constrained_accelerations, self.system.model.tree, (q, v, tau, program),
                               (1, kkt.output_columns(nv, m)), batch, frames, workspace)[..., 0, :]
-        A = row[..., nv + m : nv + m + m * nv].reshape(batch + (m, nv))
-        solution = row[..., :nv], row[..., nv : nv + m], A, row[..., nv + m + m * nv : nv + 2 * m + m * nv]
-        # status NaN: a state with a non-finite input (warned about), all of whose results are NaN; rank 0
-        if not batch:
-            status = float(row[-1])
-            if status != kkt.SOLVED and status == status:
-                return None
-            return KKTSolution(solution[0], solution[1], int(row[-2]) if status == kkt.SOLVED else 0, *solution[2:])
-        status = row[..., -1]
-        if not ((status == kkt.SOLVED) | np.isnan(status)).all():
-            return None
-        return KKTSolution(solution[0], solution[1], np.nan_to_num(row[..., -2]).astype(int), *solution[2:])
+        return (row[..., :nv], row[..., nv : nv + m], row[..., nv + m : nv + m + m * nv].reshape(batch + (m, nv)),
+                row[..., nv + m + m * nv : nv + 2 * m + m * nv], row[..., -kkt.TAIL :])
+
+    def _solve_arrays(self, M, h, tau, A, gamma, check=True):
+        """``(a (..., nv), λ (..., m), tail (..., TAIL))`` of ``M a + h = τ + Aᵀ λ``, ``A a = γ`` by the compiled solve
+        on rows given as arrays (:func:`multibody.kernels.kkt.solve_arrays`): ``M (..., nv, nv)``, ``h``, ``tau
+        (..., nv)`` or ``None`` (zero), ``A (..., m, nv)``, ``gamma (..., m)``, whose leading axes broadcast.
+        ``check``: whether inconsistent rows are a failure (else the minimum-norm solution alone)."""
+        nv, m = M.shape[-1], A.shape[-2]
+        batch = spatial.batch_shape(M.shape[:-2], () if h is None else h.shape[:-1],
+                                    () if tau is None else tau.shape[:-1], A.shape[:-2], gamma.shape[:-1])
+        options = np.concatenate([np.broadcast_to([self.rank_tolerance, 1.0 if check else 0.0], M.shape[:-2] + (2,)),
+                                  M.reshape(M.shape[:-2] + (nv * nv,))], axis=-1)
+        lead = spatial.batch_shape(A.shape[:-2], gamma.shape[:-1])
+        rows = np.concatenate([np.broadcast_to(A.reshape(A.shape[:-2] + (m * nv,)), lead + (m * nv,)),
+                               np.broadcast_to(gamma, lead + (m,))], axis=-1)
+        row = driver.evaluate(kkt.solve_arrays, _NO_TREE, (options, np.zeros(nv) if h is None else h, tau, rows),
+                              (1, kkt.arrays_columns(nv, m)), batch, workspace=kkt.arrays_workspace_size(nv, m))[..., 0, :]
+        return row[..., :nv], row[..., nv : nv + m], row[..., -kkt.TAIL :]
+
+    def _raise_failure(self, tail, iterations=0, non_finite=False):
+        """The error of :data:`STATUS_ERRORS` of the first state whose status outputs ``tail (..., TAIL)`` report a
+        failure; a non-finite input counts only with ``non_finite``."""
+        status = tail[..., kkt.STATUS]
+        failed = (status != kkt.SOLVED) if non_finite else (status != kkt.SOLVED) & (status != kkt.NON_FINITE)
+        if failed.any():
+            first = tail[failed].reshape(-1, kkt.TAIL)[0]
+            raise STATUS_ERRORS[int(first[kkt.STATUS])](self, first[kkt.RANK], first[kkt.ROW], first[kkt.VALUE],
+                                                         iterations)
 
     @cached_property
     def _compiled_motion(self):
@@ -331,9 +377,10 @@ class ConstrainedSystem:
 
     def _chart_derivative(self, q_chart, y, tau, q=None):
         """``ẏ (2 nv,)`` of the chart state ``y = [δ, w]`` around ``q_chart`` with constant joint forces
-        ``tau`` (``None``: zero), by one compiled call; ``None`` where the compiled step does not apply or
-        did not solve (the NumPy path then gives the answer or the error). ``q``: the configuration
-        ``chart(q_chart, δ)``, where the caller has it already."""
+        ``tau`` (``None``: zero), by one compiled call. A constrained step that fails raises the error of its status
+        (:data:`STATUS_ERRORS`); a non-finite input gives non-finite rates. ``None`` where ABA alone gives
+        non-finite rates (the caller's :meth:`forward_dynamics` then raises the error that names the joint). ``q``:
+        the configuration ``chart(q_chart, δ)``, where the caller has it already."""
         kernel, program, frames, workspace = self._compiled_motion
         nv, tree = self.nv, self.system.model.tree
         y = driver.contiguous(y)
@@ -344,30 +391,40 @@ class ConstrainedSystem:
             q = q_chart + y[:nv] if q is None else driver.contiguous(q)
             a = driver.evaluate_one(aba.forward_dynamics, tree, (1, nv), q, w, tau)[0]
             return np.concatenate((w, a)) if math.isfinite(sum(a.tolist())) else None
-        row = driver.evaluate_one(kernel, tree, (1, integration.output_columns(nv)), driver.contiguous(q_chart), y,
-                                  tau, driver.NO_INPUT if program is None else program, frames=frames,
-                                  workspace=workspace)[0]
+        row = driver.evaluate_one(kernel, tree, (1, integration.output_columns(nv, self.num_rows)),
+                                  driver.contiguous(q_chart), y, tau, driver.NO_INPUT if program is None else program,
+                                  frames=frames, workspace=workspace)[0]
         y_dot = row[: 2 * nv]
-        if row[2 * nv] != kkt.SOLVED or not math.isfinite(sum(y_dot.tolist())):
-            return None
+        if program is None:
+            return y_dot if math.isfinite(sum(y_dot.tolist())) else None
+        self._raise_failure(row[-kkt.TAIL :])
         return y_dot
 
     def _chart_derivatives(self, q_chart, y, tau):
         """:meth:`_chart_derivative` of a batch, in one compiled call on all cores: ``ẏ (n, 2 nv)`` of the
         chart states ``y (n, 2 nv)`` around ``q_chart (n, nq)``, with joint forces ``tau`` ``(n, nv)``, ``(nv,)``
-        (every state) or ``None`` (zero), and whether each state solved, ``(n,)``: where one did not, the
-        NumPy path gives its answer or the error."""
+        (every state) or ``None`` (zero), and for each state that failed, ``{index: error}``: the error of its
+        status (:data:`STATUS_ERRORS`), or ``None`` where ABA alone gave non-finite rates. A state with a
+        non-finite input gets non-finite rates and no entry."""
         kernel, program, frames, workspace = self._compiled_motion
         nv = self.nv
         if self._by_aba_alone:
             a = driver.evaluate(aba.forward_dynamics, self.system.model.tree, (q_chart + y[:, :nv], y[:, nv:], tau),
                                 (1, nv), (len(y),))[:, 0]
             y_dot = np.concatenate([y[:, nv:], a], axis=1)
-            return y_dot, np.isfinite(y_dot).all(axis=1)
+            return y_dot, {int(j): None for j in np.flatnonzero(~np.isfinite(y_dot).all(axis=1))}
         rows = driver.evaluate(kernel, self.system.model.tree, (q_chart, y, tau, program),
-                               (1, integration.output_columns(nv)), (len(y),), frames, workspace)[:, 0]
+                               (1, integration.output_columns(nv, self.num_rows)), (len(y),), frames, workspace)[:, 0]
         y_dot = rows[:, : 2 * nv]
-        return y_dot, (rows[:, 2 * nv] == kkt.SOLVED) & np.isfinite(y_dot).all(axis=1)
+        if program is None:
+            return y_dot, {int(j): None for j in np.flatnonzero(~np.isfinite(y_dot).all(axis=1))}
+        failures = {}
+        for j in np.flatnonzero((rows[:, -1] != kkt.SOLVED) & (rows[:, -1] != kkt.NON_FINITE)):
+            try:
+                self._raise_failure(rows[j, -kkt.TAIL :])
+            except (ConstraintError, ValueError) as error:
+                failures[int(j)] = error
+        return y_dot, failures
 
     @cached_property
     def num_rows(self) -> int:
@@ -500,109 +557,23 @@ class ConstrainedSystem:
             return *self.system.mass_matrix_and_bias(q, v), self.system
         return self.system.mass_matrix(q), self.system.bias_forces(q, v), self.system
 
-    def _factor(self, q, M=None):
-        M = self.system.mass_matrix(q) if M is None else M
-        try:
-            return linalg.cholesky(M)
-        except np.linalg.LinAlgError:
-            raise ConstraintError("the mass matrix is not positive definite at this configuration") from None
-
-    @staticmethod
-    def _solve_factored(L, rhs):
-        """``M⁻¹ rhs`` from the Cholesky factor ``L`` (``M = L Lᵀ``); ``rhs`` ``(..., nv, k)``."""
-        return linalg.cholesky_solve(L, rhs)
-
-    def _metric_singular_values(self, A, L):
-        """Singular values ``σ (..., m)``, largest first, and left singular vectors ``U (..., m, m)`` of
-        ``B = A L⁻ᵀ``, the constraint Jacobian in the metric of ``M = L Lᵀ``: ``G = A M⁻¹ Aᵀ = U diag(σ²) Uᵀ``,
-        without forming ``G`` (whose eigenvalues would square the condition number).
-
-        By the compiled step's one-sided Jacobi rotations of the rows of ``B``
-        (:func:`multibody.kernels.kkt.orthogonalize_stack`), not LAPACK's bidiagonal SVD: near a singular
-        configuration the rows of ``B`` are graded (a loop closure's nearly lost row is ``O(angle)``), and
-        Jacobi rotations give its small singular values to high relative accuracy (Demmel and Veselić, SIAM
-        J. Matrix Anal. Appl. 13, 1992), where the bidiagonal SVD gets them only to ``ε σ_max``: 3e-7
-        relative error in the multipliers of two parallelograms 1e-9 rad from flat. The NumPy path and the
-        compiled step then give the same multipliers."""
-        B_T = linalg.lower_triangular_solve(L, np.swapaxes(A, -1, -2))  # (A L⁻ᵀ)ᵀ = L⁻¹ Aᵀ
-        if not np.isfinite(B_T).all():  # LAPACK's error, as before, rather than rotations of NaN
-            _, sigma, U_T = np.linalg.svd(B_T, full_matrices=False)
-            return sigma, np.swapaxes(U_T, -1, -2)
-        batch, m = B_T.shape[:-2], B_T.shape[-1]
-        B = np.ascontiguousarray(np.swapaxes(B_T, -1, -2).reshape((-1, m, B_T.shape[-2])))
-        U, sigma = np.empty((len(B), m, m)), np.empty((len(B), m))
-        kkt.orthogonalize_stack(B, U, sigma)
-        if not batch:  # (plain indexing: take_along_axis costs ten times the rest for one small state)
-            order = np.argsort(-sigma[0], kind="stable")
-            return sigma[0][order], U[0][:, order]
-        order = np.argsort(-sigma, axis=-1, kind="stable")
-        sigma, U = np.take_along_axis(sigma, order, axis=-1), np.take_along_axis(U, order[:, None, :], axis=-1)
-        return sigma.reshape(batch + (m,)), U.reshape(batch + (m, m))
-
-    def _kept_directions(self, sigma):
-        """The one rank decision: ``(keep, 1/σ² on the kept directions, 0 elsewhere)`` for the singular values
-        ``σ (..., k)`` of ``A L⁻ᵀ``, largest first; a direction counts when ``σ > rank_tolerance · σ_max``."""
-        keep = sigma > self.rank_tolerance * sigma[..., :1]
-        return keep, np.divide(1.0, sigma**2, out=np.zeros_like(sigma), where=keep)
-
-    def _minimum_norm(self, A, L, rhs):
-        """Minimum-norm ``λ = G⁺ rhs`` with ``G = A M⁻¹ Aᵀ``, the rank, the part of ``rhs`` that no ``λ``
-        meets, the size of the terms of the part met, ``Σ_j |U_ij| Σ_k |U_kj rhs_k|`` over the directions
-        kept (its rounding leaks into every row that ``U`` mixes), and the conditioning of the rows, the
-        smallest singular value above rounding over the largest: ``(λ (..., m), rank, residual (..., m),
-        terms (..., m), conditioning (...))``. One rank decision: a direction counts when its singular value
-        in the metric of ``M`` exceeds ``rank_tolerance`` times the largest, the rule of :meth:`rank`."""
-        sigma, U = self._metric_singular_values(A, L)
-        keep, inverse = self._kept_directions(sigma)
-        coefficients = matvec(np.swapaxes(U, -1, -2), rhs)
-        lam = matvec(U, inverse * coefficients)
-        residual = rhs - matvec(U, np.where(keep, coefficients, 0.0))
-        kept = np.abs(U) * keep[..., None, :]
-        terms = matvec(kept, matvec(np.swapaxes(kept, -1, -2), np.abs(rhs)))
-        rank = keep.sum(axis=-1)
-        # the smallest singular value above rounding over the largest, as the compiled step's
-        # (kkt.metric_solve): a direction dropped near a singular configuration still counts, a redundant
-        # row does not
-        largest = sigma[..., :1]
-        above = sigma > sigma.shape[-1] * kkt.EPSILON * largest
-        smallest = np.where(above, sigma, np.inf).min(axis=-1, initial=np.inf)
-        conditioning = np.where(above.any(axis=-1), smallest / np.where(above.any(axis=-1), largest[..., 0], 1.0), 0.0)
-        return lam, int(rank) if rank.ndim == 0 else rank, residual, terms, conditioning
-
     def _row_space_projectors(self, q, t=0.0):
         """``(P_position, P_velocity)``, each ``(nv, nv)``: ``P = M⁻¹Aᵀ (A M⁻¹ Aᵀ)⁺ A`` at one state ``q``, for ``A``
         the rows with a position level and for all rows. ``P δ`` is the part of a velocity-space vector ``δ``
         that the projection (:meth:`project`, to first order) removes: the ``M``-orthogonal projection onto the
-        rows' range, with the rank decision of :meth:`_minimum_norm`."""
+        rows' range, with the rank decision of :meth:`solve`."""
         q = np.asarray(q, dtype=float)
-        A, L = self._position_and_velocity_levels(q, t)[1], self._factor(q)
+        A, M = self._position_and_velocity_levels(q, t)[1], self.system.mass_matrix(q)
 
         def projector(rows):
             if not rows.shape[0]:
                 return np.zeros((self.nv, self.nv))
-            # M⁻¹Aᵀ G⁺ A: the minimum-norm multipliers of each column of A as a right-hand side
-            return self._solve_factored(L, rows.T) @ self._minimum_norm(rows, L, rows.T)[0].T
+            # column j: the accelerations M⁻¹Aᵀ G⁺ A e_j of the solve without forces, whose rows ask A a = A e_j
+            return self._solve_arrays(M, None, None, rows, rows.T, check=False)[0].T
 
         holonomic = self._position_mask
         velocity = projector(A)
         return (velocity if holonomic.all() else projector(A[holonomic])), velocity
-
-    def _multipliers(self, A, L, rhs, scale):
-        """:meth:`_minimum_norm` and a consistency check: rows whose right-hand side has a part that no
-        ``λ`` meets, larger than ``1e-8`` of the size of the terms that make it, raise :class:`ConstraintError`:
-        ``scale (..., m)`` (those of the row's ``γ − A a_free``) or those of the part met, whichever is larger
-        (beside a row of ``1e12`` at a fast joint, a row of ``1`` is met only to ``1e-4``)."""
-        lam, rank, residual, terms, _ = self._minimum_norm(A, L, rhs)
-        scale = np.maximum(scale, terms)
-        bad = np.abs(residual) > 1e-8 * np.maximum(scale, np.finfo(float).tiny)
-        if bad.any():
-            state = np.unravel_index(int(np.argmax(bad.any(axis=-1))), bad.shape[:-1]) if bad.ndim > 1 else ()
-            worst = int(np.argmax(np.abs(residual[state]) / np.maximum(scale[state], np.finfo(float).tiny)))
-            rank_state = rank if np.ndim(rank) == 0 else rank[state]
-            raise ConstraintError(
-                f"inconsistent constraints: no accelerations satisfy all {A.shape[-2]} rows (rank {int(rank_state)}); "
-                f"row {self.row_names[worst]!r} is off by {residual[state][worst]:.3g}")
-        return lam, rank
 
     def _tau(self, tau, batch=()):
         """``tau`` as a float array ``(nv,)`` or ``batch + (nv,)``, or ``ValueError``."""
@@ -634,7 +605,10 @@ class ConstrainedSystem:
         """Accelerations, multipliers and rank; see :class:`KKTSolution`.
 
         ``q (..., nq)``, ``v (..., nv)``, ``tau (..., nv)`` and ``t`` (s, scalar or ``(...)``) may carry
-        leading batch axes when :attr:`batched`; the results then carry them too.
+        leading batch axes when :attr:`batched`; the results then carry them too. One compiled solve
+        (:func:`multibody.kernels.kkt.solve_rows`) takes the rows of the compiled constraint program, or those
+        the constraints evaluate in Python, passed as arrays. A failure raises the error of its status
+        (:data:`STATUS_ERRORS`); a state with a non-finite input gets NaN results and rank 0.
         """
         q, v = self._check_state(q, v)
         tau = None if tau is None else self._tau(tau, q.shape[:-1])
@@ -645,26 +619,15 @@ class ConstrainedSystem:
             except np.linalg.LinAlgError as error:
                 raise ConstraintError(str(error)) from None
             return KKTSolution(a, np.zeros(batch + (0,)), 0, np.zeros(batch + (0, self.nv)), np.zeros(batch + (0,)))
-        solution = self._solve_compiled(q, v, tau)
-        if solution is not None:
-            return solution
-        M, h, evaluated = self._mass_matrix_and_bias(q, v)
-        free_force = -h if tau is None else tau - h  # τ − h
-        L = self._factor(q, M)
-        if not self.num_rows:
-            # a_free = M⁻¹ (τ − h)
-            a = self._solve_factored(L, free_force[..., None])[..., 0]
-            batch = q.shape[:-1]
-            return KKTSolution(a, np.zeros(batch + (0,)), 0, np.zeros(batch + (0, self.nv)), np.zeros(batch + (0,)))
-        A, gamma = self._acceleration_level(evaluated, q, v, t)
-        # One pair of triangular solves for [τ − h | Aᵀ]: a_free = M⁻¹ (τ − h) and M⁻¹ Aᵀ.
-        solved = self._solve_factored(L, np.concatenate([free_force[..., None], np.swapaxes(A, -1, -2)], axis=-1))
-        a_free, M_inv_At = solved[..., 0], solved[..., 1:]
-        # (A M⁻¹ Aᵀ) λ = γ − A a_free ;  a = a_free + M⁻¹ Aᵀ λ
-        A_a_free = matvec(A, a_free)
-        scale = np.maximum(np.maximum(np.abs(gamma), np.abs(A_a_free)), 1.0)
-        lam, rank = self._multipliers(A, L, gamma - A_a_free, scale)
-        return KKTSolution(a_free + matvec(M_inv_At, lam), lam, rank, A, gamma)
+        if self._compiled_step is not None:
+            a, lam, A, gamma, tail = self._solve_program(q, v, tau)
+        else:
+            M, h, evaluated = self._mass_matrix_and_bias(q, v)
+            A, gamma = self._acceleration_level(evaluated, q, v, t)
+            a, lam, tail = self._solve_arrays(M, h, tau, A, gamma)
+        self._raise_failure(tail)
+        rank = np.nan_to_num(tail[..., kkt.RANK]).astype(int)
+        return KKTSolution(a, lam, int(rank) if rank.ndim == 0 else rank, A, gamma)
 
     def forward_dynamics(self, q, v, tau=None, t=0.0):
         """``(a, λ)`` with ``M a + h = τ + Aᵀ λ`` and ``A a = γ``: ``(nv,)``, ``(m,)`` (``(..., nv)``,
@@ -707,7 +670,6 @@ class ConstrainedSystem:
         a, lam, A = solution.a, solution.lam, solution.A
         batch, nv, m = a.shape[:-1], self.nv, self.num_rows
         M = self.system.mass_matrix(q)
-        L = self._factor(q, M)
         dtau_dq, dtau_dv = self._torque_derivatives(q, v, a)
         if m:
             force_dq, level_dq, level_dv = self._row_derivatives(q, v, a, lam, t)
@@ -717,12 +679,14 @@ class ConstrainedSystem:
         # r₁ = ∂τ/∂x − ∂(M a + h)/∂x + ∂(Aᵀλ)/∂x ;  r₂ = −∂(A a − γ)/∂x, for x = q, v, τ side by side
         r1 = np.concatenate([force_dq - dtau_dq, -dtau_dv, identity], axis=-1)
         r2 = np.concatenate([-level_dq, -level_dv, np.zeros(batch + (m, nv))], axis=-1)
-        # M⁻¹ [r₁ | Aᵀ]
-        solved = self._solve_factored(L, np.concatenate([r1, np.swapaxes(A, -1, -2)], axis=-1))
-        M_inv_r1, M_inv_At = solved[..., : 3 * nv], solved[..., 3 * nv :]
-        # G ∂λ = r₂ − A M⁻¹ r₁ (minimum norm) ;  ∂a = M⁻¹ r₁ + M⁻¹Aᵀ ∂λ
-        dlam = self._delassus_pseudo_inverse(A, L) @ (r2 - A @ M_inv_r1) if m else r2
-        da = M_inv_r1 + M_inv_At @ dlam
+        # each column is a KKT solve with forces r₁ and rows asking γ = r₂: G ∂λ = r₂ − A M⁻¹ r₁ (minimum norm),
+        # ∂a = M⁻¹ (r₁ + Aᵀ ∂λ)
+        columns = batch + (3 * nv,)
+        da, dlam, tail = self._solve_arrays(M[..., None, :, :], None, np.swapaxes(r1, -1, -2),
+                                            np.broadcast_to(A[..., None, :, :], columns + (m, nv)),
+                                            np.swapaxes(r2, -1, -2), check=False)
+        self._raise_failure(tail)
+        da, dlam = np.swapaxes(da, -1, -2), np.swapaxes(dlam, -1, -2)
         return KKTDerivatives(da[..., :nv], da[..., nv : 2 * nv], da[..., 2 * nv :],
                               dlam[..., :nv], dlam[..., nv : 2 * nv], dlam[..., 2 * nv :])
 
@@ -737,13 +701,6 @@ class ConstrainedSystem:
         from .linearization import linearize
 
         return linearize(self, q, v, tau, t, dt=dt, method=method)
-
-    def _delassus_pseudo_inverse(self, A, L):
-        """``G⁺ (..., m, m)`` of ``G = A M⁻¹ Aᵀ`` from the singular values of ``A L⁻ᵀ``, with the rank rule
-        of :meth:`_minimum_norm`."""
-        sigma, U = self._metric_singular_values(A, L)
-        inverse = self._kept_directions(sigma)[1]
-        return (U * inverse[..., None, :]) @ np.swapaxes(U, -1, -2)
 
     def _torque_derivatives(self, q, v, a):
         """``∂(M a + h)/∂q`` (tangent space) and ``∂(M a + h)/∂v`` at fixed ``a``: analytical for a model,
@@ -807,15 +764,19 @@ class ConstrainedSystem:
         if rows is None and (rank := self._compiled_rank(q)) is not None:
             return rank
         A = self.jacobian(q, t)
-        rank = self._row_rank(A if rows is None else A[..., rows, :], self._factor(q))
+        rank = self._row_rank(q, A if rows is None else A[..., rows, :])
         return int(rank) if np.ndim(rank) == 0 else rank
 
-    def _row_rank(self, A, L):
-        """The rank ``(...)`` of rows ``A (..., k, nv)`` in the metric of ``M = L Lᵀ``, by the one rank decision
-        (:meth:`_kept_directions`)."""
+    def _row_rank(self, q, A, M=None):
+        """The rank ``(...)`` of rows ``A (..., k, nv)`` in the metric of ``M(q)`` (``M`` where the caller has it), by
+        the one rank decision of the compiled solve (:func:`multibody.kernels.kkt.metric_solve`); 0 at a state
+        with a non-finite entry."""
         if not A.shape[-2]:
             return np.zeros(A.shape[:-2], dtype=int)
-        return self._kept_directions(self._metric_singular_values(A, L)[0])[0].sum(axis=-1)
+        M = self.system.mass_matrix(q) if M is None else M
+        tail = self._solve_arrays(M, None, None, A, np.zeros(A.shape[:-1]), check=False)[2]
+        self._raise_failure(tail)
+        return np.nan_to_num(tail[..., kkt.RANK]).astype(int)
 
     def _warn_if_rank_deficient(self, q, t):
         """A :class:`RankDeficientWarning` when the rows at ``q`` (one state or a batch) have a lower rank than
@@ -828,13 +789,13 @@ class ConstrainedSystem:
         A = self._position_and_velocity_levels(q, t)[1]
         if not np.isfinite(A).all():
             return
-        L = self._factor(q)
-        rank = int(np.min(self._row_rank(A, L)))
+        M = self.system.mass_matrix(q)
+        rank = int(np.min(self._row_rank(q, A, M)))
         independent = [c.independent_rows(self.system) for c in self.constraints]
         if rank >= sum(independent):
             return
         offsets = np.cumsum([0] + self._rows)
-        ranks = [int(np.min(self._row_rank(A[..., offsets[k] : offsets[k + 1], :], L))) for k in range(len(self._rows))]
+        ranks = [int(np.min(self._row_rank(q, A[..., offsets[k] : offsets[k + 1], :], M))) for k in range(len(self._rows))]
         parts = [f"{c.name!r} has rank {r} of its {m} rows" + (f" ({n} independent by design)" if n < m else "")
                  for c, r, m, n in zip(self.constraints, ranks, self._rows, independent) if r < n]
         if sum(ranks) > rank:
@@ -847,13 +808,13 @@ class ConstrainedSystem:
                       "mb.RankDeficientWarning", RankDeficientWarning, stacklevel=4)
 
     def _compiled_rank(self, q):
-        """:meth:`rank` at one state ``q`` by the compiled step, which makes the same decision on the same
-        singular values (:func:`multibody.kernels.kkt.orthogonalize_rows`) in one call, with ``M`` and the
-        rows; ``None`` where it does not apply (no compiled step, a batch) or did not solve."""
+        """:meth:`rank` at one state ``q`` by the compiled step on the program's rows, with ``M``, in one call;
+        ``None`` where it does not apply (no compiled step, a batch)."""
         if self._compiled_step is None or not self.system.model._is_one_state(q, finite=False):
             return None
-        solution = self._solve_compiled(q, np.zeros(self.nv), None)
-        return None if solution is None else solution.rank
+        tail = self._solve_program(q, np.zeros(self.nv), None)[-1]
+        self._raise_failure(tail)
+        return int(np.nan_to_num(tail[kkt.RANK]))
 
     # ------------------------------------------------------------------ projection onto the constraints
 
@@ -888,52 +849,66 @@ class ConstrainedSystem:
         return projected
 
     def _projected(self, q, v, t, tolerance, max_iterations):
-        """:meth:`_projection` without the rank check."""
+        """:meth:`_projection` without the rank check: by one call of :func:`multibody.kernels.kkt.project` per state
+        on compiled rows, else by the same Gauss–Newton corrections and rule on rows evaluated in Python
+        (:meth:`_project_rows`)."""
         if self._compiled_step is not None and self.system.model._is_one_state(q, v):
             # (the kernel normalises q as below; a state that passes the checks unchanged skips them)
-            compiled = self._project_compiled(q, v, tolerance, max_iterations)
-            if compiled is not None:
-                return compiled
+            return self._project_compiled(q, v, tolerance, max_iterations)
         q = self.system.normalize(np.asarray(q, dtype=float)) if hasattr(self.system, "normalize") else np.asarray(q, dtype=float)
         v = np.asarray(v, dtype=float)
         if not self.num_rows:
             return q, v, np.ones(spatial.batch_shape(q.shape[:-1], v.shape[:-1]))
         q, v = self._check_state(q, v)
-        compiled = self._project_compiled(q, v, tolerance, max_iterations)
-        if compiled is not None:
-            return compiled
+        if self._compiled_step is not None:
+            return self._project_compiled(q, v, tolerance, max_iterations)
+        return self._project_rows(q, v, t, tolerance, max_iterations)
+
+    def _correction(self, q, A, rhs, mask, previous=np.inf, tolerance=0.0):
+        """One correction of the projection on rows given as arrays, by one compiled call
+        (:func:`multibody.kernels.kkt.correction_arrays`): ``(δ (..., nv), whether Gauss–Newton has settled (...),
+        status outputs (..., TAIL))`` for the rows ``A (..., m, nv)`` whose ``mask (m,)`` entry is set (``None``:
+        all) with right-hand side ``rhs (..., m)``, in the metric of ``M(q)``; a failure raises its error."""
+        nv, m = self.nv, A.shape[-2]
+        M = self.system.mass_matrix(q)
+        batch = spatial.batch_shape(M.shape[:-2], A.shape[:-2], rhs.shape[:-1], np.shape(previous))
+        options = np.empty(batch + (3 + nv * nv,))
+        options[..., 0], options[..., 1], options[..., 2] = self.rank_tolerance, tolerance, previous
+        options[..., 3:] = M.reshape(M.shape[:-2] + (nv * nv,))
+        rows = np.concatenate([np.broadcast_to(A.reshape(A.shape[:-2] + (m * nv,)), batch + (m * nv,)),
+                               np.broadcast_to(rhs, batch + (m,))], axis=-1)
+        mask = None if mask is None else mask.astype(float)
+        row = driver.evaluate(kkt.correction_arrays, _NO_TREE, (options, rows, mask), (1, kkt.correction_columns(nv)),
+                              batch, workspace=kkt.correction_workspace_size(nv, m))[..., 0, :]
+        self._raise_failure(row[..., -kkt.TAIL :], non_finite=True)
+        return row[..., :nv], row[..., nv + 1] != 0.0, row[..., -kkt.TAIL :]
+
+    def _project_rows(self, q, v, t, tolerance, max_iterations):
+        """:meth:`_projected` on rows evaluated in Python (a user's constraint, a moving surface, a system that is
+        not a :class:`Model`): the loop of :func:`multibody.kernels.kkt.project` in Python, since each iteration
+        asks the constraints for their rows at the new ``q``, around the same compiled correction and rule
+        (:meth:`_correction`). Each state of a batch stops at its own tolerance, so that it equals its
+        projection alone."""
         holonomic = self._position_mask
-
-        def correction(A, error):
-            # M⁻¹Aᵀ (A M⁻¹ Aᵀ)⁺ error, with M from the current q, and the rows' conditioning
-            L = self._factor(q)
-            M_inv_At = self._solve_factored(L, np.swapaxes(A, -1, -2))
-            lam, _, _, _, conditioning = self._minimum_norm(A, L, error)
-            return matvec(M_inv_At, lam), conditioning
-
         # Each pass gives φ, A and b together: A serves both the next position step and, at the end,
         # the velocity projection.
         phi, A, b = self._position_and_velocity_levels(q, t)
         if holonomic.any():
             previous = np.full(q.shape[:-1], np.inf)
             for _ in range(max_iterations):
-                dq = correction(A[..., holonomic, :], phi[..., holonomic])[0]
-                size = np.abs(dq).max(axis=-1)
-                # (a NaN error counts as off, and never converges)
-                off = ~((np.abs(phi[..., holonomic]).max(axis=-1) <= tolerance) & ((size <= tolerance) | (size > 0.5 * previous)))
-                previous = np.where(off, size, previous)
+                dq, settled, _ = self._correction(q, A, phi, holonomic, previous, tolerance)
+                off = ~settled
+                previous = np.where(off, np.abs(dq).max(axis=-1), previous)
                 if not off.any():
                     break
                 # Only the states still off the constraints move: each state of a batch takes the steps
                 # it would take alone.
-                step = self.system.integrate(q, -dq, 1.0)
-                q = np.where(off[..., None], step, q)
+                q = np.where(off[..., None], self.system.integrate(q, -dq, 1.0), q)
                 phi, A, b = self._position_and_velocity_levels(q, t)
             else:
-                raise ConstraintError(f"projection onto the position constraints did not converge: "
-                                      f"|φ| = {np.abs(phi[..., holonomic]).max():.3g} after {max_iterations} iterations")
-        dv, conditioning = correction(A, matvec(A, v) + b)
-        return q, v - dv, conditioning
+                raise STATUS_ERRORS[kkt.NOT_CONVERGED](self, 0, -1, np.abs(phi[..., holonomic]).max(), max_iterations)
+        dv, _, tail = self._correction(q, A, matvec(A, v) + b, None)
+        return q, v - dv, tail[..., kkt.CONDITIONING]
 
     @cached_property
     def _projection_call(self):
@@ -947,10 +922,7 @@ class ConstrainedSystem:
 
     def _project_compiled(self, q, v, tolerance, max_iterations):
         """:meth:`_projection` by one call of :func:`multibody.kernels.kkt.project` per state (on all cores for
-        a batch), or ``None`` where the compiled step does not apply, or a state has an undefined row, a
-        singular ``M`` or a non-finite entry: the NumPy path then gives the error or the warning."""
-        if self._compiled_step is None:
-            return None
+        a batch); a failure raises the error of its status (:data:`STATUS_ERRORS`)."""
         program, frames, _ = self._compiled_step
         model, nq, nv = self.system.model, self.nq, self.nv
         out_shape, workspace, settings = self._projection_call
@@ -962,20 +934,12 @@ class ConstrainedSystem:
             # (float64 arrays of the right sizes, as every caller has checked)
             row = driver.evaluate_one(kkt.project, model.tree, out_shape, q, v, settings, program, frames=frames,
                                       workspace=workspace)[0]
-            if row[-1] == kkt.SOLVED:
-                return row[:nq], row[nq : nq + nv], row[-3]
         else:
             batch = spatial.batch_shape(q.shape[:-1], v.shape[:-1])
             row = driver.evaluate(kkt.project, model.tree, (q, v, settings, program), out_shape, batch, frames,
                                   workspace)[..., 0, :]
-        status = row[..., -1]
-        not_converged = status == kkt.NOT_CONVERGED
-        if not_converged.any():
-            raise ConstraintError(f"projection onto the position constraints did not converge: "
-                                  f"|φ| = {row[..., -2][not_converged].max():.3g} after {max_iterations} iterations")
-        if not (status == kkt.SOLVED).all():
-            return None
-        return row[..., :nq], row[..., nq : nq + nv], row[..., -3]
+        self._raise_failure(row[..., -kkt.TAIL :], max_iterations, non_finite=True)
+        return row[..., :nq], row[..., nq : nq + nv], row[..., kkt.CONDITIONING]
 
     def body_forces(self, q, lam, t=0.0):
         """Spatial forces all constraints exert on the bodies: ``f_ext (njoints, 6)`` in joint frames.

@@ -46,7 +46,7 @@ import numpy as np
 from scipy.integrate import BDF, LSODA, Radau
 
 from . import contact, driver, gpu
-from .constrained import ConstrainedSystem, ConstraintError, ModelSystem, as_system
+from .constrained import STATUS_ERRORS, ConstrainedSystem, ConstraintError, ModelSystem, as_system
 from .constraints import CompiledRows
 from .integrators import (EMBEDDED, PD, TABLEAUS, AdaptiveRun, CompiledController, CompiledRun, PDController,
                           as_controller, is_compiled_controller, tableau_step)
@@ -304,7 +304,7 @@ def simulate(system, q0, v0, t_final, *, dt=None, method=None, tau=None, rtol=1e
     to_chart, from_chart = charts.to_chart, charts.from_chart
 
     # With a compiled step, each evaluation is one compiled call (after the joint forces, when they
-    # depend on the state); the NumPy composition is the fallback that raises the right error.
+    # depend on the state), which raises the error of a failed solve itself.
     compiled = constrained._compiled_motion is not None
     constant_tau = None if tau is None or callable(tau) else torque(t0, None, None)
 
@@ -325,7 +325,7 @@ def simulate(system, q0, v0, t_final, *, dt=None, method=None, tau=None, rtol=1e
             y_dot = constrained._chart_derivative(q_chart, y, tau_t, q_t)
             if y_dot is not None:
                 return y_dot
-        return _numpy_chart_derivative(constrained, charts, t, q_chart, y, torque)
+        return _solved_chart_derivative(constrained, charts, t, q_chart, y, torque)
 
     def settle(t, state):
         """``state`` projected onto the constraints when, with ``project``, the projection moves a
@@ -657,9 +657,8 @@ _RUN_FAILURES = {
         f"the state became non-finite at t = {io[stepping.IO_TIME]:.6g} s", None),
     stepping.NON_FINITE_TORQUE: lambda system, io, plan: SimulationError(_non_finite_torque(
         system, io[stepping.IO_TIME], io[stepping.IO_HEADER + system.nq + system.nv :].copy()), None),
-    stepping.NOT_CONVERGED: lambda system, io, plan: ConstraintError(
-        f"projection onto the position constraints did not converge: |φ| = {io[stepping.IO_VALUE]:.3g} after "
-        f"{int(plan[int(plan[stepping.PLAN_SETTINGS]) + 1])} iterations"),
+    stepping.NOT_CONVERGED: lambda system, io, plan: STATUS_ERRORS[kkt.NOT_CONVERGED](
+        system, 0, -1, io[stepping.IO_VALUE], plan[int(plan[stepping.PLAN_SETTINGS]) + 1]),
 }
 
 
@@ -893,11 +892,11 @@ class _Charts:
         return np.concatenate(self.state(q_chart, y), axis=-1)
 
 
-def _numpy_chart_derivative(constrained, charts, t, q_chart, y, torque):
-    """``ẏ (2 nv,)`` of one chart state ``y`` around ``q_chart`` at ``t`` (s) by the NumPy composition of
-    :meth:`ConstrainedSystem.forward_dynamics` and the chart maps, with joint forces ``torque(t, q, v)``: the
-    path that gives the answer, or the error that explains why, where the compiled step does not apply or
-    did not solve."""
+def _solved_chart_derivative(constrained, charts, t, q_chart, y, torque):
+    """``ẏ (2 nv,)`` of one chart state ``y`` around ``q_chart`` at ``t`` (s) from
+    :meth:`ConstrainedSystem.forward_dynamics` and the chart maps, with joint forces ``torque(t, q, v)``: where
+    the compiled chart derivative does not apply (rows evaluated in Python, a system that is not a Model), or
+    where ABA alone gave non-finite rates (``forward_dynamics`` then raises the error that names the joint)."""
     nv = charts.nv
     q_t, T, v_t = charts.unchart(q_chart, y)
     a, _ = constrained.forward_dynamics(q_t, v_t, torque(t, q_t, v_t), t)
@@ -1251,8 +1250,8 @@ def _simulate_batch(constrained, charts, q0, v0, times, torque, state_dependent,
     def derivative(t, y, q_chart, rows, failed):
         """``ẏ (N, 2 nv)`` of the chart states ``y (N, 2 nv)`` around ``q_chart (N, nq)``: of the trajectories
         ``rows`` (indices) by one compiled call, zero for the others. A state the compiled step did not solve
-        takes the NumPy path, as :func:`simulate` does for one trajectory; where that raises, ``failed[row]``
-        gets the message. The trajectories ``near`` have their stage states projected onto the constraints
+        gets the message of its status in ``failed[row]`` (where ABA alone gave non-finite rates, that of
+        :meth:`ConstrainedSystem.forward_dynamics`, as :func:`simulate` does for one trajectory). The trajectories ``near`` have their stage states projected onto the constraints
         first."""
         close = rows[near[rows]]
         if close.size:
@@ -1273,14 +1272,16 @@ def _simulate_batch(constrained, charts, q0, v0, times, torque, state_dependent,
         whole = rows.size == count
         q_rows, y_rows = (q_chart, y) if whole else (q_chart[rows], y[rows])
         tau_rows = tau if tau is None or tau.ndim == 1 or whole else tau[rows]
-        y_dot, solved = constrained._chart_derivatives(q_rows, y_rows, tau_rows)
-        for j in np.flatnonzero(~solved):
+        y_dot, failures = constrained._chart_derivatives(q_rows, y_rows, tau_rows)
+        for j, error in failures.items():
             r = rows[j]
             tau_r = tau if tau is None or tau.ndim == 1 else tau[r]
             if r in failed or not (np.isfinite(y_rows[j]).all() and (tau_r is None or np.isfinite(tau_r).all())):
                 continue  # its rates stay NaN, and the end of the step stops it
             try:
-                y_dot[j] = _numpy_chart_derivative(constrained, charts, t, q_rows[j], y_rows[j], lambda *_: tau_r)
+                if error is not None:
+                    raise error
+                y_dot[j] = _solved_chart_derivative(constrained, charts, t, q_rows[j], y_rows[j], lambda *_: tau_r)
             except _FAILURES as error:
                 failed[r] = str(error)
         if whole:

@@ -484,8 +484,7 @@ class _Rows:
         (:meth:`ConstrainedSystem.rank`'s singular values of ``A`` in the metric of ``M(q)``)."""
         if (rank := self.constrained._compiled_rank(q)) is not None:
             return rank == self.m
-        sigma, _ = self.constrained._metric_singular_values(A, self.constrained._factor(q))
-        return bool(sigma.size) and sigma[0] > 0 and bool(self.constrained._kept_directions(sigma)[0].all())
+        return bool(self.constrained._row_rank(q, A) == self.m)
 
 
 def _add(q, delta):

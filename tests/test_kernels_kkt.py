@@ -1,8 +1,9 @@
-"""The compiled constrained step (multibody.kernels.kkt) against the NumPy KKT path of ConstrainedSystem.
+"""The one constrained solve (multibody.kernels.kkt) on the compiled constraint program's rows against the same
+solve on the rows the constraints evaluate in Python, passed as arrays.
 
-The NumPy path (CRBA + RNEA + LAPACK Cholesky and eigh) is reached by withholding the compiled step
-from a system; both read the same compiled constraint rows, so they differ only by the rounding of
-the linear algebra.
+The Python rows are reached by withholding the compiled step from a system; for the built-in constraints they are
+the same rows (each constraint's own compiled evaluation), ``M`` and ``h`` the same compiled passes, so both paths
+give the same accelerations and multipliers to 1e-12.
 """
 
 from __future__ import annotations
@@ -11,13 +12,14 @@ import numpy as np
 import pytest
 
 import multibody as mb
+from multibody.constrained import STATUS_ERRORS
 from multibody.kernels import kkt
 from multibody.spatial import pose_from_xyz_rpy
 
 from constraint_helpers import assert_close, four_bar
 
 
-def numpy_solution(system, q, v, tau=None):
+def python_rows_solution(system, q, v, tau=None):
     system.__dict__["_compiled_step"] = None  # the cached property, withheld
     try:
         return system.solve(q, v, tau)
@@ -26,14 +28,10 @@ def numpy_solution(system, q, v, tau=None):
 
 
 def compare(system, q, v, tau=None, tol=1e-12):
-    """The compiled and NumPy solutions agree to ``tol`` relative, or to the rounding that the condition
-    number of ``G = A M⁻¹ Aᵀ`` allows where that is more (two different eigen-solvers of ``G``)."""
+    """The compiled program's solution and that of the rows evaluated in Python agree to ``tol`` relative."""
     assert system._compiled_step is not None
-    fast, slow = system.solve(q, v, tau), numpy_solution(system, q, v, tau)
+    fast, slow = system.solve(q, v, tau), python_rows_solution(system, q, v, tau)
     assert np.array_equal(fast.A, slow.A) and fast.rank == slow.rank
-    if slow.rank == system.num_rows:
-        G = slow.A @ np.linalg.solve(mb.mass_matrix(system.model, q), slow.A.T)
-        tol = max(tol, 1e-15 * np.linalg.cond(G))
     scale = max(1.0, np.abs(slow.a).max(), np.abs(slow.lam).max())
     assert_close(fast.a, slow.a, tol, scale=scale, what="a")
     assert_close(fast.lam, slow.lam, tol, scale=scale, what="λ")
@@ -58,7 +56,7 @@ BALL_CONSTRAINTS = {
 
 @pytest.mark.parametrize("baumgarte", [None, (3.0, 4.0)], ids=["plain", "baumgarte"])
 @pytest.mark.parametrize("name", list(BALL_CONSTRAINTS))
-def test_compiled_step_matches_numpy_on_a_free_body(name, baumgarte):
+def test_compiled_step_matches_python_rows_on_a_free_body(name, baumgarte):
     model = ball()
     system = mb.ConstrainedSystem(model, BALL_CONSTRAINTS[name](), baumgarte=baumgarte)
     rng = np.random.default_rng(3)
@@ -69,7 +67,7 @@ def test_compiled_step_matches_numpy_on_a_free_body(name, baumgarte):
 
 
 @pytest.mark.parametrize("kind", ["point", "planar", "revolute", "weld"])
-def test_compiled_loop_closures_match_numpy(kind):
+def test_compiled_loop_closures_match_python_rows(kind):
     model = mb.robots.load("double_pendulum") if kind == "planar" else mb.load_urdf(mb.robots.path("ball"),
                                                                                         floating_base=True)
     rng = np.random.default_rng(7)
@@ -88,8 +86,20 @@ def test_redundant_rows_give_the_minimum_norm_multipliers():
     system = mb.ConstrainedSystem(model, [mb.LoopClosure(None, "link3", frame_a=pose_from_xyz_rpy(pivot), frame_b=tip)])
     rng = np.random.default_rng(11)
     q, v = system.project(np.array([0.9, -0.9, -0.8]), rng.standard_normal(model.nv))
-    solution = compare(system, q, v, tol=1e-10)
+    solution = compare(system, q, v)
     assert solution.rank < system.num_rows
+    # the minimum-norm multipliers: λ = G⁺ (γ − A a_free), G = A M⁻¹ Aᵀ, by LAPACK's pseudo-inverse; λ has no part
+    # in the kernel of Aᵀ (the redundant direction), which moves no body
+    M, h = mb.mass_matrix(model, q), mb.bias_forces(model, q, v)
+    A = solution.A
+    M_inv_At = np.linalg.solve(M, A.T)
+    expected = np.linalg.pinv(A @ M_inv_At, rcond=1e-10) @ (solution.gamma + A @ np.linalg.solve(M, h))
+    assert_close(solution.lam, expected, 1e-10, scale=np.abs(expected).max(), what="minimum-norm λ")
+    _, singular_values, Vt = np.linalg.svd(A.T)
+    kernel = Vt[np.sum(singular_values > 1e-10 * singular_values[0]) :]
+    assert kernel.shape[0] == system.num_rows - solution.rank
+    assert_close(kernel @ solution.lam, np.zeros(len(kernel)), 1e-12, scale=np.abs(solution.lam).max(),
+                 what="λ along the kernel of Aᵀ")
 
 
 def test_joint_coupling_is_compiled():
@@ -113,7 +123,7 @@ def test_batch_equals_single_states():
         assert batch.rank[k] == single.rank
 
 
-def test_steps_the_compiled_kernel_cannot_take_fall_back_with_the_numpy_errors():
+def test_steps_the_compiled_solve_cannot_take_raise_the_errors_of_their_status():
     model = ball()
     q = model.neutral()
     q[:3] = (0.5, 0.0, 0.0)
@@ -130,7 +140,7 @@ def test_steps_the_compiled_kernel_cannot_take_fall_back_with_the_numpy_errors()
     flat = mb.ConstrainedSystem(model, [mb.RollingDisc("ball", 0.1, axis=(0.0, 0.0, 1.0))])
     with pytest.raises(ValueError, match="lies flat"):
         flat.solve(model.neutral(), np.zeros(model.nv))
-    # an indefinite mass matrix: the NumPy path's error
+    # an indefinite mass matrix
     massless = mb.ModelBuilder("ghost")
     massless.add_body("p", mb.joints.Translation())
     ghost = massless.build(check_inertia=False)
@@ -233,7 +243,7 @@ def test_full_rank_certified_by_the_lq_factor_and_solved_as_by_rotations(smalles
 
 # ----------------------------------------------------------------------------- projection
 
-def numpy_projection(system, q, v, **options):
+def python_rows_projection(system, q, v, **options):
     system.__dict__["_compiled_step"] = None  # the cached property, withheld
     try:
         return system.project(q, v, **options)
@@ -258,9 +268,10 @@ def projection_systems():
 
 @pytest.mark.filterwarnings("ignore::multibody.RankDeficientWarning")  # (the four-bar's redundant row)
 @pytest.mark.parametrize("name", ["ball", "four-bar", "weld"])
-def test_compiled_projection_matches_numpy(name):
+def test_compiled_projection_matches_python_rows(name):
     """The compiled projection (one kernel call: the Gauss–Newton steps and the velocity projection)
-    gives the NumPy path's state to rounding, on the constraints, for one state and for a batch."""
+    gives the state of the same corrections on rows evaluated in Python to rounding, on the constraints, for one
+    state and for a batch."""
     model, system = projection_systems()[name]
     rng = np.random.default_rng(4)
     q = np.stack([model.integrate(model.neutral() if name != "four-bar" else np.array([0.9, -0.9, -0.8]),
@@ -268,7 +279,7 @@ def test_compiled_projection_matches_numpy(name):
     v = rng.standard_normal((3, model.nv))
     q_batch, v_batch = system.project(q, v)
     for k in range(3):
-        fast, slow = system.project(q[k], v[k]), numpy_projection(system, q[k], v[k])
+        fast, slow = system.project(q[k], v[k]), python_rows_projection(system, q[k], v[k])
         assert np.abs(fast[0] - q[k]).max() > 1e-3  # the positions moved
         assert_close(fast[0], slow[0], 1e-12, scale=1.0, what="q")
         assert_close(fast[1], slow[1], 1e-12, scale=max(1.0, np.abs(slow[1]).max()), what="v")
@@ -283,20 +294,109 @@ def test_compiled_projection_that_does_not_converge_raises():
     with pytest.raises(mb.ConstraintError, match=r"did not converge: \|φ\| = .* after 1 iterations"):
         system.project(q, np.zeros(3), max_iterations=1)
     with pytest.raises(mb.ConstraintError, match=r"did not converge: \|φ\| = .* after 1 iterations"):
-        numpy_projection(system, q, np.zeros(3), max_iterations=1)
+        python_rows_projection(system, q, np.zeros(3), max_iterations=1)
     assert system.residual(*system.project(q, np.zeros(3))) <= 1e-12
 
 
 def test_compiled_projection_normalizes_the_quaternion_first():
     """A quaternion off unit norm by rounding (within the models' tolerance, so that the state passes the
-    checks unchanged) is normalised before the Gauss–Newton steps, as on the NumPy path."""
+    checks unchanged) is normalised before the Gauss–Newton steps, as on rows evaluated in Python."""
     model, system = projection_systems()["ball"]
     rng = np.random.default_rng(8)
     q = model.integrate(model.neutral(), 0.2 * rng.standard_normal(model.nv))
     q[3:7] *= 1.0 + 1e-9
     v = rng.standard_normal(model.nv)
     assert model._is_one_state(q, v)
-    fast, slow = system.project(q, v), numpy_projection(system, q, v)
+    fast, slow = system.project(q, v), python_rows_projection(system, q, v)
     assert abs(np.linalg.norm(fast[0][3:7]) - 1.0) <= 1e-15
     assert_close(fast[0], slow[0], 1e-14, scale=1.0, what="q")
     assert_close(fast[1], slow[1], 1e-12, scale=max(1.0, np.abs(slow[1]).max()), what="v")
+
+
+# ----------------------------------------------------------------------------- status codes and their messages
+
+def failing_systems():
+    """``{status: (system, failing call, error type, message)}``: a state where each failure of the compiled solve
+    or projection happens."""
+    model = ball()
+    q = model.neutral()
+    q[:3] = (0.5, 0.0, 0.0)
+    v = np.array([0.0, 0.3, 0.0, 0.0, 0.0, 1.0])
+    massless = mb.ModelBuilder("ghost")
+    massless.add_body("p", mb.joints.Translation())
+    ghost = massless.build(check_inertia=False)
+    ghost_rod = mb.ConstrainedSystem(ghost, [mb.Distance("p", None, 1.0)])
+    # rods of different lengths on the same point: Baumgarte's −β² φ asks for two accelerations at once
+    rods = mb.ConstrainedSystem(model, [mb.Distance("ball", None, 0.5, name="short"),
+                                        mb.Distance("ball", None, 0.6, name="long")], baumgarte=(0.0, 1.0))
+    flat = mb.ConstrainedSystem(model, [mb.RollingDisc("ball", 0.1, axis=(0.0, 0.0, 1.0), name="coin")])
+    closed, loop = projection_systems()["four-bar"]
+    nan_state = q.copy()
+    nan_state[0] = np.nan
+    return {
+        kkt.NOT_POSITIVE_DEFINITE: (ghost_rod, lambda s: s.solve(np.array([1.0, 0.0, 0.0]), np.zeros(3)),
+                                    mb.ConstraintError, "the mass matrix is not positive definite at this configuration"),
+        kkt.INCONSISTENT: (rods, lambda s: s.solve(q, v), mb.ConstraintError,
+                           r"inconsistent constraints: no accelerations satisfy all 2 rows \(rank 1\); row "
+                           r"'(short|long)\[0\]' is off by -?\d"),
+        kkt.UNDEFINED: (flat, lambda s: s.solve(model.neutral(), np.zeros(model.nv)), ValueError,
+                        "coin: the disc lies flat on the plane; its contact point is undefined"),
+        kkt.NOT_CONVERGED: (loop, lambda s: s.project(np.array([0.3, -0.2, 0.4]), np.zeros(3), max_iterations=1),
+                            mb.ConstraintError, r"projection onto the position constraints did not converge: "
+                                                r"\|φ\| = \S+ after 1 iterations"),
+        kkt.NON_FINITE: (mb.ConstrainedSystem(model, BALL_CONSTRAINTS["sphere"]()),
+                         lambda s: s.project(nan_state, np.zeros(model.nv)), mb.ConstraintError,
+                         "the constrained step has a non-finite input"),
+    }
+
+
+@pytest.mark.filterwarnings("ignore::multibody.RankDeficientWarning")  # (the four-bar's redundant row)
+@pytest.mark.filterwarnings("ignore:.*NaN:RuntimeWarning")  # (the non-finite state, warned about by the checks)
+@pytest.mark.parametrize("rows", ["program", "python"])
+def test_every_status_reaches_its_message(rows):
+    """Each failure of the compiled solve and projection is a status of its output row, and the one table
+    (``STATUS_ERRORS``) raises its message, on the compiled program's rows and on rows evaluated in Python (a
+    disc lying flat there raises from the constraint's own evaluation, with the same message)."""
+    cases = failing_systems()
+    assert set(STATUS_ERRORS) == set(cases) == {kkt.NOT_POSITIVE_DEFINITE, kkt.INCONSISTENT, constraints_undefined(),
+                                                kkt.NOT_CONVERGED, kkt.NON_FINITE}
+    for status, (system, call, error, message) in cases.items():
+        assert system._compiled_step is not None
+        if rows == "python":
+            system.__dict__["_compiled_step"] = None  # the cached property, withheld
+        with pytest.raises(error, match=message):
+            call(system)
+
+
+def constraints_undefined():
+    from multibody.kernels import constraints
+
+    return constraints.UNDEFINED
+
+
+def test_the_status_outputs_report_the_failure():
+    """The compiled solve on rows given as arrays reports each failure in its output row: the status, the rank,
+    and for inconsistent rows the row furthest off and by how much, ``γ_i − (A a)_i`` there."""
+    rng = np.random.default_rng(12)
+    nv = 4
+    X = rng.standard_normal((nv, nv))
+    M, h = X @ X.T + np.eye(nv), rng.standard_normal(nv)
+    A = rng.standard_normal((2, nv))
+    A = np.vstack([A, A[0]])  # a repeated row: rank 2 of 3
+    system = mb.ConstrainedSystem(mb.robots.load("double_pendulum"))  # (its rank tolerance; the arrays are their own)
+    consistent = np.array([1.0, 2.0, 1.0])
+    a, lam, tail = system._solve_arrays(M, h, None, A, consistent)
+    assert tail[kkt.STATUS] == kkt.SOLVED and tail[kkt.RANK] == 2 and tail[kkt.ROW] == -1
+    assert_close(A @ a, consistent, 1e-12, scale=2.0, what="A a")
+    assert_close(lam[0], lam[2], 1e-12, scale=np.abs(lam).max(), what="the repeated row's share")
+    off = np.array([1.0, 2.0, 1.5])
+    a, lam, tail = system._solve_arrays(M, h, None, A, off)
+    assert tail[kkt.STATUS] == kkt.INCONSISTENT and tail[kkt.RANK] == 2 and tail[kkt.ROW] in (0, 2)
+    # the minimum-norm solution meets the mean of the two contradictory rows: each is off by half their difference
+    assert_close(abs(tail[kkt.VALUE]), 0.25, 1e-12, scale=1.0, what="how far the row is off")
+    _, _, tail = system._solve_arrays(M, h, None, A, off, check=False)
+    assert tail[kkt.STATUS] == kkt.SOLVED
+    _, _, tail = system._solve_arrays(-M, h, None, A, consistent)
+    assert tail[kkt.STATUS] == kkt.NOT_POSITIVE_DEFINITE
+    _, _, tail = system._solve_arrays(M, h * np.nan, None, A, consistent)
+    assert tail[kkt.STATUS] == kkt.NON_FINITE

@@ -97,8 +97,8 @@ def test_two_parallelograms_near_flat_match_a_non_redundant_closure(angle):
     correspond one to one (frame A's x and y are the world's x and z while ``Hk`` is horizontal, and the
     rotation of frame A does not enter ``A`` where the gap is zero), so ``λ`` is compared too.
 
-    The reference goes through the NumPy path of :meth:`ConstrainedSystem.solve` (a user constraint), the
-    planar closures through the compiled step: two implementations of the same rank rule. Both must give
+    The reference's rows come from a user constraint evaluated in Python and pass to the compiled solve as
+    arrays, the planar closures' from the compiled program: two sets of rows, one rank rule. Both must give
     the multipliers of the KKT system to about ``ε`` relative to their size at ``1e-9`` rad, where the rows
     are graded by 1e9 (which a bidiagonal SVD would resolve only to ``ε · 1e9``).
     """
@@ -163,7 +163,7 @@ def test_a_fast_crank_leaves_full_rank_rows_consistent(angle, rate):
     ``γ ~ rate²`` (up to 1e14), those of cell 1 stay of order 1, and the two cells share crank ``V1``, so the
     singular vectors mix their rows. With full rank every right-hand side is met; what is left of cell 1's
     rows is the rounding of cell 2's terms (``ε · 1e14``), which the consistency check must judge against
-    those terms, not against cell 1's own, in the compiled step and in the NumPy path alike. Then the
+    those terms, not against cell 1's own, on the compiled program's rows and on rows from Python alike. Then the
     equations hold to that rounding."""
     cells = 2
     model = parallelogram_chain(cells)
@@ -258,22 +258,22 @@ def test_the_projection_reports_how_near_flat_the_rows_are(angle):
     """The conditioning that :meth:`ConstrainedSystem._projection` returns with the projected state, and by
     which ``simulate`` evaluates a step's stages on the constraints (``NEAR_SINGULAR``), falls as the
     angle from flat: the x rows shrink as ``sin φ``. It counts the directions that the rank tolerance
-    drops (1e-12 rad from flat) but not the rows' rounding; the compiled projection's is the NumPy one or a
-    lower bound on it within a factor ``m``."""
+    drops (1e-12 rad from flat) but not the rows' rounding; on the compiled program's rows and on the same rows
+    evaluated in Python it is that ratio or a lower bound on it within a factor ``m`` (the LQ factor's bound)."""
     cells = 2
     model = parallelogram_chain(cells)
     system = mb.ConstrainedSystem(model, planar_closures(cells))
     q, v = crank_state(cells, angle, 1.0)
     compiled = system._projection(q, v)[2]
-    system.__dict__["_compiled_step"] = None  # the cached property, withheld: the NumPy path
+    system.__dict__["_compiled_step"] = None  # the cached property, withheld: the rows evaluated in Python
     try:
-        by_numpy = system._projection(q, v)[2]
+        by_python_rows = system._projection(q, v)[2]
     finally:
         del system.__dict__["_compiled_step"]
     # the compiled step's LQ factor bounds it from below within a factor m (4 rows), the rotations give it
     m = system.num_rows
-    assert by_numpy / m <= compiled * (1.0 + 1e-8) and compiled <= by_numpy * (1.0 + 1e-8)
-    assert 0.1 * angle <= by_numpy <= angle
+    assert by_python_rows / m <= compiled * (1.0 + 1e-8) and compiled <= by_python_rows * (1.0 + 1e-8)
+    assert 0.1 * angle <= by_python_rows <= angle
     far = system._projection(*crank_state(cells, 0.5, 1.0))[2]
     assert far > mb.simulation.NEAR_SINGULAR
 

@@ -252,9 +252,9 @@ def joint_coupling(entry, q, v, A, gamma, phi):
 
 
 @njit(cache=True, error_model="numpy")
-def constraint_rows(program, motions, q, v, A, gamma, phi):
-    """Every constraint of ``program`` into ``A (m, nv)``, ``γ (m,)``, ``φ (m,)``; returns 0, or the
-    first non-zero status of a row function."""
+def failing_entry(program, motions, q, v, A, gamma, phi):
+    """Every constraint of ``program`` into ``A (m, nv)``, ``γ (m,)``, ``φ (m,)``; returns −1, or the first row
+    of the first constraint whose row function returned a non-zero status (``UNDEFINED``), which stops there."""
     for k in range(int(program[0])):
         entry = program[HEADER + k * STRIDE : HEADER + (k + 1) * STRIDE]
         kind = int(entry[KIND])
@@ -271,8 +271,15 @@ def constraint_rows(program, motions, q, v, A, gamma, phi):
         else:
             status = joint_coupling(entry, q, v, A, gamma, phi)
         if status != 0:
-            return status
-    return 0
+            return int(entry[FIRST_ROW])
+    return -1
+
+
+@njit(cache=True, error_model="numpy")
+def constraint_rows(program, motions, q, v, A, gamma, phi):
+    """Every constraint of ``program`` into ``A (m, nv)``, ``γ (m,)``, ``φ (m,)``; returns 0, or ``UNDEFINED``
+    where a row function found no constraint direction (:func:`failing_entry`)."""
+    return 0 if failing_entry(program, motions, q, v, A, gamma, phi) < 0 else UNDEFINED
 
 
 def levels_columns(nv, m):

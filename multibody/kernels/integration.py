@@ -18,9 +18,11 @@ from .jit import njit
 from .spatial import nan_unless_finite
 
 
-def output_columns(nv):
-    """Columns of :func:`chart_derivative`'s output row: ``ẏ = [δ̇ (nv), ẇ (nv)]`` and a status."""
-    return 2 * nv + 1
+def output_columns(nv, m=0):
+    """Columns of :func:`chart_derivative`'s output row: ``ẏ = [δ̇ (nv), ẇ (nv)]`` and a status; with ``m``
+    constraint rows (:func:`constrained_chart_derivative`), the step's :data:`multibody.kernels.kkt.TAIL` after
+    them."""
+    return 2 * nv + 1 + (kkt.TAIL if m else 0)
 
 
 def workspace_size(nq, nv, step_workspace, step_columns):
@@ -84,8 +86,10 @@ def chart_derivative(joints, reals, frames, q_chart, y, tau, x3, out, ws):
 @njit(cache=True, error_model="numpy")
 def constrained_chart_derivative(joints, reals, frames, q_chart, y, tau, program, out, ws):
     """:func:`chart_derivative` with the constraints of ``program`` (:mod:`multibody.kernels.constraints`):
-    ``a`` by the constrained step, whose status is passed on (0: solved). A kernel of its own, so that
-    neither kind of system compiles the other's step."""
+    ``a`` by the constrained step, whose status is passed on (0: solved), and its status outputs (the
+    :data:`multibody.kernels.kkt.TAIL`) in the last columns (layout :func:`output_columns` with ``m``; the last
+    ``NON_FINITE`` where an input is not finite). A kernel of its own, so that neither kind of system compiles
+    the other's step."""
     nq, nv = q_chart.shape[0], y.shape[0] // 2
     q, v, kappa, T = unchart(joints, reals, frames, q_chart, y, ws)
     start = nq + 2 * nv + nv * nv
@@ -94,4 +98,6 @@ def constrained_chart_derivative(joints, reals, frames, q_chart, y, tau, program
     step = ws[start : start + columns].reshape((1, columns))
     kkt.constrained_accelerations(joints, reals, frames, q[0], v, tau, program, step, ws[start + columns :])
     chart_rates(joints, reals, frames, y, v, kappa, T, step[0, :nv], step[0, columns - 1], out)
-    nan_unless_finite(q_chart, y, tau, program, out)
+    for c in range(kkt.TAIL):
+        out[0, 2 * nv + 1 + c] = step[0, columns - kkt.TAIL + c]
+    kkt.status_unless_finite(q_chart, y, tau, program, out)

@@ -13,9 +13,11 @@ formed, so that no step squares the condition number. Where a row-pivoted LQ fac
 that every singular value exceeds the rank tolerance times the largest, ``λ`` comes from two
 triangular solves with that factor. Otherwise one-sided Jacobi rotations make the rows of ``B``
 orthogonal, ``B = V diag(σ) Pᵀ``, and ``λ = V diag(σ²)⁺ Vᵀ rhs`` drops the directions with
-``σ ≤ rank tolerance · max σ``. :meth:`multibody.ConstrainedSystem.solve`'s NumPy path uses the same
-rotations (:func:`orthogonalize_stack`) and the same rank rule, so both paths give the same
-multipliers near singular configurations.
+``σ ≤ rank tolerance · max σ``. That solve (:func:`solve_rows`) is the only one: rows from a compiled
+constraint program (:func:`constrained_accelerations`) and rows evaluated in Python and passed as arrays
+(:func:`solve_arrays`) both go through it, and the projection (:func:`project`, :func:`correction_arrays`)
+takes its corrections from the same factorisation (:func:`metric_correction`). Every failure is a status in
+the output row (:data:`TAIL`), which :data:`multibody.constrained.STATUS_ERRORS` turns into its message.
 ``M`` holds the joints' armature on its diagonal (:func:`multibody.kernels.crba.mass_matrix`).
 """
 
@@ -26,29 +28,30 @@ import math
 from .layout import IQ, IV, KIND, NV
 from . import crba, kinematics, rnea
 from . import joints as kinds
-from .constraints import constraint_rows
+from .constraints import UNDEFINED, failing_entry
 from .jit import njit
 from .spatial import nan_unless_finite
 
 #: Status of a step: solved; ``M`` not positive definite; constraints that no acceleration meets;
-#: a constraint without a defined direction (see :mod:`multibody.kernels.constraints`).
-SOLVED, NOT_POSITIVE_DEFINITE, INCONSISTENT = 0, 1, 2
-#: Status of a projection (:func:`project`) whose positions did not converge.
-NOT_CONVERGED = 4
+#: a constraint without a defined direction (``UNDEFINED``, see :mod:`multibody.kernels.constraints`); a
+#: projection (:func:`project`) whose positions did not converge; an input with a NaN or infinite entry.
+SOLVED, NOT_POSITIVE_DEFINITE, INCONSISTENT, NOT_CONVERGED, NON_FINITE = 0, 1, 2, 4, 5
 #: The unit roundoff of float64: singular values below ``m ε σ_max`` are rounding (a redundant row).
 EPSILON = 2.0**-52
 
 
 @njit(cache=True, error_model="numpy")
 def output_columns(nv, m):
-    """Columns of the step's output row: ``a (nv) | λ (m) | A (m nv, row-major) | γ (m) | rank | status``."""
-    return nv + m + m * nv + m + 2
+    """Columns of the step's output row: ``a (nv) | λ (m) | A (m nv, row-major) | γ (m) |`` the :data:`TAIL`
+    (rank, row, conditioning, value, status)."""
+    return nv + m + m * nv + m + TAIL
 
 
 def workspace_size(nj, nv, nframes, m):
     """Floats of workspace of one step with ``nframes`` constraint frames and ``m`` rows."""
     passes = max(crba.workspace_size(nj, nv), rnea.workspace_size(nj, nv), kinematics.workspace_size(nj, nv))
-    return nv * nv + 2 * nv + nframes * kinematics.motion_columns(nv) + 4 * m * nv + m * m + 9 * m + passes
+    return (nv * nv + nv + nframes * kinematics.motion_columns(nv) + m * nv + 2 * m + solve_workspace_size(m, nv)
+            + passes)
 
 
 @njit(cache=True, error_model="numpy")
@@ -323,14 +326,17 @@ def metric_solve(L, A, W, Y, scratch, V, sigma, rhs, rank_tolerance, m, n, coeff
 
 
 @njit(cache=True, error_model="numpy")
-def solve_workspace(ws, start, m, nv):
-    """The arrays of the minimum-norm solves, carved from ``ws[start:]`` (``4 m nv + m² + 8 m`` floats):
-    the rows ``A (m, nv)``, ``γ``, ``φ``; ``W``, ``Y (m, nv)`` of :func:`metric_solve`; ``V (m, m)`` and
-    ``σ`` of :func:`orthogonalize_rows`; ``rhs``, ``coefficients`` and ``magnitudes`` of
-    :func:`minimum_norm`; the scratch ``(m, nv)``, ``order`` and ``norms`` of :func:`metric_solve`; and
-    where the next array starts."""
-    A = ws[start : start + m * nv].reshape((m, nv))
-    start += m * nv
+def metric_workspace_size(m, nv):
+    """Floats of :func:`metric_workspace`: ``3 m nv + m² + 7 m``."""
+    return 3 * m * nv + m * m + 7 * m
+
+
+@njit(cache=True, error_model="numpy")
+def metric_workspace(ws, start, m, nv):
+    """The arrays of the minimum-norm solves, carved from ``ws[start:]`` (:func:`metric_workspace_size`):
+    ``W``, ``Y (m, nv)`` of :func:`metric_solve`; ``V (m, m)`` and ``σ`` of :func:`orthogonalize_rows`;
+    ``rhs``, ``coefficients`` and ``magnitudes`` of :func:`minimum_norm`; the scratch ``(m, nv)``, ``order``
+    and ``norms`` of :func:`metric_solve`; the multipliers ``λ (m,)``; and where the next array starts."""
     W = ws[start : start + m * nv].reshape((m, nv))  # rows: L⁻¹ A_iᵀ, then rotated
     start += m * nv
     Y = ws[start : start + m * nv].reshape((m, nv))  # rows: M⁻¹ A_iᵀ
@@ -339,78 +345,51 @@ def solve_workspace(ws, start, m, nv):
     start += m * m
     scratch = ws[start : start + m * nv].reshape((m, nv))
     start += m * nv
-    vectors = ws[start : start + 8 * m]
-    return (A, vectors[:m], vectors[m : 2 * m], W, Y, V, vectors[2 * m : 3 * m], vectors[3 * m : 4 * m],
-            vectors[4 * m : 5 * m], vectors[5 * m : 6 * m], scratch, vectors[6 * m : 7 * m], vectors[7 * m :],
-            start + 8 * m)
+    vectors = ws[start : start + 7 * m]
+    return (W, Y, V, vectors[:m], vectors[m : 2 * m], vectors[2 * m : 3 * m], vectors[3 * m : 4 * m], scratch,
+            vectors[4 * m : 5 * m], vectors[5 * m : 6 * m], vectors[6 * m :], start + 7 * m)
+
+
+#: The last columns of every solve's output row (:func:`solve_rows`, :func:`project`): the rank of the rows, the
+#: row a failure concerns (the inconsistent row, or the first row of the constraint whose rows are undefined; −1
+#: for none), the rows' conditioning (:func:`metric_solve`), a value the status reports (how far that row is
+#: off, or the ``|φ|`` a projection left) and the status.
+RANK, ROW, CONDITIONING, VALUE, STATUS = -5, -4, -3, -2, -1
+TAIL = 5
 
 
 @njit(cache=True, error_model="numpy")
-def orthogonalize_stack(B, U, sigma):
-    """:func:`orthogonalize_rows` of each matrix of a stack ``B (k, m, n)``, into ``U (k, m, m)`` and
-    ``sigma (k, m)``."""
-    for state in range(B.shape[0]):
-        orthogonalize_rows(B[state], U[state], sigma[state], B.shape[1])
+def solve_workspace_size(m, nv):
+    """Floats of workspace of :func:`solve_rows`."""
+    return nv + m + metric_workspace_size(m, nv)
 
 
 @njit(cache=True, error_model="numpy")
-def constrained_accelerations(joints, reals, frames, q, v, tau, program, out, ws):
-    """One constrained step into ``out[0]`` (layout :func:`output_columns`): ``a`` (m/s², rad/s²), ``λ``,
-    ``A``, ``γ``, the rank of ``A`` and a status (``SOLVED``, ``NOT_POSITIVE_DEFINITE``, ``INCONSISTENT``
-    or ``constraints.UNDEFINED``; the other entries are meaningful only when solved).
+def solve_rows(M, h, tau, A, gamma, rank_tolerance, check, row, ws):
+    """The constrained accelerations and multipliers of ``M a + h = τ + Aᵀ λ``, ``A a = γ`` into ``row``:
+    ``a (nv)`` in ``row[:nv]``, ``λ (m)`` in ``row[nv : nv + m]`` and the last :data:`TAIL` columns (rank, row,
+    conditioning, value, status). Returns the status: ``SOLVED``, ``NOT_POSITIVE_DEFINITE`` or, with
+    ``check``, ``INCONSISTENT`` (``a`` and ``λ`` are then the minimum-norm ones, the row and how far it is off
+    reported). The one solve of every caller, whether the rows come from a compiled program
+    (:func:`constrained_accelerations`) or from arrays (:func:`solve_arrays`).
 
-    ``q (nq,)``, ``v (nv,)``, ``tau (nv,)`` or length 0 (zero), ``program`` as
-    :mod:`multibody.kernels.constraints`; ``frames`` are the constraint frames it indexes. Baumgarte
-    stabilisation ``γ ← γ − 2α A v − β² φ`` with ``(α, β)`` from the program's header.
-    """
-    m = int(program[1])
-    nv = (out.shape[1] - 2 - 2 * m) // (1 + m)
-    alpha, beta, rank_tolerance = program[2], program[3], program[4]
-    none = program[:0]
-    cols = kinematics.motion_columns(nv)
-    # workspace
-    start = 0
-    M = ws[start : start + nv * nv].reshape((nv, nv))
-    start += nv * nv
-    h = ws[start : start + nv].reshape((1, nv))
-    start += nv
-    a_free = ws[start : start + nv]
-    start += nv
-    motions = ws[start : start + frames.shape[0] * cols].reshape((frames.shape[0], cols))
-    start += frames.shape[0] * cols
-    (A, gamma, phi, W, Y, V, sigma, rhs, coefficients, magnitudes, scratch, order, norms,
-     start) = solve_workspace(ws, start, m, nv)
-    scale = ws[start : start + m]
-    start += m
-    passes = ws[start:]
-    row = out[0]
-    for c in range(row.shape[0]):
-        row[c] = 0.0
+    Featherstone, *Rigid Body Dynamics Algorithms*, §8.1, eq. 8.7 (module docstring): ``M = L Lᵀ`` by
+    :func:`cholesky` (``M (nv, nv)`` is overwritten with ``L``), ``λ = G⁺ (γ − A a_free)`` by
+    :func:`metric_solve`'s rank rule, ``a = a_free + M⁻¹ Aᵀ λ``. ``h``, ``tau (nv,)`` or length 0 (zero);
+    ``A (m, nv)``, ``gamma (m,)``; ``ws``: :func:`solve_workspace_size` floats."""
+    nv, m = M.shape[0], A.shape[0]
+    a_free, scale = ws[:nv], ws[nv : nv + m]
+    (W, Y, V, sigma, rhs, coefficients, magnitudes, scratch, order, norms, _,
+     _) = metric_workspace(ws, nv + m, m, nv)
     a, lam = row[:nv], row[nv : nv + m]
-    status_column, rank_column = row.shape[0] - 1, row.shape[0] - 2
-
-    crba.mass_matrix(joints, reals, frames, q, none, none, none, M, passes)
-    rnea.inverse_dynamics(joints, reals, frames, q, v, none, none, h, passes)
-    kinematics.frame_motions(joints, reals, frames, q, v, none, none, motions, passes)
-    status = constraint_rows(program, motions, q, v, A, gamma, phi)
-    if status != 0:
-        row[status_column] = status
-        nan_unless_finite(q, v, tau, program, out)
-        return
-    # Baumgarte: γ ← γ − 2α A v − β² φ
-    if alpha != 0.0 or beta != 0.0:
-        for i in range(m):
-            Av = 0.0
-            for c in range(nv):
-                Av += A[i, c] * v[c]
-            gamma[i] -= 2.0 * alpha * Av + beta * beta * phi[i]
+    end = row.shape[0]
+    row[end + ROW] = -1.0
     if not cholesky(M, nv):
-        row[status_column] = NOT_POSITIVE_DEFINITE
-        nan_unless_finite(q, v, tau, program, out)
-        return
+        row[end + STATUS] = NOT_POSITIVE_DEFINITE
+        return NOT_POSITIVE_DEFINITE
     # a_free = M⁻¹ (τ − h)
     for c in range(nv):
-        a_free[c] = (tau[c] if tau.shape[0] > 0 else 0.0) - h[0, c]
+        a_free[c] = (tau[c] if tau.shape[0] > 0 else 0.0) - (h[c] if h.shape[0] > 0 else 0.0)
     cholesky_solve(M, nv, a_free)
     # rhs = γ − A a_free
     for i in range(m):
@@ -420,43 +399,232 @@ def constrained_accelerations(joints, reals, frames, q, v, tau, program, out, ws
         rhs[i] = gamma[i] - A_a_free
         scale[i] = max(abs(gamma[i]), abs(A_a_free), 1.0)
     # G = A M⁻¹ Aᵀ = B Bᵀ ;  λ = G⁺ rhs, keeping the directions with σ > tolerance · max σ
-    rank, every_row, _ = metric_solve(M, A, W, Y, scratch, V, sigma, rhs, rank_tolerance, m, nv, coefficients,
-                                      magnitudes, lam, order, norms)
+    rank, every_row, conditioning = metric_solve(M, A, W, Y, scratch, V, sigma, rhs, rank_tolerance, m, nv,
+                                                 coefficients, magnitudes, lam, order, norms)
     # the part of rhs in the dropped directions cannot be met, judged against the terms that make it: the
     # row's own (scale) and those of the part met, Σ_j |V_ij| Σ_k |V_kj rhs_k|, whose rounding leaks
     # into every row that V mixes (a row of small rhs beside one of 1e12 at a fast joint); with every row
-    # counted, none is dropped
-    for i in range(m if not every_row else 0):
+    # counted, none is dropped. The row reported is the one furthest off relative to its terms.
+    status = SOLVED
+    worst = 0.0
+    for i in range(m if check and not every_row else 0):
         met, terms = 0.0, 0.0
         for j in range(m):
             met += V[i, j] * coefficients[j]
             terms += abs(V[i, j]) * magnitudes[j]
-        if abs(rhs[i] - met) > 1e-8 * max(scale[i], terms):
-            row[status_column] = INCONSISTENT
+        off = rhs[i] - met
+        bound = max(scale[i], terms)
+        if abs(off) > 1e-8 * bound:
+            status = INCONSISTENT
+            if abs(off) / bound > worst:
+                worst = abs(off) / bound
+                row[end + ROW] = i
+                row[end + VALUE] = off
     # a = a_free + M⁻¹ Aᵀ λ
     for c in range(nv):
         s = a_free[c]
         for i in range(m):
             s += Y[i, c] * lam[i]
         a[c] = s
+    row[end + RANK] = rank
+    row[end + CONDITIONING] = conditioning
+    row[end + STATUS] = status
+    return status
+
+
+@njit(cache=True, error_model="numpy")
+def status_unless_finite(x0, x1, x2, x3, out):
+    """:func:`~multibody.kernels.spatial.nan_unless_finite`, with the status ``NON_FINITE`` where an input has a
+    NaN or infinite entry (every other column NaN)."""
+    nan_unless_finite(x0, x1, x2, x3, out)
+    last = out.shape[1] - 1
+    if out[0, last] != out[0, last]:
+        out[0, last] = NON_FINITE
+
+
+def arrays_columns(nv, m):
+    """Columns of :func:`solve_arrays`' output row: ``a (nv) | λ (m) |`` the :data:`TAIL`."""
+    return nv + m + TAIL
+
+
+def arrays_workspace_size(nv, m):
+    """Floats of workspace of :func:`solve_arrays`."""
+    return nv * nv + solve_workspace_size(m, nv)
+
+
+@njit(cache=True, error_model="numpy")
+def solve_arrays(joints, reals, frames, options, h, tau, rows, out, ws):
+    """:func:`solve_rows` on rows given as arrays (a constraint evaluated in Python), into ``out[0]`` (layout
+    :func:`arrays_columns`): ``options = [rank tolerance, check, M (nv², row-major)]`` (check: 1.0 to report
+    inconsistent rows, 0.0 for the minimum-norm solution alone), ``h (nv,)``, ``tau (nv,)`` or length 0
+    (zero), ``rows = [A (m nv, row-major) | γ (m)]``. The tree's arrays are unused."""
+    nv = h.shape[0]
+    m = rows.shape[0] // (nv + 1)
+    M = ws[: nv * nv].reshape((nv, nv))
+    for i in range(nv):
+        for c in range(nv):
+            M[i, c] = options[2 + i * nv + c]
+    A = rows[: m * nv].reshape((m, nv))
+    row = out[0]
+    for c in range(row.shape[0]):
+        row[c] = 0.0
+    solve_rows(M, h, tau, A, rows[m * nv :], options[0], options[1] != 0.0, row, ws[nv * nv :])
+    status_unless_finite(options, h, tau, rows, out)
+
+
+@njit(cache=True, error_model="numpy")
+def constrained_accelerations(joints, reals, frames, q, v, tau, program, out, ws):
+    """One constrained step into ``out[0]`` (layout :func:`output_columns`): ``a`` (m/s², rad/s²), ``λ``,
+    ``A``, ``γ`` and the :data:`TAIL` (rank, row, conditioning, value, status: ``SOLVED``,
+    ``NOT_POSITIVE_DEFINITE``, ``INCONSISTENT``, ``constraints.UNDEFINED`` or ``NON_FINITE``; the other entries
+    are meaningful only when solved).
+
+    ``q (nq,)``, ``v (nv,)``, ``tau (nv,)`` or length 0 (zero), ``program`` as
+    :mod:`multibody.kernels.constraints`; ``frames`` are the constraint frames it indexes. Baumgarte
+    stabilisation ``γ ← γ − 2α A v − β² φ`` with ``(α, β)`` from the program's header. The solve is
+    :func:`solve_rows`, as for rows given as arrays.
+    """
+    m = int(program[1])
+    nv = (out.shape[1] - TAIL - 2 * m) // (1 + m)
+    alpha, beta, rank_tolerance = program[2], program[3], program[4]
+    none = program[:0]
+    cols = kinematics.motion_columns(nv)
+    # workspace
+    start = 0
+    M = ws[start : start + nv * nv].reshape((nv, nv))
+    start += nv * nv
+    h = ws[start : start + nv].reshape((1, nv))
+    start += nv
+    motions = ws[start : start + frames.shape[0] * cols].reshape((frames.shape[0], cols))
+    start += frames.shape[0] * cols
+    A = ws[start : start + m * nv].reshape((m, nv))
+    start += m * nv
+    gamma, phi = ws[start : start + m], ws[start + m : start + 2 * m]
+    start += 2 * m
+    solve_ws = ws[start : start + solve_workspace_size(m, nv)]
+    passes = ws[start + solve_workspace_size(m, nv) :]
+    row = out[0]
+    for c in range(row.shape[0]):
+        row[c] = 0.0
+    end = row.shape[0]
+
+    crba.mass_matrix(joints, reals, frames, q, none, none, none, M, passes)
+    rnea.inverse_dynamics(joints, reals, frames, q, v, none, none, h, passes)
+    kinematics.frame_motions(joints, reals, frames, q, v, none, none, motions, passes)
+    undefined = failing_entry(program, motions, q, v, A, gamma, phi)
+    if undefined >= 0:
+        row[end + STATUS] = UNDEFINED
+        row[end + ROW] = undefined
+        status_unless_finite(q, v, tau, program, out)
+        return
+    # Baumgarte: γ ← γ − 2α A v − β² φ
+    if alpha != 0.0 or beta != 0.0:
+        for i in range(m):
+            Av = 0.0
+            for c in range(nv):
+                Av += A[i, c] * v[c]
+            gamma[i] -= 2.0 * alpha * Av + beta * beta * phi[i]
+    solve_rows(M, h[0], tau, A, gamma, rank_tolerance, True, row, solve_ws)
     base = nv + m
     for i in range(m):
         for c in range(nv):
             row[base + i * nv + c] = A[i, c]
         row[base + m * nv + i] = gamma[i]
-    row[rank_column] = rank
-    nan_unless_finite(q, v, tau, program, out)
+    status_unless_finite(q, v, tau, program, out)
+
+
+@njit(cache=True, error_model="numpy")
+def metric_correction(L, A, rhs, mask, rank_tolerance, step, ws):
+    """``δ = M⁻¹ A_Sᵀ (A_S M⁻¹ A_Sᵀ)⁺ rhs_S`` into ``step (nv,)`` over the rows ``S`` of ``A (m, nv)`` whose
+    ``mask`` entry is not zero (``mask`` of length 0: every row), with ``M = L Lᵀ`` (:func:`cholesky`) and the
+    rank rule of :func:`metric_solve`: the smallest move in the kinetic-energy metric that meets ``A_S δ =
+    rhs_S``. Returns ``(max |δ|, max |rhs_S|, conditioning of the rows S)``. ``ws``:
+    :func:`metric_workspace_size` floats."""
+    m, nv = A.shape[0], A.shape[1]
+    W, Y, V, sigma, rhs_s, coefficients, magnitudes, scratch, order, norms, lam, _ = metric_workspace(ws, 0, m, nv)
+    k, error = 0, 0.0
+    for i in range(m):
+        if mask.shape[0] == 0 or mask[i] != 0.0:
+            for c in range(nv):
+                Y[k, c] = A[i, c]
+            rhs_s[k] = rhs[i]
+            error = max(error, abs(rhs[i]))
+            k += 1
+    _, _, conditioning = metric_solve(L, Y, W, Y, scratch, V, sigma, rhs_s, rank_tolerance, k, nv, coefficients,
+                                      magnitudes, lam, order, norms)
+    size = 0.0
+    for c in range(nv):
+        s = 0.0
+        for i in range(k):
+            s += Y[i, c] * lam[i]
+        step[c] = s
+        size = max(size, abs(s))
+    return size, error, conditioning
+
+
+@njit(cache=True, error_model="numpy")
+def settled(error, size, previous, tolerance):
+    """Whether Gauss–Newton on the position rows has settled: ``|φ| ≤ tol`` and the step ``size`` is below
+    ``tol`` too (in the coordinates' units) or stopped shrinking (by half from the ``previous`` step), which
+    is where rounding decides it near a singular configuration."""
+    return error <= tolerance and (size <= tolerance or size > 0.5 * previous)
+
+
+def correction_columns(nv):
+    """Columns of :func:`correction_arrays`' output row: ``δ (nv) | max |δ| | settled |`` the :data:`TAIL`."""
+    return nv + 2 + TAIL
+
+
+def correction_workspace_size(nv, m):
+    """Floats of workspace of :func:`correction_arrays`."""
+    return nv * nv + metric_workspace_size(m, nv)
+
+
+@njit(cache=True, error_model="numpy")
+def correction_arrays(joints, reals, frames, options, rows, mask, x3, out, ws):
+    """One correction of a projection on rows given as arrays (a constraint evaluated in Python), into
+    ``out[0]`` (layout :func:`correction_columns`): :func:`metric_correction` ``δ``, its size, and whether
+    Gauss–Newton has :func:`settled`, with the conditioning of the rows, ``max |rhs|`` (in the value column)
+    and a status (``SOLVED``, ``NOT_POSITIVE_DEFINITE``, ``NON_FINITE``). ``options = [rank tolerance,
+    tolerance, previous step size, M (nv², row-major)]``, ``rows = [A (m nv, row-major) | rhs (m)]``,
+    ``mask (m,)`` or length 0 (every row). :meth:`multibody.ConstrainedSystem.project` iterates it where the
+    rows come from Python, as :func:`project` iterates :func:`metric_correction` on compiled rows."""
+    nv = out.shape[1] - 2 - TAIL
+    m = rows.shape[0] // (nv + 1)
+    L = ws[: nv * nv].reshape((nv, nv))
+    for i in range(nv):
+        for c in range(nv):
+            L[i, c] = options[3 + i * nv + c]
+    row = out[0]
+    for c in range(row.shape[0]):
+        row[c] = 0.0
+    end = row.shape[0]
+    row[end + ROW] = -1.0
+    if not cholesky(L, nv):
+        row[end + STATUS] = NOT_POSITIVE_DEFINITE
+    else:
+        size, error, conditioning = metric_correction(L, rows[: m * nv].reshape((m, nv)), rows[m * nv :], mask,
+                                                      options[0], row[:nv], ws[nv * nv :])
+        row[nv] = size
+        row[nv + 1] = 1.0 if settled(error, size, options[2], options[1]) else 0.0
+        row[end + CONDITIONING] = conditioning
+        row[end + VALUE] = error
+        row[end + STATUS] = SOLVED
+    # (the previous step size starts infinite)
+    status_unless_finite(options[3:], rows, mask, x3, out)
 
 
 def projection_columns(nq, nv):
-    """Columns of :func:`project`'s output row: ``q' (nq) | v' (nv) | conditioning | |φ| | status``."""
-    return nq + nv + 3
+    """Columns of :func:`project`'s output row: ``q' (nq) | v' (nv) |`` the :data:`TAIL` (its rank column
+    unused)."""
+    return nq + nv + TAIL
 
 
 def projection_workspace_size(nj, nq, nv, nframes, m):
     """Floats of workspace of :func:`project` with ``nframes`` constraint frames and ``m`` rows."""
     passes = max(crba.workspace_size(nj, nv), kinematics.workspace_size(nj, nv))
-    return nv * nv + nframes * kinematics.motion_columns(nv) + 4 * m * nv + m * m + 9 * m + 2 * nv + nq + passes
+    return (nv * nv + nframes * kinematics.motion_columns(nv) + m * nv + 3 * m + 2 * nv + nq
+            + metric_workspace_size(m, nv) + passes)
 
 
 @njit(cache=True, error_model="numpy")
@@ -465,19 +633,18 @@ def project(joints, reals, frames, q, v, settings, program, out, ws):
     unit-norm blocks normalised (as :func:`multibody.kernels.configuration.normalize`): ``φ(q') = 0``
     and ``A(q') v' = 0`` for the rows of ``program`` (fixed in time, ``b = 0``), with the conditioning of
     the rows at ``q'`` (as :func:`metric_solve` returns it: near 0 close to a singular configuration), the
-    largest ``|φ|`` left and a status (``SOLVED``, ``NOT_CONVERGED``, ``NOT_POSITIVE_DEFINITE`` or
-    ``constraints.UNDEFINED``).
+    largest ``|φ|`` left (value column) and a status (``SOLVED``, ``NOT_CONVERGED``, ``NOT_POSITIVE_DEFINITE``,
+    ``constraints.UNDEFINED`` with the constraint's first row, or ``NON_FINITE``).
 
     Positions by Gauss–Newton steps on the rows with a position level, the smallest moves in the
     kinetic-energy metric (Hairer, Lubich & Wanner, *Geometric Numerical Integration*, §IV.4):
 
         δ = M⁻¹ Aᵀ (A M⁻¹ Aᵀ)⁺ φ,   q ← q ⊕ (−δ)
 
-    until ``|φ| ≤ tol`` and the step is below ``tol`` too (in the coordinates' units), or stops
-    shrinking (by half), which is where rounding decides it near a singular configuration. Then the
-    velocities by the ``M``-orthogonal projection ``v' = v − M⁻¹ Aᵀ (A M⁻¹ Aᵀ)⁺ A v``. The minimum-norm
-    solves are those of :func:`constrained_accelerations` (:func:`metric_solve`), with the same rank
-    decision.
+    until they have :func:`settled`. Then the velocities by the ``M``-orthogonal projection
+    ``v' = v − M⁻¹ Aᵀ (A M⁻¹ Aᵀ)⁺ A v``. Both corrections are :func:`metric_correction`, whose minimum-norm
+    solve is that of :func:`solve_rows` (:func:`metric_solve`), with the same rank decision; rows given as
+    arrays take the same correction and the same rule, one call of :func:`correction_arrays` per iteration.
 
     ``q (nq,)``, ``v (nv,)``; ``settings = [tol, max_iterations, position mask (m)]``: whether each row
     has a position level (1.0) or not (0.0).
@@ -494,20 +661,24 @@ def project(joints, reals, frames, q, v, settings, program, out, ws):
     start += nv * nv
     motions = ws[start : start + frames.shape[0] * cols].reshape((frames.shape[0], cols))
     start += frames.shape[0] * cols
-    (A, gamma, phi, W, Y, V, sigma, rhs, coefficients, magnitudes, scratch, order, norms,
-     start) = solve_workspace(ws, start, m, nv)
-    lam = ws[start : start + m]
-    start += m
+    A = ws[start : start + m * nv].reshape((m, nv))
+    start += m * nv
+    gamma, phi, Av = ws[start : start + m], ws[start + m : start + 2 * m], ws[start + 2 * m : start + 3 * m]
+    start += 3 * m
     zeros = ws[start : start + nv]
     start += nv
     step = ws[start : start + nv]
     start += nv
     moved = ws[start : start + nq]
     start += nq
-    passes = ws[start:]
+    metric = ws[start : start + metric_workspace_size(m, nv)]
+    passes = ws[start + metric_workspace_size(m, nv) :]
     row = out[0]
+    for c in range(row.shape[0]):
+        row[c] = 0.0
     q_new, v_new = row[:nq], row[nq : nq + nv]
-    status_column, error_column, conditioning_column = row.shape[0] - 1, row.shape[0] - 2, row.shape[0] - 3
+    end = row.shape[0]
+    row[end + ROW] = -1.0
     # every quaternion and planar (cos θ, sin θ) of q scaled to unit norm first
     for i in range(joints.shape[0]):
         kinds.normalize(joints[i, KIND], joints[i, NV], q, joints[i, IQ], q_new)
@@ -523,8 +694,10 @@ def project(joints, reals, frames, q, v, settings, program, out, ws):
     for iteration in range(iterations + 1 if holonomic else 1):
         # the rows A, φ at q and the Cholesky factor L of M(q)
         kinematics.frame_motions(joints, reals, frames, q_new, zeros, none, none, motions, passes)
-        status = constraint_rows(program, motions, q_new, zeros, A, gamma, phi)
-        if status != SOLVED:
+        undefined = failing_entry(program, motions, q_new, zeros, A, gamma, phi)
+        if undefined >= 0:
+            status = UNDEFINED
+            row[end + ROW] = undefined
             break
         crba.mass_matrix(joints, reals, frames, q_new, none, none, none, L, passes)
         if not cholesky(L, nv):
@@ -532,30 +705,16 @@ def project(joints, reals, frames, q, v, settings, program, out, ws):
             break
         if converged or iteration == iterations:
             break
-        # δ = M⁻¹ Aᵀ (A M⁻¹ Aᵀ)⁺ φ over the k rows with a position level, gathered into Y's first rows
-        k, error = 0, 0.0
-        for i in range(m):
-            if mask[i] != 0.0:
-                for c in range(nv):
-                    Y[k, c] = A[i, c]
-                rhs[k] = phi[i]
-                error = max(error, abs(phi[i]))
-                k += 1
-        metric_solve(L, Y, W, Y, scratch, V, sigma, rhs, rank_tolerance, k, nv, coefficients, magnitudes, lam, order,
-                     norms)
-        size = 0.0
-        for c in range(nv):
-            s = 0.0
-            for i in range(k):
-                s += Y[i, c] * lam[i]
-            step[c] = -s
-            size = max(size, abs(s))
-        row[error_column] = error
-        if error <= tolerance and (size <= tolerance or size > 0.5 * previous):
+        # δ = M⁻¹ Aᵀ (A M⁻¹ Aᵀ)⁺ φ over the rows with a position level
+        size, error, _ = metric_correction(L, A, phi, mask, rank_tolerance, step, metric)
+        row[end + VALUE] = error
+        if settled(error, size, previous, tolerance):
             converged = True
             break
         previous = size
         # q ← q ⊕ (−δ)
+        for c in range(nv):
+            step[c] = -step[c]
         for i in range(joints.shape[0]):
             kinds.integrate(joints[i, KIND], joints[i, NV], q_new, step, joints[i, IQ], joints[i, IV], moved)
         for c in range(nq):
@@ -566,25 +725,20 @@ def project(joints, reals, frames, q, v, settings, program, out, ws):
         for i in range(m):
             if mask[i] != 0.0:
                 error = max(error, abs(phi[i]))
-        row[error_column] = error
+        row[end + VALUE] = error
     if status != SOLVED:
-        row[status_column] = status
-        nan_unless_finite(q, v, settings, program, out)
+        row[end + STATUS] = status
+        status_unless_finite(q, v, settings, program, out)
         return
     # v' = v − M⁻¹ Aᵀ (A M⁻¹ Aᵀ)⁺ A v over every row
     for i in range(m):
         s = 0.0
         for c in range(nv):
             s += A[i, c] * v[c]
-        rhs[i] = s
-    _, _, conditioning = metric_solve(L, A, W, Y, scratch, V, sigma, rhs, rank_tolerance, m, nv, coefficients,
-                                      magnitudes, lam, order, norms)
+        Av[i] = s
+    _, _, conditioning = metric_correction(L, A, Av, none, rank_tolerance, step, metric)
     for c in range(nv):
-        s = 0.0
-        for i in range(m):
-            s += Y[i, c] * lam[i]
-        v_new[c] = v[c] - s
-    row[conditioning_column] = conditioning
-    row[status_column] = SOLVED
-    nan_unless_finite(q, v, settings, program, out)
-
+        v_new[c] = v[c] - step[c]
+    row[end + CONDITIONING] = conditioning
+    row[end + STATUS] = SOLVED
+    status_unless_finite(q, v, settings, program, out)
