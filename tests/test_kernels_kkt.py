@@ -110,17 +110,54 @@ def test_joint_coupling_is_compiled():
     assert_close(solution.a[1], 2.0 * solution.a[0], 1e-12, scale=1.0, what="coupled accelerations")
 
 
-def test_batch_equals_single_states():
+def test_a_user_constraint_is_solved_as_the_same_compiled_rows():
+    """A user's Python constraint (``Holonomic``) with the rows of a ``JointCoupling`` (``q₁ = 2 q₀ + 0.1``): its
+    rows, evaluated in Python and passed as arrays, and the coupling's compiled program go through the same
+    compiled solve, to the same accelerations and multipliers to 1e-12, also with Baumgarte terms and
+    redundant (a second coupling)."""
+    model = mb.robots.load("double_pendulum")
+    coupling = mb.JointCoupling(model.joint_names[0], model.joint_names[1], 2.0, 0.1)
+    user = mb.Holonomic(lambda q, t: np.array([q[1] - 2.0 * q[0] - 0.1]),
+                        jacobian=lambda q, t: np.array([[-2.0, 1.0]]), name="user gear")
+    rng = np.random.default_rng(21)
+    for baumgarte in (None, (2.0, 3.0)):
+        compiled = mb.ConstrainedSystem(model, [coupling], baumgarte=baumgarte)
+        python = mb.ConstrainedSystem(model, [user], baumgarte=baumgarte)
+        redundant = mb.ConstrainedSystem(model, [coupling, user], baumgarte=baumgarte)
+        assert compiled._compiled_step is not None and python._compiled_step is None
+        for _ in range(3):
+            q, v, tau = rng.standard_normal(2), rng.standard_normal(2), rng.standard_normal(2)
+            fast, slow, both = compiled.solve(q, v, tau), python.solve(q, v, tau), redundant.solve(q, v, tau)
+            scale = max(1.0, np.abs(fast.a).max(), np.abs(fast.lam).max())
+            assert_close(slow.a, fast.a, 1e-12, scale=scale, what="a")
+            assert_close(slow.lam, fast.lam, 1e-12, scale=scale, what="λ")
+            assert both.rank == 1
+            assert_close(both.a, fast.a, 1e-12, scale=scale, what="a, redundant")
+            # the minimum-norm multipliers share the force equally between the two equal rows
+            assert_close(both.lam, np.full(2, fast.lam[0] / 2.0), 1e-12, scale=scale, what="λ, redundant")
+
+
+@pytest.mark.parametrize("rows", ["program", "python"])
+def test_batch_equals_single_states(rows):
+    """A batch is solved state by state, on the program's rows and on rows evaluated in Python (one call of the
+    compiled solve for the whole batch): each state as alone, and the two kinds of rows alike to 1e-12."""
     model = ball()
     system = mb.ConstrainedSystem(model, BALL_CONSTRAINTS["sphere"](), baumgarte=1.0)
+    assert system.batched
     rng = np.random.default_rng(5)
     q = np.stack([model.random_configuration(rng) for _ in range(4)])
     v, tau = rng.standard_normal((4, model.nv)), rng.standard_normal(model.nv)
+    program = system.solve(q, v, tau)
+    if rows == "python":
+        system.__dict__["_compiled_step"] = None  # the cached property, withheld
     batch = system.solve(q, v, tau)
     for k in range(4):
         single = system.solve(q[k], v[k], tau)
         assert np.array_equal(batch.a[k], single.a) and np.array_equal(batch.lam[k], single.lam)
-        assert batch.rank[k] == single.rank
+        assert batch.rank[k] == single.rank == program.rank[k]
+    scale = max(1.0, np.abs(program.a).max(), np.abs(program.lam).max())
+    assert_close(batch.a, program.a, 1e-12, scale=scale, what="a")
+    assert_close(batch.lam, program.lam, 1e-12, scale=scale, what="λ")
 
 
 def test_steps_the_compiled_solve_cannot_take_raise_the_errors_of_their_status():
