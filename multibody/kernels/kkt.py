@@ -614,6 +614,7 @@ def correction_arrays(joints, reals, frames, options, rows, mask, x3, out, ws):
     status_unless_finite(options[3:], rows, mask, x3, out)
 
 
+@njit(cache=True, error_model="numpy")
 def projection_columns(nq, nv):
     """Columns of :func:`project`'s output row: ``q' (nq) | v' (nv) |`` the :data:`TAIL` (its rank column
     unused)."""

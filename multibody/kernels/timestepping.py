@@ -461,8 +461,9 @@ def step(controller, joints, reals, frames, program, geometry, vertices, plan, c
     at += nv
     w = ws[at : at + nv]
     at += nv
-    projected = ws[at : at + nq + nv + 3].reshape((1, nq + nv + 3))
-    at += nq + nv + 3
+    projection_columns = kkt.projection_columns(nq, nv)
+    projected = ws[at : at + projection_columns].reshape((1, projection_columns))
+    at += projection_columns
     projection_ws = ws[at : at + int(plan[PLAN_PROJECTION_WORKSPACE])]
     at += int(plan[PLAN_PROJECTION_WORKSPACE])
     kinematic_size, passes_size = int(plan[PLAN_KINEMATICS_WORKSPACE]), int(plan[PLAN_PASSES_WORKSPACE])
@@ -686,7 +687,7 @@ def step(controller, joints, reals, frames, program, geometry, vertices, plan, c
     if mb > 0:
         settings = plan[int(plan[PLAN_SETTINGS_START]) : int(plan[PLAN_SETTINGS_START]) + 2 + mb]
         kkt.project(joints, reals, frames, q_next, v_next, settings, program, projected, projection_ws)
-        if projected[0, nq + nv + 2] != kkt.SOLVED:
+        if projected[0, projected.shape[1] - 1] != kkt.SOLVED:
             return NOT_PROJECTED
         for col in range(nq + nv):
             if col < nq:
