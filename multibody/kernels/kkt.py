@@ -50,7 +50,7 @@ def output_columns(nv, m):
 def workspace_size(nj, nv, nframes, m):
     """Floats of workspace of one step with ``nframes`` constraint frames and ``m`` rows."""
     passes = max(crba.workspace_size(nj, nv), rnea.workspace_size(nj, nv), kinematics.workspace_size(nj, nv))
-    return (nv * nv + nv + nframes * kinematics.motion_columns(nv) + m * nv + 2 * m + solve_workspace_size(m, nv)
+    return (nv * nv + nv + nframes * kinematics.motion_columns(nv) + m * nv + 2 * m + solve_rows_workspace_size(m, nv)
             + passes)
 
 
@@ -350,6 +350,24 @@ def metric_workspace(ws, start, m, nv):
             vectors[4 * m : 5 * m], vectors[5 * m : 6 * m], vectors[6 * m :], start + 7 * m)
 
 
+@njit(cache=True, error_model="numpy")
+def solve_workspace_size(m, nv):
+    """Floats of :func:`solve_workspace`: ``4 m nv + m² + 9 m``."""
+    return m * nv + 2 * m + metric_workspace_size(m, nv)
+
+
+@njit(cache=True, error_model="numpy")
+def solve_workspace(ws, start, m, nv):
+    """The rows ``A (m, nv)``, ``γ``, ``φ (m,)`` and the arrays of :func:`metric_workspace` but ``λ``, carved from
+    ``ws[start:]`` (:func:`solve_workspace_size`), for a caller that evaluates rows and solves with them
+    (:func:`multibody.kernels.variational.advance`); and where the next array starts."""
+    A = ws[start : start + m * nv].reshape((m, nv))
+    gamma, phi = ws[start + m * nv : start + m * nv + m], ws[start + m * nv + m : start + m * nv + 2 * m]
+    (W, Y, V, sigma, rhs, coefficients, magnitudes, scratch, order, norms, _,
+     start) = metric_workspace(ws, start + m * nv + 2 * m, m, nv)
+    return A, gamma, phi, W, Y, V, sigma, rhs, coefficients, magnitudes, scratch, order, norms, start
+
+
 #: The last columns of every solve's output row (:func:`solve_rows`, :func:`project`): the rank of the rows, the
 #: row a failure concerns (the inconsistent row, or the first row of the constraint whose rows are undefined; −1
 #: for none), the rows' conditioning (:func:`metric_solve`), a value the status reports (how far that row is
@@ -359,7 +377,7 @@ TAIL = 5
 
 
 @njit(cache=True, error_model="numpy")
-def solve_workspace_size(m, nv):
+def solve_rows_workspace_size(m, nv):
     """Floats of workspace of :func:`solve_rows`."""
     return nv + m + metric_workspace_size(m, nv)
 
@@ -376,7 +394,7 @@ def solve_rows(M, h, tau, A, gamma, rank_tolerance, check, row, ws):
     Featherstone, *Rigid Body Dynamics Algorithms*, §8.1, eq. 8.7 (module docstring): ``M = L Lᵀ`` by
     :func:`cholesky` (``M (nv, nv)`` is overwritten with ``L``), ``λ = G⁺ (γ − A a_free)`` by
     :func:`metric_solve`'s rank rule, ``a = a_free + M⁻¹ Aᵀ λ``. ``h``, ``tau (nv,)`` or length 0 (zero);
-    ``A (m, nv)``, ``gamma (m,)``; ``ws``: :func:`solve_workspace_size` floats."""
+    ``A (m, nv)``, ``gamma (m,)``; ``ws``: :func:`solve_rows_workspace_size` floats."""
     nv, m = M.shape[0], A.shape[0]
     a_free, scale = ws[:nv], ws[nv : nv + m]
     (W, Y, V, sigma, rhs, coefficients, magnitudes, scratch, order, norms, _,
@@ -449,7 +467,7 @@ def arrays_columns(nv, m):
 
 def arrays_workspace_size(nv, m):
     """Floats of workspace of :func:`solve_arrays`."""
-    return nv * nv + solve_workspace_size(m, nv)
+    return nv * nv + solve_rows_workspace_size(m, nv)
 
 
 @njit(cache=True, error_model="numpy")
@@ -501,8 +519,8 @@ def constrained_accelerations(joints, reals, frames, q, v, tau, program, out, ws
     start += m * nv
     gamma, phi = ws[start : start + m], ws[start + m : start + 2 * m]
     start += 2 * m
-    solve_ws = ws[start : start + solve_workspace_size(m, nv)]
-    passes = ws[start + solve_workspace_size(m, nv) :]
+    solve_ws = ws[start : start + solve_rows_workspace_size(m, nv)]
+    passes = ws[start + solve_rows_workspace_size(m, nv) :]
     row = out[0]
     for c in range(row.shape[0]):
         row[c] = 0.0

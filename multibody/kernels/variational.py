@@ -79,7 +79,7 @@ def workspace_size(nj, nq, nv, m, nframes):
     columns = m * nv + 2 * m + 1  # constraints.levels_columns(nv, m)
     vectors = 16 * nv + 3 * nq + 7 * m + (nv + 1) * nv
     matrices = 18 * nv * nv + 3 * columns + 4 * m * nv + 2 * m * m
-    solves = 4 * m * nv + m * m + 8 * m
+    solves = kkt.solve_workspace_size(m, nv)
     kernels = max(lagrangian.workspace_size(nj, nv), derivatives.workspace_size(nj, nv), coriolis.workspace_size(nj, nv),
                   configuration.workspace_size(nj, nv), constraints.workspace_size(nj, nv, nframes), nq + nv)
     return memory_size(nq, nv, m) + vectors + matrices + solves + kernels
