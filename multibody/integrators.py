@@ -723,9 +723,9 @@ class AdaptiveRun:
     compiled run leaves, the same function run as Python with the system's maps from Python.
 
     Args:
-        tree, frames, program, step_columns, step_workspace, projection, controller, damping, projection_tolerance,
-            near_singular: as :class:`CompiledRun` takes them (``tree`` ``None``: a system without a compiled step,
-            which runs as Python only).
+        tree, frames, program, step_columns, step_workspace, projection, controller, damping: as
+            :class:`CompiledRun` takes them, and ``projection_tolerance``, ``near_singular`` too (``tree`` ``None``: a
+            system without a compiled step, which runs as Python only).
         charts: whether the stages go through the chart maps; ``curved``: whether each step's end starts a new chart.
         pair: the method (:data:`EMBEDDED`); ``rtol``, ``atol``: its tolerances; ``max_step``: its longest step (s).
         turn: the largest turn of a rotation vector of the chart in a step (rad), at the angular speeds of its start;
