@@ -342,6 +342,10 @@ class ConstrainedSystem:
     def _raise_failure(self, tail, iterations=0, non_finite=False):
         """The error of :data:`STATUS_ERRORS` of the first state whose status outputs ``tail (..., TAIL)`` report a
         failure; a non-finite input counts only with ``non_finite``."""
+        if tail.ndim == 1:  # (one state: plain floats, a tenth of the array operations' cost)
+            status = float(tail[kkt.STATUS])
+            if status == kkt.SOLVED or (status == kkt.NON_FINITE and not non_finite):
+                return
         status = tail[..., kkt.STATUS]
         failed = (status != kkt.SOLVED) if non_finite else (status != kkt.SOLVED) & (status != kkt.NON_FINITE)
         if failed.any():
@@ -626,8 +630,10 @@ class ConstrainedSystem:
             A, gamma = self._acceleration_level(evaluated, q, v, t)
             a, lam, tail = self._solve_arrays(M, h, tau, A, gamma)
         self._raise_failure(tail)
-        rank = np.nan_to_num(tail[..., kkt.RANK]).astype(int)
-        return KKTSolution(a, lam, int(rank) if rank.ndim == 0 else rank, A, gamma)
+        if tail.ndim == 1:
+            rank = tail[kkt.RANK]
+            return KKTSolution(a, lam, int(rank) if rank == rank else 0, A, gamma)
+        return KKTSolution(a, lam, np.nan_to_num(tail[..., kkt.RANK]).astype(int), A, gamma)
 
     def forward_dynamics(self, q, v, tau=None, t=0.0):
         """``(a, λ)`` with ``M a + h = τ + Aᵀ λ`` and ``A a = γ``: ``(nv,)``, ``(m,)`` (``(..., nv)``,
