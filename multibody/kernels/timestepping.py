@@ -306,14 +306,17 @@ def lower_bound(gap, dt, u_start, u_free, e):
     zero length, which solves nothing)."""
     if not dt > 0.0:
         return 0.0
-    # ℓ = −max(g, 0)/dt
-    bound = -max(gap, 0.0) / dt
+    # ℓ = −max(g, 0)/dt   (comparisons rather than max and min, which Numba's CUDA target does not compile for
+    # floats)
+    bound = -gap / dt if gap > 0.0 else 0.0
     # Newton's restitution, u⁺ₙ ≥ −e u⁻ₙ, for a contact that closes within the step, approaching faster than
-    # 2e/(1 − e²) times the step's free change of its normal velocity, δ = |u*ₙ − u⁻ₙ| (δ itself for e = 1)
+    # max(1, 2e/(1 − e²)) times the step's free change of its normal velocity, δ = |u*ₙ − u⁻ₙ| (δ itself for e = 1)
     change = abs(u_free - u_start)
     threshold = 2.0 * e * change / (1.0 - e * e) if e < 1.0 else change
-    if e > 0.0 and gap + dt * u_free < 0.0 and u_start < -max(threshold, change):
-        bound = max(bound, -e * u_start)
+    if threshold < change:
+        threshold = change
+    if e > 0.0 and gap + dt * u_free < 0.0 and u_start < -threshold and -e * u_start > bound:
+        bound = -e * u_start
     return bound
 
 
@@ -353,7 +356,8 @@ def separate(joints, plan, W, Y, gaps, normal_rows, count, G, x, u, mu, kinds_, 
     deepest end gap corrected (m or rad, ≤ 0), 0 when nothing penetrates."""
     deepest = 0.0
     for i in range(count):
-        deepest = min(deepest, gaps[i])
+        if gaps[i] < deepest:
+            deepest = gaps[i]
     if deepest >= -plan[PLAN_PENETRATION]:
         return 0.0
     # Gₙ = Wₙ Wₙᵀ ;  0 ≤ P ⊥ Gₙ P + g ≥ 0
@@ -414,7 +418,8 @@ def warm_start(plan, J, contacts, found, limit_rows, first_limit, limit_items, m
         if nearest < 0:
             continue
         f = previous[nearest, RECORD_FORCE : RECORD_FORCE + 3]
-        x[i] = max(dt * (f[0] * data[C_NORMAL] + f[1] * data[C_NORMAL + 1] + f[2] * data[C_NORMAL + 2]), 0.0)
+        normal_impulse = dt * (f[0] * data[C_NORMAL] + f[1] * data[C_NORMAL + 1] + f[2] * data[C_NORMAL + 2])
+        x[i] = normal_impulse if normal_impulse > 0.0 else 0.0
         if data[C_FRICTION] > 0.0:
             x[i + 1] = dt * (f[0] * data[C_T1] + f[1] * data[C_T1 + 1] + f[2] * data[C_T1 + 2])
             x[i + 2] = dt * (f[0] * data[C_T2] + f[1] * data[C_T2 + 1] + f[2] * data[C_T2 + 2])
