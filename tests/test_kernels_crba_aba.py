@@ -347,3 +347,41 @@ def test_plain_python_gives_the_compiled_numbers(tmp_path):
         results[jit] = np.load(tmp_path / f"out{jit}.npy")
     assert np.all(np.isfinite(results["1"]))
     assert_rel(results["1"], results["0"], TOL_INVERSE, "plain Python vs compiled", batch_ndim=0)
+
+
+@pytest.mark.parametrize("kind", ["revolute", "prismatic"])
+def test_one_coordinate_factor_equals_general(kind):
+    """ABA's path for a joint of one coordinate (:func:`aba.factor_single`, scalar ``D``) gives the ``U``,
+    ``U D⁻¹``, ``D⁻¹`` and ``I^a = I^A − U D⁻¹ Uᵀ`` of the general factorisation (:func:`aba.factor_joint`,
+    ``D`` inverted by its LDLᵀ factor) to 1e-13, for random symmetric positive definite articulated inertias,
+    unit axes (principal and not) and armatures."""
+    from multibody.kernels import joints as kinds
+    from multibody.tree import ARMATURE, REAL_SIZE
+
+    code = kinds.REVOLUTE if kind == "revolute" else kinds.PRISMATIC
+    rng = np.random.default_rng(11 + code)
+    axes = [(0.0, 0.0, 1.0), (0.0, -1.0, 0.0), (1.0, 0.0, 0.0)] + [tuple(a / np.linalg.norm(a))
+                                                                     for a in rng.standard_normal((5, 3))]
+    for axis in axes:
+        G = rng.standard_normal((6, 6))
+        inertia = G @ G.T + 0.1 * np.eye(6)
+        arm = float(rng.uniform(0.0, 0.5))
+        reals = np.zeros((1, REAL_SIZE))
+        reals[0, ARMATURE] = arm
+        at = 7  # the matrix anywhere in the workspace
+        single, general = np.full(at + 36 + 7, np.nan), np.full(at + 36 + 108 + 36 + 7, np.nan)
+        single[at : at + 36] = inertia.ravel()
+        general[at : at + 36] = inertia.ravel()
+        s = kinds.subspace_column(code, axis, 0)
+        U, U_D, d_inv = aba.factor_single(single, at, s, kinds.axis_rows(code), axis, arm)
+        scratch, u_d_inv = at + 36, at + 36 + 108
+        aba.factor_joint(code, axis, 1, reals, 0, general, at, scratch, u_d_inv)
+        scale = np.abs(inertia).max()
+        np.testing.assert_allclose(U, general[scratch : scratch + 6], rtol=0, atol=1e-13 * scale)
+        np.testing.assert_allclose(U_D, general[u_d_inv : u_d_inv + 6], rtol=0, atol=1e-13)
+        assert d_inv == pytest.approx(general[scratch + 72], rel=1e-13)
+        np.testing.assert_allclose(single[at : at + 36], general[at : at + 36], rtol=0, atol=1e-13 * scale)
+        # the path's I^a is exactly symmetric, as the general one
+        I_a = single[at : at + 36].reshape(6, 6)
+        assert np.array_equal(I_a, I_a.T)
+        assert np.isnan(single[:at]).all() and np.isnan(single[at + 36 :]).all()
