@@ -56,7 +56,8 @@ from .rolling import KnifeEdge, RollingDisc, RollingSphere
 from .shooting import StepDerivatives, rk4_step, rk4_step_derivatives
 from .linearization import Linearization, linearize
 from .integrators import PD
-from .simulation import JointLimitWarning, SimulationError, simulate
+from .runs import JointLimitWarning, SimulationError
+from .simulation import simulate
 from .trajectory import Trajectory
 from . import variational
 

@@ -191,17 +191,17 @@ def simulate_many(system, q0, v0, t_final, *, chunks=None, client=None, **kw):
     """
     from .constrained import ConstrainedSystem
     from .integrators import PD
-    from .simulation import _batch_size, _check_batchable, _warn_if_stopped
+    from .simulation import batch_size, check_batchable, warn_if_stopped
 
     constrained = system if isinstance(system, ConstrainedSystem) else ConstrainedSystem(system)
     q0, v0 = np.asarray(q0, dtype=float), np.asarray(v0, dtype=float)
-    n = _batch_size(q0, v0, constrained.nq, constrained.nv)
+    n = batch_size(q0, v0, constrained.nq, constrained.nv)
     if n is None:
         raise ValueError(f"simulate_many takes a batch of initial states q0 (N, {constrained.nq}), v0 (N, "
                          f"{constrained.nv}), got {q0.shape} and {v0.shape}: simulate one with mb.simulate")
     kw.setdefault("method", "RK4")
     # refused here, before anything is sent
-    _check_batchable(constrained, kw["method"], q0.shape, v0.shape)
+    check_batchable(constrained, kw["method"], q0.shape, v0.shape)
     q0 = np.broadcast_to(q0, (n, constrained.nq))
     v0 = np.broadcast_to(v0, (n, constrained.nv))
     if n == 0:
@@ -223,5 +223,5 @@ def simulate_many(system, q0, v0, t_final, *, chunks=None, client=None, **kw):
 
     with _connected(client) as connected:
         trajectory = _concatenate(_map_chunks(connected, run, constrained, arrays, chunks))
-    _warn_if_stopped(trajectory, stacklevel=3)
+    warn_if_stopped(trajectory, stacklevel=3)
     return trajectory

@@ -35,7 +35,7 @@ import numpy as np
 from . import derivatives, differences, dynamics
 from .constrained import ConstrainedSystem, as_system
 from .model import Model
-from .simulation import _Charts
+from .simulation import Charts
 from .spatial import matvec
 
 
@@ -67,7 +67,7 @@ class _Step:
         else:
             raise TypeError(f"system must be a Model or a ConstrainedSystem, got {type(system).__name__}")
         mechanical = as_system(system if self.constrained is None else system.system)
-        self.charts = _Charts(mechanical)
+        self.charts = Charts(mechanical)
         self.mechanical = mechanical
         self.nq, self.nv = mechanical.nq, mechanical.nv
 

@@ -37,10 +37,9 @@ residuals are those of the returned states.
 from __future__ import annotations
 
 import collections
-import sys
 import time
 import warnings
-from dataclasses import fields, replace
+from dataclasses import replace
 
 import numpy as np
 from scipy.integrate import BDF, LSODA, Radau
@@ -52,6 +51,8 @@ from .integrators import (EMBEDDED, PD, TABLEAUS, AdaptiveRun, CompiledControlle
                           as_controller, is_compiled_controller, tableau_step)
 from .kernels import aba, kkt, stepping
 from .model import all_finite
+from .runs import (JointLimitWarning, Progress, SimulationError, checked_timing, coordinate_name, joint_damping_of,
+                   non_finite_torque, output_times, report_limits, require_finite, torque_function, with_joint_damping)
 from .spatial import matvec, transpose
 from .trajectory import Trajectory, recorded_names
 
@@ -61,66 +62,9 @@ METHODS = {"Radau": Radau, "BDF": BDF, "LSODA": LSODA}
 ADAPTIVE_METHODS = ("RK45", "DOP853", "Radau", "RK23", "BDF", "LSODA")
 #: The fixed-step methods (:data:`multibody.integrators.TABLEAUS`): one step of ``dt`` per output interval.
 FIXED_STEP_METHODS = tuple(TABLEAUS)
-#: What ``simulate(..., limits=...)`` does with positions outside ``[model.lower, model.upper]``.
-LIMIT_MODES = ("warn", "error", "ignore")
 
 
-class JointLimitWarning(UserWarning):
-    """A simulated joint left its position limits (``simulate(..., limits="warn")``)."""
-
-
-class SimulationError(RuntimeError):
-    """A simulation that could not go on (NaN, a singular KKT system, a failed step).
-
-    ``error.trajectory`` holds everything computed up to the failure.
-    """
-
-    def __init__(self, message, trajectory):
-        super().__init__(message)
-        self.trajectory = trajectory
-
-
-def _torque_function(tau, nv, batch=None, system=None):
-    """``tau`` as a function ``(t, q, v) -> None or array``. For a batch of ``batch`` trajectories an array
-    may also have the shape ``(batch, nv)``, and a callable's results are checked to have one of the two
-    shapes. An array must be finite (``ValueError``); for one trajectory a callable's non-finite result raises
-    :class:`SimulationError` naming the time and the joints (of ``system``, a mechanical system), a batch's
-    stops only the trajectories whose rows are not finite (:func:`_simulate_batch`)."""
-    shapes = ((nv,),) if batch is None else ((nv,), (batch, nv))
-    if tau is None:
-        return lambda t, q, v: None
-    if callable(tau):
-        if batch is None:
-            def finite(t, q, v):
-                value = tau(t, q, v)
-                if value is not None:
-                    values = np.asarray(value, dtype=float)
-                    # (other shapes are refused, with their own message, where the forces are used)
-                    if values.shape == (nv,) and not all_finite(values):
-                        raise SimulationError(_non_finite_torque(system, t, values), None)
-                return value
-            return finite
-
-        def checked(t, q, v):
-            value = tau(t, q, v)
-            if value is None:
-                return None
-            value = np.asarray(value, dtype=float)
-            if value.shape not in shapes:
-                raise ValueError(f"tau(t, q, v) must return joint forces of shape ({batch}, {nv}) for a batch q "
-                                 f"{q.shape}, v {v.shape} (or ({nv},), the same for every trajectory), got shape "
-                                 f"{value.shape}")
-            return value
-        return checked
-    tau = np.asarray(tau, dtype=float)
-    if tau.shape not in shapes:
-        raise ValueError(f"tau must be None, an array of shape {' or '.join(map(str, shapes))} or a callable "
-                         f"tau(t, q, v), got shape {tau.shape}")
-    _require_finite(system, "tau", tau, force=True)
-    return lambda t, q, v: tau
-
-
-def _batch_size(q, v, nq, nv):
+def batch_size(q, v, nq, nv):
     """The number ``N`` of initial states in ``q (N, nq)``, ``v (N, nv)`` (one of them may be a single state,
     ``(nq,)`` or ``(nv,)``, shared by all), or ``None`` for one state; ``ValueError`` for other shapes."""
     if q.ndim == 1 and v.ndim == 1:
@@ -209,7 +153,7 @@ def simulate(system, q0, v0, t_final, *, dt=None, method=None, tau=None, rtol=1e
             gives one warning per joint with the number of trajectories outside, and ``"error"`` stops each
             trajectory outside at its first output time outside, as a failure does.
         progress: a progress bar over simulated time (``tqdm``, on standard error): ``None`` (default) shows
-            one when the run is expected to take more than :data:`PROGRESS_AFTER` seconds, judged from the
+            one when the run is expected to take more than :data:`multibody.runs.PROGRESS_AFTER` seconds, judged from the
             wall time of its first steps, and the output is a terminal or a notebook; ``True`` always;
             ``False`` never.
         rule, order: ``method="variational"`` only: ``"midpoint"`` (default) or ``"trapezoidal"`` quadrature of the
@@ -245,41 +189,36 @@ def simulate(system, q0, v0, t_final, *, dt=None, method=None, tau=None, rtol=1e
     if method not in ADAPTIVE_METHODS + FIXED_STEP_METHODS:
         raise ValueError(f"method must be one of {ADAPTIVE_METHODS + FIXED_STEP_METHODS + ('variational',)}, "
                          f"got {method!r}")
-    dt = _checked_timing(t0, t_final, dt, progress, limits)
+    dt = checked_timing(t0, t_final, dt, progress, limits)
     model = getattr(mechanical, "model", None)  # limits and damping belong to a Model
     q, v = np.array(q0, dtype=float), np.array(v0, dtype=float)
-    batch = _batch_size(q, v, nq, nv)
+    batch = batch_size(q, v, nq, nv)
     if device and batch is None:
         raise ValueError(f"simulate on CUDA arrays integrates a batch, one trajectory per GPU thread: q0 (N, {nq}), "
                          f"v0 (N, {nv}); got one state, q0 {q.shape} and v0 {v.shape} (simulate one state from "
                          "NumPy arrays)")
     if batch is not None:
         try:
-            _check_batchable(constrained, method, q.shape, v.shape)
+            check_batchable(constrained, method, q.shape, v.shape)
         except ValueError as error:
             if device:
                 raise ValueError(f"simulate on CUDA arrays: {error}") from None
             raise
     elif q.shape != (nq,) or v.shape != (nv,):
         raise ValueError(f"q0 and v0 must have shapes ({nq},) and ({nv},), got {q.shape} and {v.shape}")
-    _require_finite(mechanical, "q0", q)
-    _require_finite(mechanical, "v0", v, rate=True)
+    require_finite(mechanical, "q0", q)
+    require_finite(mechanical, "v0", v, rate=True)
     tau = as_controller(tau, mechanical, batch)
     # the joint forces as the compiled run takes them, before the damping joins them
-    controller = tau if tau is None or callable(tau) else np.asarray(_torque_function(tau, nv, batch, mechanical)(
+    controller = tau if tau is None or callable(tau) else np.asarray(torque_function(tau, nv, batch, mechanical)(
         t0, None, None))
-    damping = None
-    if joint_damping:
-        if model is None:
-            raise ValueError(f"joint_damping=True needs a system built on a Model (model.damping); "
-                             f"{type(mechanical).__name__} has none: give the damping as tau(t, q, v) instead")
-        if np.any(model.damping):
-            damping = np.array(model.damping, dtype=float)
-            tau = _with_joint_damping(_torque_function(tau, nv, batch, mechanical), model.damping)
-    torque = _torque_function(tau, nv, batch, mechanical)
-    charts = _Charts(mechanical)
+    damping = joint_damping_of(mechanical, joint_damping)
+    if damping is not None:
+        tau = with_joint_damping(torque_function(tau, nv, batch, mechanical), damping)
+    torque = torque_function(tau, nv, batch, mechanical)
+    charts = Charts(mechanical)
     if batch is not None:
-        times = _output_times(t0, t_final, dt)
+        times = output_times(t0, t_final, dt)
         # (a Python callable takes a batch at each stage, in lockstep)
         data = controller is None or isinstance(controller, (np.ndarray, PDController, CompiledController))
         run = _compiled_run(constrained, charts, TABLEAUS[method], controller, damping, project, projection_tolerance,
@@ -293,7 +232,7 @@ def simulate(system, q0, v0, t_final, *, dt=None, method=None, tau=None, rtol=1e
     dq, dv = np.abs(q_projected - q), np.abs(v_projected - v)
     moved = max(dq.max(initial=0.0), dv.max(initial=0.0))
     if moved > 1e-10 and constrained.num_rows:
-        largest = [f"{_coordinate(mechanical, int(np.argmax(d)), rate)} by {d.max():.3g}"
+        largest = [f"{coordinate_name(mechanical, int(np.argmax(d)), rate)} by {d.max():.3g}"
                    for d, rate in ((dq, False), (dv, True)) if d.size and d.max() > 1e-10]
         warnings.warn(f"initial state violated the constraints; projected onto them (moved by {moved:.3g}: "
                       f"{' and '.join(largest)})", UserWarning, stacklevel=2)
@@ -345,11 +284,11 @@ def simulate(system, q0, v0, t_final, *, dt=None, method=None, tau=None, rtol=1e
         return state, False, False
 
     tolerance = projection_tolerance if project else None
-    times = _output_times(t0, t_final, dt)
+    times = output_times(t0, t_final, dt)
     states = np.empty((len(times), nq + nv))
     states[0] = np.concatenate([q, v])
     done = 0  # output states filled so far
-    bar = _Progress(progress, t0, t_final)
+    bar = Progress(progress, t0, t_final)
 
     try:
         constrained.solve(q, v, torque(t0, q, v), t0)  # the initial state has a KKT solution
@@ -491,7 +430,7 @@ def simulate(system, q0, v0, t_final, *, dt=None, method=None, tau=None, rtol=1e
     trajectory = _trajectory(constrained, times, states, torque, "completed", tolerance,
                              settled=method in FIXED_STEP_METHODS, state_dependent=callable(tau))
     if model is not None and limits != "ignore":
-        _report_limits(mechanical, trajectory, limits)
+        report_limits(mechanical, trajectory, limits)
     return trajectory
 
 
@@ -509,32 +448,32 @@ def _simulate_unilateral(constrained, q0, v0, t_final, dt, method, tau, t0, join
     if not isinstance(mechanical, ModelSystem):
         raise ValueError(f"contact and joint limits need a system built on a Model; {type(mechanical).__name__} is not")
     nq, nv = constrained.nq, constrained.nv
-    dt = _checked_timing(t0, t_final, dt, None, limits)
+    dt = checked_timing(t0, t_final, dt, None, limits)
     q, v = np.array(q0, dtype=float), np.array(v0, dtype=float)
-    batch = _batch_size(q, v, nq, nv)
+    batch = batch_size(q, v, nq, nv)
     if batch is None and (q.shape != (nq,) or v.shape != (nv,)):
         raise ValueError(f"q0 and v0 must have shapes ({nq},) and ({nv},), got {q.shape} and {v.shape}")
-    _require_finite(mechanical, "q0", q)
-    _require_finite(mechanical, "v0", v, rate=True)
+    require_finite(mechanical, "q0", q)
+    require_finite(mechanical, "v0", v, rate=True)
     controller = as_controller(tau, mechanical, batch)
     torque = None
     if callable(controller) and not isinstance(controller, (PDController, CompiledController)):
-        torque, controller = _torque_function(controller, nv, batch, mechanical), None
+        torque, controller = torque_function(controller, nv, batch, mechanical), None
     elif controller is not None and not isinstance(controller, (PDController, CompiledController)):
-        controller = np.asarray(_torque_function(controller, nv, batch, mechanical)(t0, None, None))
+        controller = np.asarray(torque_function(controller, nv, batch, mechanical)(t0, None, None))
     model = mechanical.model
     damping = np.array(model.damping, dtype=float) if joint_damping and np.any(model.damping) else None
     count = 1 if batch is None else batch
     trajectory = contact.run(constrained, np.broadcast_to(q, (count, nq)), np.broadcast_to(v, (count, nv)),
-                             _output_times(t0, t_final, dt), controller, torque, batch, damping)
+                             output_times(t0, t_final, dt), controller, torque, batch, damping)
     enforced = contact.enforced_coordinates(constrained)
     if batch is None:
         if trajectory.status != "completed":
             raise SimulationError(f"simulate ({contact.METHOD}) stopped: {trajectory.status}", trajectory)
         if limits != "ignore":
-            _report_limits(mechanical, trajectory, limits, enforced)
+            report_limits(mechanical, trajectory, limits, enforced)
         return trajectory
-    _warn_if_stopped(trajectory, 3)
+    warn_if_stopped(trajectory, 3)
     if limits != "ignore":
         trajectory = _report_batch_limits(mechanical, trajectory, limits, enforced)
     return trajectory
@@ -655,119 +594,11 @@ def _joint_forces(constrained):
 _RUN_FAILURES = {
     stepping.NON_FINITE_STATE: lambda system, io, plan: SimulationError(
         f"the state became non-finite at t = {io[stepping.IO_TIME]:.6g} s", None),
-    stepping.NON_FINITE_TORQUE: lambda system, io, plan: SimulationError(_non_finite_torque(
+    stepping.NON_FINITE_TORQUE: lambda system, io, plan: SimulationError(non_finite_torque(
         system, io[stepping.IO_TIME], io[stepping.IO_HEADER + system.nq + system.nv :].copy()), None),
     stepping.NOT_CONVERGED: lambda system, io, plan: STATUS_ERRORS[kkt.NOT_CONVERGED](
         system, 0, -1, io[stepping.IO_VALUE], plan[int(plan[stepping.PLAN_SETTINGS]) + 1]),
 }
-
-
-def _output_times(t0, t_final, dt):
-    """Output times ``t0, t0 + dt, ...`` up to and including ``t_final`` (s): the last interval may be shorter."""
-    n_intervals = int(np.ceil((t_final - t0) / dt - 1e-9))
-    return np.minimum(t0 + dt * np.arange(n_intervals + 1), t_final)
-
-
-def _with_joint_damping(torque, damping):
-    """The joint forces ``torque(t, q, v) − D v`` (``D = diag(damping)``, ``(nv,)``), as ``tau(t, q, v)``."""
-    def damped(t, q, v):
-        applied = torque(t, q, v)
-        return -damping * v if applied is None else applied - damping * v
-    return damped
-
-
-def _report_limits(system, trajectory, mode, enforced=()):
-    """Positions of ``trajectory`` outside ``[model.lower, model.upper]`` of ``system.model``: one
-    :class:`JointLimitWarning` per joint at its first output time outside (``mode="warn"``), or a
-    :class:`SimulationError` at the first output time any joint is outside, carrying the trajectory up to
-    it (``mode="error"``). Unit-norm components (quaternions, planar ``(cos θ, sin θ)``) are bounded by ±1
-    by construction and not checked: rounding may take them a few ulps past; nor are the coordinates ``enforced``
-    (indices into ``q``), which :class:`multibody.JointLimits` holds to its solver's tolerance."""
-    model = system.model
-    q = trajectory.q
-    outside = (q < model.lower) | (q > model.upper)
-    for start, stop in model._unit_norm_slices:
-        outside[:, start:stop] = False
-    outside[:, list(enforced)] = False
-    if not outside.any():
-        return
-    first = []  # (output index, coordinate) of each joint's first excursion
-    for joint, start in zip(model.joints, model.idx_q):
-        rows, cols = np.nonzero(outside[:, start:start + joint.nq])
-        if rows.size:
-            first.append((int(rows[0]), int(start + cols[0])))
-
-    def describe(k, c):
-        return (f"{_coordinate(system, c, False)} left its limits [{model.lower[c]:.6g}, {model.upper[c]:.6g}] "
-                f"at t = {trajectory.t[k]:.6g} s: q = {q[k, c]:.6g}")
-
-    if mode == "error":
-        k, c = min(first)
-        message = describe(k, c) + " (limits='error')"
-        n = len(trajectory.t)
-        partial = replace(trajectory, status=message, **{
-            f.name: getattr(trajectory, f.name)[:k + 1] for f in fields(trajectory)
-            if isinstance(getattr(trajectory, f.name), np.ndarray) and getattr(trajectory, f.name).shape[:1] == (n,)})
-        raise SimulationError(message, partial)
-    for k, c in first:
-        warnings.warn(describe(k, c) + "; joint limits are reported, not enforced (limits='ignore' silences this)",
-                      JointLimitWarning, stacklevel=3)
-
-
-def _coordinate(system, k, rate, force=False):
-    """``"q[k] (joint 'name', unit)"``, ``"v[k] (...)"`` or, with ``force``, the joint force ``"tau[k] (..., N or
-    N·m)"`` (indexed as ``v``): a coordinate of ``system`` named for messages (by its index alone without a
-    ``Model``)."""
-    rate = rate or force
-    symbol = f"{'tau' if force else 'v' if rate else 'q'}[{k}]"
-    model = getattr(system, "model", None)
-    if model is None:
-        return symbol
-    offsets = model.idx_v if rate else model.idx_q
-    joint = max(j for j in range(model.njoints) if offsets[j] <= k)
-    within = k - offsets[joint]
-    kind = model.joints[joint].kind
-    linear = kind in ("prismatic", "translation") or (kind in ("free-flyer", "planar")
-                                                      and within < (3 if kind == "free-flyer" else 2))
-    if force:
-        unit = "N" if linear else "N·m"
-    elif kind in ("revolute", "continuous"):
-        unit = "rad/s" if rate else "rad"
-    elif linear:
-        unit = "m/s" if rate else "m"
-    else:  # quaternion or (cos θ, sin θ) entries, angular velocities
-        unit = "rad/s" if rate else "unit-norm component"
-    return f"{symbol} (joint {model.joint_names[joint]!r}, {unit})"
-
-
-def _non_finite(system, values, rate=False, force=False):
-    """The non-finite entries of ``values (n,)`` (``q``, with ``rate`` ``v``, with ``force`` joint forces of
-    ``system``), each named by :func:`_coordinate` with its value, the first five listed."""
-    bad = np.flatnonzero(~np.isfinite(values))
-    named = ", ".join(f"{_coordinate(system, int(k), rate, force)} = {values[k]}" for k in bad[:5])
-    return named + (f" and {bad.size - 5} more" if bad.size > 5 else "")
-
-
-def _require_finite(system, name, values, rate=False, force=False):
-    """``ValueError`` naming the argument ``name`` and its non-finite entries (see :func:`_non_finite`) unless
-    ``values`` ``(n,)``, or ``(N, n)`` for ``N`` trajectories (then also naming the trajectories), are finite:
-    from a non-finite state an integrator cannot choose a step, and SciPy's adaptive ones try for ever."""
-    values = np.asarray(values, dtype=float)
-    finite = np.isfinite(values).all(axis=-1)
-    if finite.all():
-        return
-    if values.ndim == 1:
-        raise ValueError(f"{name} must be finite: {_non_finite(system, values, rate, force)}")
-    rows = np.flatnonzero(~finite)
-    others = "" if rows.size == 1 else f" ({rows.size} trajectories have non-finite entries: {rows[:10].tolist()}" + (
-        " ...)" if rows.size > 10 else ")")
-    raise ValueError(f"{name} must be finite: in trajectory {rows[0]}, {name}[{rows[0]}] has "
-                     f"{_non_finite(system, values[rows[0]], rate, force)}{others}")
-
-
-def _non_finite_torque(system, t, values):
-    """The message of joint forces ``values (nv,)`` from ``tau(t, q, v)`` at ``t`` (s) that are not finite."""
-    return f"the joint forces tau(t, q, v) are not finite at t = {t:.6g} s: {_non_finite(system, values, force=True)}"
 
 
 def _non_finite_rates(system, t, y, y_dot):
@@ -779,7 +610,7 @@ def _non_finite_rates(system, t, y, y_dot):
     k = int(np.flatnonzero(~np.isfinite(y_dot))[0])
     rate = "acceleration" if k >= nv else "velocity"
     return (f"the equations of motion are not finite at t = {t:.6g} s, at a finite state (the dynamics overflowed): "
-            f"the {rate} of {_coordinate(system, k % nv, True)} is {y_dot[k]}")
+            f"the {rate} of {coordinate_name(system, k % nv, True)} is {y_dot[k]}")
 
 
 def _grown(system, states, nq, v0):
@@ -794,12 +625,12 @@ def _grown(system, states, nq, v0):
         return None
     k = int(np.argmax(np.where(np.isfinite(v), np.abs(v), np.inf)))
     size = "is not finite" if not finite else f"reached {abs(v[k]):.3g}"
-    return (f"the state grew beyond bounds: {_coordinate(system, k, True)} {size}, over {bound:.3g} (a thousand "
+    return (f"the state grew beyond bounds: {coordinate_name(system, k, True)} {size}, over {bound:.3g} (a thousand "
             "times the initial velocities); the integration diverged: take a smaller step (dt with RK4) or an "
             "adaptive method")
 
 
-class _Charts:
+class Charts:
     """The chart maps of a mechanical system (see :meth:`multibody.model.Model.chart`); a system without
     them is a vector space with ``q̇ = v``: ``q = q_c + δ``, ``w = v`` (``velocity_alignment`` ``None``),
     magnitudes ``|q|``."""
@@ -963,96 +794,6 @@ def _stalled(method, last, advanced, near, span):
     return message
 
 
-#: Wall time (s) above which a run shows a progress bar with ``simulate(..., progress=None)``.
-PROGRESS_AFTER = 2.0
-
-
-class _Progress:
-    """A ``tqdm`` bar over simulated time from ``t0`` to ``t_final`` (s), told each step's end time.
-
-    ``mode`` ``True`` opens it at once, ``False`` never. ``None`` opens it only when the whole run is
-    expected to take more than :data:`PROGRESS_AFTER` seconds of wall time, and only where someone can
-    see it (a terminal or a notebook). The expected time is the wall time so far plus the simulated
-    time left at the rate of the steps after the first, which is timed apart because it may include
-    compiling the kernels.
-    """
-
-    def __init__(self, mode, t0, t_final):
-        self.mode, self.t0, self.span = mode, t0, t_final - t0
-        self.started = time.perf_counter()
-        self.first = None  # (wall time, simulated time) at the end of the first step
-        self.bar = self._open(t0) if mode is True else None
-
-    def _open(self, t):
-        if _in_notebook():  # a notebook widget where ipywidgets is installed, else text
-            from tqdm.auto import tqdm
-        else:
-            from tqdm import tqdm
-        return tqdm(total=self.span, initial=t - self.t0, unit="s", unit_scale=False, desc="simulate",
-                    bar_format="{desc}: {percentage:3.0f}%|{bar}| t = {n:.4g}/{total:.4g} s [{elapsed}<{remaining}]")
-
-    def update(self, t):
-        if self.bar is not None:
-            self.bar.update(t - self.t0 - self.bar.n)
-        elif self.mode is None:
-            self._decide(t)
-
-    def _decide(self, t):
-        now = time.perf_counter()
-        if self.first is None:
-            self.first = (now, t)
-            return
-        wall, simulated = now - self.first[0], t - self.first[1]
-        if wall < 0.1 or simulated <= 0.0:  # too little to judge the rate by yet
-            return
-        expected = now - self.started + (self.t0 + self.span - t) * wall / simulated
-        self.mode = expected > PROGRESS_AFTER and _visible()
-        if self.mode:
-            self.bar = self._open(t)
-
-    def close(self):
-        if self.bar is not None:
-            self.bar.close()
-
-
-def _visible():
-    """Whether a progress bar would be seen: standard error is a terminal, or this runs in a notebook."""
-    stream = sys.stderr
-    return bool(stream is not None and getattr(stream, "isatty", lambda: False)()) or _in_notebook()
-
-
-def _in_notebook():
-    """Whether this runs in a Jupyter kernel (whose standard error is a stream to the notebook)."""
-    ipython = sys.modules.get("IPython")
-    shell = ipython.get_ipython() if ipython is not None and hasattr(ipython, "get_ipython") else None
-    return shell is not None and hasattr(shell, "kernel")
-
-
-def _checked_timing(t0, t_final, dt, progress, limits):
-    """The output step ``dt`` (s; default a 500th of the run) after checking the options every method
-    shares; ``ValueError`` names the bad one."""
-    if not t_final > t0:
-        raise ValueError(f"t_final ({t_final}) must be after t0 ({t0})")
-    dt = (t_final - t0) / 500.0 if dt is None else float(dt)
-    if not dt > 0.0:
-        raise ValueError(f"dt must be positive, got {dt}")
-    if progress not in (None, True, False):
-        raise ValueError(f"progress must be None (a bar for long runs), True or False, got {progress!r}")
-    if limits not in LIMIT_MODES:
-        raise ValueError(f"limits must be one of {LIMIT_MODES}, got {limits!r}")
-    return dt
-
-
-def _rk4_step(derivative, t, y, h):
-    """One classical Runge–Kutta step of size ``h`` from ``(t, y)`` (Hairer, Nørsett & Wanner,
-    *Solving Ordinary Differential Equations I*, §II.1, Table 1.2)."""
-    k1 = derivative(t, y)
-    k2 = derivative(t + h / 2, y + h / 2 * k1)
-    k3 = derivative(t + h / 2, y + h / 2 * k2)
-    k4 = derivative(t + h, y + h * k3)
-    return y + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
-
-
 def _trajectory(constrained, times, states, torque, status, projection_tolerance=None, settled=False,
                 state_dependent=True):
     """The :class:`Trajectory` of output ``states (n, nq + nv)`` at ``times (n,)``, with the joint forces
@@ -1143,7 +884,7 @@ def _check_device_run(method, tau):
                          "arrays, or write it as a numba.njit function)")
 
 
-def _check_batchable(constrained, method, q_shape, v_shape):
+def check_batchable(constrained, method, q_shape, v_shape):
     """``ValueError`` unless ``constrained`` can integrate a batch of initial states in lockstep with ``method``."""
     if method not in FIXED_STEP_METHODS:
         raise ValueError(f"a batch of initial states (q0 {q_shape}, v0 {v_shape}) is integrated in lockstep, which "
@@ -1268,7 +1009,7 @@ def _simulate_batch(constrained, charts, q0, v0, times, torque, state_dependent,
                 # a trajectory whose joint forces are not finite stops at the first stage that meets them
                 bad = np.broadcast_to(~np.isfinite(tau).all(axis=-1), (count,))
                 for r in rows[bad[rows]]:
-                    failed.setdefault(int(r), _non_finite_torque(mechanical, t, tau if tau.ndim == 1 else tau[r]))
+                    failed.setdefault(int(r), non_finite_torque(mechanical, t, tau if tau.ndim == 1 else tau[r]))
         whole = rows.size == count
         q_rows, y_rows = (q_chart, y) if whole else (q_chart[rows], y[rows])
         tau_rows = tau if tau is None or tau.ndim == 1 or whole else tau[rows]
@@ -1318,7 +1059,7 @@ def _simulate_batch(constrained, charts, q0, v0, times, torque, state_dependent,
         for r, reason in reasons.items():
             fail(r, k, reason)
 
-    bar = _Progress(progress, t0, times[-1])
+    bar = Progress(progress, t0, times[-1])
     try:
         if run is None:
             for k in range(1, n):
@@ -1336,7 +1077,7 @@ def _simulate_batch(constrained, charts, q0, v0, times, torque, state_dependent,
     model = getattr(mechanical, "model", None)
     if model is not None and limits != "ignore":
         trajectory = _report_batch_limits(mechanical, trajectory, limits)
-    _warn_if_stopped(trajectory, stacklevel=4)
+    warn_if_stopped(trajectory, stacklevel=4)
     return trajectory
 
 
@@ -1400,7 +1141,7 @@ def _run_batch(run, system, states, last, stop, near, fail, python_step, times, 
         handed[at] = False
 
 
-def _warn_if_stopped(trajectory, stacklevel):
+def warn_if_stopped(trajectory, stacklevel):
     """One ``RuntimeWarning`` naming how many of a batch's trajectories stopped early, and why the first did."""
     stopped = np.flatnonzero(~trajectory.completed)
     if stopped.size:
@@ -1459,7 +1200,7 @@ def _as_rows(tau, count, nv):
 
 
 def _report_batch_limits(system, trajectory, mode, enforced=()):
-    """:func:`_report_limits` for a batch of trajectories ``q (N, n, nq)``. ``"warn"``: one
+    """:func:`report_limits` for a batch of trajectories ``q (N, n, nq)``. ``"warn"``: one
     :class:`JointLimitWarning` per joint, with the number of trajectories that left its limits and the first
     time and value. ``"error"``: each trajectory that left a joint's limits stops at its first output time
     outside, as a failed trajectory does (its status names joint, time and value; its outputs after it are
@@ -1475,7 +1216,7 @@ def _report_batch_limits(system, trajectory, mode, enforced=()):
     count, n = q.shape[:2]
 
     def describe(j, k, c):
-        return (f"{_coordinate(system, c, False)} left its limits [{model.lower[c]:.6g}, {model.upper[c]:.6g}] "
+        return (f"{coordinate_name(system, c, False)} left its limits [{model.lower[c]:.6g}, {model.upper[c]:.6g}] "
                 f"at t = {trajectory.t[k]:.6g} s: q = {q[j, k, c]:.6g}")
 
     if mode == "warn":

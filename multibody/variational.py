@@ -135,6 +135,8 @@ from . import driver, linalg, numba_hooks, spatial
 from .integrators import CONTROLLER_TYPES, CompiledController, PDController
 from .constrained import ConstrainedSystem, ConstraintError, ModelSystem
 from .model import all_finite
+from .runs import (Progress, SimulationError, checked_timing, joint_damping_of, non_finite_torque, output_times,
+                   report_limits, require_finite, torque_function, with_joint_damping)
 from .tree import IQ, IV, KIND
 from .kernels import configuration, coriolis, crba
 from .kernels import lagrangian as lagrangian_kernels
@@ -806,8 +808,6 @@ class _CompiledSteps:
         """All the steps, into ``qs (n, nq)``, ``vs (n, nv)`` (their first rows the initial state) and the impulses
         ``mu_start``, ``mu_end (n, m)``: ``(the states done, None)``, or the message of the failure that stopped
         the run at the first state not done."""
-        from .simulation import _non_finite_torque
-
         n, nq, m, io = len(self.times), qs.shape[1], self.m, self.io
         states = np.zeros((n, nq + vs.shape[1]))
         states[0, :nq], states[0, nq:] = qs[0], vs[0]
@@ -841,7 +841,7 @@ class _CompiledSteps:
             message = _failure_message(_NotConverged(error, iterations, None), t, h, self.plan[
                 iteration_kernels.PLAN_TOLERANCE])
         elif status == iteration_kernels.NON_FINITE_TORQUE:
-            message = _non_finite_torque(mechanical, t, io[iteration_kernels.IO_HEADER :].copy())
+            message = non_finite_torque(mechanical, t, io[iteration_kernels.IO_HEADER :].copy())
         elif status == iteration_kernels.NON_FINITE_STATE:
             message = f"the state became non-finite at t = {t:.6g} s"
         else:
@@ -903,9 +903,6 @@ def simulate(system, q0, v0, t_final, *, dt=None, tau=None, rule="midpoint", ord
             residual), joint forces ``tau(t, q, v)`` that are not finite (it names the time and the joints),
             or a state that is not; ``.trajectory`` holds the states before it.
     """
-    from .simulation import (SimulationError, _checked_timing, _Progress, _report_limits, _require_finite,
-                             _torque_function, _with_joint_damping)
-
     if rule not in RULES:
         raise ValueError(f"rule must be one of {RULES}, got {rule!r}")
     if order not in ORDERS:
@@ -917,31 +914,25 @@ def simulate(system, q0, v0, t_final, *, dt=None, tau=None, rule="midpoint", ord
     if order == 4 and m:
         raise ValueError("order=4 (Yoshida's composition) is for systems without constraints; "
                          f"this system has {m} constraint rows: use order=2")
-    dt = _checked_timing(t0, t_final, dt, progress, limits)
+    dt = checked_timing(t0, t_final, dt, progress, limits)
     if not 0.0 < tolerance < 1.0:
         raise ValueError(f"tolerance must be in (0, 1), got {tolerance}")
     model = getattr(mechanical, "model", None)
-    damping = None
-    if joint_damping:
-        if model is None:
-            raise ValueError(f"joint_damping=True needs a system built on a Model (model.damping); "
-                             f"{type(mechanical).__name__} has none: give the damping as tau(t, q, v) instead")
-        if np.any(model.damping):
-            damping = np.array(model.damping, dtype=float)
+    damping = joint_damping_of(mechanical, joint_damping)
     # (checks an array tau: its shape, and that it is finite)
-    force = _total_force(tau, nv, lagrangian, functools.partial(_torque_function, system=mechanical))
+    force = _total_force(tau, nv, lagrangian, functools.partial(torque_function, system=mechanical))
     compiled = _CompiledSteps.applies(lagrangian, constrained, tau)
     if damping is not None:
-        force = _total_force(_with_joint_damping(_torque_function(tau, nv, system=mechanical), damping), nv, lagrangian,
-                             functools.partial(_torque_function, system=mechanical))
+        force = _total_force(with_joint_damping(torque_function(tau, nv, system=mechanical), damping), nv, lagrangian,
+                             functools.partial(torque_function, system=mechanical))
 
     q, v = np.array(q0, dtype=float), np.array(v0, dtype=float)
     chart = lagrangian.chart
     if q.shape != (nq,) or v.shape != (nv,):
         raise ValueError(f"q0 and v0 must have shapes ({nq},) and ({nv},), got {q.shape} and {v.shape} "
                          "(method='variational' integrates one state at a time)")
-    _require_finite(mechanical, "q0", q)
-    _require_finite(mechanical, "v0", v, rate=True)
+    require_finite(mechanical, "q0", q)
+    require_finite(mechanical, "v0", v, rate=True)
     if m:
         q_projected, v_projected = constrained.project(q, v, t0)
         moved = max(_norm(q_projected - q), _norm(v_projected - v))
@@ -950,8 +941,7 @@ def simulate(system, q0, v0, t_final, *, dt=None, tau=None, rule="midpoint", ord
                           UserWarning, stacklevel=3)
         q, v = q_projected, v_projected
 
-    n_intervals = int(np.ceil((t_final - t0) / dt - 1e-9))
-    times = np.minimum(t0 + dt * np.arange(n_intervals + 1), t_final)
+    times = output_times(t0, t_final, dt)
     qs, vs = np.empty((len(times), nq)), np.empty((len(times), nv))
     mu_start, mu_end = np.zeros((len(times), m)), np.zeros((len(times), m))  # impulses at each node
     qs[0], vs[0] = q, v
@@ -964,7 +954,7 @@ def simulate(system, q0, v0, t_final, *, dt=None, tau=None, rule="midpoint", ord
         v = chart.alignment(q).T @ v
     weights = (YOSHIDA_W1, YOSHIDA_W0, YOSHIDA_W1) if order == 4 else (1.0,)
     done = 1
-    bar = _Progress(progress, t0, t_final)
+    bar = Progress(progress, t0, t_final)
     try:
         if compiled:
             steps = _CompiledSteps(model, constrained, tau, damping, rule, weights, tolerance, max_iterations, aligned,
@@ -1014,7 +1004,7 @@ def simulate(system, q0, v0, t_final, *, dt=None, tau=None, rule="midpoint", ord
         bar.close()
     trajectory = _trajectory(constrained, times, qs, vs, mu_start, mu_end, "completed")
     if model is not None and limits != "ignore":
-        _report_limits(mechanical, trajectory, limits)
+        report_limits(mechanical, trajectory, limits)
     return trajectory
 
 

@@ -217,9 +217,10 @@ def test_compile_compiles_what_the_cache_lacks(capsys, fake_cache):
     # and of the fixed-step and variational runs (a first RK4 simulation compiles no_controller, run and _batch)
     assert kernels[: len(KERNELS)] == KERNELS and len(set(kernels)) == len(kernels) < len(driver.ALL_KERNELS)
     assert set(kernels) <= set(driver.ALL_KERNELS) and mb.kernels.aba.forward_dynamics in kernels
-    assert default[len(kernels):] == loops and len(set(loops)) == len(loops) == 7
+    assert default[len(kernels):] == loops and len(set(loops)) == len(loops) == 9
     assert {(stepping.run, integrators._RUN_TYPES), (driver._batch, driver._BATCH_TYPES),
-            (stepping.no_controller, integrators.CONTROLLER_TYPES)} <= set(loops)
+            (stepping.no_controller, integrators.CONTROLLER_TYPES),
+            (mb.kernels.variational.advance, variational.ADVANCE_TYPES)} <= set(loops)
     which = "the kernels of the demos and the common dynamics calls, and the loops of batches, fixed-step and variational runs"
     cache.add(KERNELS[0])
     assert main(["compile"]) == 0

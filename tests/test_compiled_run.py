@@ -18,7 +18,7 @@ import pytest
 from scipy.special import ellipj, ellipk
 
 import multibody as mb
-from multibody import integrators, simulation
+from multibody import integrators, runs, simulation
 from multibody.kernels import stepping
 
 from constraint_helpers import crank_state, parallelogram_chain, particle_model, planar_closures
@@ -549,8 +549,8 @@ def test_a_projection_that_does_not_converge_stops_with_the_python_loops_message
     ends off its loop: NOT_CONVERGED with the largest |φ| left, which the table turns into the ConstraintError the
     Python loop raises for it."""
     model, system, q0, v0 = four_bar()
-    times = simulation._output_times(0.0, 0.1, 0.05)
-    run = simulation._compiled_run(system, simulation._Charts(system.system), integrators.TABLEAUS["RK4"], None, None,
+    times = runs.output_times(0.0, 0.1, 0.05)
+    run = simulation._compiled_run(system, simulation.Charts(system.system), integrators.TABLEAUS["RK4"], None, None,
                                    True, 1e-12, times)
     run.plan[int(run.plan[stepping.PLAN_SETTINGS]) + 1] = 1  # (max_iterations)
     states = np.zeros((len(times), system.nq + system.nv))
@@ -572,7 +572,7 @@ def test_a_projection_the_compiled_step_cannot_make_hands_the_step_to_python():
     model = particle_model(1.0)
     system = mb.ConstrainedSystem(model, [mb.Distance("p1", None, 0.5)])
     times = np.array([0.0, 0.1, 0.2])
-    run = simulation._compiled_run(system, simulation._Charts(system.system), integrators.TABLEAUS["Euler"], None,
+    run = simulation._compiled_run(system, simulation.Charts(system.system), integrators.TABLEAUS["Euler"], None,
                                    None, True, 1e-12, times)
     states = np.zeros((3, 6))
     states[0] = [0.1, 0.0, 0.0, -1.0, 0.0, 0.0]  # (q⁺ = q + h v = 0)

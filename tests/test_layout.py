@@ -13,27 +13,10 @@ import multibody
 
 PACKAGE = pathlib.Path(multibody.__file__).parent
 
-#: Private imports still to be made public, as ``(importing module, imported name)``; each is the work of the
-#: module's owner, and the list may only shrink (a listed import that is gone fails the test, so it is struck).
-KNOWN_PRIVATE = {
-    ("multibody.distributed", "multibody.simulation._batch_size"),
-    ("multibody.distributed", "multibody.simulation._check_batchable"),
-    ("multibody.distributed", "multibody.simulation._warn_if_stopped"),
-    ("multibody.shooting", "multibody.simulation._Charts"),
-    ("multibody.variational", "multibody.simulation._checked_timing"),
-    ("multibody.variational", "multibody.simulation._Progress"),
-    ("multibody.variational", "multibody.simulation._report_limits"),
-    ("multibody.variational", "multibody.simulation._require_finite"),
-    ("multibody.variational", "multibody.simulation._torque_function"),
-    ("multibody.variational", "multibody.simulation._with_joint_damping"),
-    ("multibody.variational", "multibody.simulation._non_finite_torque"),
-}
-
 #: Import edges that still close a cycle, as ``(importer, imported)``; the graph without them has none. The
 #: list may only shrink.
 KNOWN_CYCLE_EDGES = {
     ("multibody.constrained", "multibody.linearization"),  # ConstrainedSystem.linearize
-    ("multibody.variational", "multibody.simulation"),  # simulate's helpers
 }
 
 
@@ -137,13 +120,9 @@ def cycles(graph):
 
 
 def test_no_module_imports_another_modules_private_names():
-    new = sorted(PRIVATE - KNOWN_PRIVATE)
+    new = sorted(PRIVATE)
     assert not new, "private imports (make the name public where it belongs, documented):\n" + "\n".join(
         f"{WHERE[found]}: {found[0]} imports {found[1]}" for found in new)
-
-
-def test_the_known_private_imports_are_still_there():
-    assert not KNOWN_PRIVATE - PRIVATE, f"strike from KNOWN_PRIVATE: {sorted(KNOWN_PRIVATE - PRIVATE)}"
 
 
 def test_no_import_cycle():

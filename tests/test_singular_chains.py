@@ -456,10 +456,10 @@ def test_tangent_map_removes_the_normal_parts_on_a_curved_configuration_space():
     position row and whose ``ẇ = T v`` has ``v`` along the rows' range (``P`` of
     ``ConstrainedSystem._row_space_projectors``) maps to zero, and a tangent one maps to itself."""
     from multibody.demos import rolling_ball_setup
-    from multibody.simulation import _Charts, _tangent_map
+    from multibody.simulation import Charts, _tangent_map
 
     setup = rolling_ball_setup()
-    system, charts = setup.system, _Charts(setup.system.system)
+    system, charts = setup.system, Charts(setup.system.system)
     rng = np.random.default_rng(5)
     q, v = system.project(setup.q0, setup.v0 + rng.standard_normal(system.nv))
     y = charts.to_chart(np.concatenate([q, v]))

@@ -1,0 +1,273 @@
+"""What the runs of :func:`multibody.simulate` share, whichever method takes the steps: their error and
+warning, the checks of their options and inputs (named by joint), the joint forces as a function, the report of
+joint limits, and the progress bar."""
+
+from __future__ import annotations
+
+import sys
+import time
+import warnings
+from dataclasses import fields, replace
+
+import numpy as np
+
+from .model import all_finite
+
+#: What ``simulate(..., limits=...)`` does with positions outside ``[model.lower, model.upper]``.
+LIMIT_MODES = ("warn", "error", "ignore")
+
+
+class JointLimitWarning(UserWarning):
+    """A simulated joint left its position limits (``simulate(..., limits="warn")``)."""
+
+
+class SimulationError(RuntimeError):
+    """A simulation that could not go on (NaN, a singular KKT system, a failed step).
+
+    ``error.trajectory`` holds everything computed up to the failure.
+    """
+
+    def __init__(self, message, trajectory):
+        super().__init__(message)
+        self.trajectory = trajectory
+
+
+def torque_function(tau, nv, batch=None, system=None):
+    """``tau`` as a function ``(t, q, v) -> None or array``. For a batch of ``batch`` trajectories an array
+    may also have the shape ``(batch, nv)``, and a callable's results are checked to have one of the two
+    shapes. An array must be finite (``ValueError``); for one trajectory a callable's non-finite result raises
+    :class:`SimulationError` naming the time and the joints (of ``system``, a mechanical system), a batch's
+    stops only the trajectories whose rows are not finite (:func:`multibody.simulate`'s batch loop)."""
+    shapes = ((nv,),) if batch is None else ((nv,), (batch, nv))
+    if tau is None:
+        return lambda t, q, v: None
+    if callable(tau):
+        if batch is None:
+            def finite(t, q, v):
+                value = tau(t, q, v)
+                if value is not None:
+                    values = np.asarray(value, dtype=float)
+                    # (other shapes are refused, with their own message, where the forces are used)
+                    if values.shape == (nv,) and not all_finite(values):
+                        raise SimulationError(non_finite_torque(system, t, values), None)
+                return value
+            return finite
+
+        def checked(t, q, v):
+            value = tau(t, q, v)
+            if value is None:
+                return None
+            value = np.asarray(value, dtype=float)
+            if value.shape not in shapes:
+                raise ValueError(f"tau(t, q, v) must return joint forces of shape ({batch}, {nv}) for a batch q "
+                                 f"{q.shape}, v {v.shape} (or ({nv},), the same for every trajectory), got shape "
+                                 f"{value.shape}")
+            return value
+        return checked
+    tau = np.asarray(tau, dtype=float)
+    if tau.shape not in shapes:
+        raise ValueError(f"tau must be None, an array of shape {' or '.join(map(str, shapes))} or a callable "
+                         f"tau(t, q, v), got shape {tau.shape}")
+    require_finite(system, "tau", tau, force=True)
+    return lambda t, q, v: tau
+
+
+def output_times(t0, t_final, dt):
+    """Output times ``t0, t0 + dt, ...`` up to and including ``t_final`` (s): the last interval may be shorter."""
+    n_intervals = int(np.ceil((t_final - t0) / dt - 1e-9))
+    return np.minimum(t0 + dt * np.arange(n_intervals + 1), t_final)
+
+
+def joint_damping_of(mechanical, joint_damping):
+    """The viscous damping ``D (nv,)`` (N·m·s/rad or N·s/m per coordinate) that ``simulate(...,
+    joint_damping=True)`` subtracts from the joint forces, ``model.damping`` of the system's model; ``None`` with
+    ``joint_damping=False`` or where every coefficient is zero. ``ValueError`` for a system without a model."""
+    if not joint_damping:
+        return None
+    model = getattr(mechanical, "model", None)
+    if model is None:
+        raise ValueError(f"joint_damping=True needs a system built on a Model (model.damping); "
+                         f"{type(mechanical).__name__} has none: give the damping as tau(t, q, v) instead")
+    return np.array(model.damping, dtype=float) if np.any(model.damping) else None
+
+
+def with_joint_damping(torque, damping):
+    """The joint forces ``torque(t, q, v) − D v`` (``D = diag(damping)``, ``(nv,)``), as ``tau(t, q, v)``."""
+    def damped(t, q, v):
+        applied = torque(t, q, v)
+        return -damping * v if applied is None else applied - damping * v
+    return damped
+
+
+def report_limits(system, trajectory, mode, enforced=()):
+    """Positions of ``trajectory`` outside ``[model.lower, model.upper]`` of ``system.model``: one
+    :class:`JointLimitWarning` per joint at its first output time outside (``mode="warn"``), or a
+    :class:`SimulationError` at the first output time any joint is outside, carrying the trajectory up to
+    it (``mode="error"``). Unit-norm components (quaternions, planar ``(cos θ, sin θ)``) are bounded by ±1
+    by construction and not checked: rounding may take them a few ulps past; nor are the coordinates ``enforced``
+    (indices into ``q``), which :class:`multibody.JointLimits` holds to its solver's tolerance."""
+    model = system.model
+    q = trajectory.q
+    outside = (q < model.lower) | (q > model.upper)
+    for start, stop in model._unit_norm_slices:
+        outside[:, start:stop] = False
+    outside[:, list(enforced)] = False
+    if not outside.any():
+        return
+    first = []  # (output index, coordinate) of each joint's first excursion
+    for joint, start in zip(model.joints, model.idx_q):
+        rows, cols = np.nonzero(outside[:, start:start + joint.nq])
+        if rows.size:
+            first.append((int(rows[0]), int(start + cols[0])))
+
+    def describe(k, c):
+        return (f"{coordinate_name(system, c, False)} left its limits [{model.lower[c]:.6g}, {model.upper[c]:.6g}] "
+                f"at t = {trajectory.t[k]:.6g} s: q = {q[k, c]:.6g}")
+
+    if mode == "error":
+        k, c = min(first)
+        message = describe(k, c) + " (limits='error')"
+        n = len(trajectory.t)
+        partial = replace(trajectory, status=message, **{
+            f.name: getattr(trajectory, f.name)[:k + 1] for f in fields(trajectory)
+            if isinstance(getattr(trajectory, f.name), np.ndarray) and getattr(trajectory, f.name).shape[:1] == (n,)})
+        raise SimulationError(message, partial)
+    for k, c in first:
+        warnings.warn(describe(k, c) + "; joint limits are reported, not enforced (limits='ignore' silences this)",
+                      JointLimitWarning, stacklevel=3)
+
+
+def coordinate_name(system, k, rate, force=False):
+    """``"q[k] (joint 'name', unit)"``, ``"v[k] (...)"`` or, with ``force``, the joint force ``"tau[k] (..., N or
+    N·m)"`` (indexed as ``v``): a coordinate of ``system`` named for messages (by its index alone without a
+    ``Model``)."""
+    rate = rate or force
+    symbol = f"{'tau' if force else 'v' if rate else 'q'}[{k}]"
+    model = getattr(system, "model", None)
+    if model is None:
+        return symbol
+    offsets = model.idx_v if rate else model.idx_q
+    joint = max(j for j in range(model.njoints) if offsets[j] <= k)
+    within = k - offsets[joint]
+    kind = model.joints[joint].kind
+    linear = kind in ("prismatic", "translation") or (kind in ("free-flyer", "planar")
+                                                      and within < (3 if kind == "free-flyer" else 2))
+    if force:
+        unit = "N" if linear else "N·m"
+    elif kind in ("revolute", "continuous"):
+        unit = "rad/s" if rate else "rad"
+    elif linear:
+        unit = "m/s" if rate else "m"
+    else:  # quaternion or (cos θ, sin θ) entries, angular velocities
+        unit = "rad/s" if rate else "unit-norm component"
+    return f"{symbol} (joint {model.joint_names[joint]!r}, {unit})"
+
+
+def non_finite(system, values, rate=False, force=False):
+    """The non-finite entries of ``values (n,)`` (``q``, with ``rate`` ``v``, with ``force`` joint forces of
+    ``system``), each named by :func:`coordinate_name` with its value, the first five listed."""
+    bad = np.flatnonzero(~np.isfinite(values))
+    named = ", ".join(f"{coordinate_name(system, int(k), rate, force)} = {values[k]}" for k in bad[:5])
+    return named + (f" and {bad.size - 5} more" if bad.size > 5 else "")
+
+
+def require_finite(system, name, values, rate=False, force=False):
+    """``ValueError`` naming the argument ``name`` and its non-finite entries (see :func:`non_finite`) unless
+    ``values`` ``(n,)``, or ``(N, n)`` for ``N`` trajectories (then also naming the trajectories), are finite:
+    from a non-finite state an integrator cannot choose a step, and SciPy's adaptive ones try for ever."""
+    values = np.asarray(values, dtype=float)
+    finite = np.isfinite(values).all(axis=-1)
+    if finite.all():
+        return
+    if values.ndim == 1:
+        raise ValueError(f"{name} must be finite: {non_finite(system, values, rate, force)}")
+    rows = np.flatnonzero(~finite)
+    others = "" if rows.size == 1 else f" ({rows.size} trajectories have non-finite entries: {rows[:10].tolist()}" + (
+        " ...)" if rows.size > 10 else ")")
+    raise ValueError(f"{name} must be finite: in trajectory {rows[0]}, {name}[{rows[0]}] has "
+                     f"{non_finite(system, values[rows[0]], rate, force)}{others}")
+
+
+def non_finite_torque(system, t, values):
+    """The message of joint forces ``values (nv,)`` from ``tau(t, q, v)`` at ``t`` (s) that are not finite."""
+    return f"the joint forces tau(t, q, v) are not finite at t = {t:.6g} s: {non_finite(system, values, force=True)}"
+
+
+#: Wall time (s) above which a run shows a progress bar with ``simulate(..., progress=None)``.
+PROGRESS_AFTER = 2.0
+
+
+class Progress:
+    """A ``tqdm`` bar over simulated time from ``t0`` to ``t_final`` (s), told each step's end time.
+
+    ``mode`` ``True`` opens it at once, ``False`` never. ``None`` opens it only when the whole run is
+    expected to take more than :data:`PROGRESS_AFTER` seconds of wall time, and only where someone can
+    see it (a terminal or a notebook). The expected time is the wall time so far plus the simulated
+    time left at the rate of the steps after the first, which is timed apart because it may include
+    compiling the kernels.
+    """
+
+    def __init__(self, mode, t0, t_final):
+        self.mode, self.t0, self.span = mode, t0, t_final - t0
+        self.started = time.perf_counter()
+        self.first = None  # (wall time, simulated time) at the end of the first step
+        self.bar = self._open(t0) if mode is True else None
+
+    def _open(self, t):
+        if _in_notebook():  # a notebook widget where ipywidgets is installed, else text
+            from tqdm.auto import tqdm
+        else:
+            from tqdm import tqdm
+        return tqdm(total=self.span, initial=t - self.t0, unit="s", unit_scale=False, desc="simulate",
+                    bar_format="{desc}: {percentage:3.0f}%|{bar}| t = {n:.4g}/{total:.4g} s [{elapsed}<{remaining}]")
+
+    def update(self, t):
+        if self.bar is not None:
+            self.bar.update(t - self.t0 - self.bar.n)
+        elif self.mode is None:
+            self._decide(t)
+
+    def _decide(self, t):
+        now = time.perf_counter()
+        if self.first is None:
+            self.first = (now, t)
+            return
+        wall, simulated = now - self.first[0], t - self.first[1]
+        if wall < 0.1 or simulated <= 0.0:  # too little to judge the rate by yet
+            return
+        expected = now - self.started + (self.t0 + self.span - t) * wall / simulated
+        self.mode = expected > PROGRESS_AFTER and _visible()
+        if self.mode:
+            self.bar = self._open(t)
+
+    def close(self):
+        if self.bar is not None:
+            self.bar.close()
+
+
+def _visible():
+    """Whether a progress bar would be seen: standard error is a terminal, or this runs in a notebook."""
+    stream = sys.stderr
+    return bool(stream is not None and getattr(stream, "isatty", lambda: False)()) or _in_notebook()
+
+
+def _in_notebook():
+    """Whether this runs in a Jupyter kernel (whose standard error is a stream to the notebook)."""
+    ipython = sys.modules.get("IPython")
+    shell = ipython.get_ipython() if ipython is not None and hasattr(ipython, "get_ipython") else None
+    return shell is not None and hasattr(shell, "kernel")
+
+
+def checked_timing(t0, t_final, dt, progress, limits):
+    """The output step ``dt`` (s; default a 500th of the run) after checking the options every method
+    shares; ``ValueError`` names the bad one."""
+    if not t_final > t0:
+        raise ValueError(f"t_final ({t_final}) must be after t0 ({t0})")
+    dt = (t_final - t0) / 500.0 if dt is None else float(dt)
+    if not dt > 0.0:
+        raise ValueError(f"dt must be positive, got {dt}")
+    if progress not in (None, True, False):
+        raise ValueError(f"progress must be None (a bar for long runs), True or False, got {progress!r}")
+    if limits not in LIMIT_MODES:
+        raise ValueError(f"limits must be one of {LIMIT_MODES}, got {limits!r}")
+    return dt
