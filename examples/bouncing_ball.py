@@ -18,6 +18,7 @@ from __future__ import annotations
 import os
 import runpy
 import sys
+from itertools import pairwise
 
 import numpy as np
 
@@ -51,7 +52,7 @@ def drop(model, e=RESTITUTION, height=HEIGHT):
 def apexes(gap, bounces):
     """The highest gap (m) of each flight: from the start to the first bounce, then between bounces."""
     edges = np.r_[0, bounces, len(gap)]
-    return np.array([gap[a:b].max() for a, b in zip(edges[:-1], edges[1:])])
+    return np.array([gap[a:b].max() for a, b in pairwise(edges)])
 
 
 def main(out="output"):

@@ -50,9 +50,10 @@ def interfaces(count):
     return [("box0", "ground")] + [(f"box{i}", f"box{i - 1}") for i in range(1, count)]
 
 
-def drop(model, count=len(MASSES)):
-    """The stack released from rest, the boxes ``GAP`` (m) apart: ``(trajectory, forces (n, count))``, the upward
+def drop(model):
+    """The stack of ``model``'s boxes released from rest, ``GAP`` (m) apart: ``(trajectory, forces (n, count))``, the upward
     force (N) on each box from the body below it, summed over the interface's contact rows (row 0 is zero)."""
+    count = len(model.body_names)
     system = mb.ConstrainedSystem(model, [mb.Ground(friction=FRICTION)]
                                   + [mb.ContactPair(body, other, friction=FRICTION)
                                      for body, other in interfaces(count)[1:]])

@@ -30,6 +30,8 @@ from multibody.plotting import new_figure, save_figure
 G = 9.81
 LEGS = ("FL", "FR", "RL", "RR")
 POSTURE = (0.0, 0.9, -1.8)
+# the PD acts on the step's start state (explicitly): with the legs' light links, kd = 10 N·m·s/rad at dt = 1e-3 s
+# diverges
 KP, KD = 150.0, 4.0
 FRICTION, DROP = 0.8, 0.25
 DT, DURATION = 1e-3, 2.0
@@ -91,7 +93,8 @@ def main(out="output"):
           f"speed at most "
           f"{summary['standing speed']:.1e} m/s, Σ F_z − m g within "
           f"{np.abs(total[standing_from] - mass * G).max():.1e} N (m g = {mass * G:.4f} N), front pair within "
-          f"{np.abs(front - front_cf)[standing_from].max():.1e} N of m g (x_G − x_r)/(x_f − x_r) = {front_cf[-1]:.4f} N")
+          f"{np.abs(front - front_cf)[standing_from].max():.1e} N of m g (x_G − x_r)/(x_f − x_r) = "
+          f"{front_cf[-1]:.4f} N")
     print(f"largest complementarity residual {summary['largest residual']:.1e} m/s")
 
     figure = new_figure((11.0, 4.0))

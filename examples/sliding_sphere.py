@@ -69,7 +69,7 @@ def main(out="output"):
     model = ball_model()
     trajectory, speed, spin, friction = launch(model)
     t = trajectory.t
-    speed_cf, spin_cf, friction_cf, rolls = closed_form(t)
+    speed_cf, spin_cf, _, rolls = closed_form(t)
     # the first output time at which the contact point no longer slips
     rolling = t[np.flatnonzero(np.abs(speed - spin) <= 1e-9)[0]]
     # the friction force of step k acts over (t[k-1], t[k]]: compare it with the closed form at the step's start
@@ -82,8 +82,8 @@ def main(out="output"):
                "largest residual": trajectory.complementarity.max()}
     print(f"rolls from t = {rolling:.3f} s (closed form 2v₀/(7μg) = {rolls:.4f} s) at {speed[-1]:.12f} m/s "
           f"(5v₀/7 = {5 * SPEED / 7:.12f} m/s), spin·r {spin[-1]:.12f} m/s")
-    print(f"friction while sliding {friction[1]:.9f} N (−μ m g = {-FRICTION * MASS * G:.9f} N), while rolling at most "
-          f"{np.abs(summary['rolling friction']).max():.1e} N; speed within {summary['speed error']:.1e} m/s of "
+    print(f"friction while sliding {friction[1]:.9f} N (−μ m g = {-FRICTION * MASS * G:.9f} N), while rolling at "
+          f"most {np.abs(summary['rolling friction']).max():.1e} N; speed within {summary['speed error']:.1e} m/s of "
           "the closed form")
 
     figure = new_figure((10.0, 4.0))
