@@ -56,7 +56,7 @@ ALL_KERNELS = (
     centroidal.centroidal_momentum, centroidal.centroidal_map, centroidal.centroidal_map_time_variation,
     ik.inverse_kinematics, lagrangian.lagrangian_terms, kkt.project,
     configuration.exponential_terms, configuration.coadjoint, stepping.pd_kernel, stepping.aligned_velocity,
-    stepping.chart_state)
+    stepping.chart_state, kkt.solve_arrays, kkt.correction_arrays)
 _WORKSPACE = {kernel: module.workspace_size for module in (rnea, crba, aba, coriolis, energy, kinematics, configuration,
                                                            derivatives, centroidal, lagrangian)
               for kernel in ALL_KERNELS if getattr(kernel, "py_func", kernel).__module__ == module.__name__}
