@@ -222,7 +222,11 @@ class Progress:
                     bar_format="{desc}: {percentage:3.0f}%|{bar}| t = {n:.4g}/{total:.4g} s [{elapsed}<{remaining}]")
 
     def update(self, t):
-        if self.bar is not None:
+        if self.bar is not None and t - self.t0 >= self.span:
+            # tqdm draws on an update that comes over 0.1 s after its last drawing, and close draws again:
+            # the end is drawn once, by close, however long the run's last call took
+            self.bar.n = self.span
+        elif self.bar is not None:
             self.bar.update(t - self.t0 - self.bar.n)
         elif self.mode is None:
             self._decide(t)
