@@ -45,6 +45,9 @@ PENETRATION = 1e-10
 #: ``|φ|`` and step left (m or rad), and its Gauss–Newton iterations.
 PROJECTION_TOLERANCE = 1e-12
 PROJECTION_ITERATIONS = 50
+#: Rows (limits and contacts) of each output step's record at a run's start: a step with more widens every record
+#: of the run to at least twice as many (at most the rows the system can have) and the run goes on from that step.
+RECORD_CAPACITY = 8
 
 
 class Unilateral:
@@ -487,7 +490,7 @@ def run(constrained, q, v, times, controller, torque, batch, damping=None, toler
     n = len(times)
     states = np.full((count, n, nq + nv), np.nan)
     states[:, 0, :nq], states[:, 0, nq:] = q, v
-    records = np.zeros((count, n, max(program.records, 1), timestepping.RECORD_COLUMNS))
+    records = np.zeros((count, n, min(RECORD_CAPACITY, max(program.records, 1)), timestepping.RECORD_COLUMNS))
     summaries = np.zeros((count, n, timestepping.SUMMARY_COLUMNS + program.bilateral))
     io = np.zeros((count, timestepping.IO_SIZE))
     io[:, timestepping.IO_STEP], io[:, timestepping.IO_STOP] = 1, n
@@ -503,11 +506,12 @@ def run(constrained, q, v, times, controller, torque, batch, damping=None, toler
             control = np.ascontiguousarray(np.broadcast_to(np.zeros(nv) if value is None else value, (count, nv)),
                                            dtype=float)
             io[live, timestepping.IO_STEP], io[live, timestepping.IO_STOP] = k, k + 1
-            _dispatch(program, tree, stepping.CONSTANT, control, None, times, states, records, summaries, io, batch,
-                      live)
+            records = _dispatch(program, tree, stepping.CONSTANT, control, None, times, states, records, summaries, io,
+                                batch, live)
     else:
         kind, control = _control(controller, nv)
-        _dispatch(program, tree, kind, control, controller, times, states, records, summaries, io, batch, None)
+        records = _dispatch(program, tree, kind, control, controller, times, states, records, summaries, io, batch,
+                            None)
     statuses = []
     for r in range(count):
         status = int(io[r, timestepping.IO_STATUS])
@@ -533,6 +537,25 @@ def run(constrained, q, v, times, controller, torque, batch, damping=None, toler
 
 
 def _dispatch(program, tree, kind, control, controller, times, states, records, summaries, io, batch, live):
+    """The steps of one trajectory (``batch`` ``None``) or of the ``live`` trajectories of a batch (``None``: all),
+    each stopped by a step with more rows than ``records (N, n, R, RECORD_COLUMNS)`` holds going on from that step
+    with every record widened (:data:`RECORD_CAPACITY`); returns the records."""
+    _dispatch_once(program, tree, kind, control, controller, times, states, records, summaries, io, batch, live)
+    while True:
+        full = io[:, timestepping.IO_STATUS] == timestepping.RECORD_FULL
+        if not full.any():
+            return records
+        rows = np.flatnonzero(full)
+        needed = int(summaries[rows, io[rows, timestepping.IO_STEP].astype(np.int64), timestepping.SUMMARY_COUNT].max())
+        width = min(max(needed, 2 * records.shape[2]), max(program.records, 1))
+        grown = np.zeros(records.shape[:2] + (width, timestepping.RECORD_COLUMNS))
+        grown[:, :, : records.shape[2]] = records
+        records = grown
+        io[rows, timestepping.IO_STATUS] = timestepping.COMPLETED
+        _dispatch_once(program, tree, kind, control, controller, times, states, records, summaries, io, batch, full)
+
+
+def _dispatch_once(program, tree, kind, control, controller, times, states, records, summaries, io, batch, live):
     """The steps of one trajectory (``batch`` ``None``) or of the ``live`` trajectories of a batch (``None``: all)."""
     if batch is None:
         _call_run(program, tree, kind, control, controller, times, states[0], records[0], summaries[0], io[0])

@@ -479,3 +479,23 @@ def test_the_step_lowers_to_ptx():
     if "NO-NVVM" in result.stdout or "No module named 'numba.cuda" in result.stderr:
         pytest.skip("no CUDA compiler toolchain (libNVVM): " + result.stdout.strip())
     assert "TIMESTEPPING-PTX-OK" in result.stdout, result.stdout + result.stderr[-3000:]
+
+
+@pytest.mark.parametrize("capacity", [1, 4, 10**6])
+def test_records_widen_when_a_step_has_more_rows(box, monkeypatch, capacity):
+    """Each output step's record starts at ``contact.RECORD_CAPACITY`` rows; a step with more contacts widens the
+    run's records and the run goes on from that step: a batch of a box resting flat (4 corner contacts from the
+    first step) and one landing flat later gives the same states and contacts, bit for bit, whatever the starting
+    capacity, and the same as the single runs."""
+    system = mb.ConstrainedSystem(box, [mb.Ground(friction=0.5)])
+    q0 = np.array([[0, 0, 0.05, 0, 0, 0, 1], [0.3, 0, 0.1, 0, 0, 0, 1]], dtype=float)
+    v0 = np.zeros((2, 6))
+    singles = [mb.simulate(system, q0[r], v0[r], 0.2, dt=DT) for r in range(2)]
+    monkeypatch.setattr(contact, "RECORD_CAPACITY", capacity)
+    batch = mb.simulate(system, q0, v0, 0.2, dt=DT)
+    assert batch.status == ["completed", "completed"]
+    for r in range(2):
+        assert np.array_equal(batch.q[r], singles[r].q) and np.array_equal(batch.v[r], singles[r].v)
+        assert batch.contacts[r] == singles[r].contacts
+        counts = [len(entry) for entry in batch.contacts[r]]
+        assert max(counts) == 4 and (r == 1) == (min(counts[1:]) == 0)

@@ -104,8 +104,10 @@ IO_STEP, IO_STOP, IO_STATUS, IO_TIME = 0, 1, 2, 3
 IO_SIZE = 4
 #: Status of a run: completed; ``M`` not positive definite; a bilateral row undefined; the solver did not reach
 #: its tolerance (the step is taken, and the run stops after it); a non-finite state; non-finite joint forces; the
-#: step's end not projected onto the bilateral rows (positions that do not converge).
-COMPLETED, NOT_POSITIVE_DEFINITE, UNDEFINED, NOT_SOLVED, NON_FINITE_STATE, NON_FINITE_TORQUE, NOT_PROJECTED = range(7)
+#: step's end not projected onto the bilateral rows (positions that do not converge); the step's rows (limits and
+#: contacts) more than its record holds (the step is not taken, and its summary's count says how many it needs).
+COMPLETED, NOT_POSITIVE_DEFINITE, UNDEFINED, NOT_SOLVED, NON_FINITE_STATE, NON_FINITE_TORQUE, NOT_PROJECTED, \
+    RECORD_FULL = range(8)
 
 #: A contact's data while the step is built: the bodies (model indices; a ground's ``other`` is GROUND), point
 #: (3), normal, tangents (3 each), gap, restitution, friction, and its first row in the step's problem.
@@ -229,11 +231,16 @@ def detect(plan, geometry, vertices, pose, vel, dt, contacts, out, cws, R_a, p_a
         world_pose(pose, geometry, g, R_a, p_a)
         for c in range(3):
             normal[c] = item[GROUND_NORMAL + c]
+        reach = margin + 2.0 * dt * speed_bound(geometry, g, vel)
+        # broad phase: every point of the geometry is within its radius r of its origin p, so none has a gap
+        # n · x − height below the reach when n · p − height − r ≥ reach (the ground's normal is a unit vector)
+        if dot3(normal, p_a) - item[GROUND_HEIGHT] - geometry[g, GEOMETRY_RADIUS] >= reach:
+            continue
         first, count = int(geometry[g, GEOMETRY_VERTEX_START]), int(geometry[g, GEOMETRY_VERTEX_COUNT])
         count = collision.halfspace_contacts(int(geometry[g, GEOMETRY_SHAPE]),
                                              geometry[g, GEOMETRY_SIZE : GEOMETRY_SIZE + 3],
                                              vertices[first : first + count], R_a, p_a, normal, item[GROUND_HEIGHT],
-                                             margin + 2.0 * dt * speed_bound(geometry, g, vel), out, cws)
+                                             reach, out, cws)
         found = add_contacts(out, count, contacts, found, geometry[g, GEOMETRY_BODY], GROUND, item[GROUND_FRICTION],
                              item[GROUND_RESTITUTION], limit)
     start = int(plan[PLAN_PAIR_START])
@@ -429,7 +436,8 @@ def warm_start(plan, J, contacts, found, limit_rows, first_limit, limit_items, m
 def step(controller, joints, reals, frames, program, geometry, vertices, plan, control, t, dt, q, v, q_next, v_next,
          record, summary, previous, previous_summary, ws, iws):
     """One step of ``dt`` (s) from ``q (nq,)``, ``v (nv,)`` at ``t`` into ``q_next``, ``v_next`` (module docstring),
-    the contact rows into ``record (R, RECORD_COLUMNS)`` and ``summary (SUMMARY_COLUMNS + m_b,)`` (its last ``m_b``
+    the contact rows into ``record (R, RECORD_COLUMNS)`` (a step with more limit and contact rows than ``R`` returns
+    :data:`RECORD_FULL` before it is taken) and ``summary (SUMMARY_COLUMNS + m_b,)`` (its last ``m_b``
     entries the bilateral rows' multipliers, impulse / dt); the solver starts from the previous step's ``previous``
     record and ``previous_summary`` (:func:`warm_start`). A step of zero length moves ``q`` by the position
     correction alone (:func:`separate`), which projects an initial state out of penetration. Returns a status
@@ -603,6 +611,10 @@ def step(controller, joints, reals, frames, program, geometry, vertices, plan, c
     limit_rows = m - first_limit
     pose, vel, _ = kinematics.joint_motions(joints, reals, q, v, kin, None)
     found = detect(plan, geometry, vertices, pose, vel, dt, contacts, out, cws, R_a, p_a, R_b, p_b, normal)
+    if limit_rows + found > record.shape[0]:
+        # the caller sizes the record by the rows steps have, and grows it when one has more
+        summary[SUMMARY_COUNT] = limit_rows + found
+        return RECORD_FULL
     for k in range(found):
         data = contacts[k]
         contact_rows(joints, reals, pose, geometry, data, J, m, J6)
