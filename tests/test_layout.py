@@ -150,3 +150,17 @@ def test_the_checker_finds_private_imports_and_function_level_edges():
     assert sorted(name for _, name in private) == ["multibody.b._hidden", "multibody.b._other"]
     assert cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
     assert cycles({"a": {"b"}, "b": set()}) == []
+
+
+def test_every_eagerly_bound_name_of_the_api_is_in_all():
+    """``from multibody import *`` gives every class and function of ``docs/api.md`` that ``import multibody``
+    binds (the names of optional extras, such as ``mb.view``, load on first use and stay out)."""
+    import re
+    import types
+
+    text = (PACKAGE.parent / "docs" / "api.md").read_text()
+    bound = vars(multibody)
+    names = {name for name in re.findall(r"`mb\.([A-Za-z_]\w*)", text)
+             if name in bound and not isinstance(bound[name], types.ModuleType)}
+    assert {"Ground", "ContactPair", "JointLimits"} <= names
+    assert sorted(names - set(multibody.__all__)) == []

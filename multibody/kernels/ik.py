@@ -41,7 +41,7 @@ from __future__ import annotations
 
 import math
 
-from .layout import IQ, IV, KIND, NQ, NV, PARENT
+from .layout import IQ, IV, KIND, NQ, NV
 from . import joints as kinds
 from .jit import njit
 from .kinematics import frame_joint, frame_pose, jacobian_columns, joint_placements, mark_supports, world_position
