@@ -270,11 +270,12 @@ def _compiled_by_default():
 def _loops():
     """The compiled loops that ``multibody compile`` compiles with or without ``--all``, as ``(function, argument
     types)``: the batches' (:data:`multibody.driver.ENTRY_POINTS`), the fixed-step run's
-    (:data:`multibody.integrators.ENTRY_POINTS`) and the variational run's (:data:`multibody.variational.ENTRY_POINTS`),
-    which a first batch, fixed-step or variational simulation would compile."""
-    from . import driver, integrators, variational
+    (:data:`multibody.integrators.ENTRY_POINTS`), the variational run's (:data:`multibody.variational.ENTRY_POINTS`)
+    and the contact run's (:data:`multibody.contact.ENTRY_POINTS`), which a first batch, fixed-step, variational or
+    contact simulation would compile."""
+    from . import contact, driver, integrators, variational
 
-    return driver.ENTRY_POINTS + integrators.ENTRY_POINTS + variational.ENTRY_POINTS
+    return driver.ENTRY_POINTS + integrators.ENTRY_POINTS + variational.ENTRY_POINTS + contact.ENTRY_POINTS
 
 
 def cmd_compile(args):
@@ -284,8 +285,9 @@ def cmd_compile(args):
 
     from . import driver
 
-    which = ("every kernel and the loops of batches, fixed-step and variational runs" if args.all else
-             "the kernels of the demos and the common dynamics calls, and the loops of batches, fixed-step and variational runs")
+    which = ("every kernel and the loops of batches, fixed-step, variational and contact runs" if args.all else
+             "the kernels of the demos and the common dynamics calls, and the loops of batches, fixed-step, variational "
+             "and contact runs")
     kernels = driver.ALL_KERNELS + _loops() if args.all else _compiled_by_default()
     if not all(is_jitted(kernel) for kernel in driver.ALL_KERNELS):
         print("nothing to compile: NUMBA_DISABLE_JIT=1 runs the kernels as Python")

@@ -23,7 +23,7 @@ import numpy as np
 from numba import prange, types
 
 from . import driver
-from .integrators import CONTROLLER_TYPES, CompiledController, PDController, as_controller
+from .integrators import CONTROLLER_TYPES, CompiledController, PDController
 from .contact_problem import STATUS_MESSAGES
 from .kernels import collision, complementarity, kkt, stepping, timestepping
 from .model import Model
@@ -261,7 +261,6 @@ def contact_program(constrained, *, tolerance=TOLERANCE, max_iterations=MAX_ITER
                     penetration=PENETRATION, damping=None):
     """The :class:`ContactProgram` of ``constrained`` (a :class:`~multibody.constrained.ConstrainedSystem` on a
     :class:`~multibody.model.Model` with unilateral constraints); ``damping (nv,)``: joint damping, or ``None``."""
-    from .constraints import constraint_program
     from .geometry import collision_table
 
     model = constrained.system.model

@@ -54,7 +54,7 @@ from . import joints as jt
 from . import spatial
 from .inertia import Inertia
 from .model import Geometry, Mimic, ModelBuilder, inertia_problems
-from .modelfiles import (LARGEST_MAGNITUDE, is_xml_text, package_directories, parse_numbers, resolve_file,
+from .modelfiles import (is_xml_text, package_directories, parse_numbers, resolve_file,
                          warn_missing_meshes)
 
 

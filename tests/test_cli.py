@@ -204,24 +204,26 @@ def fake_cache(monkeypatch):
 
 @pytest.mark.skipif(os.environ.get("NUMBA_DISABLE_JIT") == "1", reason="no compiled code")
 def test_compile_compiles_what_the_cache_lacks(capsys, fake_cache):
-    from multibody import driver, integrators, variational
+    from multibody import contact, driver, integrators, variational
     from multibody.cli import _compiled_by_default
     from multibody.demos import KERNELS
     from multibody.kernels import stepping
 
     cache, calls = fake_cache
     default = _compiled_by_default()
-    loops = driver.ENTRY_POINTS + integrators.ENTRY_POINTS + variational.ENTRY_POINTS
+    loops = driver.ENTRY_POINTS + integrators.ENTRY_POINTS + variational.ENTRY_POINTS + contact.ENTRY_POINTS
     kernels = default[: len(default) - len(loops)]
     # the demos' kernels (first) and the common dynamics calls', a part of every kernel, then the loops of batches
-    # and of the fixed-step and variational runs (a first RK4 simulation compiles no_controller, run and _batch)
+    # and of the fixed-step, variational and contact runs (a first RK4 simulation compiles no_controller, run and _batch)
     assert kernels[: len(KERNELS)] == KERNELS and len(set(kernels)) == len(kernels) < len(driver.ALL_KERNELS)
     assert set(kernels) <= set(driver.ALL_KERNELS) and mb.kernels.aba.forward_dynamics in kernels
-    assert default[len(kernels):] == loops and len(set(loops)) == len(loops) == 9
+    assert default[len(kernels):] == loops and len(set(loops)) == len(loops) == 11
     assert {(stepping.run, integrators._RUN_TYPES), (driver._batch, driver._BATCH_TYPES),
             (stepping.no_controller, integrators.CONTROLLER_TYPES),
-            (mb.kernels.variational.advance, variational.ADVANCE_TYPES)} <= set(loops)
-    which = "the kernels of the demos and the common dynamics calls, and the loops of batches, fixed-step and variational runs"
+            (mb.kernels.variational.advance, variational.ADVANCE_TYPES),
+            (mb.kernels.timestepping.run, contact._RUN_TYPES), (contact._trajectories, contact._TRAJECTORIES_TYPES)} <= set(loops)
+    which = ("the kernels of the demos and the common dynamics calls, and the loops of batches, fixed-step, variational "
+             "and contact runs")
     cache.add(KERNELS[0])
     assert main(["compile"]) == 0
     assert calls == [list(default[1:])]
@@ -234,7 +236,7 @@ def test_compile_compiles_what_the_cache_lacks(capsys, fake_cache):
     assert main(["compile", "--all"]) == 0
     assert set(calls[1]) == (set(driver.ALL_KERNELS) - set(default)) | set(loops[:2])
     assert len(calls[1]) == len(set(calls[1]))
-    assert (f"every kernel and the loops of batches, fixed-step and variational runs: compiling {len(calls[1])} of "
+    assert (f"every kernel and the loops of batches, fixed-step, variational and contact runs: compiling {len(calls[1])} of "
             f"{len(driver.ALL_KERNELS) + len(loops)}") in capsys.readouterr().out
 
 
@@ -265,5 +267,5 @@ def test_compile_fills_the_cache():
         assert done.stdout == "nothing to compile: NUMBA_DISABLE_JIT=1 runs the kernels as Python\n"
     else:
         assert driver.compiled_before(_compiled_by_default())
-        assert ("the kernels of the demos and the common dynamics calls, and the loops of batches, fixed-step and "
-                "variational runs: ") in done.stdout
+        assert ("the kernels of the demos and the common dynamics calls, and the loops of batches, fixed-step, "
+                "variational and contact runs: ") in done.stdout

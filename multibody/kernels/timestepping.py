@@ -444,7 +444,6 @@ def step(controller, joints, reals, frames, program, geometry, vertices, plan, c
     (:data:`COMPLETED` ...). ``controller``, ``control`` as :func:`multibody.kernels.stepping.advance` takes them
     (the plan's controller kind: none, constant, PD, or a compiled function)."""
     nq, nv = q.shape[0], v.shape[0]
-    nj = joints.shape[0]
     kind = int(plan[PLAN_CONTROL])
     mb = int(plan[PLAN_BILATERAL])
     n_limits = int(plan[PLAN_LIMITS])
@@ -759,7 +758,7 @@ def run(controller, joints, reals, frames, program, geometry, vertices, plan, co
     ``record[k]`` and its summary into ``summary[k]`` (:func:`step`). Returns with the status in ``io`` and
     ``io[IO_STEP]`` the first step not taken (a step whose contact problem the solver did not finish is not taken:
     its record and summary say how far it got)."""
-    nq, nv = int(plan[PLAN_NQ]), int(plan[PLAN_NV])
+    nq = int(plan[PLAN_NQ])
     k, stop = int(io[IO_STEP]), int(io[IO_STOP])
     while k < stop:
         before, after = states[k - 1], states[k]
