@@ -88,9 +88,6 @@ from .mjcf import MJCFError, from_mujoco, load_mjcf, to_mujoco
 __version__ = "0.1.0"
 
 __all__ = [
-    "ContactPair",
-    "Ground",
-    "JointLimits",
     "ConstrainedSystem",
     "ConstraintError",
     "ContactPair",
