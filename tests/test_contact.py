@@ -252,6 +252,20 @@ def test_energy_never_increases_at_impacts(ball, box, spin):
         assert trajectory.complementarity.max() <= TOLERANCE
 
 
+def test_a_tumbling_box_lands_flat_and_comes_to_rest(box):
+    """A box thrown tumbling lands flat on four corners whose gaps are a little either side of zero (the step closes
+    them to first order only). Its four normal rows are dependent (the corners' impulses ½(−1, 1, 1, −1) exert no
+    force), so their bounds must stay affine in the corners' gaps, as the gaps themselves are, for the contact problem
+    to have a solution near the others: each step is solved to the tolerance, and the box comes to rest."""
+    q0 = np.r_[0, 0, 0.4, Rotation.from_rotvec([0.4, 0.3, 0.0]).as_quat()]
+    system = mb.ConstrainedSystem(box, [mb.Ground(friction=0.4)])
+    trajectory = mb.simulate(system, q0, [0.5, 0, 0, 1.0, -2.0, 0.5], 1.5, dt=DT)
+    assert trajectory.status == "completed"
+    assert trajectory.complementarity[1:].max() <= TOLERANCE
+    assert np.abs(trajectory.v[-1]).max() <= 1e-9
+    assert len(trajectory.contacts[-1]) == 4 and trajectory.q[-1, 2] == pytest.approx(0.05, abs=1e-9)
+
+
 def test_batch_equals_single(ball):
     """A batch runs each trajectory on its own, on all cores: each equals its single run, bit for bit, contacts and
     residuals included."""

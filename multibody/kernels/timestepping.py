@@ -23,8 +23,10 @@ offset ``φ/dt``, so that the step closes ``φ`` to first order), a joint limit'
 The offset of a normal (or limit) row with gap ``g`` (m or rad; < 0 when penetrating) asks
 ``u⁺ₙ ≥ ℓ`` with
 
-    ℓ = −max(g, 0)/dt                            the step ends with g + dt u⁺ₙ ≥ 0 (to first order), and a
-                                                 penetrating contact is not pushed out (no energy added);
+    ℓ = −(g − p)/dt,  p = min(0, min gⱼ)         the step ends with g + dt u⁺ₙ ≥ min(g, p) (to first order, p the
+                                                 deepest gap of the same pair of bodies), and a penetrating
+                                                 contact is not pushed out (no energy added); affine in the gaps,
+                                                 so that the dependent rows of a face on a face stay consistent;
     ℓ = max(ℓ, −e u⁻ₙ)                           Newton's restitution, for a contact that closes within the step
                                                  (g + dt u*ₙ < 0) while approaching faster than one step's free
                                                  change of its normal velocity, |u*ₙ − u⁻ₙ|
@@ -313,8 +315,8 @@ def lower_bound(gap, dt, u_start, u_free, e):
     zero length, which solves nothing)."""
     if not dt > 0.0:
         return 0.0
-    # ℓ = −max(g, 0)/dt   (comparisons rather than max and min, which Numba's CUDA target does not compile for
-    # floats)
+    # ℓ = −max(g, 0)/dt, the gap less the pair's deepest penetration (step)   (comparisons rather than max and min,
+    # which Numba's CUDA target does not compile for floats)
     bound = -gap / dt if gap > 0.0 else 0.0
     # Newton's restitution, u⁺ₙ ≥ −e u⁻ₙ, for a contact that closes within the step, approaching faster than
     # max(1, 2e/(1 − e²)) times the step's free change of its normal velocity, δ = |u*ₙ − u⁻ₙ| (δ itself for e = 1)
@@ -617,7 +619,17 @@ def step(controller, joints, reals, frames, program, geometry, vertices, plan, c
     for k in range(found):
         data = contacts[k]
         contact_rows(joints, reals, pose, geometry, data, J, m, J6)
-        bound[m] = lower_bound(data[C_GAP], dt, row_dot(J, m, v), row_dot(J, m, v_free), data[C_RESTITUTION])
+        # ℓ from the gap less the pair's deepest penetration p = min(0, min gⱼ): affine in the contact points'
+        # positions, as the gaps are, so the dependent normal rows of a face landing flat (its corners' gaps a little
+        # either side of zero) keep a consistent problem, where ℓ = −max(g, 0)/dt would ask those rows for velocities
+        # no impulse gives; no row pushes out, and the position correction after the step removes the penetration
+        deepest = 0.0
+        for j in range(found):
+            if contacts[j, C_BODY] == data[C_BODY] and contacts[j, C_OTHER] == data[C_OTHER] and \
+                    contacts[j, C_GAP] < deepest:
+                deepest = contacts[j, C_GAP]
+        bound[m] = lower_bound(data[C_GAP] - deepest, dt, row_dot(J, m, v), row_dot(J, m, v_free),
+                               data[C_RESTITUTION])
         bound[m + 1] = 0.0
         bound[m + 2] = 0.0
         gaps[m], gaps[m + 1], gaps[m + 2] = data[C_GAP], math.inf, math.inf
