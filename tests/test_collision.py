@@ -494,54 +494,6 @@ def test_pairs_beyond_the_margin_give_nothing():
         assert len(run_pair(far, a, margin=0.5)) == 0
 
 
-PTX = r"""
-import types
-from numba import cuda
-from numba import types as nt
-def probe(x):
-    x[0] = 1.0
-try:  # the toolchain (libNVVM) on a trivial kernel
-    cuda.compile_ptx(probe, (nt.float64[::1],), cc=(9, 0))
-except Exception as e:
-    print("NO-NVVM", type(e).__name__, str(e)[:200])
-    raise SystemExit(0)
-import numba.cuda.dispatcher as dispatcher
-dispatcher.get_current_device = lambda: types.SimpleNamespace(compute_capability=(9, 0))
-from multibody.kernels.collision import halfspace_contacts, pair_contacts
-
-def launch(shapes, sizes, vertices, R, p, normal, out, ws, counts):
-    i = cuda.grid(1)
-    if i < out.shape[0]:
-        counts[i, 0] = halfspace_contacts(shapes[i], sizes[i], vertices, R[i], p[i], normal, 0.0, 1e-3, out[i], ws[i])
-        counts[i, 1] = pair_contacts(shapes[i], sizes[i], vertices, R[i], p[i], shapes[0], sizes[0], vertices, R[0],
-                                     p[0], 1e-3, out[i], ws[i])
-
-rows = nt.float64[:, ::1]
-signature = (nt.int64[::1], rows, rows, nt.float64[:, :, ::1], rows, nt.float64[::1], nt.float64[:, :, ::1], rows,
-             nt.int64[:, ::1])
-ptx, _ = cuda.compile_ptx(launch, signature, cc=(9, 0))
-assert ".entry" in ptx
-print("COLLISION-PTX-OK", len(ptx))
-"""
-
-
-def test_detection_compiles_for_the_cuda_target():
-    """Both entry points, with every shape's branch, lower to PTX for sm_90 as a CUDA kernel's device
-    functions (no allocation, no Python objects); skipped where libNVVM is not found."""
-    import os
-    import subprocess
-    import sys
-
-    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-    env = dict(os.environ)
-    env.pop("NUMBA_DISABLE_JIT", None)
-    result = subprocess.run([sys.executable, "-c", PTX], capture_output=True, text=True, timeout=900, env=env, cwd=root,
-                            check=False)
-    if "NO-NVVM" in result.stdout or "No module named 'numba.cuda" in result.stderr:
-        pytest.skip("no CUDA compiler toolchain (libNVVM): " + result.stdout.strip())
-    assert "COLLISION-PTX-OK" in result.stdout, result.stdout + result.stderr[-3000:]
-
-
 def test_non_finite_poses_end_without_contacts_or_hanging():
     """A NaN in a pose ends every loop (GJK's and EPA's are bounded) and writes no contact."""
     rng = np.random.default_rng(2)

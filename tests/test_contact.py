@@ -440,61 +440,6 @@ def test_a_step_the_solver_does_not_finish_stops_the_run_before_it(box):
                                         "1e-12 m/s in 2 iterations (residual")
     assert np.isfinite(trajectory.q[0]).all() and np.isnan(trajectory.q[1:]).all()
     assert trajectory.complementarity[1] > TOLERANCE and np.isnan(trajectory.complementarity[2:]).all()
-
-
-PTX = r"""
-import types
-from numba import cuda
-from numba import types as nt
-def probe(x):
-    x[0] = 1.0
-try:  # the toolchain (libNVVM) on a trivial kernel
-    cuda.compile_ptx(probe, (nt.float64[::1],), cc=(9, 0))
-except Exception as e:
-    print("NO-NVVM", type(e).__name__, str(e)[:200])
-    raise SystemExit(0)
-import numba.cuda.dispatcher as dispatcher
-dispatcher.get_current_device = lambda: types.SimpleNamespace(compute_capability=(9, 0))
-from multibody.kernels import timestepping as ts
-
-def launch(joints, reals, plan, geometry, vertices, pose, vel, contacts, out, cws, R, p, J, J6, W, Y, previous,
-           vectors, blocks, q):
-    i = cuda.grid(1)
-    if i == 0:
-        found = ts.detect(plan, geometry, vertices, pose, vel, 1e-3, contacts, out, cws, R, p, R, p, vectors[0])
-        for k in range(found):
-            ts.contact_rows(joints, reals, pose, geometry, contacts[k], J, 3 * k, J6)
-            vectors[1, k] = ts.lower_bound(contacts[k, ts.C_GAP], 1e-3, vectors[2, k], vectors[3, k], 0.5)
-        ts.warm_start(plan, J, contacts, found, 0, 0, vectors[4], 0, previous, vectors[5], 1e-3, vectors[6])
-        ts.separate(joints, plan, W, Y, vectors[7], vectors[8], found, vectors[9], vectors[10], vectors[11],
-                    vectors[12], blocks[0], blocks[1], vectors[13], q.shape[0], J.shape[1], q, vectors[14], vectors[15])
-
-rows = nt.float64[:, ::1]
-signature = (nt.int64[:, ::1], rows, nt.float64[::1], rows, rows, rows, rows, rows, rows, nt.float64[::1], rows,
-             nt.float64[::1], rows, rows, rows, rows, rows, rows, nt.int64[:, ::1], nt.float64[::1])
-ptx, _ = cuda.compile_ptx(launch, signature, cc=(9, 0))
-assert ".entry" in ptx
-print("TIMESTEPPING-PTX-OK", len(ptx))
-"""
-
-
-def test_the_step_lowers_to_ptx():
-    """The step's own functions (detection of a plan's items, contact rows, the offsets, the warm start, the position
-    correction with its solve) lower to PTX for sm_90 as device functions; skipped where libNVVM is not found."""
-    import os
-    import subprocess
-    import sys
-
-    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-    env = dict(os.environ)
-    env.pop("NUMBA_DISABLE_JIT", None)
-    result = subprocess.run([sys.executable, "-c", PTX], capture_output=True, text=True, timeout=900, env=env, cwd=root,
-                            check=False)
-    if "NO-NVVM" in result.stdout or "No module named 'numba.cuda" in result.stderr:
-        pytest.skip("no CUDA compiler toolchain (libNVVM): " + result.stdout.strip())
-    assert "TIMESTEPPING-PTX-OK" in result.stdout, result.stdout + result.stderr[-3000:]
-
-
 @pytest.mark.parametrize("capacity", [1, 4, 10**6])
 def test_records_widen_when_a_step_has_more_rows(box, monkeypatch, capacity):
     """Each output step's record starts at ``contact.RECORD_CAPACITY`` rows; a step with more contacts widens the

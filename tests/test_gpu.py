@@ -5,10 +5,7 @@
   double pendulum and of a random tree equal the CPU results to 1e-12, and come back as device arrays.
   The simulator runs the launchers as Python and the per-state arithmetic as the CPU kernels, so this
   checks the launch: threads, rows, broadcasting, workspaces, shapes, routing.
-* Compiled for the CUDA target (PTX for sm_90, through libNVVM, no device needed): the launchers of
-  RNEA, CRBA and ABA, with the CPU kernels' source beneath them, lower for the GPU, and so do launchers
-  of M⁻¹, the Coriolis matrix, a Jacobian, the kinetic energy and the forward-dynamics derivatives.
-  Skipped where libNVVM (the CUDA toolkit) is not found.
+* (The launchers' lowering to PTX for the CUDA target is in ``test_cuda_target.py``.)
 """
 
 from __future__ import annotations
@@ -98,43 +95,6 @@ def test_device_arrays_match_cpu_kernels_under_the_cuda_simulator():
     if "No module named 'numba.cuda" in result.stderr:
         pytest.skip("numba.cuda is not installed")
     assert "GPU-SIMULATED-OK" in result.stdout, result.stdout + result.stderr
-
-
-PTX = textwrap.dedent(r"""
-    import types
-    from numba import cuda
-    from numba import types as nt
-    from multibody import gpu
-    from multibody.kernels import aba, coriolis, crba, derivatives, energy, kinematics, rnea
-    def probe(x):
-        x[0] = 1.0
-    try:  # the toolchain (libNVVM; NVRTC for numba-cuda) on a trivial kernel
-        cuda.compile_ptx(probe, (nt.float64[::1],), cc=(9, 0))
-    except Exception as e:
-        print("NO-NVVM", type(e).__name__, str(e)[:200])
-        raise SystemExit(0)
-    # Device functions are compiled for the current device's compute capability: without a device,
-    # name one (compile_ptx takes cc for the kernel itself).
-    import numba.cuda.dispatcher as dispatcher
-    dispatcher.get_current_device = lambda: types.SimpleNamespace(compute_capability=(9, 0))
-    rows = nt.float64[:, ::1]
-    signature = (nt.int64[:, ::1], rows, rows, rows, rows, rows, rows, nt.float64[:, :, ::1], rows)
-    # the launchers' kernels, and the others: none allocates or returns a bare array (kernels.jit)
-    for kernel in (rnea.inverse_dynamics, crba.mass_matrix, aba.forward_dynamics, crba.inverse_mass_matrix,
-                   coriolis.coriolis_matrix, kinematics.frame_jacobian, energy.kinetic_energy,
-                   derivatives.forward_dynamics_derivatives):
-        ptx, _ = cuda.compile_ptx(gpu._launch_source(kernel), signature, cc=(9, 0))
-        assert ".entry" in ptx, ptx[:500]
-        print(kernel.__name__, len(ptx))
-    print("GPU-PTX-OK")
-""")
-
-
-def test_kernels_compile_for_the_cuda_target():
-    result = run_python(PTX)
-    if "NO-NVVM" in result.stdout or "No module named 'numba.cuda" in result.stderr:
-        pytest.skip("no CUDA compiler toolchain (libNVVM, NVRTC): " + result.stdout.strip())
-    assert "GPU-PTX-OK" in result.stdout, result.stdout + result.stderr
 
 
 def test_is_device_array_is_false_on_host_arrays():

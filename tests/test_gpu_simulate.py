@@ -12,11 +12,7 @@
   arithmetic as the CPU's compiled ``advance``: this checks the launch (rows, threads, workspaces, transfers) and
   the routing. What the GPU path does not run (a Python callable, adaptive and variational methods, user
   constraints, one state) raises ``ValueError`` saying so.
-* Compiled for the CUDA target (PTX for sm_90, no device needed): the run's launcher, with
-  :func:`multibody.kernels.stepping.advance`, the constrained step, the projection and a ``numba.njit`` controller
-  beneath it. Skipped where the CUDA toolchain is not found, or where ``numba.cuda`` is Numba's built-in target,
-  which does not compile the builtin ``max`` of two floats that the kernels use (the ``[gpu]`` extra's
-  ``numba-cuda`` does); about 2.5 minutes of compiling on one core.
+* (The run's launcher lowering to PTX for the CUDA target is in ``test_cuda_target.py``.)
 """
 
 from __future__ import annotations
@@ -178,43 +174,3 @@ def test_simulate_on_device_arrays_equals_the_cpu_batch_under_the_cuda_simulator
     if "No module named 'numba.cuda" in result.stderr:
         pytest.skip("numba.cuda is not installed")
     assert "GPU-SIMULATE-OK" in result.stdout, result.stdout + result.stderr
-
-
-PTX = textwrap.dedent(r"""
-    import types
-    import numba
-    from numba import cuda
-    from numba import types as nt
-    from multibody import gpu
-    from multibody.kernels import stepping
-    def probe(x):
-        x[0] = max(x[1], x[2])
-    try:  # the toolchain (libNVVM; NVRTC for numba-cuda), and a target that compiles max of two floats
-        cuda.compile_ptx(probe, (nt.float64[::1],), cc=(9, 0))
-    except Exception as e:
-        print("NO-TOOLCHAIN", type(e).__name__, str(e)[:200])
-        raise SystemExit(0)
-    # Device functions are compiled for the current device's compute capability: without a device, name one.
-    import numba.cuda.dispatcher as dispatcher
-    dispatcher.get_current_device = lambda: types.SimpleNamespace(compute_capability=(9, 0))
-
-    @numba.njit
-    def controller(t, q, v, out):
-        for c in range(out.shape[0]):
-            out[c] = -q[c] - 0.1 * v[c] * t
-
-    rows, vector = nt.float64[:, ::1], nt.float64[::1]
-    signature = (nt.int64[:, ::1], rows, rows, vector, vector, vector, rows, nt.float64[:, :, ::1], rows,
-                 nt.int64[::1], rows)
-    ptx, _ = cuda.compile_ptx(gpu.run_source(stepping.advance, controller), signature, cc=(9, 0))
-    assert ".entry" in ptx, ptx[:500]
-    print("GPU-RUN-PTX-OK", len(ptx))
-""")
-
-
-def test_the_run_compiles_for_the_cuda_target():
-    result = run_python(PTX, timeout=1200)
-    if "NO-TOOLCHAIN" in result.stdout or "No module named 'numba.cuda" in result.stderr:
-        pytest.skip("no CUDA toolchain that compiles the kernels (libNVVM, NVRTC, numba-cuda): "
-                    + result.stdout.strip())
-    assert "GPU-RUN-PTX-OK" in result.stdout, result.stdout + result.stderr

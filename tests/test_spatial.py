@@ -524,3 +524,34 @@ def test_float_array_takes_any_numbers_of_the_right_last_axis():
         sp.float_array(np.zeros((2, 4)), 3, "q")
     with pytest.raises(ValueError, match=r"v must have shape \(\.\.\., 2\), got \(\)"):
         sp.require_last_axis(np.float64(1.0), 2, "v")
+
+
+def test_kernel_larger_and_smaller_are_the_builtin_max_and_min():
+    """The kernels' ``larger``/``smaller`` (which the CUDA target compiles) give exactly what the builtin ``max``/
+    ``min`` give, compiled and in Python, NaN in either place, signed zeros, infinities and integers included, and
+    their left fold is the builtin of three arguments."""
+    import itertools
+    import math
+
+    import numba
+
+    from multibody.kernels.spatial import larger, smaller
+
+    @numba.njit
+    def builtin(a, b, c):
+        return max(a, b), min(a, b), max(a, b, c), min(a, b, c)
+
+    @numba.njit
+    def helpers(a, b, c):
+        return larger(a, b), smaller(a, b), larger(larger(a, b), c), smaller(smaller(a, b), c)
+
+    def same(x, y):
+        return (math.isnan(x) and math.isnan(y)) or (x == y and math.copysign(1.0, x) == math.copysign(1.0, y))
+
+    values = (1.5, -2.0, 0.0, -0.0, math.inf, -math.inf, math.nan)
+    for a, b, c in itertools.product(values, repeat=3):
+        expected = builtin(a, b, c)
+        assert all(map(same, helpers(a, b, c), expected)), (a, b, c)
+        assert all(map(same, helpers.py_func(a, b, c), (max(a, b), min(a, b), max(a, b, c), min(a, b, c)))), (a, b, c)
+    assert helpers(3, 7, 5) == builtin(3, 7, 5) == (7, 3, 7, 3)
+    assert helpers(2, 2.5, 1) == builtin(2, 2.5, 1)

@@ -61,7 +61,7 @@ import math
 
 from .jit import njit
 from .kkt import cholesky, cholesky_solve
-from .spatial import all_finite
+from .spatial import all_finite, larger
 
 #: Kinds of block: one row with ``u = 0``; one row with ``0 ≤ x ⊥ u ≥ 0``; three rows of a Coulomb contact.
 BILATERAL, UNILATERAL, CONTACT = 0, 1, 2
@@ -96,13 +96,6 @@ DAMPING = 1e-7
 DAMPING_FLOOR = 1e-14
 #: Halvings of a polish step before the polish gives up.
 LINE_SEARCH = 12
-
-
-@njit(cache=True, error_model="numpy")
-def larger(a, b):
-    """The larger of ``a`` and ``b``, ``a`` where either is NaN (the builtin ``max`` does not compile for
-    Numba's CUDA target)."""
-    return b if b > a else a
 
 
 @njit(cache=True, error_model="numpy")

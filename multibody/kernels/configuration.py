@@ -14,7 +14,7 @@ from __future__ import annotations
 from .layout import IQ, IV, KIND, NV
 from . import joints as kinds
 from .jit import njit
-from .spatial import nan_unless_finite
+from .spatial import larger, nan_unless_finite
 
 
 def workspace_size(nj, nv):
@@ -189,7 +189,7 @@ def exponential_terms(joints, reals, frames, x, x1, x2, x3, out, ws):
             continue
         bound = 0.0
         for r in range(3):
-            bound = max(bound, abs(Y[r, 0]) + abs(Y[r, 1]) + abs(Y[r, 2]))
+            bound = larger(bound, abs(Y[r, 0]) + abs(Y[r, 1]) + abs(Y[r, 2]))
         for r in range(3):
             for c in range(3):
                 term[r, c] = 1.0 if r == c else 0.0

@@ -46,8 +46,8 @@ from . import joints as kinds
 from .jit import njit
 from .kinematics import frame_joint, frame_pose, jacobian_columns, joint_placements, mark_supports, world_position
 from .kkt import cholesky, cholesky_solve
-from .spatial import (IDENTITY, add3, compose_rotations, dot3, load3, load9, nan_unless_finite, rotate, rotate_back,
-                      sub3)
+from .spatial import (IDENTITY, add3, compose_rotations, dot3, larger, load3, load9, nan_unless_finite, rotate,
+                      rotate_back, smaller, sub3)
 
 #: Entries of the options vector (module docstring); the frame kinds start at ``KINDS``.
 TOL, MAX_ITERATIONS, DAMPING, POSTURE_WEIGHT, RESTARTS, STEP_TOL, WINDOW, PROGRESS, CANDIDATES, KINDS = range(10)
@@ -305,9 +305,9 @@ def step_to(joints, options, lower, q, delta, q_new):
         if is_vector_space(kind):
             for k in range(joints[j, NQ]):
                 lo, hi = options[lower + iq + k], options[upper + iq + k]
-                delta[iv + k] = min(max(delta[iv + k], lo - q[iq + k]), hi - q[iq + k])
+                delta[iv + k] = smaller(larger(delta[iv + k], lo - q[iq + k]), hi - q[iq + k])
                 # the sum may round past a bound by an ulp
-                q_new[iq + k] = min(max(q[iq + k] + delta[iv + k], lo), hi)
+                q_new[iq + k] = smaller(larger(q[iq + k] + delta[iv + k], lo), hi)
         else:
             kinds.integrate(kind, joints[j, NV], q, delta, iq, iv, q_new)
 
@@ -394,7 +394,7 @@ def task_step(joints, reals, frames, targets, options, lower, q, e, A, cost, lam
     for i in range(m):
         r[i] = -e[i]
     if not damped_solve(A, free, r, lam * cost + DAMPING_FLOOR, G, y, delta):
-        return cost, min(4.0 * lam, LAMBDA_MAX), False, 0.0
+        return cost, smaller(4.0 * lam, LAMBDA_MAX), False, 0.0
     step_to(joints, options, lower, q, delta, q_trial)
     step2 = 0.0
     for c in range(nv):
@@ -404,9 +404,9 @@ def task_step(joints, reals, frames, targets, options, lower, q, e, A, cost, lam
     predicted = cost - predicted_cost(A, e, delta)
     rho = (cost - cost_trial) / predicted if predicted > 0.0 else 0.0
     if rho < 0.25:
-        lam = min(4.0 * lam, LAMBDA_MAX)
+        lam = smaller(4.0 * lam, LAMBDA_MAX)
     elif rho > 0.75:
-        lam = max(0.25 * lam, LAMBDA_MIN)
+        lam = larger(0.25 * lam, LAMBDA_MIN)
     if cost_trial < cost:
         for i in range(q.shape[0]):
             q[i] = q_trial[i]
@@ -451,7 +451,7 @@ def inverse_kinematics(joints, reals, frames, q0, targets, posture, options, out
         m += 6 if options[KINDS + k] == POSE else 3
     lower = KINDS + nframes
     restart_table = lower + 2 * nq
-    s = min(m, nv)
+    s = smaller(m, nv)
     # carve the workspace
     o = 0
     pose_ws = ws[o : o + 13 * nj + 12]
@@ -470,7 +470,7 @@ def inverse_kinematics(joints, reals, frames, q0, targets, posture, options, out
     o += 5 * nv
     G = ws[o : o + s * s].reshape((s, s))
     o += s * s
-    y, r = ws[o : o + max(m, nv)], ws[o + max(m, nv) : o + 2 * max(m, nv)]
+    y, r = ws[o : o + larger(m, nv)], ws[o + larger(m, nv) : o + 2 * larger(m, nv)]
 
     tol2 = options[TOL] * options[TOL]
     max_iterations = int(options[MAX_ITERATIONS])
@@ -556,7 +556,7 @@ def inverse_kinematics(joints, reals, frames, q0, targets, posture, options, out
                     if distance > closest - POSTURE_TOL:
                         break  # settled: the last cycle brought q less than POSTURE_TOL nearer
                     closest = distance
-                    beta = min(2.0 * beta, 1.0)
+                    beta = smaller(2.0 * beta, 1.0)
                     continue
             # not nearer, or the targets not restored: back to the last configuration kept
             for i in range(nq):

@@ -30,7 +30,7 @@ from . import crba, kinematics, rnea
 from . import joints as kinds
 from .constraints import UNDEFINED, failing_entry
 from .jit import njit
-from .spatial import nan_unless_finite
+from .spatial import larger, nan_unless_finite, smaller
 
 #: Status of a step: solved; ``M`` not positive definite; constraints that no acceleration meets;
 #: a constraint without a defined direction (``UNDEFINED``, see :mod:`multibody.kernels.constraints`); a
@@ -198,7 +198,7 @@ def minimum_norm(V, sigma, rhs, rank_tolerance, m, coefficients, magnitudes, lam
     ``magnitudes[j] = Σ_i |V_ij rhs_i|`` on the kept directions (zero on the others)."""
     sigma_max = 0.0
     for i in range(m):
-        sigma_max = max(sigma_max, sigma[i])
+        sigma_max = larger(sigma_max, sigma[i])
         lam[i] = 0.0
     rank = 0
     for j in range(m):
@@ -318,10 +318,10 @@ def metric_solve(L, A, W, Y, scratch, V, sigma, rhs, rank_tolerance, m, n, coeff
     # tolerance near a singular configuration still shows how close it is, a redundant row does not
     largest, smallest = 0.0, math.inf
     for j in range(m):
-        largest = max(largest, sigma[j])
+        largest = larger(largest, sigma[j])
     for j in range(m):
         if sigma[j] > m * EPSILON * largest:
-            smallest = min(smallest, sigma[j])
+            smallest = smaller(smallest, sigma[j])
     return rank, False, (smallest / largest if largest > 0.0 else 0.0)
 
 
@@ -415,7 +415,7 @@ def solve_rows(M, h, tau, A, gamma, rank_tolerance, check, row, ws):
         for c in range(nv):
             A_a_free += A[i, c] * a_free[c]
         rhs[i] = gamma[i] - A_a_free
-        scale[i] = max(abs(gamma[i]), abs(A_a_free), 1.0)
+        scale[i] = larger(larger(abs(gamma[i]), abs(A_a_free)), 1.0)
     # G = A M⁻¹ Aᵀ = B Bᵀ ;  λ = G⁺ rhs, keeping the directions with σ > tolerance · max σ
     rank, every_row, conditioning = metric_solve(M, A, W, Y, scratch, V, sigma, rhs, rank_tolerance, m, nv,
                                                  coefficients, magnitudes, lam, order, norms)
@@ -431,7 +431,7 @@ def solve_rows(M, h, tau, A, gamma, rank_tolerance, check, row, ws):
             met += V[i, j] * coefficients[j]
             terms += abs(V[i, j]) * magnitudes[j]
         off = rhs[i] - met
-        bound = max(scale[i], terms)
+        bound = larger(scale[i], terms)
         if abs(off) > 1e-8 * bound:
             status = INCONSISTENT
             if abs(off) / bound > worst:
@@ -566,7 +566,7 @@ def metric_correction(L, A, rhs, mask, rank_tolerance, step, ws):
             for c in range(nv):
                 Y[k, c] = A[i, c]
             rhs_s[k] = rhs[i]
-            error = max(error, abs(rhs[i]))
+            error = larger(error, abs(rhs[i]))
             k += 1
     _, _, conditioning = metric_solve(L, Y, W, Y, scratch, V, sigma, rhs_s, rank_tolerance, k, nv, coefficients,
                                       magnitudes, lam, order, norms)
@@ -576,7 +576,7 @@ def metric_correction(L, A, rhs, mask, rank_tolerance, step, ws):
         for i in range(k):
             s += Y[i, c] * lam[i]
         step[c] = s
-        size = max(size, abs(s))
+        size = larger(size, abs(s))
     return size, error, conditioning
 
 
@@ -743,7 +743,7 @@ def project(joints, reals, frames, q, v, settings, program, out, ws):
         error = 0.0
         for i in range(m):
             if mask[i] != 0.0:
-                error = max(error, abs(phi[i]))
+                error = larger(error, abs(phi[i]))
         row[end + VALUE] = error
     if status != SOLVED:
         row[end + STATUS] = status

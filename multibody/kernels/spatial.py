@@ -295,6 +295,22 @@ def store_row(X, i, s, values):
 
 
 @njit(cache=True, error_model="numpy")
+def larger(a, b):
+    """The larger of the scalars ``a`` and ``b``: ``b if b > a else a``, which is Python's and Numba's builtin
+    ``max(a, b)``, ``a`` where either is NaN, so ``larger(larger(a, b), c)`` is ``max(a, b, c)``. The kernels
+    call it because Numba's CUDA target does not compile the builtin on floats."""
+    return b if b > a else a
+
+
+@njit(cache=True, error_model="numpy")
+def smaller(a, b):
+    """The smaller of the scalars ``a`` and ``b``: ``b if b < a else a``, which is Python's and Numba's builtin
+    ``min(a, b)``, ``a`` where either is NaN, so ``smaller(smaller(a, b), c)`` is ``min(a, b, c)``. The
+    kernels call it because Numba's CUDA target does not compile the builtin on floats."""
+    return b if b < a else a
+
+
+@njit(cache=True, error_model="numpy")
 def all_finite(x):
     """Whether every entry of the vector ``x`` is finite."""
     for k in range(x.shape[0]):

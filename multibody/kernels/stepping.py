@@ -39,7 +39,7 @@ from .layout import IQ, IV, KIND, NV
 from . import aba, configuration, integration, kkt
 from . import joints as kinds
 from .jit import njit
-from .spatial import all_finite, nan_unless_finite
+from .spatial import all_finite, larger, nan_unless_finite, smaller
 
 # ----------------------------------------------------------------------------- layouts
 
@@ -325,7 +325,7 @@ def settle(joints, reals, frames, program, settings, tolerance, near_singular, n
         return PROJECTION_UNSOLVED, False, False
     moved = 0.0
     for c in range(size):
-        moved = max(moved, abs(projected[0, c] - end[c]))
+        moved = larger(moved, abs(projected[0, c] - end[c]))
     if moved > tolerance:
         for c in range(size):
             end[c] = projected[0, c]
@@ -559,8 +559,8 @@ def step_limit(v, rotations, turn, max_step):
     speed = 0.0
     for k in range(rotations.shape[0]):
         r = int(rotations[k])
-        speed = max(speed, (v[r] * v[r] + v[r + 1] * v[r + 1] + v[r + 2] * v[r + 2]) ** 0.5)
-    return min(max_step, turn / speed) if speed > 0.0 else max_step
+        speed = larger(speed, (v[r] * v[r] + v[r + 1] * v[r + 1] + v[r + 2] * v[r + 2]) ** 0.5)
+    return smaller(max_step, turn / speed) if speed > 0.0 else max_step
 
 
 @njit(cache=True, error_model="numpy")
@@ -598,7 +598,7 @@ def initial_trial(y0, f0, atol, rtol, interval, y1):
     either is below ``10⁻⁵``."""
     d0, d1 = scaled_norm(y0, y0, atol, rtol), scaled_norm(f0, y0, atol, rtol)
     h0 = 1e-6 if d0 < 1e-5 or d1 < 1e-5 else 0.01 * d0 / d1
-    h0 = min(h0, interval)
+    h0 = smaller(h0, interval)
     for c in range(y0.shape[0]):
         y1[c] = y0[c] + h0 * f0[c]
     return h0
@@ -614,10 +614,10 @@ def initial_step(y0, f0, f1, atol, rtol, h0, error_order, interval, longest, scr
         scratch[c] = f1[c] - f0[c]
     d2 = scaled_norm(scratch, y0, atol, rtol) / h0
     if d1 <= 1e-15 and d2 <= 1e-15:
-        h1 = max(1e-6, h0 * 1e-3)
+        h1 = larger(1e-6, h0 * 1e-3)
     else:
-        h1 = (0.01 / max(d1, d2)) ** (1.0 / (error_order + 1.0))
-    return min(100.0 * h0, h1, interval, longest)
+        h1 = (0.01 / larger(d1, d2)) ** (1.0 / (error_order + 1.0))
+    return smaller(smaller(smaller(100.0 * h0, h1), interval), longest)
 
 
 @njit(cache=True, error_model="numpy")
@@ -666,7 +666,7 @@ def error_norm(K, e, e3, two_estimates, h, y0, y1, atol, rtol, near, tangent, er
             tangent_part(tangent, err3, scratch)
     fifth, third = 0.0, 0.0
     for c in range(n):
-        scale = atol[c] + max(abs(y0[c]), abs(y1[c])) * rtol
+        scale = atol[c] + larger(abs(y0[c]), abs(y1[c])) * rtol
         if two_estimates:
             x5, x3 = err[c] / scale, err3[c] / scale
             fifth += x5 * x5
@@ -863,7 +863,7 @@ def adaptive(python, controller, joints, reals, frames, program, times, plan, co
                     python.rates(t + h0, q_chart, y, K[1])
                 h_abs = initial_step(y0, K[0], K[1], atol_chart, rtol, h0, error_order, t_final - t, longest, scratch)
             else:
-                h_abs = min(h_abs, t_final - t, longest)
+                h_abs = smaller(smaller(h_abs, t_final - t), longest)
             scalars[S_H_ABS] = h_abs
             scalars[S_PHASE], scalars[S_FRESH] = PHASE_STEP, 1.0
         if scalars[S_PHASE] == PHASE_STEP:
@@ -883,7 +883,7 @@ def adaptive(python, controller, joints, reals, frames, program, times, plan, co
                     io[IO_TIME] = t
                     io[IO_STEP], io[IO_STATUS] = done, STEP_TOO_SMALL
                     return
-                t_new = min(t + h_abs, t_final)
+                t_new = smaller(t + h_abs, t_final)
                 h = t_new - t
                 h_abs = abs(h)
                 scalars[S_H_ABS] = h_abs
@@ -906,16 +906,16 @@ def adaptive(python, controller, joints, reals, frames, program, times, plan, co
                     # and on the tangent space at the step's end, where the projection removes the normal part: a
                     # step through the singular configuration turns the rows
                     python.tangent(t_new, q_chart, y_new, tangent_end)
-                    error = max(error, error_norm(K[: s + 1], e, e3, two_estimates, h, y0, y_new, atol_chart, rtol,
-                                                  near, tangent_end, err, err3, scratch))
+                    error = larger(error, error_norm(K[: s + 1], e, e3, two_estimates, h, y0, y_new, atol_chart,
+                                                     rtol, near, tangent_end, err, err3, scratch))
                 # h_new = h · min(MAX_FACTOR, max(MIN_FACTOR, SAFETY · err^(−1/(q+1)))), no growth after a rejection
                 if error < 1.0:
-                    factor = MAX_FACTOR if error == 0.0 else min(MAX_FACTOR, SAFETY * error ** exponent)
+                    factor = MAX_FACTOR if error == 0.0 else smaller(MAX_FACTOR, SAFETY * error ** exponent)
                     if scalars[S_REJECTED] != 0.0:
-                        factor = min(1.0, factor)
+                        factor = smaller(1.0, factor)
                     scalars[S_H_ABS] = h_abs * factor
                     break
-                h_abs *= max(MIN_FACTOR, SAFETY * error ** exponent)
+                h_abs *= larger(MIN_FACTOR, SAFETY * error ** exponent)
                 scalars[S_H_ABS], scalars[S_REJECTED] = h_abs, 1.0
             scalars[S_H], scalars[S_T_NEW], scalars[S_PHASE] = h, t_new, PHASE_ACCEPTED
             # stalled: the last STALLED_STEPS steps advanced less than STALLED_SPAN of the run

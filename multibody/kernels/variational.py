@@ -32,7 +32,7 @@ from .layout import IQ, IV, KIND
 from . import configuration, constraints, coriolis, derivatives, kkt, lagrangian, stepping
 from . import joints as kinds
 from .jit import njit
-from .spatial import all_finite
+from .spatial import all_finite, larger, smaller
 
 #: The plan's header (one float each): sizes, the rule (0 midpoint, 1 trapezoidal), whether the velocities are a
 #: free flyer's group velocities, whether the configurations step on a group, the controller
@@ -129,7 +129,7 @@ def largest(x):
     for c in range(x.shape[0]):
         if not math.isfinite(x[c]):
             return math.nan
-        size = max(size, abs(x[c]))
+        size = larger(size, abs(x[c]))
     return size
 
 
@@ -189,7 +189,7 @@ def minimum_norm_solve(S, U, sigma, rhs, relative, x):
     kkt.orthogonalize_rows(S, U, sigma, m)
     largest = 0.0
     for j in range(m):
-        largest = max(largest, sigma[j])
+        largest = larger(largest, sigma[j])
         x[j] = 0.0
     for j in range(m):
         if sigma[j] > relative * largest:
@@ -445,7 +445,7 @@ def equations(controller, joints, reals, frames, program, plan, control, t, h, q
             momentum = 0.0
             for k in range(nv):
                 momentum += M[r, k] * xi[k]
-            size_momentum = max(size_momentum, abs(momentum)) if math.isfinite(momentum) else math.nan
+            size_momentum = larger(size_momentum, abs(momentum)) if math.isfinite(momentum) else math.nan
             pulled = 0.0
             for k in range(nv):
                 pulled += J_half[k, r] * pull[k]
@@ -457,13 +457,13 @@ def equations(controller, joints, reals, frames, program, plan, control, t, h, q
             momentum = 0.0
             for k in range(nv):
                 momentum += 0.5 * (M0[r, k] + M[r, k]) * xi[k]
-            size_momentum = max(size_momentum, abs(momentum)) if math.isfinite(momentum) else math.nan
+            size_momentum = larger(size_momentum, abs(momentum)) if math.isfinite(momentum) else math.nan
             y[r] = momentum
         solve_transposed_blocks(joints, J_l, y, start)
         for r in range(nv):
             start[r] -= 0.5 * h * pull[r]
     terms_size = largest(terms[nv])
-    scale = max(size_momentum, 0.5 * abs(h) * terms_size, 0.5 * abs(h) * size_force)
+    scale = larger(larger(size_momentum, 0.5 * abs(h) * terms_size), 0.5 * abs(h) * size_force)
     if not (size_momentum == size_momentum and terms_size == terms_size):
         scale = math.nan
     if m == 0:
@@ -494,17 +494,17 @@ def equations(controller, joints, reals, frames, program, plan, control, t, h, q
                 for j in range(nv):
                     total += A_end[r, j] * back[nv + j, k]
                 C[r, k] = total
-            scales[r] = max(1.0, size_q1) if size_q1 == size_q1 else math.nan
+            scales[r] = larger(1.0, size_q1) if size_q1 == size_q1 else math.nan
         else:
             # A(q̄) ξ = 0, linearised by A(q̄)/h
             total, weighted, entry = 0.0, 0.0, 0.0
             for k in range(nv):
                 total += A_mid[r, k] * xi[k]
                 weighted += abs(A_mid[r, k]) * abs(xi[k])
-                entry = max(entry, abs(A_mid[r, k]))
+                entry = larger(entry, abs(A_mid[r, k]))
                 C[r, k] = A_mid[r, k] / h
             c[r] = total
-            scales[r] = max(weighted, entry * size_xi, 1e-300)
+            scales[r] = larger(larger(weighted, entry * size_xi), 1e-300)
     return 0, scale
 
 
@@ -559,7 +559,7 @@ def newton_jacobian(controller, joints, reals, frames, plan, control, t, h, q0, 
         if not start_force(controller, joints, reals, frames, plan, control, t, h, q0, delta, xi, q_shift, T, v, tau,
                            base, ws, io):
             return False
-        step = FORCE_DIFFERENCE_STEP * max(largest(delta), abs(h) * 1e-8, 1e-300)
+        step = FORCE_DIFFERENCE_STEP * larger(larger(largest(delta), abs(h) * 1e-8), 1e-300)
         for j in range(nv):
             for r in range(nv):
                 shifted[r] = delta[r]
@@ -756,10 +756,10 @@ def advance(controller, joints, reals, frames, program, times, plan, control, st
                     impulse = 0.0
                     for i in range(m):
                         impulse += B[i, r] * mu[i]
-                    impulse_size = max(impulse_size, abs(impulse))
+                    impulse_size = larger(impulse_size, abs(impulse))
                     F[r] = start[r] - p[r]
                     residual[r] = F[r] - impulse
-                scale = max(scale, impulse_size, size_p0, 1e-300) if scale == scale else math.nan
+                scale = larger(larger(larger(scale, impulse_size), size_p0), 1e-300) if scale == scale else math.nan
                 error = largest(residual) / scale
                 for i in range(m):
                     ratio = abs(c[i] / scales[i])
@@ -948,7 +948,7 @@ def advance(controller, joints, reals, frames, program, times, plan, control, st
             history[2] = h
             for r in range(nv):
                 increments[0, r] = delta[r]
-            history[1] = min(count + 1, 3)
+            history[1] = smaller(count + 1, 3)
             for i in range(m):
                 last_impulse[i] = mu[i]
             last_impulse[m] = 1.0
