@@ -446,12 +446,20 @@ def _call_run(program, tree, kind, control, controller, times, states, records, 
           np.zeros(program.int_workspace, dtype=np.int64))
 
 
-def _run_batch(program, tree, kind, control, controller, times, states, records, summaries, io):
-    """The steps of every trajectory of ``states (N, n, nq + nv)`` on all cores, each on its own."""
+def _run_batch(program, tree, kind, control, controller, times, states, records, summaries, io, device=False):
+    """The steps of every trajectory of ``states (N, n, nq + nv)`` on all cores, each on its own, or (``device``) on
+    the GPU, one trajectory per thread (:func:`multibody.gpu.contact_batch`)."""
     plan = program.plan.copy()
     plan[timestepping.PLAN_CONTROL] = kind
     pointer = controller.pointer if kind == stepping.FUNCTION else driver.first_class(stepping.no_controller,
                                                                                        CONTROLLER_TYPES)
+    if device:
+        from . import gpu
+        launcher = gpu.contact_launcher(controller.function if kind == stepping.FUNCTION else None, pointer)
+        gpu.contact_batch(launcher, (tree.joints, tree.reals, program.frames, program.program, program.geometry,
+                                     program.vertices, plan, control, times), program.workspace, program.int_workspace,
+                          states, records, summaries, io)
+        return
     shares = max(1, min(driver.get_num_threads(), len(states)))
     entry = driver.entry_point(_trajectories, _TRAJECTORIES_TYPES)
     with driver.parallel_shares(shares):
@@ -461,7 +469,7 @@ def _run_batch(program, tree, kind, control, controller, times, states, records,
 
 
 def run(constrained, q, v, times, controller, torque, batch, damping=None, tolerance=TOLERANCE,
-        max_iterations=MAX_ITERATIONS):
+        max_iterations=MAX_ITERATIONS, device=False):
     """The Moreau–Jean steps (:mod:`multibody.kernels.timestepping`) of ``constrained`` from the checked initial
     states ``q (N, nq)``, ``v (N, nv)`` at the output ``times (n,)`` (s; one step per interval): a
     :class:`~multibody.Trajectory` (one, for ``batch`` ``None``, or of ``batch`` trajectories) whose ``status``
@@ -470,7 +478,8 @@ def run(constrained, q, v, times, controller, torque, batch, damping=None, toler
     start (``controller`` then ``None``). ``damping (nv,)`` or ``None``: joint damping ``−D v``. ``tolerance`` (m/s)
     and ``max_iterations``: each step's contact problem; a step that does not reach the tolerance ends its
     trajectory before it (its record stays in ``contacts``, its residual in ``complementarity``). An initial state in penetration is projected out (the smallest move in the metric of ``M``) with a
-    warning giving the depth."""
+    warning giving the depth. ``device``: the batch's steps on the GPU, one trajectory per thread (a ``controller``
+    the GPU computes, not ``torque``)."""
     model = constrained.system.model
     nq, nv = constrained.nq, constrained.nv
     program = contact_program(constrained, tolerance=tolerance, max_iterations=max_iterations, damping=damping)
@@ -510,7 +519,7 @@ def run(constrained, q, v, times, controller, torque, batch, damping=None, toler
     else:
         kind, control = _control(controller, nv)
         records = _dispatch(program, tree, kind, control, controller, times, states, records, summaries, io, batch,
-                            None)
+                            None, device)
     statuses = []
     for r in range(count):
         status = int(io[r, timestepping.IO_STATUS])
@@ -535,11 +544,12 @@ def run(constrained, q, v, times, controller, torque, batch, damping=None, toler
     return _trajectory(constrained, program, times, states, records, summaries, statuses, batch)
 
 
-def _dispatch(program, tree, kind, control, controller, times, states, records, summaries, io, batch, live):
-    """The steps of one trajectory (``batch`` ``None``) or of the ``live`` trajectories of a batch (``None``: all),
-    each stopped by a step with more rows than ``records (N, n, R, RECORD_COLUMNS)`` holds going on from that step
+def _dispatch(program, tree, kind, control, controller, times, states, records, summaries, io, batch, live,
+              device=False):
+    """The steps of one trajectory (``batch`` ``None``) or of the ``live`` trajectories of a batch (``None``: all), on
+    the GPU where ``device``, each stopped by a step with more rows than ``records (N, n, R, RECORD_COLUMNS)`` holds going on from that step
     with every record widened (:data:`RECORD_CAPACITY`); returns the records."""
-    _dispatch_once(program, tree, kind, control, controller, times, states, records, summaries, io, batch, live)
+    _dispatch_once(program, tree, kind, control, controller, times, states, records, summaries, io, batch, live, device)
     while True:
         full = io[:, timestepping.IO_STATUS] == timestepping.RECORD_FULL
         if not full.any():
@@ -551,21 +561,24 @@ def _dispatch(program, tree, kind, control, controller, times, states, records, 
         grown[:, :, : records.shape[2]] = records
         records = grown
         io[rows, timestepping.IO_STATUS] = timestepping.COMPLETED
-        _dispatch_once(program, tree, kind, control, controller, times, states, records, summaries, io, batch, full)
+        _dispatch_once(program, tree, kind, control, controller, times, states, records, summaries, io, batch, full,
+                       device)
 
 
-def _dispatch_once(program, tree, kind, control, controller, times, states, records, summaries, io, batch, live):
-    """The steps of one trajectory (``batch`` ``None``) or of the ``live`` trajectories of a batch (``None``: all)."""
+def _dispatch_once(program, tree, kind, control, controller, times, states, records, summaries, io, batch, live,
+                   device=False):
+    """The steps of one trajectory (``batch`` ``None``) or of the ``live`` trajectories of a batch (``None``: all), on
+    the GPU where ``device``."""
     if batch is None:
         _call_run(program, tree, kind, control, controller, times, states[0], records[0], summaries[0], io[0])
         return
     if live is None or live.all():
-        _run_batch(program, tree, kind, control, controller, times, states, records, summaries, io)
+        _run_batch(program, tree, kind, control, controller, times, states, records, summaries, io, device)
         return
     rows = np.flatnonzero(live)
     parts = [np.ascontiguousarray(x[rows]) for x in (states, records, summaries, io)]
     _run_batch(program, tree, kind, np.ascontiguousarray(control[rows]) if len(control) > 1 else control, controller,
-               times, *parts)
+               times, *parts, device)
     for x, part in zip((states, records, summaries, io), parts):
         x[rows] = part
 

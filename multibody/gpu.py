@@ -29,7 +29,8 @@ only. This lives in the ``[gpu]`` extra (``numba-cuda``).
 :mod:`multibody.kernels.stepping` the same way, one trajectory per thread (:func:`advance_batch`): the launcher
 calls :func:`multibody.kernels.stepping.advance`, which the CUDA target compiles with everything beneath it (the
 chart maps, ABA or the constrained step and the projection of :mod:`multibody.kernels.kkt`, the PD law), and a
-``numba.njit`` controller as a device function.
+``numba.njit`` controller as a device function. A contact batch runs its Moreau–Jean steps the same way
+(:func:`contact_batch`: :func:`multibody.kernels.timestepping.run`, one trajectory per thread).
 """
 
 from __future__ import annotations
@@ -309,3 +310,76 @@ def advance_batch(run, states, io, rows):
     launch(run, device_states, device_io, cuda.to_device(np.ascontiguousarray(rows, dtype=np.int64)))
     device_states.copy_to_host(states)
     device_io.copy_to_host(io)
+
+
+# ----------------------------------------------------------------------------- the contact run of simulate
+
+
+def contact_run_source(run, controller):
+    """The source of the contact run's launcher: ``run`` (:func:`multibody.kernels.timestepping.run`) for the
+    trajectories ``thread, thread + threads, …`` of the batch, each in its own workspace rows ``WS[thread]``,
+    ``IWS[thread]``; one control row serves every trajectory, as in the CPU's loop over trajectories."""
+    _cuda()
+
+    def launch(joints, reals, frames, program, geometry, vertices, plan, control, times, states, records, summaries,
+               io, WS, IWS):
+        thread = cuda.grid(1)
+        for r in range(thread, states.shape[0], cuda.gridsize(1)):
+            run(controller, joints, reals, frames, program, geometry, vertices, plan,
+                control[r if control.shape[0] > 1 else 0], times, states[r], records[r], summaries[r], io[r],
+                WS[thread], IWS[thread])
+
+    return launch
+
+
+#: The key of a ``numba.njit`` controller's contact launcher in the controller's own ``__dict__``.
+_CONTACT_LAUNCHER_KEY = "_multibody_cuda_contact_run"
+
+
+@functools.lru_cache(maxsize=None)
+def _uncontrolled_contact_launcher():
+    from .kernels import timestepping
+    return _cuda().jit(contact_run_source(timestepping.run, None))
+
+
+def contact_launcher(function, pointer):
+    """The ``cuda.jit`` launcher of the contact run, compiled on first launch: with the ``numba.njit`` controller
+    ``function`` as a device function (kept in its ``__dict__``, as :func:`run_launcher` keeps its own), or with none
+    (``function`` ``None``: the plan's controller is none, constant or a PD). Under ``NUMBA_ENABLE_CUDASIM=1`` it calls
+    the CPU's compiled :func:`multibody.kernels.timestepping.run` with the first-class controller ``pointer``."""
+    from numba import config
+
+    from . import contact, driver
+    from .kernels import timestepping
+    cuda = _cuda()
+    if config.ENABLE_CUDASIM:
+        entry = driver.entry_point(timestepping.run, dict(contact.ENTRY_POINTS)[timestepping.run])
+        return cuda.jit(contact_run_source(_simulated(entry), pointer))
+    if function is None:
+        return _uncontrolled_contact_launcher()
+    launcher = function.__dict__.get(_CONTACT_LAUNCHER_KEY)
+    if launcher is None:
+        launcher = function.__dict__[_CONTACT_LAUNCHER_KEY] = cuda.jit(contact_run_source(timestepping.run, function))
+    return launcher
+
+
+def contact_batch(launcher, arrays, workspace, int_workspace, states, records, summaries, io):
+    """The contact run of every trajectory on the GPU, one per thread: ``arrays`` (the tree's joints and reals, the
+    program's frames, program, geometry and vertices, the plan, the control rows and the times, host arrays) and the
+    host arrays ``states (N, n, nq + nv)``, ``records (N, n, rows, columns)``, ``summaries (N, n, columns)`` and
+    ``io (N, io_size)`` copied to the device, the launch, and the last four copied back in place. ``workspace``,
+    ``int_workspace``: the floats and integers of one thread's workspace rows."""
+    cuda = _cuda()
+    count = states.shape[0]
+    if not count:
+        return
+    threads = min(count, MAX_THREADS)
+    blocks = -(-threads // THREADS_PER_BLOCK)
+    ws = cuda.device_array((blocks * THREADS_PER_BLOCK, max(1, workspace)))
+    iws = cuda.to_device(np.zeros((blocks * THREADS_PER_BLOCK, max(1, int_workspace)), dtype=np.int64))
+    inputs = [cuda.to_device(np.ascontiguousarray(x)) for x in arrays]
+    outputs = [cuda.to_device(x) for x in (states, records, summaries, io)]
+    launcher[blocks, THREADS_PER_BLOCK](*inputs, *outputs, ws, iws)
+    for device, host in zip(outputs, (states, records, summaries, io)):
+        device.copy_to_host(host)
+

@@ -169,8 +169,9 @@ def simulate(system, q0, v0, t_final, *, dt=None, method=None, tau=None, rtol=1e
             the last output time before the failure).
     """
     device = gpu.is_device_array(q0) or gpu.is_device_array(v0)
+    contact_system = isinstance(system, ConstrainedSystem) and bool(system.unilateral)
     if device:
-        _check_device_run(method, tau)
+        _check_device_run(contact.METHOD if contact_system and method is None else method, tau)
         q0, v0, tau = (gpu.to_host(x) if gpu.is_device_array(x) else x for x in (q0, v0, tau))
     if method == "variational":  # the discrete Hamilton's principle, in its own module
         from . import variational
@@ -182,7 +183,7 @@ def simulate(system, q0, v0, t_final, *, dt=None, method=None, tau=None, rtol=1e
         raise ValueError(f"rule and order are options of method='variational', not of method={method!r}")
     constrained = system if isinstance(system, ConstrainedSystem) else ConstrainedSystem(system)
     if constrained.unilateral:
-        return _simulate_unilateral(constrained, q0, v0, t_final, dt, method, tau, t0, joint_damping, limits)
+        return _simulate_unilateral(constrained, q0, v0, t_final, dt, method, tau, t0, joint_damping, limits, device)
     method = "RK45" if method is None else method
     mechanical = constrained.system
     nq, nv = constrained.nq, constrained.nv
@@ -194,9 +195,7 @@ def simulate(system, q0, v0, t_final, *, dt=None, method=None, tau=None, rtol=1e
     q, v = np.array(q0, dtype=float), np.array(v0, dtype=float)
     batch = batch_size(q, v, nq, nv)
     if device and batch is None:
-        raise ValueError(f"simulate on CUDA arrays integrates a batch, one trajectory per GPU thread: q0 (N, {nq}), "
-                         f"v0 (N, {nv}); got one state, q0 {q.shape} and v0 {v.shape} (simulate one state from "
-                         "NumPy arrays)")
+        _one_device_state(q.shape, v.shape, nq, nv)
     if batch is not None:
         try:
             check_batchable(constrained, method, q.shape, v.shape)
@@ -434,10 +433,11 @@ def simulate(system, q0, v0, t_final, *, dt=None, method=None, tau=None, rtol=1e
     return trajectory
 
 
-def _simulate_unilateral(constrained, q0, v0, t_final, dt, method, tau, t0, joint_damping, limits):
+def _simulate_unilateral(constrained, q0, v0, t_final, dt, method, tau, t0, joint_damping, limits, device=False):
     """:func:`simulate` of a system with contact or joint limits: the checks of every method, then the compiled
-    Moreau–Jean steps of :func:`multibody.contact.run`; a failure raises :class:`SimulationError` with the trajectory
-    up to it (one trajectory), or is marked in the batch's status."""
+    Moreau–Jean steps of :func:`multibody.contact.run` (``device``: a batch on the GPU, one trajectory per thread); a
+    failure raises :class:`SimulationError` with the trajectory up to it (one trajectory), or is marked in the
+    batch's status."""
     if method not in (None, contact.METHOD):
         names = ", ".join(c.name for c in constrained.unilateral)
         raise ValueError(f"method={method!r} cannot simulate contact or joint limits ({names}): a system with unilateral "
@@ -453,6 +453,8 @@ def _simulate_unilateral(constrained, q0, v0, t_final, dt, method, tau, t0, join
     batch = batch_size(q, v, nq, nv)
     if batch is None and (q.shape != (nq,) or v.shape != (nv,)):
         raise ValueError(f"q0 and v0 must have shapes ({nq},) and ({nv},), got {q.shape} and {v.shape}")
+    if device and batch is None:
+        _one_device_state(q.shape, v.shape, nq, nv)
     require_finite(mechanical, "q0", q)
     require_finite(mechanical, "v0", v, rate=True)
     controller = as_controller(tau, mechanical, batch)
@@ -465,7 +467,7 @@ def _simulate_unilateral(constrained, q0, v0, t_final, dt, method, tau, t0, join
     damping = np.array(model.damping, dtype=float) if joint_damping and np.any(model.damping) else None
     count = 1 if batch is None else batch
     trajectory = contact.run(constrained, np.broadcast_to(q, (count, nq)), np.broadcast_to(v, (count, nv)),
-                             output_times(t0, t_final, dt), controller, torque, batch, damping)
+                             output_times(t0, t_final, dt), controller, torque, batch, damping, device=device)
     enforced = contact.enforced_coordinates(constrained)
     if batch is None:
         if trajectory.status != "completed":
@@ -872,10 +874,17 @@ _FAILURES = (SimulationError, ConstraintError, np.linalg.LinAlgError, ValueError
 _OUTPUT_BLOCK = 1 << 16
 
 
+def _one_device_state(q_shape, v_shape, nq, nv):
+    """The ``ValueError`` of one initial state given as CUDA arrays (the GPU runs a batch)."""
+    raise ValueError(f"simulate on CUDA arrays integrates a batch, one trajectory per GPU thread: q0 (N, {nq}), "
+                     f"v0 (N, {nv}); got one state, q0 {q_shape} and v0 {v_shape} (simulate one state from NumPy "
+                     "arrays)")
+
+
 def _check_device_run(method, tau):
     """``ValueError`` unless :func:`simulate` can run ``method`` and the joint forces ``tau`` on the GPU: a fixed-step
-    method, and joint forces that are data or compiled (the GPU does not call Python)."""
-    if method not in FIXED_STEP_METHODS:
+    method or the contact steps, and joint forces that are data or compiled (the GPU does not call Python)."""
+    if method not in FIXED_STEP_METHODS + (contact.METHOD,):
         raise ValueError(f"simulate on CUDA arrays runs the fixed-step methods {FIXED_STEP_METHODS}, one trajectory "
                          f"per GPU thread; method={method!r} is not one (it runs on the host: pass NumPy arrays)")
     if callable(tau) and not isinstance(tau, PD) and not is_compiled_controller(tau):
