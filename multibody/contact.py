@@ -23,7 +23,7 @@ import numpy as np
 from numba import prange, types
 
 from . import driver
-from .integrators import CONTROLLER_TYPES, CompiledController, PDController
+from .integrators import CONTROLLER_TYPES, control_rows
 from .contact_problem import STATUS_MESSAGES
 from .kernels import collision, complementarity, kkt, stepping, timestepping
 from .model import Model
@@ -374,20 +374,6 @@ _STATUS = {
 }
 
 
-def _control(controller, nv):
-    """``(kind, control rows (1 or N, L))`` of a controller, as :mod:`multibody.kernels.stepping` reads them."""
-    if controller is None:
-        return stepping.NO_CONTROL, np.zeros((1, nv))
-    if isinstance(controller, np.ndarray):
-        return stepping.CONSTANT, np.ascontiguousarray(controller.reshape(-1, nv), dtype=float)
-    if isinstance(controller, PDController):
-        rows = controller.rows
-        return stepping.PD, np.ascontiguousarray(np.concatenate([np.zeros((len(rows), nv)), rows], axis=1))
-    if isinstance(controller, CompiledController):
-        return stepping.FUNCTION, np.zeros((1, nv))
-    return stepping.PYTHON, np.zeros((1, nv))
-
-
 def _entries(records, summaries, program):
     """The :class:`Contacts` of each step of one trajectory from its ``records (n, R, 11)`` and ``summaries``: the
     rows of all steps gathered and named at once, then split by step."""
@@ -517,7 +503,7 @@ def run(constrained, q, v, times, controller, torque, batch, damping=None, toler
             records = _dispatch(program, tree, stepping.CONSTANT, control, None, times, states, records, summaries, io,
                                 batch, live)
     else:
-        kind, control = _control(controller, nv)
+        kind, control = control_rows(controller, nv)
         records = _dispatch(program, tree, kind, control, controller, times, states, records, summaries, io, batch,
                             None, device)
     statuses = []

@@ -567,6 +567,23 @@ def as_controller(tau, system, batch=None):
     return tau
 
 
+def control_rows(controller, nv):
+    """``(kind, control)`` of a controller as :mod:`multibody.kernels.stepping` reads it: ``kind`` one of
+    :data:`~multibody.kernels.stepping.NO_CONTROL`, ``CONSTANT``, ``PD``, ``FUNCTION``, ``PYTHON``, and ``control
+    (1 or N, L)`` float64 rows: the constant joint forces ``(N, nv)`` (N·m or N), a :class:`PDController`'s rows
+    behind ``nv`` zero columns, else one row of ``nv`` zeros. ``controller`` is what :func:`as_controller` gives."""
+    if controller is None:
+        return stepping.NO_CONTROL, np.zeros((1, nv))
+    if isinstance(controller, np.ndarray):
+        return stepping.CONSTANT, np.ascontiguousarray(controller.reshape(-1, nv), dtype=float)
+    if isinstance(controller, PDController):
+        rows = controller.rows
+        return stepping.PD, np.ascontiguousarray(np.concatenate([np.zeros((len(rows), nv)), rows], axis=1))
+    if isinstance(controller, CompiledController):
+        return stepping.FUNCTION, np.zeros((1, nv))
+    return stepping.PYTHON, np.zeros((1, nv))
+
+
 # ============================================================================= the compiled run
 
 #: The argument types of :func:`multibody.kernels.stepping.run` (one trajectory): the tree's arrays and the constraint
@@ -633,7 +650,7 @@ class CompiledRun:
         self.times, self.nq, self.nv = np.ascontiguousarray(times, dtype=float), nq, nv
         self.constrained = self.program.size > 0
         settings, projection_columns, projection_workspace = projection or (np.zeros(2), 0, 0)
-        kind, control = self._control(controller, nv)
+        kind, control = control_rows(controller, nv)
         self.kind, self.control, self.controller = kind, control, controller
         self.pointer = controller.pointer if kind == stepping.FUNCTION else driver.first_class(
             stepping.no_controller, CONTROLLER_TYPES)
@@ -654,20 +671,6 @@ class CompiledRun:
                                                  projection_columns, projection_workspace)
         self.ws = np.empty(self.workspace)
         self.io = np.zeros(stepping.io_size(nq, nv))
-
-    @staticmethod
-    def _control(controller, nv):
-        """``(kind, control rows (1 or N, L))`` of a controller (:data:`multibody.kernels.stepping.PD` ...)."""
-        if controller is None:
-            return stepping.NO_CONTROL, np.zeros((1, nv))
-        if isinstance(controller, np.ndarray):
-            return stepping.CONSTANT, np.ascontiguousarray(controller.reshape(-1, nv), dtype=float)
-        if isinstance(controller, PDController):
-            rows = controller.rows
-            return stepping.PD, np.ascontiguousarray(np.concatenate([np.zeros((len(rows), nv)), rows], axis=1))
-        if isinstance(controller, CompiledController):
-            return stepping.FUNCTION, np.zeros((1, nv))
-        return stepping.PYTHON, np.zeros((1, nv))
 
     def advance(self, states, k, stop, torque=None, joint_forces=None):
         """Steps ``k`` up to ``stop`` (exclusive) of one trajectory, ``states (n, nq + nv)`` filled in place:
@@ -739,7 +742,7 @@ class AdaptiveRun:
         self.program = np.ascontiguousarray(program, dtype=float)
         self.times, self.nq, self.nv = np.ascontiguousarray(times, dtype=float), nq, nv
         settings, projection_columns, projection_workspace = projection or (np.zeros(2), 0, 0)
-        kind, control = CompiledRun._control(controller, nv)
+        kind, control = control_rows(controller, nv)
         self.kind, self.control = kind, control
         self.pointer = controller.pointer if kind == stepping.FUNCTION else None
         block = pair.block()

@@ -596,3 +596,29 @@ def test_a_python_controller_that_raises_keeps_the_steps_before_its_stage(python
         outcomes.append(info.value)
     assert str(outcomes[0]) == str(outcomes[1]) == "simulation stopped at t = 0.31 s: no torque after 0.31 s"
     assert_same(outcomes[0].trajectory, outcomes[1].trajectory, tol=0.0)
+
+
+def test_control_rows_of_each_controller_kind():
+    """:func:`multibody.integrators.control_rows`: the kind each controller runs as and its rows, one row of ``nv``
+    zeros where the kind reads none."""
+    model = mb.robots.load("double_pendulum")
+    nv = model.nv
+
+    @numba.njit
+    def compiled(t, q, v, out):
+        out[0] = -q[0]
+
+    constant = np.array([[1.0, 2.0], [3.0, 4.0]])
+    pd = integrators.as_controller(mb.PD(5.0, 1.0, np.zeros(model.nq)), model)
+    cases = [(None, stepping.NO_CONTROL), (constant, stepping.CONSTANT), (pd, stepping.PD),
+             (integrators.as_controller(compiled, model), stepping.FUNCTION), (lambda t, q, v: -q, stepping.PYTHON)]
+    for controller, expected in cases:
+        kind, rows = integrators.control_rows(controller, nv)
+        assert kind == expected
+        assert rows.dtype == np.float64 and rows.flags.c_contiguous
+        if expected == stepping.CONSTANT:
+            np.testing.assert_array_equal(rows, constant)
+        elif expected == stepping.PD:
+            np.testing.assert_array_equal(rows, np.concatenate([np.zeros((1, nv)), pd.rows], axis=1))
+        else:
+            np.testing.assert_array_equal(rows, np.zeros((1, nv)))
