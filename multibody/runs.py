@@ -222,6 +222,8 @@ class Progress:
                     bar_format="{desc}: {percentage:3.0f}%|{bar}| t = {n:.4g}/{total:.4g} s [{elapsed}<{remaining}]")
 
     def update(self, t):
+        """Tell the bar that the run has reached time ``t`` (s); with ``mode`` ``None``, decide whether to open
+        it."""
         if self.bar is not None and t - self.t0 >= self.span:
             # tqdm draws on an update that comes over 0.1 s after its last drawing, and close draws again:
             # the end is drawn once, by close, however long the run's last call took
@@ -245,6 +247,7 @@ class Progress:
             self.bar = self._open(t)
 
     def close(self):
+        """Draw the bar's end and close it (nothing where no bar was opened)."""
         if self.bar is not None:
             self.bar.close()
 
