@@ -441,7 +441,8 @@ def _run_batch(program, tree, kind, control, controller, times, states, records,
                                                                                        CONTROLLER_TYPES)
     if device:
         from . import gpu
-        launcher = gpu.contact_launcher(controller.function if kind == stepping.FUNCTION else None, pointer)
+        launcher = gpu.contact_launcher(controller.function if kind == stepping.FUNCTION else None, pointer,
+                                          dict(ENTRY_POINTS)[timestepping.run])
         gpu.contact_batch(launcher, (tree.joints, tree.reals, program.frames, program.program, program.geometry,
                                      program.vertices, plan, control, times), program.workspace, program.int_workspace,
                           states, records, summaries, io)

@@ -342,18 +342,19 @@ def _uncontrolled_contact_launcher():
     return _cuda().jit(contact_run_source(timestepping.run, None))
 
 
-def contact_launcher(function, pointer):
+def contact_launcher(function, pointer, types):
     """The ``cuda.jit`` launcher of the contact run, compiled on first launch: with the ``numba.njit`` controller
     ``function`` as a device function (kept in its ``__dict__``, as :func:`run_launcher` keeps its own), or with none
     (``function`` ``None``: the plan's controller is none, constant or a PD). Under ``NUMBA_ENABLE_CUDASIM=1`` it calls
-    the CPU's compiled :func:`multibody.kernels.timestepping.run` with the first-class controller ``pointer``."""
+    the CPU's compiled :func:`multibody.kernels.timestepping.run`, compiled for the argument ``types`` (those of
+    :data:`multibody.contact.ENTRY_POINTS`), with the first-class controller ``pointer``."""
     from numba import config
 
-    from . import contact, driver
+    from . import driver
     from .kernels import timestepping
     cuda = _cuda()
     if config.ENABLE_CUDASIM:
-        entry = driver.entry_point(timestepping.run, dict(contact.ENTRY_POINTS)[timestepping.run])
+        entry = driver.entry_point(timestepping.run, types)
         return cuda.jit(contact_run_source(_simulated(entry), pointer))
     if function is None:
         return _uncontrolled_contact_launcher()

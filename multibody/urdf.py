@@ -54,8 +54,9 @@ from . import joints as jt
 from . import spatial
 from .inertia import Inertia
 from .model import Geometry, Mimic, ModelBuilder, inertia_problems
-from .modelfiles import (is_xml_text, package_directories, parse_numbers, resolve_file,
-                         warn_missing_meshes)
+# LARGEST_MAGNITUDE is the bound this module's docstrings name, and scripts read it here
+from .modelfiles import (LARGEST_MAGNITUDE, is_xml_text, package_directories, parse_numbers,  # noqa: F401
+                         resolve_file, warn_missing_meshes)
 
 
 class URDFError(ValueError):
