@@ -237,17 +237,7 @@ def joint_forces(controller, joints, plan, control, t, q, w, T, v, tau, out, scr
     else:
         for r in range(nv):
             v[r] = w[r]
-    if kind == stepping.CONSTANT:
-        for c in range(nv):
-            tau[c] = control[c]
-    elif kind == stepping.PD:
-        stepping.pd_torque(joints, t, q, v, control[nv:], tau, scratch)
-    else:
-        for c in range(nv):
-            tau[c] = 0.0
-        if kind == stepping.FUNCTION:
-            controller(t, q, v, tau)
-    if kind != stepping.NO_CONTROL and kind != stepping.CONSTANT and not all_finite(tau):
+    if not stepping.stage_torque(controller, joints, kind, control, t, q, v, tau, scratch):
         io[IO_TIME] = t
         for c in range(nv):
             io[IO_HEADER + c] = tau[c]
