@@ -540,19 +540,7 @@ def step(controller, joints, reals, frames, program, geometry, vertices, plan, c
         summary[k] = 0.0
 
     # the joint forces τ (less the joint damping D v)
-    if kind == stepping.CONSTANT:
-        for col in range(nv):
-            tau[col] = control[col]
-    elif kind == stepping.PD:
-        stepping.pd_torque(joints, t, q, v, control[nv:], tau, scratch)
-    elif kind == stepping.FUNCTION and controller is not None:
-        for col in range(nv):
-            tau[col] = 0.0
-        controller(t, q, v, tau)
-    else:
-        for col in range(nv):
-            tau[col] = 0.0
-    if not all_finite(tau):
+    if not stepping.stage_torque(controller, joints, kind, control, t, q, v, tau, scratch):
         return NON_FINITE_TORQUE
     if plan[PLAN_DAMPED] != 0.0:
         damping = plan[int(plan[PLAN_DAMPING_START]) : int(plan[PLAN_DAMPING_START]) + nv]
