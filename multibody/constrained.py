@@ -23,6 +23,7 @@ from .contact import Unilateral
 from .integrators import vector_space_tree
 from .kernels import aba, integration, kkt
 from .kernels import constraints as compiled_rows
+from .mechanical import ModelSystem
 from .model import Model
 from .spatial import matvec
 from .tree import frame_rows
@@ -71,73 +72,6 @@ STATUS_ERRORS = {
     kkt.NON_FINITE: lambda system, rank, row, value, iterations: ConstraintError(
         "the constrained step has a non-finite input: a NaN or infinite entry of q, v, tau or the constraint rows"),
 }
-
-
-class ModelSystem:
-    """The mechanical-system interface of a :class:`Model`, as :class:`ConstrainedSystem` uses it.
-
-    Any other system (e.g. ``LagrangianSystem.numeric()``) provides the same members: ``nq``, ``nv``,
-    ``mass_matrix(q)``, ``bias_forces(q, v)``, ``integrate(q, v, dt)``, ``configuration_rate(q, v)``,
-    ``normalize(q)``, ``neutral()`` and ``energy(q, v)``; the chart maps ``chart``, ``chart_rate``,
-    ``velocity_alignment``, ``velocity_coupling`` and ``chart_magnitude`` (see :meth:`Model.chart`) only when its
-    configurations are not a vector space with ``q̇ = v``, and optionally ``chart_coordinates``, which lets
-    ``simulate`` evaluate stages on the constraints near a singular configuration.
-    """
-
-    def __init__(self, model: Model):
-        self.model = model
-        self.nq, self.nv = model.nq, model.nv
-        self.vector_space = model.is_vector_space
-
-    def mass_matrix(self, q):
-        return dynamics.mass_matrix(self.model, q)
-
-    def mass_matrix_and_bias(self, q, v):
-        """``(M (..., nv, nv), h (..., nv))`` together, for one state or a batch, from one pass down the
-        tree (:func:`multibody.dynamics.mass_matrix_and_bias`)."""
-        return dynamics.mass_matrix_and_bias(self.model, q, v)
-
-    def bias_forces(self, q, v):
-        return dynamics.bias_forces(self.model, q, v)
-
-    def forward_dynamics(self, q, v, tau=None):
-        """``a = M⁻¹ (τ − h)`` by the Articulated Body Algorithm (:func:`multibody.dynamics.forward_dynamics`):
-        an unconstrained step without forming ``M``. Float arrays ``q (..., nq)``, ``v (..., nv)``, ``tau
-        (..., nv)`` or ``None`` (zero), as :meth:`ConstrainedSystem.solve` checked them."""
-        return dynamics.articulated_body_accelerations(self.model, q, v, tau, None, spatial.batch_shape(
-            q.shape[:-1], v.shape[:-1], () if tau is None else tau.shape[:-1]))
-
-    def integrate(self, q, v, dt=1.0):
-        return self.model.integrate(q, v, dt)
-
-    def configuration_rate(self, q, v):
-        return self.model.configuration_rate(q, v)
-
-    def normalize(self, q):
-        return self.model.normalize(q)
-
-    # charts for Lie-group integration (see Model.chart)
-    def chart(self, q0, delta):
-        return self.model.chart(q0, delta)
-
-    def chart_coordinates(self, q0, q):
-        return self.model.chart_coordinates(q0, q)
-
-    def chart_rate(self, delta, w):
-        return self.model.chart_rate(delta, w)
-
-    def velocity_alignment(self, q):
-        return self.model.velocity_alignment(q)
-
-    def velocity_coupling(self, v):
-        return self.model.velocity_coupling(v)
-
-    def chart_magnitude(self, q):
-        return self.model.chart_magnitude(q)
-
-    def energy(self, q, v):
-        """Kinetic plus gravitational potential energy (J)."""
-        return dynamics.kinetic_energy(self.model, q, v) + dynamics.potential_energy(self.model, q)
 
 
 class _ModelAtState(ModelSystem):

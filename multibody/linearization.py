@@ -63,9 +63,8 @@ import numpy as np
 import scipy.linalg
 
 from . import derivatives, driver
-from .constrained import ConstrainedSystem, ModelSystem
 from .kernels import configuration
-from .model import Model
+from .mechanical import ModelSystem, system_parts
 from .shooting import rk4_step_derivatives
 
 #: Largest constraint violation ``max(|φ|, |A v + b|)`` (m, rad; m/s, rad/s) of a state to linearize about:
@@ -209,16 +208,12 @@ def linearize(system, q, v, tau=None, t=0.0, *, dt=None, method="RK4"):
 def _parts(system):
     """``(constrained system or None, mechanical system, Model or None)`` of a :class:`Model` or a
     :class:`ConstrainedSystem`."""
-    if isinstance(system, Model):
-        return None, ModelSystem(system), system
-    if isinstance(system, ConstrainedSystem):
-        mechanical = system.system
-        if (not isinstance(mechanical, ModelSystem) and hasattr(mechanical, "chart")
-                and not getattr(mechanical, "vector_space", False)):
-            raise TypeError(f"linearize needs the Lie bracket of a curved configuration space, which only a Model "
-                            f"provides; {type(mechanical).__name__} has charts (its q is not a vector space)")
-        return system, mechanical, system.model
-    raise TypeError(f"system must be a Model or a ConstrainedSystem, got {type(system).__name__}")
+    constrained, mechanical, model = system_parts(system)
+    if (not isinstance(mechanical, ModelSystem) and hasattr(mechanical, "chart")
+            and not getattr(mechanical, "vector_space", False)):
+        raise TypeError(f"linearize needs the Lie bracket of a curved configuration space, which only a Model "
+                        f"provides; {type(mechanical).__name__} has charts (its q is not a vector space)")
+    return constrained, mechanical, model
 
 
 def _state(mechanical, model, q, v, tau):

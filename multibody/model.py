@@ -456,7 +456,7 @@ class Model:
 
         Body-frame velocities turn with a spinning body; aligned ones change only as the motion does,
         which lets an integrator take steps of half a revolution (its charts' rotation vectors are singular
-        at 2π: :data:`multibody.simulation.CHART_TURN`). Their rate is
+        at 2π: :data:`multibody.mechanical.CHART_TURN`). Their rate is
         ``ẇ = T (a + κ(v))`` (:meth:`velocity_coupling`).
         """
         return driver.configuration_map(configuration.velocity_alignment, self.tree, spatial.float_array(q, self.nq, "q"), None,

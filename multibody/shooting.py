@@ -33,9 +33,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import derivatives, differences, dynamics
-from .constrained import ConstrainedSystem, as_system
-from .model import Model
-from .simulation import Charts
+from .mechanical import Charts, system_parts
 from .spatial import matvec
 
 
@@ -60,13 +58,7 @@ class _Step:
     """The pieces of one step of ``system`` (a :class:`Model` or a :class:`ConstrainedSystem`)."""
 
     def __init__(self, system):
-        if isinstance(system, Model):
-            self.model, self.constrained = system, None
-        elif isinstance(system, ConstrainedSystem):
-            self.model, self.constrained = system.model, system
-        else:
-            raise TypeError(f"system must be a Model or a ConstrainedSystem, got {type(system).__name__}")
-        mechanical = as_system(system if self.constrained is None else system.system)
+        self.constrained, mechanical, self.model = system_parts(system)
         self.charts = Charts(mechanical)
         self.mechanical = mechanical
         self.nq, self.nv = mechanical.nq, mechanical.nv

@@ -133,7 +133,8 @@ import numpy as np
 
 from . import driver, linalg, numba_hooks, spatial
 from .integrators import CONTROLLER_TYPES, CompiledController, PDController
-from .constrained import ConstrainedSystem, ConstraintError, ModelSystem
+from .constrained import ConstrainedSystem, ConstraintError
+from .mechanical import ModelSystem
 from .model import all_finite
 from .runs import (Progress, SimulationError, checked_timing, joint_damping_of, non_finite_torque, output_times,
                    report_limits, require_finite, torque_function, with_joint_damping)

@@ -13,13 +13,6 @@ import multibody
 
 PACKAGE = pathlib.Path(multibody.__file__).parent
 
-#: Import edges that still close a cycle, as ``(importer, imported)``; the graph without them has none. The
-#: list may only shrink.
-KNOWN_CYCLE_EDGES = {
-    ("multibody.constrained", "multibody.linearization"),  # ConstrainedSystem.linearize
-}
-
-
 def module_name(path):
     parts = list(path.relative_to(PACKAGE.parent).with_suffix("").parts)
     return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
@@ -126,17 +119,11 @@ def test_no_module_imports_another_modules_private_names():
 
 
 def test_no_import_cycle():
-    graph = {module: {edge for edge in edges if (module, edge) not in KNOWN_CYCLE_EDGES}
-             for module, edges in GRAPH.items()}
+    graph = GRAPH
     found = cycles(graph)
     assert not found, "import cycles:\n" + "\n".join(
         " ".join(f"{m} -> {sorted(e for e in graph[m] if e in component)};" for m in component)
         for component in found)
-
-
-def test_the_known_cycle_edges_are_still_there():
-    gone = {(a, b) for a, b in KNOWN_CYCLE_EDGES if b not in GRAPH.get(a, ())}
-    assert not gone, f"strike from KNOWN_CYCLE_EDGES: {sorted(gone)}"
 
 
 def test_the_checker_finds_private_imports_and_function_level_edges():
