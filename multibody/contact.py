@@ -15,7 +15,9 @@ contact problem, m/s).
 from __future__ import annotations
 
 import math
+import operator
 import warnings
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numba
@@ -374,25 +376,81 @@ _STATUS = {
 }
 
 
-def _entries(records, summaries, program):
-    """The :class:`Contacts` of each step of one trajectory from its ``records (n, R, 11)`` and ``summaries``: the
-    rows of all steps gathered and named at once, then split by step."""
-    counts = np.nan_to_num(summaries[:, timestepping.SUMMARY_COUNT]).astype(np.int64)
-    rows = records[np.arange(records.shape[1])[None, :] < counts[:, None]]
-    body, other = rows[:, timestepping.RECORD_BODY].astype(np.int64), rows[:, timestepping.RECORD_OTHER]
+class ContactRecord(Sequence):
+    """:attr:`Trajectory.contacts <multibody.Trajectory.contacts>` of one trajectory: a sequence of
+    :class:`~multibody.trajectory.Contacts`, entry ``k`` the contact rows of the step that ends at ``t[k]`` (entry 0
+    empty). It reads the compiled run's record (:mod:`multibody.kernels.timestepping`) and builds each entry the first
+    time it is read (then keeps it), so a run whose contacts are never read pays nothing for them.
+
+    ``records (n, R, RECORD_COLUMNS)``: each step's rows (body, other, point, normal, force), the first ``counts[k]``
+    of step ``k`` filled; ``counts (n,)`` ints; ``names``: the names that a row's codes index, the model's bodies,
+    then its joints (a limit's body), then ``"ground"`` and ``"limit"`` (a row's other); ``bodies``: how many of them
+    are bodies. Indexing, slicing (a list
+    of entries), iteration and ``==`` (against any sequence of entries, such as a list) behave as a list's."""
+
+    def __init__(self, records, counts, names, bodies):
+        self._records, self._counts, self._names, self._bodies = records, counts, names, bodies
+        self._entries = [None] * len(counts)
+        self._indices = None
+
+    def __len__(self):
+        return len(self._counts)
+
+    def __getitem__(self, k):
+        if isinstance(k, slice):
+            return [self[i] for i in range(*k.indices(len(self)))]
+        n = len(self)
+        i = operator.index(k)
+        if not -n <= i < n:
+            raise IndexError(f"contacts index {k} out of range for {n} output times")
+        i %= n
+        entry = self._entries[i]
+        if entry is None:
+            entry = self._entries[i] = self._entry(i)
+        return entry
+
+    def __eq__(self, other):
+        if not isinstance(other, Sequence) or isinstance(other, str | bytes):
+            return NotImplemented
+        return len(self) == len(other) and all(a == b for a, b in zip(self, other))
+
+    __hash__ = None
+
+    def __repr__(self):
+        return f"ContactRecord({len(self)} output times, {int(np.sum(self._counts))} contact rows)"
+
+    def _entry(self, k):
+        """The :class:`~multibody.trajectory.Contacts` of step ``k``: its rows' codes named, its arrays copied."""
+        if self._indices is None:
+            self._indices = _name_indices(self._records, self._bodies, len(self._names) - self._bodies - 2)
+        body, other = self._indices
+        c = int(self._counts[k])
+        rows = self._records[k, :c]
+        return Contacts(self._names[body[k, :c]], self._names[other[k, :c]],
+                        rows[:, timestepping.RECORD_POINT : timestepping.RECORD_POINT + 3].copy(),
+                        rows[:, timestepping.RECORD_NORMAL : timestepping.RECORD_NORMAL + 3].copy(),
+                        rows[:, timestepping.RECORD_FORCE : timestepping.RECORD_FORCE + 3].copy())
+
+
+def _name_indices(records, bodies, joints):
+    """The indices into a :class:`ContactRecord`'s names (``bodies`` body names, ``joints`` joint names, then
+    ``"ground"`` and ``"limit"``) of the body and the other of every row of ``records (..., R, RECORD_COLUMNS)``:
+    ``(..., R)`` each. A limit's body code is its joint's index and its other code
+    :data:`~multibody.kernels.timestepping.LIMIT`; a ground's other code is
+    :data:`~multibody.kernels.timestepping.GROUND`; any other code is a body's index."""
+    code, other = records[..., timestepping.RECORD_BODY], records[..., timestepping.RECORD_OTHER]
     limit = other == timestepping.LIMIT
-    # names: bodies, then joints (a limit's body), then "ground" and "limit" (a row's other)
+    body = np.where(limit, bodies + code, code).astype(np.intp)
+    other = np.where(limit, bodies + joints + 1, np.where(other == timestepping.GROUND, bodies + joints, other))
+    return body, other.astype(np.intp)
+
+
+def contact_records(records, summaries, program):
+    """The :class:`ContactRecord` of each trajectory of ``records (N, n, R, RECORD_COLUMNS)`` and ``summaries (N, n,
+    ·)`` (a list of ``N``), naming rows by ``program``'s bodies and joints."""
     names = np.array(list(program.body_names) + list(program.joint_names) + ["ground", "limit"], dtype=str)
-    nb, nj = len(program.body_names), len(program.joint_names)
-    body_names = names[np.where(limit, nb + body, body)]
-    other_names = names[np.where(limit, nb + nj + 1, np.where(other == timestepping.GROUND, nb + nj,
-                                                               other.astype(np.int64)))]
-    point = rows[:, timestepping.RECORD_POINT : timestepping.RECORD_POINT + 3]
-    normal = rows[:, timestepping.RECORD_NORMAL : timestepping.RECORD_NORMAL + 3]
-    force = rows[:, timestepping.RECORD_FORCE : timestepping.RECORD_FORCE + 3]
-    ends = np.cumsum(counts)
-    return [Contacts(body_names[a:b], other_names[a:b], point[a:b], normal[a:b], force[a:b])
-            for a, b in zip(ends - counts, ends)]
+    counts = np.nan_to_num(summaries[..., timestepping.SUMMARY_COUNT]).astype(np.int64)
+    return [ContactRecord(records[r], counts[r], names, len(program.body_names)) for r in range(len(records))]
 
 
 def separate_initial(constrained, program, q, tree):
@@ -586,7 +644,7 @@ def _trajectory(constrained, program, times, states, records, summaries, statuse
     lam = summaries[..., timestepping.SUMMARY_COLUMNS :].copy()
     complementarity_ = summaries[..., timestepping.SUMMARY_RESIDUAL].copy()
     complementarity_[..., 0] = 0.0
-    contacts = [_entries(records[r], summaries[r], program) for r in range(len(states))]
+    contacts = contact_records(records, summaries, program)
     one = batch is None
     return Trajectory(t=np.array(times, dtype=float), q=q[0] if one else q, v=v[0] if one else v,
                       lam=lam[0] if one else lam, energy=energy[0] if one else energy,

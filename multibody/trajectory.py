@@ -7,6 +7,7 @@ import os
 import uuid
 import zipfile
 import zlib
+from collections.abc import Sequence
 from dataclasses import MISSING, dataclass, field, fields, replace
 
 import numpy as np
@@ -54,9 +55,10 @@ class Trajectory:
             status names (its last good state), and is NaN from the next output time on.
         projection_tolerance: the residual above which output states were projected back onto the
             constraints (``simulate``'s ``projection_tolerance``), ``None`` when they were not.
-        contacts: with contact or joint limits (:mod:`multibody.contact`), one entry per output time (a list of
-            them per trajectory of a batch), entry ``k`` the contact rows of the step that ends at ``t[k]`` (entry 0
-            empty): a :class:`Contacts` with ``body``, ``other``, ``point``, ``normal`` and
+        contacts: with contact or joint limits (:mod:`multibody.contact`), a sequence of one entry per output time
+            (:class:`multibody.contact.ContactRecord`, which builds each entry when it is first read; from a file, a
+            list), a list of them per trajectory of a batch; entry ``k`` the contact rows of the step that ends at
+            ``t[k]`` (entry 0 empty): a :class:`Contacts` with ``body``, ``other``, ``point``, ``normal`` and
             ``force``; ``None`` otherwise.
         complementarity: with contact or joint limits, ``(n,)`` (``(N, n)``) the residual of each step's contact
             problem (non-penetration, the cone, complementarity; m/s), 0 at ``t[0]``; ``None`` otherwise.
@@ -76,7 +78,7 @@ class Trajectory:
     status: str = "completed"
     projection_tolerance: float | None = None
     joint_names: list | None = None
-    contacts: list | None = None
+    contacts: Sequence | None = None
     complementarity: np.ndarray | None = None
 
     def __len__(self):

@@ -440,6 +440,43 @@ def test_a_step_the_solver_does_not_finish_stops_the_run_before_it(box):
                                         "1e-12 m/s in 2 iterations (residual")
     assert np.isfinite(trajectory.q[0]).all() and np.isnan(trajectory.q[1:]).all()
     assert trajectory.complementarity[1] > TOLERANCE and np.isnan(trajectory.complementarity[2:]).all()
+def test_contact_record_names_rows_and_reads_as_a_list():
+    """``Trajectory.contacts`` of a run reads the compiled record: each step's first ``count`` rows, named (a body, a
+    joint for a limit, ``"ground"``, ``"limit"``), arrays copied out of the record; indexing, negative indices,
+    slices, iteration and ``==`` as a list's."""
+    from types import SimpleNamespace
+
+    from multibody.kernels import timestepping as ts
+    from multibody.trajectory import Contacts
+
+    program = SimpleNamespace(body_names=("base", "arm"), joint_names=("shoulder", "elbow"))
+    records = np.zeros((1, 3, 4, ts.RECORD_COLUMNS))
+    summaries = np.zeros((1, 3, ts.SUMMARY_COLUMNS))
+    # step 1: the elbow's limit (a joint index and LIMIT), the arm on the ground; step 2: the arm on the base
+    records[0, 1, 0, [ts.RECORD_BODY, ts.RECORD_OTHER, ts.RECORD_FORCE]] = 1, ts.LIMIT, -2.5
+    records[0, 1, 1, : ts.RECORD_FORCE] = 1, ts.GROUND, 0.1, 0.2, 0.0, 0, 0, 1
+    records[0, 1, 1, ts.RECORD_FORCE :] = 0.5, 0.0, 9.0
+    records[0, 2, 0] = [1, 0, 1, 2, 3, 0, 0, -1, 0, 0, -4]
+    records[0, 2, 1] = 7.0  # a row past the step's count: not read
+    summaries[0, :, ts.SUMMARY_COUNT] = 0, 2, 1
+    (record,) = contact.contact_records(records, summaries, program)
+    expected = [Contacts(np.zeros(0, str), np.zeros(0, str), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3))),
+                Contacts(np.array(["elbow", "arm"]), np.array(["limit", "ground"]), np.array([[0, 0, 0], [0.1, 0.2, 0]]),
+                         np.array([[0, 0, 0], [0, 0, 1.0]]), np.array([[-2.5, 0, 0], [0.5, 0, 9]])),
+                Contacts(np.array(["arm"]), np.array(["base"]), np.array([[1.0, 2, 3]]), np.array([[0, 0, -1.0]]),
+                         np.array([[0, 0, -4.0]]))]
+    assert len(record) == 3 and [len(entry) for entry in record] == [0, 2, 1]
+    assert record == expected and expected == record and list(record) == expected
+    assert record[-1] is record[2] and record[1:] == expected[1:] and record[::-1] == expected[::-1]
+    assert record != expected[:2] and record != expected[:2] + expected[:1]
+    record[2].force[0, 2] = 0.0  # an entry's arrays are its own
+    assert records[0, 2, 0, ts.RECORD_FORCE + 2] == -4.0
+    with pytest.raises(IndexError, match="contacts index 3 out of range for 3 output times"):
+        record[3]
+    with pytest.raises(TypeError):
+        record["1"]
+
+
 @pytest.mark.parametrize("capacity", [1, 4, 10**6])
 def test_records_widen_when_a_step_has_more_rows(box, monkeypatch, capacity):
     """Each output step's record starts at ``contact.RECORD_CAPACITY`` rows; a step with more contacts widens the
