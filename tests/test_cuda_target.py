@@ -92,9 +92,9 @@ PTX = textwrap.dedent(r"""
                 ts.contact_rows(joints, reals, pose, geometry, contacts[k], J, 3 * k, J6)
                 vectors[1, k] = ts.lower_bound(contacts[k, ts.C_GAP], 1e-3, vectors[2, k], vectors[3, k], 0.5)
             ts.warm_start(plan, J, contacts, found, 0, 0, vectors[4], 0, previous, vectors[5], 1e-3, vectors[6])
-            ts.separate(joints, plan, W, Y, vectors[7], vectors[8], found, vectors[9], vectors[10], vectors[11],
-                        vectors[12], blocks[0], blocks[1], vectors[13], q.shape[0], J.shape[1], q, vectors[14],
-                        vectors[15])
+            ts.separate(joints, plan, W, blocks[2], Y, vectors[7], vectors[8], found, vectors[16], vectors[9],
+                        vectors[10], vectors[11], vectors[12], blocks[0], blocks[1], vectors[13], q.shape[0], J.shape[1],
+                        q, vectors[14], vectors[15])
 
     lower("the contact step's parts", step_parts, (ints, rows, vector, rows, rows, rows, rows, rows, rows, vector, rows,
                                                    vector, rows, rows, rows, rows, rows, rows, ints, vector))

@@ -122,10 +122,10 @@ def factor_ltl(H, parent):
 
 
 @njit(cache=True, error_model="numpy")
-def solve_ltl(L, parent, X):
-    """``X ← H⁻¹ X`` for ``X (nv, k)`` from the factor of :func:`factor_ltl` (RBDA §6.5): ``Lᵀ Y = X``
-    from the leaves to the root, then ``L X = Y`` from the root to the leaves, one row operation per
-    non-zero of ``L``."""
+def solve_lt(L, parent, X):
+    """``X ← L⁻ᵀ X`` for ``X (nv, k)`` from the factor of :func:`factor_ltl` (RBDA §6.5, the first half of
+    :func:`solve_ltl`): ``Lᵀ Y = X`` from the leaves to the root, one row operation per non-zero of ``L``. A
+    column that is zero outside the support of a body (a contact's Jacobian row) stays zero outside it."""
     n, columns = X.shape[0], X.shape[1]
     for k in range(n - 1, -1, -1):
         # y_k = x_k / L_kk ;  x_i −= L_ki y_k for the ancestors i of k
@@ -138,6 +138,13 @@ def solve_ltl(L, parent, X):
             for c in range(columns):
                 X[i, c] -= factor * X[k, c]
             i = parent[i]
+
+
+@njit(cache=True, error_model="numpy")
+def solve_l(L, parent, X):
+    """``X ← L⁻¹ X`` for ``X (nv, k)`` from the factor of :func:`factor_ltl` (RBDA §6.5, the second half of
+    :func:`solve_ltl`): ``L X = Y`` from the root to the leaves, one row operation per non-zero of ``L``."""
+    n, columns = X.shape[0], X.shape[1]
     for k in range(n):
         # x_k = (y_k − Σ_{j ancestor of k} L_kj x_j) / L_kk
         j = parent[k]
@@ -149,6 +156,14 @@ def solve_ltl(L, parent, X):
         pivot = L[k, k]
         for c in range(columns):
             X[k, c] /= pivot
+
+
+@njit(cache=True, error_model="numpy")
+def solve_ltl(L, parent, X):
+    """``X ← H⁻¹ X`` for ``X (nv, k)`` from the factor of :func:`factor_ltl` (RBDA §6.5): ``H⁻¹ = L⁻¹ L⁻ᵀ``,
+    :func:`solve_lt` then :func:`solve_l`."""
+    solve_lt(L, parent, X)
+    solve_l(L, parent, X)
 
 
 @njit(cache=True, error_model="numpy")

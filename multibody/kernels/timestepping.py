@@ -54,6 +54,8 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+
 from ..tree import FRAME_JOINT, FRAME_POSITION, IQ, IV, KIND, NV
 from . import collision, complementarity, configuration, crba, kinematics, kkt, rnea, stepping
 from . import joints as kinds
@@ -141,7 +143,7 @@ def workspace_size(nj, nq, nv, nframes, bilateral, limits, contacts, solver_work
     """Floats of workspace of a run's step."""
     m = max_rows(bilateral, limits, contacts)
     kinematic, passes = pass_workspaces(nj, nv)
-    return (2 * nv * nv + 7 * nv + 2 * nq + kinematic + passes + kkt.projection_columns(nq, nv) + projection_workspace
+    return (2 * nv * nv + 8 * nv + 2 * nq + kinematic + passes + kkt.projection_columns(nq, nv) + projection_workspace
             + nframes * kinematics.motion_columns(nv) + bilateral * nv + 2 * bilateral
             + collision.MAX_PAIR_CONTACTS * collision.CONTACT_COLUMNS + collision.PAIR_WORKSPACE + 9 + 9 + 3 * 3
             + 6 * nv + contacts * CONTACT_DATA + 3 * m * nv + m * m + 12 * m + solver_workspace)
@@ -332,36 +334,65 @@ def lower_bound(gap, dt, u_start, u_free, e):
 # ----------------------------------------------------------------------------- one step
 
 @njit(cache=True, error_model="numpy")
-def metric_rows(L, J, W, Y, m, nv):
-    """``W_i = L⁻¹ J_iᵀ`` and ``Y_i = M⁻¹ J_iᵀ = L⁻ᵀ W_i`` for the first ``m`` rows of ``J`` (``M = L Lᵀ``)."""
+def metric_rows(L, parent, J, W):
+    """``W = L⁻ᵀ Jᵀ (nv, m)`` of the first ``m`` rows of ``J`` for ``M = Lᵀ L`` (:func:`multibody.kernels.crba.factor_ltl`,
+    ``parent`` of :func:`~multibody.kernels.crba.coordinate_parents`), so that ``J M⁻¹ Jᵀ = Wᵀ W`` and
+    ``M⁻¹ Jᵀ x = L⁻¹ W x``. A contact's row is zero outside the support of its bodies, and so is its column of ``W``
+    (``Lᵀ`` has the tree's sparsity, RBDA §6.5)."""
+    nv, m = W.shape[0], W.shape[1]
     for i in range(m):
         for c in range(nv):
-            W[i, c] = J[i, c]
-        kkt.forward_substitution(L, nv, W[i])
-        for c in range(nv):
-            Y[i, c] = W[i, c]
-        kkt.back_substitution(L, nv, Y[i])
+            W[c, i] = J[i, c]
+    # W = L⁻ᵀ Jᵀ
+    crba.solve_lt(L, parent, W)
 
 
 @njit(cache=True, error_model="numpy")
-def delassus(W, rows, m, G):
-    """``G = W Wᵀ (m, m)`` of the rows ``rows[:m]`` of ``W``: the Delassus matrix ``J M⁻¹ Jᵀ``."""
+def delassus(W, G):
+    """``G = Wᵀ W (m, m)`` of ``W (nv, m)`` (:func:`metric_rows`): the Delassus matrix ``J M⁻¹ Jᵀ``, exactly
+    symmetric. Summed over the coordinates in turn, skipping the zero entries of ``W`` (a contact's column is zero
+    outside its bodies' support)."""
+    nv, m = W.shape[0], W.shape[1]
     for i in range(m):
         for k in range(i + 1):
-            s = kkt.row_dot(W, int(rows[i]), int(rows[k]), W.shape[1])
-            G[i, k] = s
-            G[k, i] = s
+            G[i, k] = 0.0
+    for c in range(nv):
+        for i in range(m):
+            a = W[c, i]
+            if a != 0.0:
+                # G_ik += W_ci W_ck  (k ≤ i)
+                for k in range(i + 1):
+                    G[i, k] += a * W[c, k]
+    for i in range(m):
+        for k in range(i):
+            G[k, i] = G[i, k]
 
 
 @njit(cache=True, error_model="numpy")
-def separate(joints, plan, W, Y, gaps, normal_rows, count, G, x, u, mu, kinds_, starts, sws, nq, nv, q, dq, moved):
+def metric_motion(L, parent, W, x, out):
+    """``out = M⁻¹ Jᵀ x = L⁻¹ W x (nv,)`` for the impulses ``x (m,)`` of the rows of ``W (nv, m)``
+    (:func:`metric_rows`)."""
+    nv, m = W.shape[0], W.shape[1]
+    for c in range(nv):
+        s = 0.0
+        for i in range(m):
+            s += W[c, i] * x[i]
+        out[c] = s
+    # L⁻¹ (W x)
+    crba.solve_l(L, parent, out.reshape((nv, 1)))
+
+
+@njit(cache=True, error_model="numpy")
+def separate(joints, plan, L, parent, W, gaps, normal_rows, count, Wn, G, x, u, mu, kinds_, starts, sws, nq, nv, q, dq,
+             moved):
     """The position correction of the rows (contact normals, joint limits) ``normal_rows[:count]`` of a step whose
     first-order gaps at its end, ``gaps[:count]`` (m or rad), go below ``−plan[PLAN_PENETRATION]``: the smallest move
     ``w`` in the metric of ``M`` with ``Jₙ w ≥ −g`` on all of them (the frictionless problem ``0 ≤ P ⊥ Gₙ P + g ≥ 0``
     with ``Gₙ = Jₙ M⁻¹ Jₙᵀ``, ``w = M⁻¹ Jₙᵀ P``; the rows still open keep ``g + Jₙ w ≥ 0``), then ``q ← q ⊕ w``. The
     velocities are left alone, so penetration is removed without adding energy: a post-stabilization of the
     positions (E. Hairer, C. Lubich and G. Wanner, *Geometric Numerical Integration*, §IV.4's projection, here
-    onto the unilateral set; Acary & Brogliato §10.3). ``W``, ``Y``: the rows of :func:`metric_rows`. Returns the
+    onto the unilateral set; Acary & Brogliato §10.3). ``L``, ``parent``, ``W``: the factor of ``M`` and the rows of
+    :func:`metric_rows`; ``Wn (nv · count,)`` scratch for the columns of ``W`` of the rows corrected. Returns the
     deepest end gap corrected (m or rad, ≤ 0), 0 when nothing penetrates."""
     deepest = 0.0
     for i in range(count):
@@ -369,9 +400,13 @@ def separate(joints, plan, W, Y, gaps, normal_rows, count, G, x, u, mu, kinds_, 
             deepest = gaps[i]
     if deepest >= -plan[PLAN_PENETRATION]:
         return 0.0
-    # Gₙ = Wₙ Wₙᵀ ;  0 ≤ P ⊥ Gₙ P + g ≥ 0
+    # Gₙ = Wₙᵀ Wₙ ;  0 ≤ P ⊥ Gₙ P + g ≥ 0
+    Wn = Wn[: nv * count].reshape((nv, count))
+    for i in range(count):
+        for c in range(nv):
+            Wn[c, i] = W[c, int(normal_rows[i])]
     Gn = G[: count * count].reshape((count, count))
-    delassus(W, normal_rows, count, Gn)
+    delassus(Wn, Gn)
     for i in range(count):
         x[i] = 0.0
         kinds_[i] = complementarity.UNILATERAL
@@ -380,11 +415,7 @@ def separate(joints, plan, W, Y, gaps, normal_rows, count, G, x, u, mu, kinds_, 
     complementarity.solve(Gn, gaps[:count], kinds_[:count], starts[:count], mu[:count], plan[PLAN_TOLERANCE],
                           int(plan[PLAN_MAX_ITERATIONS]), x[:count], u[:count], sws)
     # w = M⁻¹ Jₙᵀ P ;  q ← q ⊕ w
-    for col in range(nv):
-        s = 0.0
-        for i in range(count):
-            s += Y[int(normal_rows[i]), col] * x[i]
-        dq[col] = s
+    metric_motion(L, parent, Wn, x, dq)
     for i in range(joints.shape[0]):
         kinds.integrate(joints[i, KIND], joints[i, NV], q, dq, joints[i, IQ], joints[i, IV], moved)
     for col in range(nq):
@@ -457,6 +488,8 @@ def step(controller, joints, reals, frames, program, geometry, vertices, plan, c
     at = 0
     L = ws[at : at + nv * nv].reshape((nv, nv))
     at += nv * nv
+    parent = ws[at : at + nv].view(np.int64)
+    at += nv
     h = ws[at : at + nv].reshape((1, nv))
     at += nv
     tau = ws[at : at + nv]
@@ -513,9 +546,9 @@ def step(controller, joints, reals, frames, program, geometry, vertices, plan, c
     at += n_contacts * CONTACT_DATA
     J = ws[at : at + m_max * nv].reshape((m_max, nv))
     at += m_max * nv
-    W = ws[at : at + m_max * nv].reshape((m_max, nv))
+    W_space = ws[at : at + m_max * nv]
     at += m_max * nv
-    Y = ws[at : at + m_max * nv].reshape((m_max, nv))
+    Wn_space = ws[at : at + m_max * nv]
     at += m_max * nv
     G_space = ws[at : at + m_max * m_max]
     at += m_max * m_max
@@ -547,16 +580,18 @@ def step(controller, joints, reals, frames, program, geometry, vertices, plan, c
         for col in range(nv):
             tau[col] -= damping[col] * v[col]
 
-    # M = L Lᵀ and h at (q_k, v_k); v* = v_k + dt (M⁻¹ (τ − h) + κ(v_k)): the free velocity in the parent-aligned
-    # axes of the chart at q_k, w* = T w_k + dt T (a + κ), written in the joints' axes at q_k
+    # M = Lᵀ L (the tree's sparse factor, RBDA §6.5) and h at (q_k, v_k); v* = v_k + dt (M⁻¹ (τ − h) + κ(v_k)): the
+    # free velocity in the parent-aligned axes of the chart at q_k, w* = T w_k + dt T (a + κ), written in the joints'
+    # axes at q_k
     crba.mass_matrix(joints, reals, frames, q, none, none, none, L, passes)
     rnea.inverse_dynamics(joints, reals, frames, q, v, none, none, h, passes)
-    if not kkt.cholesky(L, nv):
+    crba.coordinate_parents(joints, parent)
+    if not crba.factor_ltl(L, parent):
         return NOT_POSITIVE_DEFINITE
     configuration.velocity_coupling(joints, reals, frames, v, none, none, none, kappa, none)
     for col in range(nv):
         v_free[col] = tau[col] - h[0, col]
-    kkt.cholesky_solve(L, nv, v_free)
+    crba.solve_ltl(L, parent, v_free.reshape((nv, 1)))
     for col in range(nv):
         v_free[col] = v[col] + dt * (v_free[col] + kappa[0, col])
 
@@ -632,21 +667,19 @@ def step(controller, joints, reals, frames, program, geometry, vertices, plan, c
             m += 1
         nb += 1
 
-    # G = J M⁻¹ Jᵀ, c = J v* − ℓ ; the impulses P of u = G P + c ; v⁺ = v* + M⁻¹ Jᵀ P
+    # G = J M⁻¹ Jᵀ = Wᵀ W, c = J v* − ℓ ; the impulses P of u = G P + c ; v⁺ = v* + M⁻¹ Jᵀ P = v* + L⁻¹ W P
     for col in range(nv):
         v_next[col] = v_free[col]
     for i in range(m):
         x[i] = 0.0
     warm_start(plan, J, contacts, found, limit_rows, first_limit, rows, mb, previous, previous_summary, dt, x)
+    W = W_space[: nv * m].reshape((nv, m))
     if m > 0:
-        metric_rows(L, J, W, Y, m, nv)
+        metric_rows(L, parent, J, W)
     if m > 0 and dt > 0.0:
         G = G_space[: m * m].reshape((m, m))
+        delassus(W, G)
         for i in range(m):
-            for k in range(i + 1):
-                s = kkt.row_dot(W, i, k, nv)
-                G[i, k] = s
-                G[k, i] = s
             c[i] = row_dot(J, i, v_free) - bound[i]
         status, used, residual = complementarity.solve(G, c[:m], block_kinds[:nb], block_starts[:nb], mu[:nb],
                                                        tolerance, iterations, x[:m], u[:m], sws)
@@ -660,11 +693,9 @@ def step(controller, joints, reals, frames, program, geometry, vertices, plan, c
         summary[SUMMARY_RESIDUAL] = residual
         summary[SUMMARY_ITERATIONS] = used
         summary[SUMMARY_STATUS] = status
+        metric_motion(L, parent, W, x[:m], w)
         for col in range(nv):
-            s = v_free[col]
-            for i in range(m):
-                s += Y[i, col] * x[i]
-            v_next[col] = s
+            v_next[col] = v_free[col] + w[col]
 
     # the rows near closing at the step's end, and their gaps there to first order, g + dt u⁺ₙ
     count = 0
@@ -694,8 +725,9 @@ def step(controller, joints, reals, frames, program, geometry, vertices, plan, c
         v_next[col] = s
 
     # penetration at the step's end (to first order: g + dt u⁺ₙ) removed by moving the positions alone
-    summary[SUMMARY_SEPARATION] = separate(joints, plan, W, Y, sep_gap, sep_rows, count, G_space, sep_x, sep_u,
-                                           sep_mu, block_kinds, block_starts, sws, nq, nv, q_next, dq, moved)
+    summary[SUMMARY_SEPARATION] = separate(joints, plan, L, parent, W, sep_gap, sep_rows, count, Wn_space, G_space,
+                                           sep_x, sep_u, sep_mu, block_kinds, block_starts, sws, nq, nv, q_next, dq,
+                                           moved)
 
     # the step's end projected onto the bilateral rows, φ = 0 and A v = 0 (the projection of the fixed-step runs,
     # multibody.kernels.kkt.project: the smallest moves in the metric of M, which take no energy from the rows' rates
