@@ -802,3 +802,66 @@ def run(controller, joints, reals, frames, program, geometry, vertices, plan, co
             return
         k += 1
     io[IO_STEP], io[IO_STATUS] = k, COMPLETED
+
+
+# ----------------------------------------------------------------------------- the initial state
+
+def gap_workspace_size(nj, nv, contacts):
+    """Floats of workspace of :func:`deepest_gap` on a tree of ``nj`` joints and ``nv`` velocities whose plan has
+    at most ``contacts`` contact points (:func:`max_contacts`)."""
+    return (nv + kinematics.workspace_size(nj, nv) + contacts * CONTACT_DATA
+            + collision.MAX_PAIR_CONTACTS * collision.CONTACT_COLUMNS + collision.PAIR_WORKSPACE + 9 + 9 + 3 * 3)
+
+
+@njit(cache=True, error_model="numpy")
+def deepest_gap(joints, reals, geometry, vertices, plan, q, ws):
+    """The smallest gap (m, or rad to a joint limit) of configuration ``q (nq,)`` over the plan's contacts within its
+    margin (:func:`detect` at rest) and its limited coordinates, or the margin when none is closer: the depth of the
+    deepest penetration when negative. A step of zero length from ``q`` at rest moves ``q`` (:func:`separate`) exactly
+    when this is below ``−plan[PLAN_PENETRATION]``. ``ws``: :func:`gap_workspace_size` floats."""
+    nj, nv = joints.shape[0], int(plan[PLAN_NV])
+    n_contacts = max_contacts(int(plan[PLAN_GROUNDS]), int(plan[PLAN_PAIRS]))
+    margin = plan[PLAN_MARGIN]
+    at = 0
+    v = ws[at : at + nv]
+    at += nv
+    kinematic_size = int(plan[PLAN_KINEMATICS_WORKSPACE])
+    kin = ws[at : at + kinematic_size]
+    at += kinematic_size
+    contacts = ws[at : at + n_contacts * CONTACT_DATA].reshape((n_contacts, CONTACT_DATA))
+    at += n_contacts * CONTACT_DATA
+    out = ws[at : at + collision.MAX_PAIR_CONTACTS * collision.CONTACT_COLUMNS].reshape(
+        (collision.MAX_PAIR_CONTACTS, collision.CONTACT_COLUMNS))
+    at += collision.MAX_PAIR_CONTACTS * collision.CONTACT_COLUMNS
+    cws = ws[at : at + collision.PAIR_WORKSPACE]
+    at += collision.PAIR_WORKSPACE
+    R_a = ws[at : at + 9].reshape((3, 3))
+    R_b = ws[at + 9 : at + 18].reshape((3, 3))
+    p_a = ws[at + 18 : at + 21]
+    p_b = ws[at + 21 : at + 24]
+    normal = ws[at + 24 : at + 27]
+    deepest = margin
+    start = int(plan[PLAN_LIMIT_START])
+    for k in range(int(plan[PLAN_LIMITS])):
+        item = plan[start + k * LIMIT_COLUMNS : start + (k + 1) * LIMIT_COLUMNS]
+        iq = int(item[LIMIT_IQ])
+        # the gaps q − lower and upper − q (as the step's limit rows)
+        if q[iq] - item[LIMIT_LOWER] < deepest:
+            deepest = q[iq] - item[LIMIT_LOWER]
+        if item[LIMIT_UPPER] - q[iq] < deepest:
+            deepest = item[LIMIT_UPPER] - q[iq]
+    for col in range(nv):
+        v[col] = 0.0
+    pose, vel, _ = kinematics.joint_motions(joints, reals, q, v, kin, None)
+    found = detect(plan, geometry, vertices, pose, vel, 0.0, contacts, out, cws, R_a, p_a, R_b, p_b, normal)
+    for k in range(found):
+        if contacts[k, C_GAP] < deepest:
+            deepest = contacts[k, C_GAP]
+    return deepest
+
+
+@njit(cache=True, error_model="numpy")
+def deepest_gaps(joints, reals, geometry, vertices, plan, q, out, ws):
+    """:func:`deepest_gap` of each configuration of ``q (N, nq)`` into ``out (N,)``."""
+    for r in range(q.shape[0]):
+        out[r] = deepest_gap(joints, reals, geometry, vertices, plan, q[r], ws)
