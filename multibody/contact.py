@@ -363,8 +363,12 @@ def _trajectories(run, controller, joints, reals, frames, program, geometry, ver
                 control[r if control.shape[0] > 1 else 0], times, states[r], records[r], summaries[r], io[r], ws, iws)
 
 
+_GAPS_TYPES = (_TREE_INTS, _TREE_FLOATS, types.float64[:, ::1], types.float64[:, ::1], types.float64[::1],
+               types.float64[:, ::1], types.float64[::1], types.float64[::1])
+
 #: The compiled run's functions that Python calls or passes as first-class functions (``multibody compile``).
-ENTRY_POINTS = ((timestepping.run, _RUN_TYPES), (_trajectories, _TRAJECTORIES_TYPES))
+ENTRY_POINTS = ((timestepping.run, _RUN_TYPES), (_trajectories, _TRAJECTORIES_TYPES),
+                (timestepping.deepest_gaps, _GAPS_TYPES))
 
 #: Messages of a run's status (:mod:`multibody.kernels.timestepping`).
 _STATUS = {
@@ -478,6 +482,18 @@ def separate_initial(constrained, program, q, tree):
     return q, deepest
 
 
+def initial_gaps(program, tree, q):
+    """The deepest gap (m, or rad to a joint limit; at most the margin) of each configuration of ``q (N, nq)``
+    (:func:`multibody.kernels.timestepping.deepest_gap`): ``(N,)``, negative where it penetrates."""
+    gaps = np.empty(len(q))
+    size = timestepping.gap_workspace_size(tree.njoints, tree.nv, timestepping.max_contacts(
+        int(program.plan[timestepping.PLAN_GROUNDS]), int(program.plan[timestepping.PLAN_PAIRS])))
+    driver.entry_point(timestepping.deepest_gaps, _GAPS_TYPES)(
+        tree.joints, tree.reals, program.geometry, program.vertices, program.plan, np.ascontiguousarray(q), gaps,
+        np.empty(size))
+    return gaps
+
+
 def _call_run(program, tree, kind, control, controller, times, states, records, summaries, io):
     """One trajectory's steps ``io[IO_STEP]`` up to ``io[IO_STOP]`` by :func:`multibody.kernels.timestepping.run`."""
     plan = program.plan.copy()
@@ -531,10 +547,12 @@ def run(constrained, q, v, times, controller, torque, batch, damping=None, toler
     tree = model.tree
     count = len(q)
     q, v = model.normalize(np.array(q, dtype=float)), np.array(v, dtype=float)
-    # an initial state in penetration, projected out (and onto the bilateral constraints)
-    for r in range(count):
-        if constrained.num_rows:
+    # an initial state in penetration, projected out (and onto the bilateral constraints); the zero-length steps of
+    # separate_initial only for the states whose gaps show a penetration it would remove
+    if constrained.num_rows:
+        for r in range(count):
             q[r], v[r] = constrained.project(q[r], v[r], times[0])
+    for r in np.flatnonzero(initial_gaps(program, tree, q) < -program.plan[timestepping.PLAN_PENETRATION]):
         q[r], depth = separate_initial(constrained, program, q[r], tree)
         if depth > 0.0:
             where = "" if batch is None else f" (trajectory {r})"

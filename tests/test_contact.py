@@ -313,6 +313,35 @@ def test_initial_penetration_is_projected_out(ball):
     assert np.abs(trajectory.v).max() <= 1e-9
 
 
+def test_zero_length_step_only_for_a_penetrating_initial_state(ball, monkeypatch):
+    """The initial states' gaps come from one compiled detection call (the deepest gap, m; at most the margin): the
+    zero-length step that projects a state out of penetration runs for the penetrating states of a batch alone,
+    with the warning naming each; a state at rest on the ground or above it starts as given."""
+    system = mb.ConstrainedSystem(ball, [mb.Ground()])
+    program = contact.contact_program(system)
+    q0 = np.array([[0, 0, z, 0, 0, 0, 1] for z in (0.1, 0.1005, 0.5, 0.09, 0.1 - 1e-11)])
+    gaps = contact.initial_gaps(program, ball.tree, q0)
+    np.testing.assert_allclose(gaps, [0.0, 5e-4, contact.MARGIN, -0.01, -1e-11], rtol=0, atol=1e-15)
+    separated = []
+    original = contact.separate_initial
+
+    def counted(constrained, program, q, tree):
+        separated.append(q.copy())
+        return original(constrained, program, q, tree)
+
+    monkeypatch.setattr(contact, "separate_initial", counted)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        resting = mb.simulate(system, q0[:3], np.zeros(6), 0.01, dt=DT)
+    assert separated == [] and np.array_equal(resting.q[:, 0], q0[:3])
+    with pytest.warns(UserWarning, match=r"the initial state \(trajectory 1\) penetrates by 0\.01 ") as caught:
+        batch = mb.simulate(system, q0[2:], np.zeros(6), 0.01, dt=DT)
+    assert len(caught) == 1 and len(separated) == 1 and np.array_equal(separated[0], q0[3])
+    np.testing.assert_allclose(batch.q[1, 0, 2], 0.1, atol=1e-12)
+    # (a gap of −1e-11 m is within the position correction's PENETRATION: left alone, as by the step itself)
+    assert np.array_equal(batch.q[[0, 2], 0], q0[[2, 4]])
+
+
 def test_save_and_load_keep_contacts(ball, tmp_path):
     system = mb.ConstrainedSystem(ball, [mb.Ground(restitution=0.5)])
     trajectory = mb.simulate(system, [0, 0, 0.3, 0, 0, 0, 1], np.zeros(6), 0.5, dt=DT)
