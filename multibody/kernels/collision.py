@@ -19,9 +19,11 @@ compiles for CUDA too (:mod:`multibody.gpu`): loops, scalars and tuples, no allo
 Sources: C. Ericson, *Real-Time Collision Detection*, Morgan Kaufmann 2005 (RTCD) for the primitive
 tests, the closest points, the separating-axis test of boxes and the polygon clipping;
 E. G. Gilbert, D. W. Johnson, S. S. Keerthi, "A fast procedure for computing the distance between
-complex objects in three-dimensional space", IEEE J. Robotics and Automation 4(2), 1988 (GJK), and
+complex objects in three-dimensional space", IEEE J. Robotics and Automation 4(2), 1988 (GJK);
 G. van den Bergen, *Collision Detection in Interactive 3D Environments*, Morgan Kaufmann 2003, §4.3
-(the GJK loop and its termination) and §4.3.8 (the expanding polytope algorithm, EPA).
+(the GJK loop and its termination) and §4.3.8 (the expanding polytope algorithm, EPA); and
+D. Gregorius, "Robust Contact Creation for Physics Simulations", GDC 2015, for the reference-face clipping
+and the reduction of a manifold to the points spanning the largest area.
 """
 
 from __future__ import annotations
@@ -33,11 +35,13 @@ from .spatial import (
     add3,
     cross,
     dot3,
+    larger,
     load3,
     rotate,
     rotate_back,
     row3,
     scale3,
+    smaller,
     store_row,
     sub3,
 )
@@ -53,8 +57,15 @@ SIMPLEX_SIZE = 4
 EPA_VERTICES = 64
 EPA_FACES = 128
 EPA_EDGES = 128
-#: Most vertices of a clipped face polygon (a quadrilateral clipped by four planes has at most 8).
-CLIP_VERTICES = 16
+#: Support features of the GJK/EPA pairs (:func:`clip_manifold`): most vertices of one shape's feature polygon (its
+#: extreme points along as many directions evenly spread in the contact plane), and the angle (rad, as its sine) within
+#: which a face, an edge or a cap counts as perpendicular to the contact normal.
+FEATURE_VERTICES = 16
+FEATURE_ANGLE = 1e-4
+#: Most points of a clipped manifold: the deepest, and three more spanning the largest area.
+MANIFOLD_POINTS = 4
+#: Most vertices of a clipped polygon (a polygon of m vertices clipped by k planes has at most m + k).
+CLIP_VERTICES = 2 * FEATURE_VERTICES
 #: Workspace layout: per simplex/polytope vertex ``[w, a, b]`` (9), per face ``[i, j, k, n, d, state]`` (8; state
 #: 0 removed, 1 live, 2 live and already tested in this expansion), a stack of faces to visit.
 WS_SIMPLEX = 0
@@ -66,8 +77,11 @@ WS_EPA_STACK = WS_EPA_EDGES + 2 * EPA_EDGES
 WS_CLIP = WS_EPA_STACK + EPA_FACES
 WS_SELECT = WS_CLIP + 2 * 3 * CLIP_VERTICES
 WS_PLANE = WS_SELECT + MAX_PAIR_CONTACTS
+#: The two support features' polygons (``FEATURE_VERTICES`` points each) of :func:`clip_manifold`.
+WS_FEATURE_A = WS_PLANE + 3
+WS_FEATURE_B = WS_FEATURE_A + 3 * FEATURE_VERTICES
 #: Size of ``ws`` (float64 entries) for :func:`halfspace_contacts` and :func:`pair_contacts`.
-PAIR_WORKSPACE = WS_PLANE + 3
+PAIR_WORKSPACE = WS_FEATURE_B + 3 * FEATURE_VERTICES
 
 #: GJK/EPA outcomes.
 SEPARATED, DISTANCE, OVERLAP, DEGENERATE = 0, 1, 2, 3
@@ -858,6 +872,18 @@ def gjk(shape_a, size_a, vertices_a, R_a, p_a, shape_b, size_b, vertices_b, R_b,
     v = sub3(x_a, x_b)
     if dot3(v, v) <= tiny:
         return OVERLAP, v, x_a, x_b, m
+    if m == 3:
+        # the nearest point inside a triangle w₀w₁w₂ of A − B: v = (u·w₀) u with u the triangle's unit normal, whose
+        # cross product of long edges keeps its direction to rounding, where v = x_a − x_b, a difference of nearly
+        # equal points, keeps only |v|'s digits (a face over a face or a vertex a little apart)
+        w0 = load3(ws, WS_SIMPLEX)
+        e1 = sub3(load3(ws, WS_SIMPLEX + 9), w0)
+        e2 = sub3(load3(ws, WS_SIMPLEX + 18), w0)
+        u = cross(e1, e2)
+        length = norm3(u)
+        if length > PARALLEL * norm3(e1) * norm3(e2):
+            u = scale3(1.0 / length, u)
+            v = scale3(dot3(u, w0), u)
     return DISTANCE, v, x_a, x_b, m
 
 
@@ -1243,7 +1269,9 @@ def box_face_manifold(size_a, vertices_a, R_a, p_a, shape_b, size_b, vertices_b,
     b is taken against that face's plane, the half-space ``m·x ≥ m·p_a + h_k`` with ``m = −N``
     (:func:`halfspace_contacts`: a cylinder standing on the face gives its rim points, a hull its vertices),
     keeping the points over the face (``|e_i·(x − p_a)| ≤ h_i`` on its two side axes), each moved to the
-    midpoint ``x − (gap/2) m`` of its two witnesses; if none is over the face, the GJK/EPA contact."""
+    midpoint ``x − (gap/2) m`` of its two witnesses; if none is over the face, the GJK/EPA contact. Where ``N`` is
+    no face normal of the box (an edge or a corner of the box on b), the clipped manifold of the two support
+    features (:func:`clip_manifold`)."""
     single = convex_contact(BOX, size_a, vertices_a, R_a, p_a, shape_b, size_b, vertices_b, R_b, p_b, margin, out,
                             count, ws)
     if single == count:
@@ -1255,7 +1283,8 @@ def box_face_manifold(size_a, vertices_a, R_a, p_a, shape_b, size_b, vertices_b,
         if abs(dot3(normal, axis_of(Ra, k))) >= 1.0 - PARALLEL:
             face = k
     if face < 0:
-        return single
+        return clip_manifold(BOX, size_a, vertices_a, R_a, p_a, shape_b, size_b, vertices_b, R_b, p_b, margin, out,
+                             count, single, ws)
     first = row3(out, count, 0) + row3(out, count, 3) + (out[count, 6],)
     m = scale3(-1.0, normal)
     pa = load3(p_a, 0)
@@ -1280,6 +1309,322 @@ def box_face_manifold(size_a, vertices_a, R_a, p_a, shape_b, size_b, vertices_b,
         return kept
     store_row(out, count, 0, first)
     return count + 1
+
+
+# ---------------------------------------------------------------------------------------------------------------------
+# contact manifolds of the GJK/EPA pairs: support features clipped against each other
+
+
+@njit(cache=True, error_model="numpy")
+def feature_point(shape, size, vertices, R, p, d, t, top, band):
+    """The point of a shape's support feature along the unit world direction ``d`` that lies farthest along the
+    world direction ``t`` (perpendicular to ``d``), in world coordinates, on the whole (rounded) shape.
+
+    The support feature is the set of the shape's points farthest along ``d``, where a face or an edge within
+    ``FEATURE_ANGLE`` of perpendicular to ``d`` counts as perpendicular: in the geometry frame, with ``d' = Rᵀ d``
+    and ``t' = Rᵀ t``, box ``(sign(d'ᵢ or t'ᵢ) hᵢ)``, ``t'ᵢ`` where ``|d'ᵢ| ≤ FEATURE_ANGLE`` (a face, an edge or a
+    corner); capsule ``(0, 0, sign(d'_z or t'_z) h) + r d`` (its side line or an end); cylinder: its cap disc
+    ``(r t'_⊥/|t'_⊥|, sign(d'_z) h)`` where ``|d'_⊥| ≤ FEATURE_ANGLE``, else ``(r d'_⊥/|d'_⊥|, sign(d'_z or t'_z) h)``
+    (its side line or a rim point); hull: of its vertices ``v`` with ``d'·v ≥ top − band`` (``top = max_v d'·v``,
+    ``band`` in m), the one with the largest ``t'·v``; sphere: ``p + r d``."""
+    dl = rotate_back(R, d)
+    tl = rotate_back(R, t)
+    if shape == BOX:
+        local = (math.copysign(size[0], dl[0] if abs(dl[0]) > FEATURE_ANGLE else tl[0]),
+                 math.copysign(size[1], dl[1] if abs(dl[1]) > FEATURE_ANGLE else tl[1]),
+                 math.copysign(size[2], dl[2] if abs(dl[2]) > FEATURE_ANGLE else tl[2]))
+    elif shape == CAPSULE:
+        local = (0.0, 0.0, math.copysign(size[1], dl[2] if abs(dl[2]) > FEATURE_ANGLE else tl[2]))
+    elif shape == CYLINDER:
+        if math.sqrt(dl[0] * dl[0] + dl[1] * dl[1]) <= FEATURE_ANGLE:
+            z = math.copysign(size[1], dl[2])
+            radial = (tl[0], tl[1])
+        else:
+            z = math.copysign(size[1], dl[2] if abs(dl[2]) > FEATURE_ANGLE else tl[2])
+            radial = (dl[0], dl[1])
+        length = math.sqrt(radial[0] * radial[0] + radial[1] * radial[1])
+        if length > 0.0:
+            local = (size[0] * radial[0] / length, size[0] * radial[1] / length, z)
+        else:
+            local = (size[0], 0.0, z)
+    elif shape == CONVEX:
+        best = 0
+        best_value = -math.inf
+        for i in range(vertices.shape[0]):
+            v = row3(vertices, i, 0)
+            if dot3(dl, v) >= top - band and dot3(tl, v) > best_value:
+                best_value = dot3(tl, v)
+                best = i
+        local = row3(vertices, best, 0)
+    else:
+        local = (0.0, 0.0, 0.0)
+    return add3(add3(p, rotate(R, local)), scale3(core_radius(shape, size), d))
+
+
+@njit(cache=True, error_model="numpy")
+def support_polygon(shape, size, vertices, R, p, d, e1, e2, ws, at):
+    """A shape's support feature along the unit world direction ``d`` (:func:`feature_point`) as a convex polygon
+    written at ``ws[at:]``: its extreme points along ``FEATURE_VERTICES`` directions ``t_k = cos θ_k e1 + sin θ_k e2``
+    evenly spread over the full turn of the plane of the unit vectors ``e1 ⟂ e2`` (both ⟂ ``d``), repeats dropped.
+    The extreme point of a convex set turns with ``t``, so the vertices come counter-clockwise about ``e1 × e2``.
+    Returns their count: 1 a point, 2 a segment, more a polygon (a hull face of more vertices gives the extreme
+    ones: a polygon inside the face; a cylinder's cap, its rim at ``FEATURE_VERTICES`` points)."""
+    top = 0.0
+    band = 0.0
+    if shape == SPHERE:
+        store_row_flat(ws, at, feature_point(shape, size, vertices, R, p, d, e1, top, band))
+        return 1
+    if shape == CONVEX:
+        dl = rotate_back(R, d)
+        top = -math.inf
+        for i in range(vertices.shape[0]):
+            top = larger(top, dot3(dl, row3(vertices, i, 0)))
+        # a face within FEATURE_ANGLE of perpendicular to d rises by at most that angle times the hull's radius
+        band = FEATURE_ANGLE * bounding_radius(shape, size, vertices)
+    count = 0
+    for k in range(FEATURE_VERTICES):
+        angle = 2.0 * math.pi * k / FEATURE_VERTICES
+        t = add3(scale3(math.cos(angle), e1), scale3(math.sin(angle), e2))
+        x = feature_point(shape, size, vertices, R, p, d, t, top, band)
+        if count == 0 or not same3(x, load3(ws, at + 3 * (count - 1))):
+            store_row_flat(ws, at + 3 * count, x)
+            count += 1
+    if count > 1 and same3(load3(ws, at), load3(ws, at + 3 * (count - 1))):
+        count -= 1
+    return count
+
+
+@njit(cache=True, error_model="numpy")
+def same3(a, b):
+    """Whether two 3-tuples are equal entry by entry."""
+    return a[0] == b[0] and a[1] == b[1] and a[2] == b[2]
+
+
+@njit(cache=True, error_model="numpy")
+def polygon_normal(ws, at, m):
+    """Twice the vector area of the polygon of ``m`` vertices ``x_i`` at ``ws[at:]`` (Newell's method, RTCD chapter 12):
+    ``Σᵢ (x_i − x_0) × (x_{i+1} − x_0)``, along the normal about which the vertices turn counter-clockwise."""
+    x0 = load3(ws, at)
+    total = (0.0, 0.0, 0.0)
+    for i in range(1, m - 1):
+        total = add3(total, cross(sub3(load3(ws, at + 3 * i), x0), sub3(load3(ws, at + 3 * (i + 1)), x0)))
+    return total
+
+
+@njit(cache=True, error_model="numpy")
+def feature_dimension(ws, at, m, tolerance):
+    """The dimension of the feature of ``m`` points at ``ws[at:]``: 0 a point, 1 a segment, 2 a polygon; a polygon
+    of area below ``tolerance²`` (m²) is made the segment of its first point and the point farthest from it."""
+    if m == 1:
+        return 0
+    if m == 2:
+        return 1
+    if norm3(polygon_normal(ws, at, m)) > 2.0 * tolerance * tolerance:
+        return 2
+    x0 = load3(ws, at)
+    far = 1
+    far_distance = -1.0
+    for i in range(1, m):
+        distance = norm3(sub3(load3(ws, at + 3 * i), x0))
+        if distance > far_distance:
+            far_distance = distance
+            far = i
+    store_row_flat(ws, at + 3, load3(ws, at + 3 * far))
+    return 1
+
+
+@njit(cache=True, error_model="numpy")
+def area_gain(q0, q1, q2, x, normal):
+    """How far outside the triangle ``q0 q1 q2`` (counter-clockwise about ``normal``) the point ``x`` lies, as
+    twice the area it adds: ``max_j −((q_{j+1} − q_j) × (x − q_j))·normal``, 0 or less inside."""
+    a = -dot3(cross(sub3(q1, q0), sub3(x, q0)), normal)
+    b = -dot3(cross(sub3(q2, q1), sub3(x, q1)), normal)
+    c = -dot3(cross(sub3(q0, q2), sub3(x, q2)), normal)
+    return -least3(-a, -b, -c)
+
+
+@njit(cache=True, error_model="numpy")
+def reduce_manifold(ws, source, m, normal, origin, sign, margin, tolerance, out, count):
+    """The clipped incident points ``x_i`` (``m`` at ``ws[source:]``), each with its gap
+    ``g_i = sign · normal·(x_i − origin)`` to the reference feature's plane (through ``origin``, unit ``normal``
+    from b into a; ``sign`` +1 when the reference is b's, −1 when a's), reduced to at most ``MANIFOLD_POINTS`` of
+    those with ``g < margin``, keeping the area largest (D. Gregorius, "Robust Contact Creation for Physics
+    Simulations", GDC 2015, contact reduction): the deepest ``x₀`` (the first within ``tolerance`` of the least gap),
+    the farthest from it ``x₁``, the one making the largest triangle ``x₂``, and the one adding the most area
+    outside that triangle ``x₃`` (:func:`area_gain`); points closer than ``tolerance`` (m) to the line or triangle
+    already kept add none. Each is written as the midpoint ``x − sign (g/2) normal`` of its two witnesses, with
+    ``normal`` and ``g``, from row ``count`` of ``out``; returns the new count (``count``: none within the margin)."""
+    least = math.inf
+    for i in range(m):
+        least = smaller(least, sign * dot3(normal, sub3(load3(ws, source + 3 * i), origin)))
+    if not least < margin:
+        return count
+    i0 = -1
+    for i in range(m):
+        if i0 < 0 and sign * dot3(normal, sub3(load3(ws, source + 3 * i), origin)) <= least + tolerance:
+            i0 = i
+    ws[WS_SELECT] = i0
+    kept = 1
+    x0 = load3(ws, source + 3 * i0)
+    # x₁: the farthest from x₀ in the contact plane
+    i1 = -1
+    best = tolerance
+    for i in range(m):
+        x = load3(ws, source + 3 * i)
+        if sign * dot3(normal, sub3(x, origin)) < margin:
+            offset = sub3(x, x0)
+            distance = norm3(sub3(offset, scale3(dot3(offset, normal), normal)))
+            if distance > best:
+                best = distance
+                i1 = i
+    if i1 >= 0:
+        ws[WS_SELECT + 1] = i1
+        kept = 2
+        x1 = load3(ws, source + 3 * i1)
+        # x₂: the largest triangle x₀ x₁ x, twice its area |((x₁ − x₀) × (x − x₀))·n|
+        i2 = -1
+        best = tolerance * best
+        for i in range(m):
+            x = load3(ws, source + 3 * i)
+            if sign * dot3(normal, sub3(x, origin)) < margin:
+                area = abs(dot3(cross(sub3(x1, x0), sub3(x, x0)), normal))
+                if area > best:
+                    best = area
+                    i2 = i
+        if i2 >= 0:
+            x2 = load3(ws, source + 3 * i2)
+            if dot3(cross(sub3(x1, x0), sub3(x2, x0)), normal) < 0.0:
+                i1, i2 = i2, i1
+                x1, x2 = x2, x1
+            ws[WS_SELECT + 1] = i1
+            ws[WS_SELECT + 2] = i2
+            kept = 3
+            # x₃: the most area added outside the triangle, compared as above with the longest side's tolerance
+            i3 = -1
+            best = tolerance * norm3(sub3(x1, x0))
+            for i in range(m):
+                x = load3(ws, source + 3 * i)
+                if sign * dot3(normal, sub3(x, origin)) < margin:
+                    gain = area_gain(x0, x1, x2, x, normal)
+                    if gain > best:
+                        best = gain
+                        i3 = i
+            if i3 >= 0 and MANIFOLD_POINTS > 3:
+                ws[WS_SELECT + 3] = i3
+                kept = 4
+    for j in range(kept):
+        x = load3(ws, source + 3 * int(ws[WS_SELECT + j]))
+        gap = sign * dot3(normal, sub3(x, origin))
+        count = write_contact(out, count, sub3(x, scale3(0.5 * sign * gap, normal)), normal, gap)
+    return count
+
+
+@njit(cache=True, error_model="numpy")
+def clip_manifold(shape_a, size_a, vertices_a, R_a, p_a, shape_b, size_b, vertices_b, R_b, p_b, margin, out, count,
+                  single, ws):
+    """The contact manifold of two convex shapes about their GJK/EPA contact, row ``count`` of ``out`` (written by
+    :func:`convex_contact`; ``single = count + 1``, or ``count`` when there is none), by clipping their support
+    features (D. Gregorius, "Robust Contact Creation for Physics Simulations", GDC 2015; RTCD §8.3.4 for the
+    Sutherland–Hodgman clipping). With that contact's normal ``n`` (from b into a):
+
+    * each shape's support feature: a's along ``−n``, b's along ``n`` (:func:`support_polygon`: a face, an edge or
+      a vertex of a hull or a box, a cylinder's cap disc or side line, a capsule's side line);
+    * a vertex on either side: the GJK/EPA contact alone; two edges not parallel (within ``FEATURE_ANGLE``): the
+      same;
+    * otherwise the reference feature is the one of higher dimension (two faces: the one whose normal is nearer
+      ``n``, a's on a tie), the other the incident one; the contact normal ``N`` is the reference face's normal
+      (:func:`polygon_normal`) or, for an edge, ``n`` made perpendicular to it, ``n − (n·u) u`` normalised;
+    * the incident feature is clipped by the reference face's side planes ``((x_{i+1} − x_i) × N)·(x − x_i) ≤ 0``
+      (for an edge, the planes through its ends across it) (:func:`clip_polygon`);
+    * each clipped point ``x`` has the gap ``g = ±N·(x − x_ref)`` to the reference plane, and those with
+      ``g < margin`` are reduced to at most ``MANIFOLD_POINTS`` spanning the largest area (:func:`reduce_manifold`).
+
+    A hull resting face down on a hull gives the corners of the faces' overlap; a cylinder standing on its cap,
+    points of its rim. Returns the new count; the GJK/EPA contact where clipping keeps no point."""
+    if single == count or shape_a == SPHERE or shape_b == SPHERE:
+        return single
+    n = row3(out, count, 3)
+    ha, Ra, pa = as_tuples(size_a, R_a, p_a)
+    hb, Rb, pb = as_tuples(size_b, R_b, p_b)
+    tolerance = PARALLEL * pair_scale(shape_a, ha, vertices_a, pa, shape_b, hb, vertices_b, pb)
+    e1 = any_perpendicular(n)
+    e2 = cross(n, e1)
+    k_a = support_polygon(shape_a, ha, vertices_a, Ra, pa, scale3(-1.0, n), e1, e2, ws, WS_FEATURE_A)
+    k_b = support_polygon(shape_b, hb, vertices_b, Rb, pb, n, e1, e2, ws, WS_FEATURE_B)
+    dim_a = feature_dimension(ws, WS_FEATURE_A, k_a, tolerance)
+    dim_b = feature_dimension(ws, WS_FEATURE_B, k_b, tolerance)
+    if dim_a == 0 or dim_b == 0:
+        return single
+    if dim_a == 1:
+        k_a = 2
+    if dim_b == 1:
+        k_b = 2
+    if dim_a == 2 and dim_b == 2:
+        w_a = polygon_normal(ws, WS_FEATURE_A, k_a)
+        w_b = polygon_normal(ws, WS_FEATURE_B, k_b)
+        reference_b = abs(dot3(w_b, n)) * norm3(w_a) > abs(dot3(w_a, n)) * norm3(w_b)
+    elif dim_a == 1 and dim_b == 1:
+        u_a = sub3(load3(ws, WS_FEATURE_A + 3), load3(ws, WS_FEATURE_A))
+        u_b = sub3(load3(ws, WS_FEATURE_B + 3), load3(ws, WS_FEATURE_B))
+        if norm3(cross(u_a, u_b)) > FEATURE_ANGLE * norm3(u_a) * norm3(u_b):
+            return single
+        reference_b = False
+    else:
+        reference_b = dim_b > dim_a
+    reference = WS_FEATURE_B if reference_b else WS_FEATURE_A
+    k_ref = k_b if reference_b else k_a
+    incident = WS_FEATURE_A if reference_b else WS_FEATURE_B
+    m = k_a if reference_b else k_b
+    sign = 1.0 if reference_b else -1.0
+    origin = load3(ws, reference)
+    if k_ref >= 3:
+        normal = polygon_normal(ws, reference, k_ref)
+        normal = scale3(1.0 / norm3(normal), normal)
+    else:
+        u = sub3(load3(ws, reference + 3), origin)
+        u = scale3(1.0 / norm3(u), u)
+        normal = sub3(n, scale3(dot3(n, u), u))
+        normal = scale3(1.0 / norm3(normal), normal)
+    source = WS_CLIP
+    target = WS_CLIP + 3 * CLIP_VERTICES
+    for i in range(3 * m):
+        ws[source + i] = ws[incident + i]
+    if k_ref >= 3:
+        for i in range(k_ref):
+            x_i = load3(ws, reference + 3 * i)
+            side = cross(sub3(load3(ws, reference + 3 * ((i + 1) % k_ref)), x_i), normal)
+            m = clip_polygon(ws, source, m, target, side, dot3(side, x_i))
+            source, target = target, source
+            if m == 0:
+                return single
+    else:
+        u = sub3(load3(ws, reference + 3), origin)
+        m = clip_polygon(ws, source, m, target, u, dot3(u, load3(ws, reference + 3)))
+        source, target = target, source
+        if m == 0:
+            return single
+        u = scale3(-1.0, u)
+        m = clip_polygon(ws, source, m, target, u, dot3(u, origin))
+        source, target = target, source
+        if m == 0:
+            return single
+    first = row3(out, count, 0) + row3(out, count, 3) + (out[count, 6],)
+    written = reduce_manifold(ws, source, m, normal, origin, sign, margin, tolerance, out, count)
+    if written > count:
+        return written
+    store_row(out, count, 0, first)
+    return single
+
+
+@njit(cache=True, error_model="numpy")
+def convex_manifold(shape_a, size_a, vertices_a, R_a, p_a, shape_b, size_b, vertices_b, R_b, p_b, margin, out, count,
+                    ws):
+    """Contacts between any two convex shapes: the GJK/EPA contact (:func:`convex_contact`) grown into the clipped
+    manifold of the shapes' support features (:func:`clip_manifold`). Returns the new count."""
+    single = convex_contact(shape_a, size_a, vertices_a, R_a, p_a, shape_b, size_b, vertices_b, R_b, p_b, margin, out,
+                            count, ws)
+    return clip_manifold(shape_a, size_a, vertices_a, R_a, p_a, shape_b, size_b, vertices_b, R_b, p_b, margin, out,
+                         count, single, ws)
 
 
 # ---------------------------------------------------------------------------------------------------------------------
@@ -1312,8 +1657,8 @@ def ordered_pair_contacts(shape_a, size_a, vertices_a, R_a, p_a, shape_b, size_b
     if shape_a == BOX and shape_b == BOX:
         return boxes(load3(size_a, 0), vertices_a, rotation9(R_a), load3(p_a, 0), load3(size_b, 0), vertices_b,
                      rotation9(R_b), load3(p_b, 0), margin, out, count, ws)
-    return convex_contact(shape_a, size_a, vertices_a, R_a, p_a, shape_b, size_b, vertices_b, R_b, p_b, margin, out,
-                          count, ws)
+    return convex_manifold(shape_a, size_a, vertices_a, R_a, p_a, shape_b, size_b, vertices_b, R_b, p_b, margin, out,
+                           count, ws)
 
 
 @njit(cache=True, error_model="numpy")
@@ -1327,8 +1672,11 @@ def pair_contacts(shape_a, size_a, vertices_a, R_a, p_a, shape_b, size_b, vertic
     point); box–capsule by GJK with the segment clipped on a face (:func:`box_capsule`; two points for a
     capsule lying on a face); box–cylinder and box–hull by GJK/EPA, and where its normal is a box face's,
     the other shape against that face (:func:`box_face_manifold`: a cylinder standing on a box gives its
-    rim points). Any other pair (cylinder or convex hull with a sphere, a capsule, a cylinder or a hull):
-    one contact by GJK/EPA (:func:`convex_contact`). Either order: the pair is computed with the lower
+    rim points; otherwise as below). Any other pair (cylinder or convex hull with a sphere, a capsule, a
+    cylinder or a hull): GJK/EPA's contact grown into the clipped manifold of the two shapes' support
+    features (:func:`convex_manifold`: a hull face on a hull face gives the corners of their overlap, a cylinder
+    standing on a hull points of its rim, at most ``MANIFOLD_POINTS``; a vertex, or two edges crossing, one
+    point). Either order: the pair is computed with the lower
     shape code first and its normals flipped when a and b were swapped, so the gaps and points are the
     same and the normals opposite."""
     if shape_a <= shape_b:
