@@ -106,8 +106,8 @@ def test_box_edge_on_a_hull_prism_face():
 
 def test_cylinder_standing_and_lying_on_a_hull():
     """A cylinder standing on its cap 1e-4 deep in a hull slab: four points a quarter turn apart on its rim; lying on
-    its side, the two ends of its lowest line; a capsule lying along the side of a cylinder: two points, at the ends
-    of the overlap of their lines."""
+    its side, the two ends of its lowest line; a capsule lying over the slab's edge: its end and the edge; a capsule
+    lying along the side of a cylinder: two points, at the ends of the overlap of their lines."""
     slab = hull(cuboid(1.0, 1.0, 0.1))
     R = Rotation.from_euler("xz", [1e-9, 0.7]).as_matrix()
     rows = run_pair((C.CYLINDER, (0.2, 0.3, 0), R, (0.1, 0.2, 0.4 - 1e-4)), slab)
@@ -120,8 +120,13 @@ def test_cylinder_standing_and_lying_on_a_hull():
     rows = run_pair((C.CYLINDER, (0.2, 0.3, 0), lying, (0.1, 0.2, 0.3 - 1e-4)), slab)
     expected = [[0.1, 0.2 + y, 0.1 - 0.5e-4, 0, 0, 1, -1e-4] for y in (-0.3, 0.3)]
     np.testing.assert_allclose(rows_as_set(rows), rows_as_set(expected), atol=1e-9)
-    # a capsule (r 0.05, half length 0.4) along x on a cylinder (r 0.2, half length 0.3) lying along x
+    # a capsule (r 0.05, half length 0.4) lying along x over the slab's edge x = 1: its end and the edge
     along = Rotation.from_euler("y", np.pi / 2).as_matrix()
+    capsule = (C.CAPSULE, (0.05, 0.4, 0), along, (0.9, 0.3, 0.15 - 1e-4))
+    rows = run_pair(capsule, slab)
+    expected = [[x, 0.3, 0.1 - 0.5e-4, 0, 0, 1, -1e-4] for x in (0.5, 1.0)]
+    np.testing.assert_allclose(rows_as_set(rows), rows_as_set(expected), atol=1e-9)
+    # a capsule (r 0.05, half length 0.4) along x on a cylinder (r 0.2, half length 0.3) lying along x
     capsule = (C.CAPSULE, (0.05, 0.4, 0), along, (0.5, 0.0, 0.25 - 1e-4))
     cylinder = (C.CYLINDER, (0.2, 0.3, 0), along, (0.0, 0.0, 0.0))
     expected = [[x, 0.0, 0.2 - 0.5e-4, 0, 0, 1, -1e-4] for x in (0.1, 0.3)]
