@@ -217,11 +217,12 @@ def test_compile_compiles_what_the_cache_lacks(capsys, fake_cache):
     # and of the fixed-step, variational and contact runs (a first RK4 simulation compiles no_controller, run and _batch)
     assert kernels[: len(KERNELS)] == KERNELS and len(set(kernels)) == len(kernels) < len(driver.ALL_KERNELS)
     assert set(kernels) <= set(driver.ALL_KERNELS) and mb.kernels.aba.forward_dynamics in kernels
-    assert default[len(kernels):] == loops and len(set(loops)) == len(loops) == 11
+    assert default[len(kernels):] == loops and len(set(loops)) == len(loops) == 12
     assert {(stepping.run, integrators._RUN_TYPES), (driver._batch, driver._BATCH_TYPES),
             (stepping.no_controller, integrators.CONTROLLER_TYPES),
             (mb.kernels.variational.advance, variational.ADVANCE_TYPES),
-            (mb.kernels.timestepping.run, contact._RUN_TYPES), (contact._trajectories, contact._TRAJECTORIES_TYPES)} <= set(loops)
+            (mb.kernels.timestepping.run, contact._RUN_TYPES), (contact._trajectories, contact._TRAJECTORIES_TYPES),
+            (mb.kernels.timestepping.deepest_gaps, contact._GAPS_TYPES)} <= set(loops)
     which = ("the kernels of the demos and the common dynamics calls, and the loops of batches, fixed-step, variational "
              "and contact runs")
     cache.add(KERNELS[0])
