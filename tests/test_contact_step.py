@@ -1,6 +1,7 @@
 """The contact step's linear algebra on the tree's sparse factor (multibody.kernels.timestepping): ``M = Lᵀ L`` with the
 branches' sparsity (RBDA §6.5), the rows ``W = L⁻ᵀ Jᵀ``, the Delassus matrix ``G = Wᵀ W = J M⁻¹ Jᵀ`` and the velocity
-change ``M⁻¹ Jᵀ x = L⁻¹ W x``, each equal to the dense computation with NumPy's solve to 1e-13 on random states."""
+change ``M⁻¹ Jᵀ x = L⁻¹ W x``, each equal to the dense computation with NumPy's solve to 1e-13 on random states; and
+the warm start's modes (``held_modes``), which solve a resting problem at once and leave the others to the solver."""
 
 from __future__ import annotations
 
@@ -9,7 +10,7 @@ import pytest
 
 import multibody as mb
 from multibody.joints import FreeFlyer, Revolute
-from multibody.kernels import crba, kinematics
+from multibody.kernels import complementarity, crba, kinematics
 from multibody.kernels import timestepping as ts
 
 from conftest import random_inertia, random_placement, random_tree_model
@@ -99,3 +100,77 @@ def ancestors(parent):
             A[k, i] = True
             i = parent[i]
     return A
+
+
+# ----------------------------------------------------------------------------- the warm start's modes
+
+MU = 0.5
+
+
+def spd(rng, n, condition=10.0):
+    """A random symmetric positive definite matrix with eigenvalues in [1, condition]."""
+    Q, _ = np.linalg.qr(rng.standard_normal((n, n)))
+    return Q @ np.diag(np.geomspace(1.0, condition, n)) @ Q.T
+
+
+def resting_problem():
+    """A problem whose solution ``x`` has a bilateral row, a limit pressing, two contacts sticking inside their cones
+    and one separating (``u_N = 1`` m/s): ``(G, c, kinds, starts, mu, x)``."""
+    rng = np.random.default_rng(2)
+    kinds = np.array([complementarity.BILATERAL, complementarity.UNILATERAL] + [complementarity.CONTACT] * 3)
+    starts = np.array([0, 1, 2, 5, 8])
+    mu = np.array([0.0, 0.0, MU, MU, MU])
+    G = spd(rng, 11)
+    x = np.array([0.3, 0.2, 1.0, 0.2, -0.1, 2.0, -0.3, 0.5, 0.0, 0.0, 0.0])
+    u = np.zeros(11)
+    u[8:] = (1.0, 0.3, -0.2)
+    return G, u - G @ x, kinds, starts, mu, x
+
+
+def held(G, c, kinds, starts, mu, warm):
+    x = warm.copy()
+    residual = ts.held_modes(G, c, kinds, starts, mu, 1e-12, x, np.zeros(len(c) ** 2 + 5 * len(c)))
+    return residual, x
+
+
+def test_held_modes_solve_a_resting_problem_from_a_nearby_warm_start():
+    """From the solution perturbed by 1e-3 (each block keeping its mode), :func:`~multibody.kernels.timestepping.
+    held_modes` returns the solution to 1e-12 and its residual within the tolerance, as the solver's iterations
+    find it."""
+    G, c, kinds, starts, mu, x = resting_problem()
+    warm = x * (1 + 1e-3 * np.random.default_rng(3).standard_normal(len(x)))
+    residual, found = held(G, c, kinds, starts, mu, warm)
+    assert residual <= 1e-12
+    np.testing.assert_allclose(found, x, rtol=0, atol=1e-12)
+    solved, u = warm.copy(), np.zeros(len(c))
+    status, _, _ = complementarity.solve(G, c, kinds, starts, mu, 1e-12, 1000, solved, u,
+                                         np.zeros(complementarity.workspace_size(len(c))))
+    assert status == complementarity.CONVERGED
+    np.testing.assert_allclose(found, solved, rtol=0, atol=1e-11)
+
+
+@pytest.mark.parametrize("case", ["sliding", "modes changed", "dependent rows"])
+def test_held_modes_leave_the_warm_start_to_the_solver(case):
+    """``inf`` and the warm start unchanged: a warm contact on its cone's boundary (sliding); a warm start whose
+    separating contact is pressed in the solution (its held rows' solve pulls); and a box flat on the ground, whose
+    four corners' twelve rows have rank 6 (the solver's proximal rule chooses among the solutions)."""
+    G, c, kinds, starts, mu, x = resting_problem()
+    warm = x.copy()
+    if case == "sliding":
+        warm[3:5] = MU * warm[2] * np.array([0.6, 0.8])
+    elif case == "modes changed":
+        warm[8:] = (1.0, 0.0, 0.0)
+    else:
+        builder = mb.ModelBuilder("box")
+        builder.add_body("box", joint=FreeFlyer(), inertia=random_inertia(np.random.default_rng(4)))
+        model = builder.build()
+        q = model.neutral()
+        J = np.concatenate([mb.jacobian(model, q, "box", point=[sx * 0.2, sy * 0.1, -0.05])[[2, 0, 1]]
+                            for sx in (-1, 1) for sy in (-1, 1)])
+        G = J @ np.linalg.solve(mb.mass_matrix(model, q), J.T)
+        c = J @ np.array([0, 0, -9.81e-3, 0, 0, 0])
+        kinds, starts, mu = np.full(4, complementarity.CONTACT), np.arange(0, 12, 3), np.full(4, MU)
+        warm = np.tile([1.0, 0.0, 0.0], 4)
+    residual, found = held(G, c, kinds, starts, mu, warm)
+    assert residual == np.inf
+    assert np.array_equal(found, warm)

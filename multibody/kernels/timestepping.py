@@ -18,7 +18,10 @@ solved by :func:`multibody.kernels.complementarity.solve` with one block per row
 ``u = 0`` (the constraint program's rows, :mod:`multibody.kernels.constraints`, at velocity level with the
 offset ``φ/dt``, so that the step closes ``φ`` to first order), a joint limit's unilateral row
 ``0 ≤ P ⊥ u ≥ 0``, and a contact's three rows (normal, two tangents) in De Saxcé's cone complementarity
-``P ∈ K_μ``, ``u + μ‖u_T‖ e_N ∈ K_μ*``, ``P · (u + μ‖u_T‖ e_N) = 0`` (Acary & Brogliato §13.3).
+``P ∈ K_μ``, ``u + μ‖u_T‖ e_N ∈ K_μ*``, ``P · (u + μ‖u_T‖ e_N) = 0`` (Acary & Brogliato §13.3). The solver
+starts from the previous step's impulses (:func:`warm_start`); where the modes of those (each contact sticking or
+separated) solve this step's problem to the tolerance, their one linear solve replaces its iterations
+(:func:`held_modes`), as for a robot standing still.
 
 The offset of a normal (or limit) row with gap ``g`` (m or rad; < 0 when penetrating) asks
 ``u⁺ₙ ≥ ℓ`` with
@@ -118,6 +121,10 @@ COMPLETED, NOT_POSITIVE_DEFINITE, UNDEFINED, NOT_SOLVED, NON_FINITE_STATE, NON_F
 C_BODY, C_OTHER, C_POINT, C_NORMAL, C_T1, C_T2, C_GAP, C_RESTITUTION, C_FRICTION, C_ROW = \
     0, 1, 2, 5, 8, 11, 14, 15, 16, 17
 CONTACT_DATA = 18
+
+#: The smallest pivot² of the Cholesky factor of ``G_AA``, relative to its row's diagonal entry of ``G``, with which
+#: :func:`held_modes` solves: below it the row depends on the others to within rounding.
+MODE_PIVOT = 1e-8
 
 @njit(cache=True, error_model="numpy")
 def max_contacts(grounds, pairs):
@@ -466,6 +473,81 @@ def warm_start(plan, J, contacts, found, limit_rows, first_limit, limit_items, m
 
 
 @njit(cache=True, error_model="numpy")
+def held_modes(G, c, kinds_, starts, mu, tolerance, x, ws):
+    """The warm start ``x (m,)`` replaced by the impulses of its own modes, where those solve the step's problem
+    ``u = G x + c`` to ``tolerance`` (m/s): a resting contact keeps its modes from step to step, and with the modes
+    known the conditions of :mod:`multibody.kernels.complementarity` are linear (Acary & Brogliato §13.3: a contact
+    that sticks has ``u = 0`` and ``x ∈ K_μ``, one that separates ``x = 0`` and ``u ∈ K_μ*``), so one solve
+    replaces the solver's iterations. The rows held at ``u = 0`` (set ``A``): the bilateral rows, a limit's row and a
+    contact's three rows whose warm impulses are positive, a contact's strictly inside its cone; the others have zero
+    impulses, and
+
+        G_AA x_A = −c_A
+
+    by Cholesky. Returns the natural residual (m/s) of the new ``x`` (:func:`~multibody.kernels.complementarity.
+    shift_and_residual`), or ``inf`` with ``x`` unchanged where a warm contact slides (on its cone's boundary), where
+    ``G_AA`` is singular to :data:`MODE_PIVOT` (dependent rows, as a face's four corners, keep the solver's proximal
+    rule), or where the solution leaves the cones or misses the tolerance (the modes changed). ``ws`` of
+    ``m² + 5 m`` floats."""
+    m = c.shape[0]
+    F = ws[: m * m]
+    held = ws[m * m : m * m + m]
+    rhs = ws[m * m + m : m * m + 2 * m]
+    z = ws[m * m + 2 * m : m * m + 3 * m]
+    u = ws[m * m + 3 * m : m * m + 4 * m]
+    s = ws[m * m + 4 * m : m * m + 5 * m]
+    count = 0
+    for b in range(kinds_.shape[0]):
+        kind, i = kinds_[b], starts[b]
+        if kind == complementarity.BILATERAL:
+            keep = True
+        elif kind == complementarity.UNILATERAL:
+            keep = x[i] > 0.0
+        else:
+            tangential = math.hypot(x[i + 1], x[i + 2])
+            keep = x[i] > 0.0 and tangential < mu[b] * x[i]
+            if not keep and (x[i] != 0.0 or tangential != 0.0):
+                return math.inf
+        if keep:
+            for r in range(complementarity.block_rows(kind)):
+                held[count] = i + r
+                count += 1
+    if count == 0:
+        return math.inf
+    # G_AA x_A = −c_A
+    A = F[: count * count].reshape((count, count))
+    for a in range(count):
+        for k in range(a + 1):
+            A[a, k] = G[int(held[a]), int(held[k])]
+        rhs[a] = -c[int(held[a])]
+    if not kkt.cholesky(A, count):
+        return math.inf
+    for a in range(count):
+        # the pivot² is the part of the row's G_ii independent of the rows before it
+        if not A[a, a] * A[a, a] > MODE_PIVOT * G[int(held[a]), int(held[a])]:
+            return math.inf
+    kkt.cholesky_solve(A, count, rhs)
+    for i in range(m):
+        z[i] = 0.0
+    for a in range(count):
+        z[int(held[a])] = rhs[a]
+    # in K: a limit's impulse ≥ 0, a contact's in its cone
+    for b in range(kinds_.shape[0]):
+        kind, i = kinds_[b], starts[b]
+        if kind == complementarity.UNILATERAL and z[i] < 0.0:
+            return math.inf
+        if kind == complementarity.CONTACT and math.hypot(z[i + 1], z[i + 2]) > mu[b] * z[i]:
+            return math.inf
+    complementarity.velocities(G, c, z, u, m)
+    residual = complementarity.shift_and_residual(kinds_, starts, mu, z, u, s)
+    if not residual <= tolerance:
+        return math.inf
+    for i in range(m):
+        x[i] = z[i]
+    return residual
+
+
+@njit(cache=True, error_model="numpy")
 def step(controller, joints, reals, frames, program, geometry, vertices, plan, control, t, dt, q, v, q_next, v_next,
          record, summary, previous, previous_summary, ws, iws):
     """One step of ``dt`` (s) from ``q (nq,)``, ``v (nv,)`` at ``t`` into ``q_next``, ``v_next`` (module docstring),
@@ -681,8 +763,12 @@ def step(controller, joints, reals, frames, program, geometry, vertices, plan, c
         delassus(W, G)
         for i in range(m):
             c[i] = row_dot(J, i, v_free) - bound[i]
-        status, used, residual = complementarity.solve(G, c[:m], block_kinds[:nb], block_starts[:nb], mu[:nb],
-                                                       tolerance, iterations, x[:m], u[:m], sws)
+        # the warm start's modes kept where they solve the problem; the solver's iterations otherwise
+        residual = held_modes(G, c[:m], block_kinds[:nb], block_starts[:nb], mu[:nb], tolerance, x[:m], sws)
+        status, used = complementarity.CONVERGED, 0
+        if not residual <= tolerance:
+            status, used, residual = complementarity.solve(G, c[:m], block_kinds[:nb], block_starts[:nb], mu[:nb],
+                                                           tolerance, iterations, x[:m], u[:m], sws)
         if status != complementarity.CONVERGED:
             # once more from zero impulses: the previous step's forces can start the iteration where it stalls
             for i in range(m):
