@@ -47,8 +47,9 @@ from .kernels import (aba, centroidal, configuration, constraints, coriolis, crb
 ALL_KERNELS = (
     rnea.inverse_dynamics, rnea.joint_reaction_forces, crba.mass_matrix, aba.forward_dynamics,
     crba.inverse_mass_matrix, coriolis.coriolis_matrix, energy.kinetic_energy, energy.potential_energy,
-    kinematics.frame_placements, kinematics.frame_jacobian, kinematics.frame_jacobian_time_variation,
-    kinematics.frame_motions, configuration.integrate, configuration.difference, configuration.configuration_rate,
+    energy.mechanical_energy, kinematics.frame_placements, kinematics.frame_jacobian,
+    kinematics.frame_jacobian_time_variation, kinematics.frame_motions, configuration.integrate,
+    configuration.difference, configuration.configuration_rate,
     configuration.chart, configuration.chart_coordinates, configuration.chart_rate, configuration.velocity_alignment,
     configuration.velocity_coupling, configuration.chart_magnitude, configuration.normalize, kkt.constrained_accelerations,
     constraints.constraint_levels, integration.chart_derivative, integration.constrained_chart_derivative,

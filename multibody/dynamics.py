@@ -458,3 +458,14 @@ def potential_energy(model, q, *, out=None):
     q = model.check_configuration(q)
     U = evaluate_checked(model, energy.potential_energy, (q,), (1, 1), q.shape[:-1], out, ())
     return U[()] if out is None else U
+
+
+def mechanical_energy(model, q, v):
+    """``E = T + U`` (J): :func:`kinetic_energy` plus :func:`potential_energy` from one pass down the tree
+    (:func:`multibody.kernels.energy.mechanical_energy`). ``-> (...)`` (a float64 scalar for one state); errors as
+    :func:`kinetic_energy`."""
+    if (E := _single(model, energy.mechanical_energy, (1, 1), q, v)) is not None:
+        return E[0, 0]
+    q, v, *_, batch = checked_arguments(model, q, v)
+    E = evaluate_checked(model, energy.mechanical_energy, (q, v), (1, 1), batch, None, ())
+    return E[()]

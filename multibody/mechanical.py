@@ -76,8 +76,8 @@ class ModelSystem:
         return self.model.chart_magnitude(q)
 
     def energy(self, q, v):
-        """Kinetic plus gravitational potential energy (J)."""
-        return dynamics.kinetic_energy(self.model, q, v) + dynamics.potential_energy(self.model, q)
+        """Kinetic plus gravitational potential energy (J), in one pass down the tree."""
+        return dynamics.mechanical_energy(self.model, q, v)
 
 
 #: Largest angle (rad) that an adaptive method's step may turn a rotation vector of its chart, at the angular
