@@ -17,6 +17,7 @@ from __future__ import annotations
 import math
 import operator
 import warnings
+import weakref
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -259,14 +260,19 @@ class ContactProgram:
     joint_names: tuple
 
 
-def contact_program(constrained, *, tolerance=TOLERANCE, max_iterations=MAX_ITERATIONS, margin=MARGIN,
-                    penetration=PENETRATION, damping=None):
-    """The :class:`ContactProgram` of ``constrained`` (a :class:`~multibody.constrained.ConstrainedSystem` on a
-    :class:`~multibody.model.Model` with unilateral constraints); ``damping (nv,)``: joint damping, or ``None``."""
+#: Each model's geometry rows (:func:`geometry_rows`), built on the first call and kept with the model.
+_GEOMETRY_ROWS = weakref.WeakKeyDictionary()
+
+
+def geometry_rows(model):
+    """The rows ``(G, GEOMETRY_COLUMNS)`` (read-only) of :mod:`multibody.kernels.timestepping`'s layout of
+    ``model``'s collision geometries (:func:`multibody.geometry.collision_table`): each one's frame row, size, shape,
+    bounding radius (m), vertex range and body; built on the first call and kept with the model."""
     from .geometry import collision_table
 
-    model = constrained.system.model
-    nq, nv = model.nq, model.nv
+    geometry = _GEOMETRY_ROWS.get(model)
+    if geometry is not None:
+        return geometry
     table = collision_table(model)
     geometry = np.zeros((len(table.names), timestepping.GEOMETRY_COLUMNS))
     if len(table.names):
@@ -281,6 +287,21 @@ def contact_program(constrained, *, tolerance=TOLERANCE, max_iterations=MAX_ITER
             geometry[g, timestepping.GEOMETRY_RADIUS] = collision.bounding_radius(
                 int(table.shapes[g]), np.ascontiguousarray(table.sizes[g]),
                 np.ascontiguousarray(table.vertices[start : start + count]))
+    geometry.setflags(write=False)
+    _GEOMETRY_ROWS[model] = geometry
+    return geometry
+
+
+def contact_program(constrained, *, tolerance=TOLERANCE, max_iterations=MAX_ITERATIONS, margin=MARGIN,
+                    penetration=PENETRATION, damping=None):
+    """The :class:`ContactProgram` of ``constrained`` (a :class:`~multibody.constrained.ConstrainedSystem` on a
+    :class:`~multibody.model.Model` with unilateral constraints); ``damping (nv,)``: joint damping, or ``None``."""
+    from .geometry import collision_table
+
+    model = constrained.system.model
+    nq, nv = model.nq, model.nv
+    table = collision_table(model)
+    geometry = geometry_rows(model)
     grounds, pairs, limits = [], [], []
     for c in constrained.unilateral:
         if isinstance(c, Ground):
