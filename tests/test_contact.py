@@ -303,6 +303,27 @@ def test_a_hull_box_rests_on_a_hull_slab_as_a_box_does():
     np.testing.assert_allclose(hull.contacts[-1].force.sum(axis=0), [0, 0, G], atol=1e-9)
 
 
+def test_a_cylinder_stands_on_a_hull_slab():
+    """A cylinder (r 0.1 m, 0.2 m long) dropped from 2 mm onto a hull slab, standing on its cap: four rim points
+    (its clipped cap), so it comes to rest, from 0.1 s on |v| ≤ 1e-9 m/s, without its orientation drifting."""
+    b = mb.ModelBuilder("can on a slab")
+    b.add_body("slab")
+    b.add_body("can", joint=FreeFlyer(), inertia=inertia.cylinder(1.0, 0.1, 0.2))
+    b.add_collision("slab", "convex", vertices=[[x, y, z] for x in (-0.5, 0.5) for y in (-0.5, 0.5) for z in (-0.1, 0)])
+    b.add_collision("can", "cylinder", (0.1, 0.2))
+    q0 = np.r_[0.1, 0.05, 0.102, Rotation.from_euler("z", 0.2).as_quat()]
+    system = mb.ConstrainedSystem(b.build(), [mb.ContactPair("can", "slab", friction=0.5)])
+    trajectory = mb.simulate(system, q0, np.zeros(6), 0.5, dt=DT)
+    assert trajectory.status == "completed" and trajectory.complementarity.max() <= TOLERANCE
+    settled = trajectory.t >= 0.1
+    assert np.abs(trajectory.v[settled]).max() <= 1e-9
+    assert np.abs(trajectory.q[settled, 3:] - q0[3:]).max() <= 1e-12
+    entry = trajectory.contacts[-1]
+    assert len(entry) == 4
+    np.testing.assert_allclose(np.hypot(*(entry.point[:, :2] - [0.1, 0.05]).T), 0.1, atol=1e-9)
+    np.testing.assert_allclose(entry.force.sum(axis=0), [0, 0, G], atol=1e-9)
+
+
 def test_batch_equals_single(ball):
     """A batch runs each trajectory on its own, on all cores: each equals its single run, bit for bit, contacts and
     residuals included."""
