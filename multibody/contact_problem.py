@@ -12,7 +12,16 @@ from typing import NamedTuple
 import numpy as np
 
 from .kernels import complementarity
-from .kernels.complementarity import BILATERAL, CONTACT, CONVERGED, INDEFINITE, MAX_ITERATIONS, NOT_FINITE, UNILATERAL
+from .kernels.complementarity import (
+    BILATERAL,
+    CONTACT,
+    CONVERGED,
+    DIVERGED,
+    INDEFINITE,
+    MAX_ITERATIONS,
+    NOT_FINITE,
+    UNILATERAL,
+)
 
 __all__ = ["BILATERAL", "UNILATERAL", "CONTACT", "STATUS_MESSAGES", "ContactSolution", "block_starts", "solve"]
 
@@ -23,6 +32,9 @@ STATUS_MESSAGES = {
     NOT_FINITE: "not solved: the Delassus matrix, the free velocity, a friction coefficient or the warm start "
                 "has a NaN or infinite entry",
     INDEFINITE: "not solved: the Delassus matrix is not positive semi-definite",
+    DIVERGED: "not solved: the iteration diverged with every penalty (its residual grew without bound or "
+              "overflowed: the Delassus matrix is not positive semi-definite, the problem has no solution, or its "
+              "magnitudes are near the largest float); the finite iterate of least residual is returned",
 }
 
 #: Names accepted for the kinds of block.

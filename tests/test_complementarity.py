@@ -10,7 +10,10 @@
 * A stack of three boxes: each interface carries the weight above it.
 * Bilateral, unilateral and frictionless contact blocks against an exact enumeration of active sets.
 * Pinocchio 4's ``ADMMConstraintSolver`` on the same Delassus problem (three contacts: two slide, one sticks).
-* Warm start, NaN input, an iteration limit, an indefinite ``G``, and every status's message.
+* 500 random strongly coupled problems (up to 8 contacts, ``μ`` up to 1.5, ``G`` singular in most), all solved.
+* The polish's damped least squares against NumPy's, and the symmetric answer it keeps from far starts.
+* Warm start, NaN input, an iteration limit, an indefinite ``G``, a diverging iteration, and every status's
+  message.
 * (Its lowering to PTX for the CUDA target is in ``test_cuda_target.py``.)
 """
 
@@ -286,6 +289,76 @@ def test_bilateral_unilateral_and_frictional_contact_blocks_meet_their_condition
         np.testing.assert_allclose(result.u, G @ result.x + c, rtol=0, atol=1e-14 * np.max(np.abs(c)) * m)
 
 
+# ----------------------------------------------------------------------------- random problems
+
+def random_problem(rng, mu_max=1.5, max_contacts=8):
+    """A random contact problem with a solution: ``G = J M⁻¹ Jᵀ`` for ``n`` coordinates (``n`` below the
+    ``3 k`` rows of ``k`` contacts in most: ``G`` singular), rows strongly coupled (sharing a common part),
+    ``c = J v`` and friction up to ``mu_max``. Each contact's tangent rows are orthogonal to a velocity
+    ``v*`` that opens every contact (``J_N v* > 0``): ``J v*`` is inside ``K_μ*``, the condition of Acary,
+    Cadoux, Lemaréchal & Malick (*C. R. Math.* 349, 2011) for a solution to exist."""
+    contacts = int(rng.integers(1, max_contacts + 1))
+    m = 3 * contacts
+    n = int(rng.integers(3, m + 4))
+    A = rng.standard_normal((n, n))
+    M = A @ A.T + 0.05 * n * np.eye(n)
+    J = rng.standard_normal((m, n)) + rng.uniform(0, 3) * rng.standard_normal(n)
+    opening = rng.standard_normal(n)
+    for k in range(contacts):
+        for t in (1, 2):
+            J[3 * k + t] -= (J[3 * k + t] @ opening) / (opening @ opening) * opening
+        if J[3 * k] @ opening < 0:
+            J[3 * k] *= -1
+        J[3 * k] += 0.1 * opening / np.linalg.norm(opening)
+    G = J @ np.linalg.solve(M, J.T)
+    G = (G + G.T) / 2
+    return G, J @ (3 * rng.standard_normal(n)), rng.uniform(0, mu_max, contacts)
+
+
+def test_random_strongly_coupled_problems_are_all_solved():
+    rng = np.random.default_rng(39)
+    singular = large_friction = 0
+    for trial in range(500):
+        G, c, mus = random_problem(rng)
+        kinds = [CONTACT] * len(mus)
+        result = solve(G, c, kinds, mus, tolerance=TOLERANCE, max_iterations=20000)
+        assert result.status == complementarity.CONVERGED, (trial, result.message, result.residual)
+        assert natural_residual(G, c, kinds, mus, result.x) <= 2 * TOLERANCE
+        singular += np.linalg.matrix_rank(G) < len(c)
+        large_friction += mus.max() > 1.0
+    assert singular > 200 and large_friction > 200
+
+
+def test_damped_least_squares_equals_numpy_on_a_singular_jacobian():
+    rng = np.random.default_rng(11)
+    m, damping = 6, 1e-7
+    J = rng.standard_normal((m, 3)) @ rng.standard_normal((3, m))  # rank 3
+    # b in the range of J: the least-squares residual is small, and the answer conditioned by cond(A) ~ 3e4
+    # rather than its square
+    b = J @ rng.standard_normal(m)
+    B = np.zeros((m + 1, 2 * m))
+    B[:m, :m], B[:m, m:], B[m, :m] = J.T, np.sqrt(damping) * np.eye(m), b
+    complementarity.damped_least_squares(B, m)
+    expected = np.linalg.lstsq(np.vstack([J, np.sqrt(damping) * np.eye(m)]), np.r_[b, np.zeros(m)], rcond=None)[0]
+    np.testing.assert_allclose(B[m, :m], expected, rtol=1e-9, atol=1e-12 * np.abs(expected).max())
+
+
+def test_polish_from_far_keeps_the_symmetric_distribution_of_a_box():
+    # Newton steps of the length of the impulses themselves along a singular G: the rounding they leave on the
+    # null space (the corners' impulses ½(−1, 1, 1, −1)) stays at the rounding of the impulses
+    G, c, weight = box_on_ground(np.zeros(6))
+    starts, m = contact_problem.block_starts([CONTACT] * 4)
+    kinds, mus = np.full(4, CONTACT), np.full(4, 0.5)
+    largest = np.linalg.eigvalsh(G).max()
+    for distance in (1.0, 100.0):
+        x = np.zeros(m)
+        x[0::3] = (1 + distance) * weight / 4
+        scratch = [np.zeros(m) for _ in range(6)] + [np.zeros((m, m)), np.zeros((m + 1, 2 * m))]
+        _, residual = complementarity.polish(G, c, kinds, starts, mus, 1 / largest, 50, TOLERANCE, x, *scratch)
+        assert residual <= TOLERANCE
+        np.testing.assert_allclose(scratch[5][0::3], weight / 4, rtol=1e-11)
+
+
 # ----------------------------------------------------------------------------- Pinocchio
 
 def test_impulses_equal_pinocchio_admm_on_the_same_delassus_problem(pin):
@@ -344,6 +417,23 @@ def test_warm_start_reduces_iterations():
     assert again.status == complementarity.CONVERGED and again.iterations == 0
 
 
+def diverging():
+    """A problem whose iterates overflow with every penalty: a free velocity of 1e307 m/s, which the first
+    projection scales by ``1/ρ`` (``ρ`` at most about ``0.05 λ_max``) past the largest float."""
+    return solve(np.eye(3), np.array([-1e307, 0.0, 0.0]), ["contact"], 0.3)
+
+
+def test_an_iteration_that_overflows_is_reported_diverged_with_the_last_finite_iterate():
+    result = diverging()
+    assert result.status == complementarity.DIVERGED
+    assert "diverged" in result.message
+    # every run (one per penalty) overflowed at its first iteration; the warm start is the best iterate found
+    assert result.iterations == complementarity.PENALTIES
+    np.testing.assert_array_equal(result.x, np.zeros(3))
+    np.testing.assert_array_equal(result.u, [-1e307, 0.0, 0.0])
+    assert result.residual == 1e307
+
+
 def test_every_status_is_reached_and_has_its_message():
     G, c, _ = box_on_ground(np.array([1.0, 0.5, 0.0, 0.0, 0.0, 0.3]))
     reached = {}
@@ -365,6 +455,9 @@ def test_every_status_is_reached_and_has_its_message():
         reached[result.status] = result
     result = solve(-np.eye(3), np.array([-1.0, 0.0, 0.0]), ["contact"], 0.3)
     assert result.status == complementarity.INDEFINITE
+    reached[result.status] = result
+    result = diverging()
+    assert result.status == complementarity.DIVERGED
     reached[result.status] = result
     assert set(reached) == set(STATUS_MESSAGES)
     for status, result in reached.items():
