@@ -258,12 +258,18 @@ def test_a_tumbling_box_lands_flat_and_comes_to_rest(box, mu):
     them to first order only). Its four normal rows are dependent (the corners' impulses ½(−1, 1, 1, −1) exert no
     force), so their bounds must stay affine in the corners' gaps, as the gaps themselves are, for the contact problem
     to have a solution near the others; with large μ its contacts are strongly coupled (two corners sliding slowly,
-    two sticking). For every μ each step is solved to the tolerance, and the box comes to rest."""
+    two sticking). For every μ each step is solved to the tolerance, no step with a contact impulse adds energy (as in
+    test_energy_never_increases_at_impacts: the impulses only dissipate), and the box comes to rest."""
     q0 = np.r_[0, 0, 0.4, Rotation.from_rotvec([0.4, 0.3, 0.0]).as_quat()]
     system = mb.ConstrainedSystem(box, [mb.Ground(friction=mu)])
     trajectory = mb.simulate(system, q0, [0.5, 0, 0, 1.0, -2.0, 0.5], 1.5, dt=DT)
     assert trajectory.status == "completed"
     assert trajectory.complementarity[1:].max() <= TOLERANCE
+    energy = trajectory.energy
+    impacts = [k for k, entry in enumerate(trajectory.contacts) if len(entry) and np.abs(entry.force).max() > 0]
+    assert len(impacts) > 1000
+    for k in impacts:
+        assert energy[k] <= energy[k - 1] + 1e-12 * abs(energy[k - 1])
     assert np.abs(trajectory.v[-1]).max() <= 1e-9
     assert len(trajectory.contacts[-1]) == 4 and trajectory.q[-1, 2] == pytest.approx(0.05, abs=1e-9)
 
