@@ -59,7 +59,9 @@ EPA_FACES = 128
 EPA_EDGES = 128
 #: Support features of the GJK/EPA pairs (:func:`clip_manifold`): most vertices of one shape's feature polygon (its
 #: extreme points along as many directions evenly spread in the contact plane), and the angle (rad, as its sine) within
-#: which a face, an edge or a cap counts as perpendicular to the contact normal.
+#: which a face, an edge or a cap counts as perpendicular to the contact normal (a hull's vertices within that angle
+#: times its radius of the support plane form its feature, so a vertex that close under a face bends the face's
+#: polygon, whose points then lie within that distance of the surface).
 FEATURE_VERTICES = 16
 FEATURE_ANGLE = 1e-4
 #: Most points of a clipped manifold: the deepest, and three more spanning the largest area.
