@@ -415,7 +415,7 @@ class ContactRecord(Sequence):
 
     def __init__(self, records, counts, names, bodies):
         self._records, self._counts, self._names, self._bodies = records, counts, names, bodies
-        self._entries = [None] * len(counts)
+        self._entries = {}
         self._indices = None
 
     def __len__(self):
@@ -429,7 +429,7 @@ class ContactRecord(Sequence):
         if not -n <= i < n:
             raise IndexError(f"contacts index {k} out of range for {n} output times")
         i %= n
-        entry = self._entries[i]
+        entry = self._entries.get(i)
         if entry is None:
             entry = self._entries[i] = self._entry(i)
         return entry
@@ -580,7 +580,8 @@ def run(constrained, q, v, times, controller, torque, batch, damping=None, toler
             warnings.warn(f"the initial state{where} penetrates by {depth:.3g} (m, or rad past a joint limit); "
                           "projected out of penetration", UserWarning, stacklevel=4)
     n = len(times)
-    states = np.full((count, n, nq + nv), np.nan)
+    # (the steps fill the states; those a trajectory does not reach are NaN'd with its status below)
+    states = np.empty((count, n, nq + nv))
     states[:, 0, :nq], states[:, 0, nq:] = q, v
     records = np.zeros((count, n, min(RECORD_CAPACITY, max(program.records, 1)), timestepping.RECORD_COLUMNS))
     summaries = np.zeros((count, n, timestepping.SUMMARY_COLUMNS + program.bilateral))
