@@ -99,42 +99,65 @@ def with_joint_damping(torque, damping):
     return damped
 
 
-def report_limits(system, trajectory, mode, enforced=()):
-    """Positions of ``trajectory`` outside ``[model.lower, model.upper]`` of ``system.model``: one
-    :class:`JointLimitWarning` per joint at its first output time outside (``mode="warn"``), or a
-    :class:`SimulationError` at the first output time any joint is outside, carrying the trajectory up to
-    it (``mode="error"``). Unit-norm components (quaternions, planar ``(cos θ, sin θ)``) are bounded by ±1
-    by construction and not checked: rounding may take them a few ulps past; nor are the coordinates ``enforced``
-    (indices into ``q``), which :class:`multibody.JointLimits` holds to its solver's tolerance."""
+def report_limits(system, trajectory, mode, enforced=(), stacklevel=3):
+    """Positions of ``trajectory`` (one, ``q (n, nq)``, or a batch, ``q (N, n, nq)``) outside ``[model.lower,
+    model.upper]`` of ``system.model``. ``mode="warn"``: one :class:`JointLimitWarning` per joint at its first output
+    time outside (in a batch, with the trajectory that left first and how many did), warning at ``stacklevel``.
+    ``mode="error"``: one trajectory raises a :class:`SimulationError` at the first output time any joint is outside,
+    carrying the trajectory up to it; in a batch each trajectory outside stops there, as a failed trajectory does
+    (its status names joint, time and value; its outputs after it are NaN). Returns the trajectory (so marked).
+    Unit-norm components (quaternions, planar ``(cos θ, sin θ)``) are bounded by ±1 by construction and not checked:
+    rounding may take them a few ulps past; nor are the coordinates ``enforced`` (indices into ``q``), which
+    :class:`multibody.JointLimits` holds to its solver's tolerance."""
     model = system.model
-    q = trajectory.q
-    outside = (q < model.lower) | (q > model.upper)
+    one = trajectory.batch_size is None
+    q = trajectory.q[None] if one else trajectory.q
+    outside = (q < model.lower) | (q > model.upper)  # (NaN compares False: stopped trajectories stay inside)
     for start, stop in model._unit_norm_slices:
-        outside[:, start:stop] = False
-    outside[:, list(enforced)] = False
+        outside[..., start:stop] = False
+    outside[..., list(enforced)] = False
     if not outside.any():
-        return
-    first = []  # (output index, coordinate) of each joint's first excursion
-    for joint, start in zip(model.joints, model.idx_q):
-        rows, cols = np.nonzero(outside[:, start:start + joint.nq])
-        if rows.size:
-            first.append((int(rows[0]), int(start + cols[0])))
+        return trajectory
+    count, n = q.shape[:2]
 
-    def describe(k, c):
+    def describe(j, k, c):
         return (f"{coordinate_name(system, c, False)} left its limits [{model.lower[c]:.6g}, {model.upper[c]:.6g}] "
-                f"at t = {trajectory.t[k]:.6g} s: q = {q[k, c]:.6g}")
+                f"at t = {trajectory.t[k]:.6g} s: q = {q[j, k, c]:.6g}")
 
-    if mode == "error":
-        k, c = min(first)
-        message = describe(k, c) + " (limits='error')"
-        n = len(trajectory.t)
+    def first(j):
+        """The output index and coordinate at which trajectory ``j`` first left a limit."""
+        k = int(np.argmax(outside[j].any(axis=1)))
+        return k, int(np.argmax(outside[j, k]))
+
+    if mode == "warn":
+        for joint, start in zip(model.joints, model.idx_q):
+            columns = outside[..., start : start + joint.nq]
+            left = columns.any(axis=(1, 2))
+            if not left.any():
+                continue
+            times = np.where(left, np.argmax(columns.any(axis=2), axis=1), n)
+            j = int(np.argmin(times))
+            k = int(times[j])
+            c = start + int(np.argmax(columns[j, k]))
+            where = "" if one else f" in trajectory {j} ({int(left.sum())} of {count} trajectories left them)"
+            warnings.warn(f"{describe(j, k, c)}{where}; joint limits are reported, not enforced (limits='ignore' "
+                          "silences this)", JointLimitWarning, stacklevel=stacklevel)
+        return trajectory
+    if one:
+        k, c = first(0)
+        message = describe(0, k, c) + " (limits='error')"
         partial = replace(trajectory, status=message, **{
             f.name: getattr(trajectory, f.name)[:k + 1] for f in fields(trajectory)
             if isinstance(getattr(trajectory, f.name), np.ndarray) and getattr(trajectory, f.name).shape[:1] == (n,)})
         raise SimulationError(message, partial)
-    for k, c in first:
-        warnings.warn(describe(k, c) + "; joint limits are reported, not enforced (limits='ignore' silences this)",
-                      JointLimitWarning, stacklevel=3)
+    status = list(trajectory.status)
+    arrays = {name: getattr(trajectory, name).copy() for name in ("q", "v", "lam", "energy", "residual")}
+    for j in np.flatnonzero(outside.any(axis=(1, 2))):
+        k, c = first(j)
+        status[j] = describe(j, k, c) + " (limits='error')"
+        for value in arrays.values():
+            value[j, k + 1 :] = np.nan
+    return replace(trajectory, status=status, **arrays)
 
 
 def coordinate_name(system, k, rate, force=False):

@@ -23,7 +23,8 @@ the adaptive run's same loop runs as Python with a call per stage. A step that t
 compiled run leaves (one that starts near a singular configuration, a stage or a projection its compiled step does
 not solve) is taken by the Python loop, whose numbers it shares. They also integrate ``N`` trajectories from
 ``q0 (N, nq)``, ``v0 (N, nv)``: each on its own in compiled calls on all cores, or, with a Python callable, in
-lockstep, each stage's derivatives of all of them in one compiled call (:func:`multibody.driver.evaluate`).
+lockstep, each stage's derivatives of all of them in one compiled call (:func:`multibody.driver.evaluate`); one
+trajectory is a batch of one, run by the same loop.
 With ``project=True``, a step's end state is projected onto ``φ = 0`` and ``A v + b = 0`` when that
 moves a coordinate by more than ``projection_tolerance``, and the integrator restarts from it. The move,
 not the residual, decides: near a singular configuration of a closed chain, a row of size ``ε`` leaves
@@ -52,8 +53,10 @@ from .integrators import (EMBEDDED, PD, TABLEAUS, AdaptiveRun, CompiledControlle
 from .kernels import aba, kkt, stepping
 from .mechanical import CHART_TURN, Charts, ModelSystem
 from .model import all_finite
-from .runs import (JointLimitWarning, Progress, SimulationError, checked_timing, coordinate_name, joint_damping_of,
-                   non_finite_torque, output_times, report_limits, require_finite, torque_function, with_joint_damping)
+# JointLimitWarning is the warning simulate's docstring names, and scripts import it from here
+from .runs import (JointLimitWarning, Progress, SimulationError, checked_timing, coordinate_name,  # noqa: F401
+                   joint_damping_of, non_finite_torque, output_times, report_limits, require_finite, torque_function,
+                   with_joint_damping)
 from .trajectory import Trajectory, recorded_names
 
 #: The implicit methods, SciPy's solvers through their public interface.
@@ -84,7 +87,7 @@ def simulate(system, q0, v0, t_final, *, dt=None, method=None, tau=None, rtol=1e
 
     Args:
         system: a :class:`~multibody.model.Model`, a :class:`ConstrainedSystem`, or any mechanical system
-            (:class:`~multibody.constrained.ModelSystem` lists the members; one without the chart maps
+            (:class:`~multibody.mechanical.ModelSystem` lists the members; one without the chart maps
             must have ``q̇ = v``).
         q0, v0: initial state ``(nq,)``, ``(nv,)``, finite (``ValueError`` names the non-finite entries by
             joint). An inconsistent state is projected onto the constraints with a warning giving the distance
@@ -182,29 +185,30 @@ def simulate(system, q0, v0, t_final, *, dt=None, method=None, tau=None, rtol=1e
     if rule is not None or order is not None:
         raise ValueError(f"rule and order are options of method='variational', not of method={method!r}")
     constrained = system if isinstance(system, ConstrainedSystem) else ConstrainedSystem(system)
-    if constrained.unilateral:
-        return _simulate_unilateral(constrained, q0, v0, t_final, dt, method, tau, t0, joint_damping, limits, device)
-    method = "RK45" if method is None else method
     mechanical = constrained.system
     nq, nv = constrained.nq, constrained.nv
-    if method not in ADAPTIVE_METHODS + FIXED_STEP_METHODS:
-        raise ValueError(f"method must be one of {ADAPTIVE_METHODS + FIXED_STEP_METHODS + ('variational',)}, "
-                         f"got {method!r}")
+    if constrained.unilateral:
+        _check_unilateral(constrained, method)
+    else:
+        method = "RK45" if method is None else method
+        if method not in ADAPTIVE_METHODS + FIXED_STEP_METHODS:
+            raise ValueError(f"method must be one of {ADAPTIVE_METHODS + FIXED_STEP_METHODS + ('variational',)}, "
+                             f"got {method!r}")
     dt = checked_timing(t0, t_final, dt, progress, limits)
-    model = getattr(mechanical, "model", None)  # limits and damping belong to a Model
     q, v = np.array(q0, dtype=float), np.array(v0, dtype=float)
     batch = batch_size(q, v, nq, nv)
     if device and batch is None:
         _one_device_state(q.shape, v.shape, nq, nv)
-    if batch is not None:
+    if batch is None:
+        if q.shape != (nq,) or v.shape != (nv,):
+            raise ValueError(f"q0 and v0 must have shapes ({nq},) and ({nv},), got {q.shape} and {v.shape}")
+    elif not constrained.unilateral:
         try:
             check_batchable(constrained, method, q.shape, v.shape)
         except ValueError as error:
             if device:
                 raise ValueError(f"simulate on CUDA arrays: {error}") from None
             raise
-    elif q.shape != (nq,) or v.shape != (nv,):
-        raise ValueError(f"q0 and v0 must have shapes ({nq},) and ({nv},), got {q.shape} and {v.shape}")
     require_finite(mechanical, "q0", q)
     require_finite(mechanical, "v0", v, rate=True)
     tau = as_controller(tau, mechanical, batch)
@@ -212,30 +216,30 @@ def simulate(system, q0, v0, t_final, *, dt=None, method=None, tau=None, rtol=1e
     controller = tau if tau is None or callable(tau) else np.asarray(torque_function(tau, nv, batch, mechanical)(
         t0, None, None))
     damping = joint_damping_of(mechanical, joint_damping)
+    if constrained.unilateral:
+        return _simulate_unilateral(constrained, q, v, output_times(t0, t_final, dt), controller, damping, batch,
+                                    limits, device)
     if damping is not None:
         tau = with_joint_damping(torque_function(tau, nv, batch, mechanical), damping)
     torque = torque_function(tau, nv, batch, mechanical)
     charts = Charts(mechanical)
-    if batch is not None:
+    if method in FIXED_STEP_METHODS:
+        # one trajectory is a batch of one: the same run, whose result loses the batch axis
+        count = 1 if batch is None else batch
         times = output_times(t0, t_final, dt)
-        # (a Python callable takes a batch at each stage, in lockstep)
+        # a compiled run takes joint forces that are data or compiled, and one trajectory's Python callable too
+        # (called from it once per stage); a batch's Python callable takes the batch at each stage, in lockstep
         data = controller is None or isinstance(controller, (np.ndarray, PDController, CompiledController))
+        compiled = constrained._compiled_motion is not None and (data or batch is None)
         run = _compiled_run(constrained, charts, TABLEAUS[method], controller, damping, project, projection_tolerance,
-                            times) if data else None
-        return _simulate_batch(constrained, charts, np.broadcast_to(q, (batch, nq)), np.broadcast_to(v, (batch, nv)),
-                               times, torque, callable(tau), TABLEAUS[method], run, project=project,
-                               projection_tolerance=projection_tolerance, limits=limits, progress=progress,
-                               device=device)
+                            times) if compiled else None
+        trajectory = _simulate_batch(constrained, charts, np.broadcast_to(q, (count, nq)),
+                                     np.broadcast_to(v, (count, nv)), times, torque, callable(tau), TABLEAUS[method],
+                                     run, project=project, projection_tolerance=projection_tolerance,
+                                     progress=progress, device=device, single=batch is None, controller=controller)
+        return _finish(mechanical, trajectory, limits)
 
-    q_projected, v_projected, conditioning = constrained._projection(q, v, t0)
-    dq, dv = np.abs(q_projected - q), np.abs(v_projected - v)
-    moved = max(dq.max(initial=0.0), dv.max(initial=0.0))
-    if moved > 1e-10 and constrained.num_rows:
-        largest = [f"{coordinate_name(mechanical, int(np.argmax(d)), rate)} by {d.max():.3g}"
-                   for d, rate in ((dq, False), (dv, True)) if d.size and d.max() > 1e-10]
-        warnings.warn(f"initial state violated the constraints; projected onto them (moved by {moved:.3g}: "
-                      f"{' and '.join(largest)})", UserWarning, stacklevel=2)
-    q, v = q_projected, v_projected
+    q, v, conditioning = _projected_start(constrained, q, v, t0, stacklevel=3)
 
     # The integrator's state is y = [δ, w] in the chart around a configuration q_c: q = chart(q_c, δ),
     # w the aligned velocity (see Model.chart). A new chart starts from each step's end state.
@@ -293,40 +297,7 @@ def simulate(system, q0, v0, t_final, *, dt=None, method=None, tau=None, rtol=1e
         constrained.solve(q, v, torque(t0, q, v), t0)  # the initial state has a KKT solution
         done = 1
         near = _near_singular(conditioning, project, constrained, charts)
-        if method in FIXED_STEP_METHODS:
-            tableau = TABLEAUS[method]
-            instants = times.tolist()  # Python floats: the stages' time arithmetic is scalar
-            run = _compiled_run(constrained, charts, tableau, controller, damping, project, projection_tolerance,
-                                times) if compiled else None
-            joint_forces = _joint_forces(constrained)
-            chunk = _FIRST_CHUNK
-            k = 1
-            while k < len(times):
-                if run is not None and not near:
-                    # the steps up to the next one Python takes, in compiled calls of about CHUNK_SECONDS each
-                    started = time.perf_counter()
-                    try:
-                        k, status = run.advance(states, k, min(len(times), k + chunk), controller, joint_forces)
-                    finally:
-                        # (also where a Python controller raised: the steps before its stage's are done)
-                        done = int(run.io[stepping.IO_STEP])
-                    chunk = _next_chunk(chunk, time.perf_counter() - started)
-                    bar.update(instants[k - 1])
-                    if status in (stepping.COMPLETED, stepping.NEAR_SINGULAR):
-                        near = status == stepping.NEAR_SINGULAR
-                        continue
-                    failure = _RUN_FAILURES.get(status)
-                    if failure is not None:
-                        raise failure(mechanical, run.io, run.plan)
-                    # (a stage or a projection the compiled step did not solve: the step below takes it)
-                q_chart = states[k - 1, :nq]
-                stage = on_constraints if near else derivative
-                y = tableau_step(lambda t, y: stage(t, y, q_chart), lambda y: charts.chart_rate(y[:nv], y[nv:]),
-                                 instants[k - 1], to_chart(states[k - 1]), instants[k] - instants[k - 1], tableau)
-                states[k], _, near = settle(instants[k], from_chart(q_chart, y))
-                k = done = k + 1
-                bar.update(instants[k - 1])
-        elif method in EMBEDDED:
+        if method in EMBEDDED:
             # An embedded pair of our own (multibody.kernels.stepping.adaptive): compiled where the system's step
             # is and the joint forces are data or compiled, else the same run as Python with the maps below; the
             # steps that start near a singular configuration, or whose stage or projection the compiled step did
@@ -413,8 +384,7 @@ def simulate(system, q0, v0, t_final, *, dt=None, method=None, tau=None, rtol=1e
         t_fail = times[max(done - 1, 0)]
         message = f"simulation stopped at t = {t_fail:.6g} s: {_grown(mechanical, states[:done], nq, v) or exc}"
         try:
-            partial = _trajectory(constrained, times[:done], states[:done], torque, message, tolerance,
-                                  settled=method in FIXED_STEP_METHODS)
+            partial = _trajectory(constrained, times[:done], states[:done], torque, message, tolerance)
         except _FAILURES:
             # states so far out that their multipliers cannot be computed (or joint forces that are not finite
             # at them): the states alone
@@ -426,66 +396,79 @@ def simulate(system, q0, v0, t_final, *, dt=None, method=None, tau=None, rtol=1e
         raise SimulationError(message, partial) from exc
     finally:
         bar.close()
-    trajectory = _trajectory(constrained, times, states, torque, "completed", tolerance,
-                             settled=method in FIXED_STEP_METHODS, state_dependent=callable(tau))
-    if model is not None and limits != "ignore":
-        report_limits(mechanical, trajectory, limits)
-    return trajectory
+    return _finish(mechanical, _trajectory(constrained, times, states, torque, "completed", tolerance,
+                                           state_dependent=callable(tau)), limits)
 
 
-def _simulate_unilateral(constrained, q0, v0, t_final, dt, method, tau, t0, joint_damping, limits, device=False):
-    """:func:`simulate` of a system with contact or joint limits: the checks of every method, then the compiled
-    Moreau–Jean steps of :func:`multibody.contact.run` (``device``: a batch on the GPU, one trajectory per thread); a
-    failure raises :class:`SimulationError` with the trajectory up to it (one trajectory), or is marked in the
-    batch's status."""
+def _projected_start(constrained, q, v, t0, stacklevel):
+    """The initial state ``q (nq,)``, ``v (nv,)`` projected onto the constraints at ``t0`` (s), ``(q, v,
+    conditioning)`` (:meth:`ConstrainedSystem._projection`), with a warning ``stacklevel`` calls up giving the
+    distance moved and the coordinates that moved most, where it moved by more than ``1e-10``; where the projection
+    fails, its ``ConstraintError``."""
+    q_projected, v_projected, conditioning = constrained._projection(q, v, t0)
+    dq, dv = np.abs(q_projected - q), np.abs(v_projected - v)
+    moved = max(dq.max(initial=0.0), dv.max(initial=0.0))
+    if moved > 1e-10 and constrained.num_rows:
+        largest = [f"{coordinate_name(constrained.system, int(np.argmax(d)), rate)} by {d.max():.3g}"
+                   for d, rate in ((dq, False), (dv, True)) if d.size and d.max() > 1e-10]
+        warnings.warn(f"initial state violated the constraints; projected onto them (moved by {moved:.3g}: "
+                      f"{' and '.join(largest)})", UserWarning, stacklevel=stacklevel)
+    return q_projected, v_projected, conditioning
+
+
+def _check_unilateral(constrained, method):
+    """``ValueError`` unless the system with contact or joint limits ``constrained`` can be simulated by ``method``:
+    ``None`` or :data:`multibody.contact.METHOD`, on a ``Model``."""
     if method not in (None, contact.METHOD):
         names = ", ".join(c.name for c in constrained.unilateral)
         raise ValueError(f"method={method!r} cannot simulate contact or joint limits ({names}): a system with unilateral "
                          f"constraints is simulated by velocity-level time stepping, method={contact.METHOD!r} (the "
                          "default), whose steps resolve each impact and the Coulomb cone; the smooth methods would "
                          "integrate through them")
-    mechanical = constrained.system
-    if not isinstance(mechanical, ModelSystem):
-        raise ValueError(f"contact and joint limits need a system built on a Model; {type(mechanical).__name__} is not")
-    nq, nv = constrained.nq, constrained.nv
-    dt = checked_timing(t0, t_final, dt, None, limits)
-    q, v = np.array(q0, dtype=float), np.array(v0, dtype=float)
-    batch = batch_size(q, v, nq, nv)
-    if batch is None and (q.shape != (nq,) or v.shape != (nv,)):
-        raise ValueError(f"q0 and v0 must have shapes ({nq},) and ({nv},), got {q.shape} and {v.shape}")
-    if device and batch is None:
-        _one_device_state(q.shape, v.shape, nq, nv)
-    require_finite(mechanical, "q0", q)
-    require_finite(mechanical, "v0", v, rate=True)
-    controller = as_controller(tau, mechanical, batch)
+    if not isinstance(constrained.system, ModelSystem):
+        raise ValueError(f"contact and joint limits need a system built on a Model; {type(constrained.system).__name__} "
+                         "is not")
+
+
+def _simulate_unilateral(constrained, q, v, times, controller, damping, batch, limits, device=False):
+    """:func:`simulate` of a system with contact or joint limits from ``q (nq,)``, ``v (nv,)`` (or ``N`` of them,
+    ``batch``), checked, at the output ``times (n,)`` (s): the compiled Moreau–Jean steps of
+    :func:`multibody.contact.run` (``device``: a batch on the GPU, one trajectory per thread), with the joint forces
+    ``controller`` (``None``, an array, a bound PD, a compiled controller or a Python callable) and the viscous
+    ``damping (nv,)`` or ``None``; a failure raises :class:`SimulationError` with the trajectory up to it (one
+    trajectory), or is marked in the batch's status."""
+    mechanical, nq, nv = constrained.system, constrained.nq, constrained.nv
     torque = None
     if callable(controller) and not isinstance(controller, (PDController, CompiledController)):
         torque, controller = torque_function(controller, nv, batch, mechanical), None
-    elif controller is not None and not isinstance(controller, (PDController, CompiledController)):
-        controller = np.asarray(torque_function(controller, nv, batch, mechanical)(t0, None, None))
-    model = mechanical.model
-    damping = np.array(model.damping, dtype=float) if joint_damping and np.any(model.damping) else None
     count = 1 if batch is None else batch
-    trajectory = contact.run(constrained, np.broadcast_to(q, (count, nq)), np.broadcast_to(v, (count, nv)),
-                             output_times(t0, t_final, dt), controller, torque, batch, damping, device=device)
-    enforced = contact.enforced_coordinates(constrained)
-    if batch is None:
-        if trajectory.status != "completed":
-            raise SimulationError(f"simulate ({contact.METHOD}) stopped: {trajectory.status}", trajectory)
-        if limits != "ignore":
-            report_limits(mechanical, trajectory, limits, enforced)
-        return trajectory
-    warn_if_stopped(trajectory, 3)
-    if limits != "ignore":
-        trajectory = _report_batch_limits(mechanical, trajectory, limits, enforced)
+    trajectory = contact.run(constrained, np.broadcast_to(q, (count, nq)), np.broadcast_to(v, (count, nv)), times,
+                             controller, torque, batch, damping, device=device)
+    return _finish(mechanical, trajectory, limits, contact.enforced_coordinates(constrained),
+                   f"simulate ({contact.METHOD}) stopped: ", stacklevel=5)
+
+
+def _finish(system, trajectory, limits, enforced=(), stopped="", stacklevel=4):
+    """The end of a fixed-step or contact run of ``system`` (the mechanical system): one trajectory that stopped early
+    raises :class:`SimulationError` (its status after ``stopped``) with the part so far; the joint limits are
+    reported (:func:`multibody.runs.report_limits`, but for the coordinates ``enforced``); and a batch gives one
+    warning of the trajectories that stopped early, each warning ``stacklevel`` calls up from here. Returns the
+    trajectory."""
+    one = trajectory.batch_size is None
+    if one and trajectory.status != "completed":
+        raise SimulationError(stopped + trajectory.status, trajectory)
+    if getattr(system, "model", None) is not None and limits != "ignore":
+        trajectory = report_limits(system, trajectory, limits, enforced, stacklevel=stacklevel)
+    if not one:
+        warn_if_stopped(trajectory, stacklevel)
     return trajectory
 
 
 def _compiled_run(constrained, charts, tableau, controller, damping, project, projection_tolerance, times):
     """The :class:`~multibody.integrators.CompiledRun` of ``constrained`` (its step compiled) with ``tableau``, the
     ``controller`` (``None``, constant joint forces, a bound PD, a compiled or a Python controller) and ``damping``
-    (``(nv,)`` or ``None``), at the output ``times``: the steps :func:`simulate`'s Python loop would take, with the
-    projection at each step's end as ``settle`` makes it (:meth:`ConstrainedSystem._projection`'s tolerance and
+    (``(nv,)`` or ``None``), at the output ``times``: the steps :func:`_simulate_batch`'s Python step would take,
+    with the projection at each step's end as it makes it (:meth:`ConstrainedSystem._projection`'s tolerance and
     iterations) and the rule of :func:`_near_singular`."""
     model = constrained.system.model
     nq, nv, m = constrained.nq, constrained.nv, constrained.num_rows
@@ -695,72 +678,35 @@ def _stalled(method, last, advanced, near, span):
     return message
 
 
-def _trajectory(constrained, times, states, torque, status, projection_tolerance=None, settled=False,
-                state_dependent=True):
-    """The :class:`Trajectory` of output ``states (n, nq + nv)`` at ``times (n,)``, with the joint forces
-    ``torque(t, q, v)`` (called once, at the first time, where not ``state_dependent``).
+def _trajectory(constrained, times, states, torque, status, projection_tolerance=None, state_dependent=True):
+    """The :class:`Trajectory` of one run's output ``states (n, nq + nv)`` at ``times (n,)``, with the joint forces
+    ``torque(t, q (nq,), v (nv,))`` (called once, at the first time, where not ``state_dependent``).
 
     The states are on the configuration manifold already (charts keep them there); with a
     ``projection_tolerance``, states that their projection onto the constraints moves by more than it
-    (dense-output states between integrator steps) are projected, unless they are ``settled``: every one
-    a step's end, which ``simulate`` has judged so already (the fixed-step methods). ``λ``, energy
-    and residual are then evaluated at exactly the returned states, in one batched call each when the
-    system takes batches (else one state at a time).
+    (dense-output states between integrator steps) are projected. ``λ``, energy and residual are then evaluated at
+    exactly the returned states, as for a batch of one (:func:`_batch_trajectory`).
     """
-    nq, nv, m = constrained.nq, constrained.nv, constrained.num_rows
-    n = len(times)
-    batched = constrained.batched and n > 0
+    nq, n = constrained.nq, len(times)
     q, v = states[:, :nq].copy(), states[:, nq:].copy()
-
-    def residuals(index):
-        if not m:
-            return np.zeros(len(index))
-        if batched:
-            return constrained.residual(q[index], v[index], times[index])
-        return np.array([constrained.residual(q[k], v[k], times[k]) for k in index])
-
-    residual = residuals(np.arange(n))
-    if projection_tolerance is not None and m and n and not settled:
+    if projection_tolerance is not None and constrained.num_rows and n:
         # judged by the move, as a step's end is (settle in simulate): near a singular configuration a
         # residual far below the tolerance can hide a velocity off the constraints
-        if batched:
+        if constrained.batched:
             q_p, v_p = constrained.project(q, v, times)
         else:
             q_p, v_p = (np.array(x) for x in zip(*(constrained.project(q[k], v[k], times[k]) for k in range(n))))
         off = np.flatnonzero(np.maximum(np.abs(q_p - q).max(axis=-1), np.abs(v_p - v).max(axis=-1))
                              > projection_tolerance)
-        if off.size:
-            q[off], v[off] = q_p[off], v_p[off]
-            residual[off] = residuals(off)
-    # The joint forces enter only the multipliers: without constraint rows there are none to solve for.
-    if not m:
-        taus = None
-    elif state_dependent:
-        taus = [torque(t, q_k, v_k) for t, q_k, v_k in zip(times, q, v)]
-    else:
-        taus = [torque(times[0], None, None)] * n if n else []
-    if not m:
-        lam = np.zeros((n, 0))
-    elif batched:
-        tau = None if all(tau_k is None for tau_k in taus) else np.stack(
-            [np.zeros(nv) if tau_k is None else np.asarray(tau_k, dtype=float) for tau_k in taus])
-        lam = constrained.solve(q, v, tau, times).lam
-    else:
-        lam = [constrained.solve(q_k, v_k, tau_k, t).lam for t, q_k, v_k, tau_k in zip(times, q, v, taus)]
-    energy = (np.broadcast_to(constrained.energy(q, v), (n,)) if batched
-              else [constrained.energy(q_k, v_k) for q_k, v_k in zip(q, v)])
-    return Trajectory(
-        t=np.array(times, dtype=float),
-        q=q,
-        v=v,
-        lam=np.array(lam, dtype=float).reshape(n, m),
-        energy=np.array(energy, dtype=float).reshape(n),
-        residual=residual,
-        row_names=list(constrained.row_names),
-        status=status,
-        projection_tolerance=projection_tolerance,
-        joint_names=recorded_names(constrained),
-    )
+        q[off], v[off] = q_p[off], v_p[off]
+
+    def one(t, q_, v_):
+        """The joint forces of the batch of one."""
+        return torque(t, q_, v_) if q_ is None else torque(t, q_[0], v_[0])
+
+    last = np.concatenate([q[-1:], v[-1:]], axis=-1) if n else np.zeros((1, nq + constrained.nv))
+    return _batch_trajectory(constrained, times, q[None], v[None], np.array([n]), last, one, state_dependent,
+                             [status], projection_tolerance).select(0)
 
 
 # ============================================================================= many trajectories in lockstep
@@ -814,26 +760,28 @@ def check_batchable(constrained, method, q_shape, v_shape):
                      "simulate the states one at a time")
 
 
-def _by_state(f, arrays, shape):
-    """``f(*arrays)`` on a batch of states (``arrays`` with a common leading axis of ``n``, ``f`` giving
-    ``(n,) + shape``), and ``{index: message}`` of the states it fails on. Where the batch call raises, ``f``
-    runs on each state alone, and the states it fails on get NaN."""
-    try:
-        return f(*arrays), {}
-    except _FAILURES:
-        pass
+def _by_state(f, arrays, shape, batched=True):
+    """``f(*arrays)`` on states ``arrays`` with a common leading axis of ``n``, ``(n,) + shape``, and ``{index:
+    message}`` of the states it fails on: in one call where ``batched`` (the system takes batches), else, and where
+    that call raises, on each state alone (``f`` of one state giving ``shape``), the states it fails on getting
+    NaN."""
+    if batched:
+        try:
+            return f(*arrays), {}
+        except _FAILURES:
+            pass
     n = len(arrays[0])
     out, errors = np.full((n,) + shape, np.nan), {}
     for i in range(n):
         try:
-            out[i] = f(*(x[i : i + 1] for x in arrays))[0]
+            out[i] = f(*(x[i] for x in arrays))
         except _FAILURES as error:
             errors[i] = str(error)
     return out, errors
 
 
 def _simulate_batch(constrained, charts, q0, v0, times, torque, state_dependent, tableau, run, *, project,
-                    projection_tolerance, limits, progress, device=False):
+                    projection_tolerance, progress, device=False, single=False, controller=None):
     """:func:`simulate` from ``N`` initial states ``q0 (N, nq)``, ``v0 (N, nv)`` at the output ``times (n,)`` (s),
     one step of ``tableau`` per output interval. With a compiled ``run`` (:class:`~multibody.integrators.CompiledRun`:
     joint forces that are data or compiled), each trajectory runs on its own in compiled calls on all cores, and a
@@ -848,10 +796,25 @@ def _simulate_batch(constrained, charts, q0, v0, times, torque, state_dependent,
     state (one that never started, whose initial state cannot be projected, at rest in the neutral
     configuration). The initial states are finite (:func:`simulate` checks them). ``device``: the compiled run's
     first pass over every trajectory runs on the GPU (:func:`_run_batch`).
+
+    ``single``: one trajectory, ``q0 (1, nq)``, ``v0 (1, nv)``, run as a batch of one: its joint forces
+    ``torque(t, q (nq,), v (nv,))`` take one state, as a Python ``controller`` does, which the compiled ``run`` calls
+    once per stage; its initial state's projection raises where it fails and is reported by coordinate; its initial
+    state must have a solution of the constrained step; an error of its joint forces stops it; and it is returned
+    without the batch axis, up to its last good output (:func:`simulate` raises where it stopped early). A system
+    that takes one state at a time (not :attr:`ConstrainedSystem.batched`) runs as one trajectory only, its states
+    evaluated one at a time.
     """
     mechanical = constrained.system
     nq, nv, m = constrained.nq, constrained.nv, constrained.num_rows
     count, n, t0 = len(q0), len(times), times[0]
+    batched = constrained.batched
+    if single:
+        one_state = torque
+
+        def torque(t, q, v):
+            value = one_state(t, q, v) if q is None else one_state(t, q[0], v[0])
+            return None if value is None else constrained._tau(value)
     status = ["completed"] * count
     stop = np.full(count, n)  # each trajectory's outputs [stop:] are NaN
 
@@ -872,21 +835,33 @@ def _simulate_batch(constrained, charts, q0, v0, times, torque, state_dependent,
         return projected
 
     # whether each trajectory's next step evaluates its stages on the constraints, as settle decides for one
-    projected, errors = _by_state(projection(t0), (q0, v0), (nq + nv + 1,))
+    if single:
+        q_one, v_one, conditioning = _projected_start(constrained, q0[0], v0[0], t0, stacklevel=4)
+        projected, errors = np.concatenate([q_one, v_one, [conditioning]])[None], {}
+    else:
+        projected, errors = _by_state(projection(t0), (q0, v0), (nq + nv + 1,), batched)
     near = np.zeros(count, dtype=bool) | _near_singular(projected[:, -1], project, constrained, charts)
     projected = projected[:, :-1]
     moved = np.abs(projected - last).max(axis=-1, initial=0.0)
     moved[list(errors)] = 0.0
-    if m and moved.max(initial=0.0) > 1e-10:
+    if not single and m and moved.max(initial=0.0) > 1e-10:
         j = int(np.argmax(moved))
         warnings.warn(f"the initial states of {int(np.sum(moved > 1e-10))} of {count} trajectories violated the "
                       f"constraints; projected onto them (moved by up to {moved[j]:.3g}, in trajectory {j})",
                       UserWarning, stacklevel=3)
     last[:] = projected
+    if single:
+        try:
+            # the initial state has a solution of the constrained step
+            constrained.solve(last[0, :nq], last[0, nq:], torque(t0, last[:, :nq], last[:, nq:]), t0)
+        except _FAILURES as error:
+            errors[0] = str(error)
     good = np.ones(count, dtype=bool)
     good[list(errors)] = False
-    # A trajectory that never started stands at rest in the neutral configuration, for the joint forces only.
-    last[~good] = np.concatenate([mechanical.model.neutral(), np.zeros(nv)])
+    if not single:
+        # A trajectory that never started stands at rest in the neutral configuration, for the joint forces only
+        # (a batch's, which take every trajectory; a batch is of a Model).
+        last[~good] = np.concatenate([mechanical.model.neutral(), np.zeros(nv)])
     v_start = last[:, nq:].copy()
     for r, message in errors.items():
         fail(r, 0, message)
@@ -899,13 +874,13 @@ def _simulate_batch(constrained, charts, q0, v0, times, torque, state_dependent,
     def derivative(t, y, q_chart, rows, failed):
         """``ẏ (N, 2 nv)`` of the chart states ``y (N, 2 nv)`` around ``q_chart (N, nq)``: of the trajectories
         ``rows`` (indices) by one compiled call, zero for the others. A state the compiled step did not solve
-        gets the message of its status in ``failed[row]`` (where ABA alone gave non-finite rates, that of
-        :meth:`ConstrainedSystem.forward_dynamics`, as :func:`simulate` does for one trajectory). The trajectories ``near`` have their stage states projected onto the constraints
-        first."""
+        gets the message of its status in ``failed[row]`` (where ABA alone gave non-finite rates, or the step is not
+        compiled, that of :meth:`ConstrainedSystem.forward_dynamics`). The trajectories ``near`` have their stage
+        states projected onto the constraints first."""
         close = rows[near[rows]]
         if close.size:
             q_t, v_t = charts.state(q_chart[close], y[close])
-            on, errors = _by_state(projection(t), (q_t, v_t), (nq + nv + 1,))
+            on, errors = _by_state(projection(t), (q_t, v_t), (nq + nv + 1,), batched)
             y = y.copy()
             y[close] = charts.coordinates(q_chart[close], on[:, :nq], on[:, nq : nq + nv])
             failed.update({int(close[i]): message for i, message in errors.items()})
@@ -921,7 +896,11 @@ def _simulate_batch(constrained, charts, q0, v0, times, torque, state_dependent,
         whole = rows.size == count
         q_rows, y_rows = (q_chart, y) if whole else (q_chart[rows], y[rows])
         tau_rows = tau if tau is None or tau.ndim == 1 or whole else tau[rows]
-        y_dot, failures = constrained._chart_derivatives(q_rows, y_rows, tau_rows)
+        if constrained._compiled_motion is None:
+            # (a step evaluated in Python: each state by the constrained step below)
+            y_dot, failures = np.full_like(y_rows, np.nan), dict.fromkeys(range(len(y_rows)))
+        else:
+            y_dot, failures = constrained._chart_derivatives(q_rows, y_rows, tau_rows)
         for j, error in failures.items():
             r = rows[j]
             tau_r = tau if tau is None or tau.ndim == 1 else tau[r]
@@ -944,18 +923,26 @@ def _simulate_batch(constrained, charts, q0, v0, times, torque, state_dependent,
         lockstep; those that fail stop."""
         q_chart = np.ascontiguousarray(last[:, :nq])
         failed = {}
-        y = tableau_step(lambda t, y: derivative(t, y, q_chart, rows, failed),
-                         lambda y: charts.chart_rate(y[..., :nv], y[..., nv:]), times[k - 1], charts.to_chart(last),
-                         times[k] - times[k - 1], tableau)
+        try:
+            y = tableau_step(lambda t, y: derivative(t, y, q_chart, rows, failed),
+                             lambda y: charts.chart_rate(y[..., :nv], y[..., nv:]), times[k - 1],
+                             charts.to_chart(last), times[k] - times[k - 1], tableau)
+        except _FAILURES as error:
+            if not single:
+                raise
+            # (one trajectory's joint forces, which raised)
+            fail(0, k, str(error))
+            return
         end = charts.from_chart(q_chart[rows], y[rows])
         reasons = {rows[j]: f"the state became non-finite at t = {times[k]:.6g} s"
                    for j in np.flatnonzero(~np.isfinite(end).all(axis=-1))}
         reasons.update(failed)
         if project and m:
             # the states that their projection onto the constraints moves by more than the tolerance,
-            # projected (as settle does for one trajectory)
+            # projected (as settle does for a step of the adaptive methods)
             at = np.flatnonzero(~np.isin(rows, list(reasons)))
-            settled, errors = _by_state(projection(times[k]), (end[at, :nq], end[at, nq:]), (nq + nv + 1,))
+            settled, errors = _by_state(projection(times[k]), (end[at, :nq], end[at, nq:]), (nq + nv + 1,),
+                                        batched)
             near[rows[at]] = _near_singular(settled[:, -1], project, constrained, charts)
             settled = settled[:, :-1]
             off = np.abs(settled - end[at]).max(axis=-1, initial=0.0) > projection_tolerance
@@ -977,30 +964,37 @@ def _simulate_batch(constrained, charts, q0, v0, times, torque, state_dependent,
                 python_step(k, rows)
                 bar.update(times[k])
         else:
-            _run_batch(run, mechanical, states, last, stop, near, fail, python_step, times, bar, device)
+            _run_batch(run, constrained, states, last, stop, near, fail, python_step, times, bar, device,
+                       controller)
     finally:
         bar.close()
     trajectory = _batch_trajectory(constrained, times, q_out, v_out, stop, last, torque, state_dependent, status,
                                    projection_tolerance if project else None)
-    model = getattr(mechanical, "model", None)
-    if model is not None and limits != "ignore":
-        trajectory = _report_batch_limits(mechanical, trajectory, limits)
-    warn_if_stopped(trajectory, stacklevel=4)
-    return trajectory
+    if not single:
+        return trajectory
+    k, one = int(stop[0]), trajectory.select(0)
+    return replace(one, t=one.t[:k].copy(), **{name: getattr(one, name)[:k]
+                                               for name in ("q", "v", "lam", "energy", "residual")})
 
 
-def _run_batch(run, system, states, last, stop, near, fail, python_step, times, bar, device=False):
+def _run_batch(run, constrained, states, last, stop, near, fail, python_step, times, bar, device=False,
+               controller=None):
     """The steps of a batch by its compiled ``run`` (:meth:`~multibody.integrators.CompiledRun.advance_batch`), each
     trajectory on its own from its next step, in calls of about :data:`CHUNK_SECONDS`. A step that a trajectory's run
     leaves to Python (it starts near a singular configuration, or a stage or a projection the compiled step did not
     solve) is taken by ``python_step(k, rows)`` for the trajectories at that step, which then go on compiled.
     ``states (N, n, nq + nv)``, ``last (N, nq + nv)``, ``stop (N,)``, ``near (N,)`` and the failures (``fail(r, k,
-    reason)``) as :func:`_simulate_batch` keeps them; ``system``: the mechanical system (for messages).
+    reason)``) as :func:`_simulate_batch` keeps them; ``constrained``: the system.
+
+    A batch of one runs on this thread (:meth:`~multibody.integrators.CompiledRun.advance`), with its Python
+    ``controller`` called once per stage; an error the controller raises stops it at that step.
 
     ``device``: every trajectory's steps up to the first it leaves to Python run first, in one launch on the GPU
     (:func:`multibody.gpu.advance_batch`, one trajectory per thread); the steps left after that run here."""
     count, n = states.shape[:2]
+    system = constrained.system
     io = np.zeros((count, run.io.size))
+    joint_forces = _joint_forces(constrained)
     following = np.ones(count, dtype=np.int64)  # each trajectory's next step
     handed = np.zeros(count, dtype=bool)  # whose next step the run left to Python
 
@@ -1031,7 +1025,20 @@ def _run_batch(run, system, states, last, stop, near, fail, python_step, times, 
             io[rows, stepping.IO_STEP] = following[rows]
             io[rows, stepping.IO_STOP] = np.minimum(n, following[rows] + chunk)
             started = time.perf_counter()
-            run.advance_batch(states, io, rows)
+            if count == 1:
+                try:
+                    run.advance(states[0], int(io[0, stepping.IO_STEP]), int(io[0, stepping.IO_STOP]), controller,
+                                joint_forces)
+                except _FAILURES as error:
+                    # (the steps before the stage whose joint forces raised are done)
+                    io[0] = run.io
+                    following[0] = io[0, stepping.IO_STEP]
+                    last[0] = states[0, following[0] - 1]
+                    fail(0, int(following[0]), str(error))
+                    return
+                io[0] = run.io
+            else:
+                run.advance_batch(states, io, rows)
             chunk = _next_chunk(chunk, time.perf_counter() - started)
             reports(rows)
         going = (stop == n) & (following < n)
@@ -1066,6 +1073,7 @@ def _batch_trajectory(constrained, times, q, v, stop, last, torque, state_depend
     each trajectory's last good state, which the joint forces ``torque`` see in place of a stopped one's NaN."""
     nq, nv, m = constrained.nq, constrained.nv, constrained.num_rows
     count, n = q.shape[:2]
+    batched = constrained.batched
     valid = np.arange(n) < stop[:, None]
     lam, energy, residual = np.full((count, n, m), np.nan), np.full((count, n), np.nan), np.full((count, n), np.nan)
     block = max(1, _OUTPUT_BLOCK // max(count, 1))
@@ -1076,26 +1084,28 @@ def _batch_trajectory(constrained, times, q, v, stop, last, torque, state_depend
             continue
         q_s, v_s = q[:, a:b][at], v[:, a:b][at]
         t_s = np.broadcast_to(times[a:b], at.shape)[at]
-        energy[:, a:b][at] = constrained.energy(q_s, v_s)
+        energy[:, a:b][at] = _by_state(constrained.energy, (q_s, v_s), (), batched)[0]
         if not m:
             residual[:, a:b][at] = 0.0
             continue
         # (every output state is a step's end, projected already where that moved it: RK4 steps once per
         # output interval)
-        r_s, _ = _by_state(constrained.residual, (q_s, v_s, t_s), ())
+        r_s, _ = _by_state(constrained.residual, (q_s, v_s, t_s), (), batched)
         residual[:, a:b][at] = r_s
         if state_dependent:
+            # (not called at the times after every trajectory stopped)
             tau = np.stack([_as_rows(torque(times[k], np.where(valid[:, k, None], q[:, k], last[:, :nq]),
                                             np.where(valid[:, k, None], v[:, k], last[:, nq:])), count, nv)
-                            for k in range(a, b)], axis=1)
+                            if valid[:, k].any() else np.zeros((count, nv)) for k in range(a, b)], axis=1)
         else:
             tau = torque(times[0], None, None)
             tau = tau if tau is None or tau.ndim == 1 else np.broadcast_to(tau[:, None], at.shape + (nv,))
         if tau is None or tau.ndim == 1:
-            lam_s, _ = _by_state(lambda q_, v_, t_: constrained.solve(q_, v_, tau, t_).lam, (q_s, v_s, t_s), (m,))
+            lam_s, _ = _by_state(lambda q_, v_, t_: constrained.solve(q_, v_, tau, t_).lam, (q_s, v_s, t_s), (m,),
+                                 batched)
         else:
             lam_s, _ = _by_state(lambda q_, v_, t_, tau_: constrained.solve(q_, v_, tau_, t_).lam,
-                                 (q_s, v_s, t_s, tau[at]), (m,))
+                                 (q_s, v_s, t_s, tau[at]), (m,), batched)
         lam[:, a:b][at] = lam_s
     return Trajectory(t=np.array(times, dtype=float), q=q, v=v, lam=lam, energy=energy, residual=residual,
                       row_names=list(constrained.row_names), status=list(status),
@@ -1105,48 +1115,3 @@ def _batch_trajectory(constrained, times, q, v, stop, last, torque, state_depend
 def _as_rows(tau, count, nv):
     """Joint forces ``None``, ``(nv,)`` or ``(count, nv)`` as ``(count, nv)``."""
     return np.zeros((count, nv)) if tau is None else np.broadcast_to(tau, (count, nv))
-
-
-def _report_batch_limits(system, trajectory, mode, enforced=()):
-    """:func:`report_limits` for a batch of trajectories ``q (N, n, nq)``. ``"warn"``: one
-    :class:`JointLimitWarning` per joint, with the number of trajectories that left its limits and the first
-    time and value. ``"error"``: each trajectory that left a joint's limits stops at its first output time
-    outside, as a failed trajectory does (its status names joint, time and value; its outputs after it are
-    NaN); returns the trajectory so marked."""
-    model = system.model
-    q = trajectory.q
-    outside = (q < model.lower) | (q > model.upper)  # (NaN compares False: stopped trajectories stay inside)
-    for start, stop in model._unit_norm_slices:
-        outside[..., start:stop] = False
-    outside[..., list(enforced)] = False
-    if not outside.any():
-        return trajectory
-    count, n = q.shape[:2]
-
-    def describe(j, k, c):
-        return (f"{coordinate_name(system, c, False)} left its limits [{model.lower[c]:.6g}, {model.upper[c]:.6g}] "
-                f"at t = {trajectory.t[k]:.6g} s: q = {q[j, k, c]:.6g}")
-
-    if mode == "warn":
-        for joint, start in zip(model.joints, model.idx_q):
-            columns = outside[..., start : start + joint.nq]
-            left = columns.any(axis=(1, 2))
-            if not left.any():
-                continue
-            times = np.where(left, np.argmax(columns.any(axis=2), axis=1), n)
-            j = int(np.argmin(times))
-            k = int(times[j])
-            c = start + int(np.argmax(columns[j, k]))
-            warnings.warn(f"{describe(j, k, c)} in trajectory {j} ({int(left.sum())} of {count} trajectories left "
-                          "them); joint limits are reported, not enforced (limits='ignore' silences this)",
-                          JointLimitWarning, stacklevel=4)
-        return trajectory
-    status = list(trajectory.status)
-    arrays = {name: getattr(trajectory, name).copy() for name in ("q", "v", "lam", "energy", "residual")}
-    for j in np.flatnonzero(outside.any(axis=(1, 2))):
-        k = int(np.argmax(outside[j].any(axis=1)))
-        c = int(np.argmax(outside[j, k]))
-        status[j] = describe(j, k, c) + " (limits='error')"
-        for value in arrays.values():
-            value[j, k + 1 :] = np.nan
-    return replace(trajectory, status=status, **arrays)

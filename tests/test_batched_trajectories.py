@@ -163,6 +163,36 @@ def test_a_trajectory_that_blows_up_is_marked_and_the_others_go_on():
         np.testing.assert_array_equal(batch.q[k], mb.simulate(model, q0[k], v0[k], 0.3, dt=0.01, **RK4).q)
 
 
+def test_one_trajectory_is_a_batch_of_one():
+    """One initial state runs as a batch of one: its trajectory, and where it stops its error and the part so far,
+    are those of the batch of one from the same state, bit for bit; the part so far has the energies of its states
+    (a PD law so stiff that RK4 with a step of 0.05 s diverges in two steps)."""
+    model = mb.robots.load("double_pendulum")
+    q0, v0 = np.array([0.3, 0.2]), np.array([0.1, 0.0])
+    names = ("q", "v", "lam", "energy", "residual")
+    pd = mb.PD(5.0, 1.0, np.zeros(model.nq))
+    alone = mb.simulate(model, q0, v0, 1.0, dt=0.01, tau=pd, **RK4)
+    batch = mb.simulate(model, q0[None], v0[None], 1.0, dt=0.01, tau=pd, **RK4)
+    assert alone.status == batch.status[0] == "completed"
+    for name in names:
+        np.testing.assert_array_equal(getattr(alone, name), getattr(batch, name)[0])
+
+    stiff, rest = mb.PD(1e6, 0.0, np.ones(model.nq)), np.zeros((1, model.nq))
+    with pytest.raises(mb.SimulationError) as error:
+        mb.simulate(model, rest[0], rest[0], 5.0, dt=0.05, tau=stiff, **RK4)
+    with pytest.warns(RuntimeWarning, match="1 of 1 trajectories stopped early"):
+        batch = mb.simulate(model, rest, rest, 5.0, dt=0.05, tau=stiff, **RK4)
+    assert str(error.value) == batch.status[0] == error.value.trajectory.status
+    assert "the state grew beyond bounds" in str(error.value)
+    part = error.value.trajectory
+    kept = len(part)
+    assert 1 < kept < len(batch) and part.q.shape == (kept, model.nq)
+    np.testing.assert_array_equal(part.t, batch.t[:kept])
+    for name in names:
+        np.testing.assert_array_equal(getattr(part, name), getattr(batch, name)[0, :kept])
+    assert np.isfinite(part.energy[:2]).all()
+
+
 def test_non_finite_joint_forces_of_one_trajectory_stop_it_alone():
     """A callable that returns NaN for trajectory 1 from t = 0.2 s: it stops there, with the state of its last
     good step kept and a status naming the stage time and the joint, as the same run alone says; the callable
