@@ -160,6 +160,23 @@ def report_limits(system, trajectory, mode, enforced=(), stacklevel=3):
     return replace(trajectory, status=status, **arrays)
 
 
+def projected_start(constrained, q, v, t0, stacklevel):
+    """The initial state ``q (nq,)``, ``v (nv,)`` of a run of ``constrained`` (a
+    :class:`~multibody.constrained.ConstrainedSystem`) projected onto its constraints at ``t0`` (s): ``(q, v,
+    conditioning)``, the projection of :meth:`~multibody.constrained.ConstrainedSystem.project` and the rows'
+    conditioning there. Where it moved the state by more than ``1e-10``, a warning ``stacklevel`` calls up gives the
+    distance and the coordinates that moved most; where the projection fails, its ``ConstraintError``."""
+    q_projected, v_projected, conditioning = constrained._projection(q, v, t0)
+    dq, dv = np.abs(q_projected - q), np.abs(v_projected - v)
+    moved = max(dq.max(initial=0.0), dv.max(initial=0.0))
+    if moved > 1e-10 and constrained.num_rows:
+        largest = [f"{coordinate_name(constrained.system, int(np.argmax(d)), rate)} by {d.max():.3g}"
+                   for d, rate in ((dq, False), (dv, True)) if d.size and d.max() > 1e-10]
+        warnings.warn(f"initial state violated the constraints; projected onto them (moved by {moved:.3g}: "
+                      f"{' and '.join(largest)})", UserWarning, stacklevel=stacklevel)
+    return q_projected, v_projected, conditioning
+
+
 def coordinate_name(system, k, rate, force=False):
     """``"q[k] (joint 'name', unit)"``, ``"v[k] (...)"`` or, with ``force``, the joint force ``"tau[k] (..., N or
     N·m)"`` (indexed as ``v``): a coordinate of ``system`` named for messages (by its index alone without a

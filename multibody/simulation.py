@@ -55,8 +55,8 @@ from .mechanical import CHART_TURN, Charts, ModelSystem
 from .model import all_finite
 # JointLimitWarning is the warning simulate's docstring names, and scripts import it from here
 from .runs import (JointLimitWarning, Progress, SimulationError, checked_timing, coordinate_name,  # noqa: F401
-                   joint_damping_of, non_finite_torque, output_times, report_limits, require_finite, torque_function,
-                   with_joint_damping)
+                   joint_damping_of, non_finite_torque, output_times, projected_start, report_limits, require_finite,
+                   torque_function, with_joint_damping)
 from .trajectory import Trajectory, recorded_names
 
 #: The implicit methods, SciPy's solvers through their public interface.
@@ -239,7 +239,7 @@ def simulate(system, q0, v0, t_final, *, dt=None, method=None, tau=None, rtol=1e
                                      progress=progress, device=device, single=batch is None, controller=controller)
         return _finish(mechanical, trajectory, limits)
 
-    q, v, conditioning = _projected_start(constrained, q, v, t0, stacklevel=3)
+    q, v, conditioning = projected_start(constrained, q, v, t0, stacklevel=3)
 
     # The integrator's state is y = [δ, w] in the chart around a configuration q_c: q = chart(q_c, δ),
     # w the aligned velocity (see Model.chart). A new chart starts from each step's end state.
@@ -398,22 +398,6 @@ def simulate(system, q0, v0, t_final, *, dt=None, method=None, tau=None, rtol=1e
         bar.close()
     return _finish(mechanical, _trajectory(constrained, times, states, torque, "completed", tolerance,
                                            state_dependent=callable(tau)), limits)
-
-
-def _projected_start(constrained, q, v, t0, stacklevel):
-    """The initial state ``q (nq,)``, ``v (nv,)`` projected onto the constraints at ``t0`` (s), ``(q, v,
-    conditioning)`` (:meth:`ConstrainedSystem._projection`), with a warning ``stacklevel`` calls up giving the
-    distance moved and the coordinates that moved most, where it moved by more than ``1e-10``; where the projection
-    fails, its ``ConstraintError``."""
-    q_projected, v_projected, conditioning = constrained._projection(q, v, t0)
-    dq, dv = np.abs(q_projected - q), np.abs(v_projected - v)
-    moved = max(dq.max(initial=0.0), dv.max(initial=0.0))
-    if moved > 1e-10 and constrained.num_rows:
-        largest = [f"{coordinate_name(constrained.system, int(np.argmax(d)), rate)} by {d.max():.3g}"
-                   for d, rate in ((dq, False), (dv, True)) if d.size and d.max() > 1e-10]
-        warnings.warn(f"initial state violated the constraints; projected onto them (moved by {moved:.3g}: "
-                      f"{' and '.join(largest)})", UserWarning, stacklevel=stacklevel)
-    return q_projected, v_projected, conditioning
 
 
 def _check_unilateral(constrained, method):
@@ -836,7 +820,7 @@ def _simulate_batch(constrained, charts, q0, v0, times, torque, state_dependent,
 
     # whether each trajectory's next step evaluates its stages on the constraints, as settle decides for one
     if single:
-        q_one, v_one, conditioning = _projected_start(constrained, q0[0], v0[0], t0, stacklevel=4)
+        q_one, v_one, conditioning = projected_start(constrained, q0[0], v0[0], t0, stacklevel=4)
         projected, errors = np.concatenate([q_one, v_one, [conditioning]])[None], {}
     else:
         projected, errors = _by_state(projection(t0), (q0, v0), (nq + nv + 1,), batched)

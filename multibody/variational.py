@@ -137,7 +137,7 @@ from .constrained import ConstrainedSystem, ConstraintError
 from .mechanical import ModelSystem
 from .model import all_finite
 from .runs import (Progress, SimulationError, checked_timing, joint_damping_of, non_finite_torque, output_times,
-                   report_limits, require_finite, torque_function, with_joint_damping)
+                   projected_start, report_limits, require_finite, torque_function, with_joint_damping)
 from .tree import IQ, IV, KIND
 from .kernels import configuration, coriolis, crba
 from .kernels import lagrangian as lagrangian_kernels
@@ -935,12 +935,7 @@ def simulate(system, q0, v0, t_final, *, dt=None, tau=None, rule="midpoint", ord
     require_finite(mechanical, "q0", q)
     require_finite(mechanical, "v0", v, rate=True)
     if m:
-        q_projected, v_projected = constrained.project(q, v, t0)
-        moved = max(_norm(q_projected - q), _norm(v_projected - v))
-        if moved > 1e-10:
-            warnings.warn(f"initial state violated the constraints; projected onto them (moved by {moved:.3g})",
-                          UserWarning, stacklevel=3)
-        q, v = q_projected, v_projected
+        q, v, _ = projected_start(constrained, q, v, t0, stacklevel=4)
 
     times = output_times(t0, t_final, dt)
     qs, vs = np.empty((len(times), nq)), np.empty((len(times), nv))
