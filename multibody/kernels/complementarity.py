@@ -352,11 +352,14 @@ def damped_least_squares(B, m):
     too), ``A = Q [Lᵀ; 0]`` and ``Lᵀ δ = (Qᵀ (b, 0))[:m]``. Unlike the normal equations
     ``(Jᵀ J + λ I) δ = Jᵀ b`` this does not square the conditioning: their rounding, ``ε/λ`` of the step,
     would move ``δ`` along the null space of ``J``."""
-    n = 2 * m
     for k in range(m):
-        # the reflection H = I − τ v vᵀ with x H = (α, 0, …, 0), x = B[k, k:], v = x − α e_k
+        # the reflection H = I − τ v vᵀ with x H = (α, 0, …, 0), x = B[k, k:], v = x − α e_k. Row k is zero
+        # right of column m + k (its √λ is there, and the reflections before touched only columns up to m + k − 1),
+        # so v lives on the columns k … m − 1 and m … m + k.
         size = 0.0
-        for col in range(k, n):
+        for col in range(k, m):
+            size += B[k, col] * B[k, col]
+        for col in range(m, m + k + 1):
             size += B[k, col] * B[k, col]
         alpha = -math.sqrt(size) if B[k, k] > 0.0 else math.sqrt(size)
         if alpha == 0.0:
@@ -366,10 +369,14 @@ def damped_least_squares(B, m):
         tau = 1.0 / (alpha * (alpha - first))  # 2 / vᵀv, with vᵀv = 2 α (α − x_k)
         for row in range(k + 1, m + 1):
             d = 0.0
-            for col in range(k, n):
+            for col in range(k, m):
+                d += B[row, col] * B[k, col]
+            for col in range(m, m + k + 1):
                 d += B[row, col] * B[k, col]
             d *= tau
-            for col in range(k, n):
+            for col in range(k, m):
+                B[row, col] -= d * B[k, col]
+            for col in range(m, m + k + 1):
                 B[row, col] -= d * B[k, col]
         B[k, k] = alpha
     # Lᵀ δ = (Qᵀ b)[:m], L the lower triangle of B[:m, :m]
