@@ -450,7 +450,7 @@ def test_convex_hull_of_a_cube_equals_the_box_in_pairs():
 
 def test_cylinder_standing_and_lying_on_a_box():
     """Against a box face, a cylinder gives what it gives against the face's plane, where over the face: standing,
-    four rim points; lying, the two lowest rim points; overhanging the edge, those over the face."""
+    four rim points; lying, the two lowest rim points; overhanging the edge, its cap cut at the edge."""
     box = (C.BOX, (1.0, 1.0, 0.5), I3, (0.0, 0.0, 0.0))
     yaw = Rotation.from_euler("z", 0.4).as_matrix()
     rows = run_pair((C.CYLINDER, (0.2, 0.3, 0), yaw, (0.1, 0.2, 0.8 - 1e-4)), box)
@@ -467,10 +467,15 @@ def test_cylinder_standing_and_lying_on_a_box():
     rows = run_pair((C.CYLINDER, (0.2, 0.3, 0), lying, (0.1, 0.2, 0.7 + 1e-4)), box)
     expected = [[0.1, 0.2 + y, 0.5 + 0.5e-4, 0, 0, 1, 1e-4] for y in (-0.3, 0.3)]
     np.testing.assert_allclose(rows_as_set(rows), rows_as_set(expected), atol=1e-9)
-    # standing over the face's edge x = 1 (rim points at x = 0.85, 1.25 and (1.05, ±0.2)): the one over the face
+    # standing over the face's edge x = 1: its cap cut at the edge (clip_manifold), four points on the cap over the
+    # face, the rim point (0.85, 0) and the two ends of the cut among them
     rows = run_pair((C.CYLINDER, (0.2, 0.3, 0), I3, (1.05, 0.0, 0.8 - 1e-4)), box)
-    expected = [[0.85, 0, 0.5 - 0.5e-4, 0, 0, 1, -1e-4]]
-    np.testing.assert_allclose(rows_as_set(rows), rows_as_set(expected), atol=1e-9)
+    assert len(rows) == 4
+    np.testing.assert_allclose(rows[:, 2:], np.tile([0.5 - 0.5e-4, 0, 0, 1, -1e-4], (4, 1)), atol=1e-12)
+    assert (rows[:, 0] <= 1.0 + 1e-12).all() and (np.hypot(rows[:, 0] - 1.05, rows[:, 1]) <= 0.2 + 1e-12).all()
+    assert np.isclose(rows[:, :2], [0.85, 0.0], atol=1e-12).all(axis=1).any()
+    cut = np.isclose(rows[:, 0], 1.0, atol=1e-12)
+    assert cut.sum() == 2 and rows[cut, 1].min() < 0.0 < rows[cut, 1].max()
 
 
 def test_convex_hull_of_a_cube_on_a_box_gives_its_corners():

@@ -85,6 +85,22 @@ def test_hull_prism_lying_over_the_edge_of_a_hull_slab():
     np.testing.assert_allclose(rows_as_set(swapped(back)), rows_as_set(expected), atol=TOL)
 
 
+def test_hull_prism_and_cube_overhanging_a_box_face():
+    """A hull overhanging the edge x = 1 of a box face (its vertices not all over the face): its lower face is cut at
+    the edge, as box on box does, instead of keeping only the vertices over the face (which would leave a cube
+    supported on one line, its centre beyond it)."""
+    box = (C.BOX, (1.0, 1.0, 0.5), I3, (0.0, 0.0, 0.0))
+    p = np.array([0.95, 0.3, 0.6 - 1e-4])
+    rows = run_pair(hull(cuboid(0.1, 0.1, 0.1), I3, p), box)
+    boxes = run_pair((C.BOX, (0.1, 0.1, 0.1), I3, p), box)
+    assert len(rows) == 4
+    np.testing.assert_allclose(rows_as_set(rows, 12), rows_as_set(boxes, 12), atol=TOL)
+    prism = np.array([[x, y, z] for x in (-0.4, 0.4) for y, z in ((-0.2, 0.0), (0.2, 0.0), (0.0, 0.3))])
+    rows = run_pair(hull(prism, I3, (0.9, 0.0, 0.5 - 1e-4)), box)
+    expected = [[x, y, 0.5 - 0.5e-4, 0, 0, 1, -1e-4] for x in (0.5, 1.0) for y in (-0.2, 0.2)]
+    np.testing.assert_allclose(rows_as_set(rows), rows_as_set(expected), atol=TOL)
+
+
 def test_box_edge_on_a_hull_prism_face():
     """A box whose lower edge lies along the slanted face of a hull wedge (the face's normal is no box face's, so
     the box-face rule does not apply): the box's edge, clipped to the face, gives its two ends."""

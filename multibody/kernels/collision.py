@@ -1270,10 +1270,10 @@ def box_face_manifold(size_a, vertices_a, R_a, p_a, shape_b, size_b, vertices_b,
     nearest contact and its normal ``N`` (from b into the box). Where ``N`` is a face normal of the box,
     b is taken against that face's plane, the half-space ``m·x ≥ m·p_a + h_k`` with ``m = −N``
     (:func:`halfspace_contacts`: a cylinder standing on the face gives its rim points, a hull its vertices),
-    keeping the points over the face (``|e_i·(x − p_a)| ≤ h_i`` on its two side axes), each moved to the
-    midpoint ``x − (gap/2) m`` of its two witnesses; if none is over the face, the GJK/EPA contact. Where ``N`` is
-    no face normal of the box (an edge or a corner of the box on b), the clipped manifold of the two support
-    features (:func:`clip_manifold`)."""
+    each moved to the midpoint ``x − (gap/2) m`` of its two witnesses, when all of them are over the face
+    (``|e_i·(x − p_a)| ≤ h_i`` on its two side axes). Where some overhang the face, and where ``N`` is no face
+    normal of the box (an edge or a corner of the box on b), the clipped manifold of the two support features
+    (:func:`clip_manifold`: b's feature cut at the face's edges)."""
     single = convex_contact(BOX, size_a, vertices_a, R_a, p_a, shape_b, size_b, vertices_b, R_b, p_b, margin, out,
                             count, ws)
     if single == count:
@@ -1307,10 +1307,12 @@ def box_face_manifold(size_a, vertices_a, R_a, p_a, shape_b, size_b, vertices_b,
         if over:
             store_row(out, kept, 0, sub3(x, scale3(0.5 * gap, outward)) + scale3(-1.0, outward) + (gap,))
             kept += 1
-    if kept > count:
+    if kept == count + found:
         return kept
+    # b overhangs the face: its support feature clipped at the face's edges
     store_row(out, count, 0, first)
-    return count + 1
+    return clip_manifold(BOX, size_a, vertices_a, R_a, p_a, shape_b, size_b, vertices_b, R_b, p_b, margin, out, count,
+                         count + 1, ws)
 
 
 # ---------------------------------------------------------------------------------------------------------------------
