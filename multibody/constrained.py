@@ -718,11 +718,11 @@ class ConstrainedSystem:
         self._raise_failure(tail)
         return np.nan_to_num(tail[..., kkt.RANK]).astype(int)
 
-    def _warn_if_rank_deficient(self, q, t):
-        """A :class:`RankDeficientWarning` when the rows at ``q`` (one state or a batch) have a lower rank than
-        the constraints' independent rows (:meth:`~multibody.constraints.Constraint.independent_rows`), naming
-        each constraint whose own rows fall short, with its rank against its rows. Each rank is the lowest over
-        a batch."""
+    def _warn_if_rank_deficient(self, q, t, stacklevel=4):
+        """A :class:`RankDeficientWarning` (``stacklevel`` calls up) when the rows at ``q`` (one state or a batch)
+        have a lower rank than the constraints' independent rows
+        (:meth:`~multibody.constraints.Constraint.independent_rows`), naming each constraint whose own rows fall
+        short, with its rank against its rows. Each rank is the lowest over a batch."""
         if not self.num_rows:
             return
         q = np.asarray(q, dtype=float)
@@ -745,7 +745,7 @@ class ConstrainedSystem:
                       f"{self.num_rows} rows{where}: {'; '.join(parts)}. Redundant rows get minimum-norm "
                       "multipliers; if the redundancy is not intended, a constraint holds less than it seems to "
                       "(e.g. a planar loop closure in a plane that is not the loop's); if it is, filter "
-                      "mb.RankDeficientWarning", RankDeficientWarning, stacklevel=4)
+                      "mb.RankDeficientWarning", RankDeficientWarning, stacklevel=stacklevel)
 
     def _compiled_rank(self, q):
         """:meth:`rank` at one state ``q`` by the compiled step on the program's rows, with ``M``, in one call;
@@ -774,18 +774,18 @@ class ConstrainedSystem:
         """
         return self._projection(q, v, t, tolerance, max_iterations)[:2]
 
-    def _projection(self, q, v, t=0.0, tolerance=1e-12, max_iterations=50):
+    def _projection(self, q, v, t=0.0, tolerance=1e-12, max_iterations=50, stacklevel=3):
         """:meth:`project`, and the conditioning of the rows at the projected state ``(...)``: the
         smallest singular value of ``A L⁻ᵀ`` above rounding (``m ε σ_max``, which leaves out redundant rows)
         over the largest, or (compiled, where the LQ factor decides) a lower bound on it within a factor
         ``m``; 1 without rows. Every projected state is checked for a wrong branch (:meth:`_check_branches`),
         and the first projection of the system checks the rank of the rows at its state
-        (:meth:`_warn_if_rank_deficient`)."""
+        (:meth:`_warn_if_rank_deficient`, warning ``stacklevel`` calls up from here)."""
         projected = self._projected(q, v, t, tolerance, max_iterations)
         self._check_branches(projected[0])
         if not self._rank_checked:
             self._rank_checked = True
-            self._warn_if_rank_deficient(projected[0], t)
+            self._warn_if_rank_deficient(projected[0], t, stacklevel + 1)
         return projected
 
     def _projected(self, q, v, t, tolerance, max_iterations):

@@ -166,7 +166,8 @@ def projected_start(constrained, q, v, t0, stacklevel):
     conditioning)``, the projection of :meth:`~multibody.constrained.ConstrainedSystem.project` and the rows'
     conditioning there. Where it moved the state by more than ``1e-10``, a warning ``stacklevel`` calls up gives the
     distance and the coordinates that moved most; where the projection fails, its ``ConstraintError``."""
-    q_projected, v_projected, conditioning = constrained._projection(q, v, t0)
+    # (the rows' rank warning, on the system's first projection, also points at the caller)
+    q_projected, v_projected, conditioning = constrained._projection(q, v, t0, stacklevel=stacklevel + 1)
     dq, dv = np.abs(q_projected - q), np.abs(v_projected - v)
     moved = max(dq.max(initial=0.0), dv.max(initial=0.0))
     if moved > 1e-10 and constrained.num_rows:
