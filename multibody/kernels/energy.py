@@ -107,13 +107,20 @@ def mechanical_energy(joints, reals, frames, q, v, x2, x3, out, ws):
 
     ``q (nq,)``, ``v (nv,)``; ``frames``, ``x2``, ``x3`` unused.
     """
-    nj = joints.shape[0]
     pose, vel, _ = joint_motions(joints, reals, q, v, ws, None)
+    out[0, 0] = motion_energy(joints, reals, pose, vel, v)
+    nan_unless_finite(q, v, x2, x3, out)
+
+
+@njit(cache=True, error_model="numpy")
+def motion_energy(joints, reals, pose, vel, v):
+    """``E = T + U`` (J) of the state whose world poses ``pose`` and body velocities ``vel`` a pass of
+    :func:`multibody.kernels.kinematics.joint_motions` gave, ``v (nv,)`` its velocity (the armature's terms)."""
+    nj = joints.shape[0]
     g = load3(reals[nj], GRAVITY)
     T, U = 0.0, 0.0
     for i in range(nj):
         # T = Σᵢ ½ v_iᵀ I_i v_i + ½ Σₖ armature_k v_k² ;  U = −Σᵢ gᵀ m_i c_i
         T += body_kinetic_energy(joints, reals, i, v, load6(vel[i], 0))
         U += body_potential_energy(reals, pose, i, g)
-    out[0, 0] = T + U
-    nan_unless_finite(q, v, x2, x3, out)
+    return T + U

@@ -60,7 +60,7 @@ import math
 import numpy as np
 
 from ..tree import FRAME_JOINT, FRAME_POSITION, IQ, IV, KIND, NV
-from . import collision, complementarity, configuration, crba, kinematics, kkt, rnea, stepping
+from . import collision, complementarity, configuration, crba, energy, kinematics, kkt, rnea, stepping
 from . import joints as kinds
 from .constraints import constraint_rows
 from .jit import njit
@@ -100,10 +100,11 @@ GEOMETRY_COLUMNS = 21
 RECORD_BODY, RECORD_OTHER, RECORD_POINT, RECORD_NORMAL, RECORD_FORCE = 0, 1, 2, 5, 8
 RECORD_COLUMNS = 11
 GROUND, LIMIT = -1.0, -2.0
-#: A step's summary: rows recorded, the solver's residual (m/s), its iterations and status, and the deepest
-#: penetration its position correction removed (m or rad, ≤ 0; :func:`separate`).
-SUMMARY_COUNT, SUMMARY_RESIDUAL, SUMMARY_ITERATIONS, SUMMARY_STATUS, SUMMARY_SEPARATION = 0, 1, 2, 3, 4
-SUMMARY_COLUMNS = 5
+#: A step's summary: rows recorded, the solver's residual (m/s), its iterations and status, the deepest
+#: penetration its position correction removed (m or rad, ≤ 0; :func:`separate`), and the mechanical energy of the
+#: state at its time (J), which the next step writes from its kinematics pass (:func:`step`).
+SUMMARY_COUNT, SUMMARY_RESIDUAL, SUMMARY_ITERATIONS, SUMMARY_STATUS, SUMMARY_SEPARATION, SUMMARY_ENERGY = range(6)
+SUMMARY_COLUMNS = 6
 
 #: The entries of a run's ``io``: the next step (in and out), the step to stop before, the status (out), the
 #: time of what it reports.
@@ -554,7 +555,8 @@ def step(controller, joints, reals, frames, program, geometry, vertices, plan, c
     the contact rows into ``record (R, RECORD_COLUMNS)`` (a step with more limit and contact rows than ``R`` returns
     :data:`RECORD_FULL` before it is taken) and ``summary (SUMMARY_COLUMNS + m_b,)`` (its last ``m_b``
     entries the bilateral rows' multipliers, impulse / dt); the solver starts from the previous step's ``previous``
-    record and ``previous_summary`` (:func:`warm_start`). A step of zero length moves ``q`` by the position
+    record and ``previous_summary`` (:func:`warm_start`), into which it writes the mechanical energy of ``(q, v)``
+    (:data:`SUMMARY_ENERGY`, J). A step of zero length moves ``q`` by the position
     correction alone (:func:`separate`), which projects an initial state out of penetration. Returns a status
     (:data:`COMPLETED` ...). ``controller``, ``control`` as :func:`multibody.kernels.stepping.advance` takes them
     (the plan's controller kind: none, constant, PD, or a compiled function)."""
@@ -716,6 +718,8 @@ def step(controller, joints, reals, frames, program, geometry, vertices, plan, c
             nb += 1
     limit_rows = m - first_limit
     pose, vel, _ = kinematics.joint_motions(joints, reals, q, v, kin, None)
+    # the energy T + U of the step's start, in its own summary row (energy.mechanical_energy's terms)
+    previous_summary[SUMMARY_ENERGY] = energy.motion_energy(joints, reals, pose, vel, v)
     found = detect(plan, geometry, vertices, pose, vel, dt, contacts, out, cws, R_a, p_a, R_b, p_b, normal)
     if limit_rows + found > record.shape[0]:
         # the caller sizes the record by the rows steps have, and grows it when one has more
