@@ -626,7 +626,8 @@ def run(constrained, q, v, times, controller, torque, batch, damping=None, toler
         # them)
         states[r, last:] = np.nan
         summaries[r, last + 1 :, timestepping.SUMMARY_RESIDUAL] = np.nan
-    return _trajectory(constrained, program, times, states, records, summaries, statuses, batch)
+    return _trajectory(constrained, program, times, states, records, summaries, io[:, timestepping.IO_STEP], statuses,
+                       batch)
 
 
 def _dispatch(program, tree, kind, control, controller, times, states, records, summaries, io, batch, live,
@@ -668,16 +669,21 @@ def _dispatch_once(program, tree, kind, control, controller, times, states, reco
         x[rows] = part
 
 
-def _trajectory(constrained, program, times, states, records, summaries, statuses, batch):
-    """The :class:`~multibody.Trajectory` of the runs (one, or ``batch`` of them)."""
+def _trajectory(constrained, program, times, states, records, summaries, reached, statuses, batch):
+    """The :class:`~multibody.Trajectory` of the runs (one, or ``batch`` of them), each with ``reached (N,)`` states
+    (finite, the rest NaN)."""
     nq, m = constrained.nq, constrained.num_rows
     q, v = states[..., :nq], states[..., nq:]
-    finite = np.isfinite(q).all(axis=-1) & np.isfinite(v).all(axis=-1)
-    # (C-contiguous, as the batched kernels read them)
-    safe_q = np.ascontiguousarray(np.where(finite[..., None], q, constrained.system.model.neutral()))
-    safe_v = np.ascontiguousarray(np.where(finite[..., None], v, 0.0))
-    energy = np.where(finite, constrained.energy(safe_q, safe_v), np.nan)
+    finite = np.arange(len(times)) < reached[:, None]
+    # the energy of each state that a step started from is in its summary row (the step's kinematics pass); the last
+    # state each trajectory reached, which no step started from, computed here
+    energy = np.where(finite, summaries[..., timestepping.SUMMARY_ENERGY], np.nan)
+    ends = (np.arange(len(states)), reached.astype(np.int64) - 1)
+    energy[ends] = constrained.energy(np.ascontiguousarray(q[ends]), np.ascontiguousarray(v[ends]))
     if m:
+        # (C-contiguous, as the batched kernels read them)
+        safe_q = np.ascontiguousarray(np.where(finite[..., None], q, constrained.system.model.neutral()))
+        safe_v = np.ascontiguousarray(np.where(finite[..., None], v, 0.0))
         residual = np.where(finite, constrained.residual(safe_q, safe_v, times), np.nan)
     else:
         residual = np.where(finite, 0.0, np.nan)

@@ -408,6 +408,25 @@ def test_zero_length_step_only_for_a_penetrating_initial_state(ball, monkeypatch
     assert np.array_equal(batch.q[[0, 2], 0], q0[[2, 4]])
 
 
+def test_energy_of_each_output_state_comes_from_the_steps(box):
+    """Each step writes the energy of the state it starts from (its kinematics pass), the run computes the last
+    state's: the trajectory's energy equals the system's energy of every output state bit for bit, through the
+    compiled controller and a Python one, and a trajectory that stops has the energy of the states it reached, NaN
+    after them."""
+    system = mb.ConstrainedSystem(box, [mb.Ground(friction=0.5)])
+    q0 = np.array([[0, 0, 0.05, 0, 0, 0, 1], [0.3, 0, 0.5, 0, 0, 0, 1]], dtype=float)
+    v0 = np.array([[0.2, 0, 0, 0, 0, 1.0], [0, 0.1, 0, 0.5, 0, 0]])
+    for tau in (None, lambda t, q, v: np.r_[0.1, 0, 0, 0, 0, 0.01 * t]):
+        single = mb.simulate(system, q0[0], v0[0], 0.05, dt=DT, tau=tau)
+        np.testing.assert_array_equal(single.energy, system.energy(single.q, single.v))
+        assert np.isfinite(single.energy).all()
+    # the resting box's first step does not finish in one iteration; the box in the air falls freely
+    batch = contact.run(system, q0, v0, DT * np.arange(6), None, None, 2, max_iterations=1)
+    assert batch.status[1] == "completed" and batch.status[0].startswith("the contact problem")
+    np.testing.assert_array_equal(batch.energy[1], system.energy(batch.q[1], batch.v[1]))
+    assert batch.energy[0, 0] == system.energy(q0[0], v0[0]) and np.isnan(batch.energy[0, 1:]).all()
+
+
 def test_save_and_load_keep_contacts(ball, tmp_path):
     system = mb.ConstrainedSystem(ball, [mb.Ground(restitution=0.5)])
     trajectory = mb.simulate(system, [0, 0, 0.3, 0, 0, 0, 1], np.zeros(6), 0.5, dt=DT)
