@@ -1406,10 +1406,14 @@ def same3(a, b):
 
 @njit(cache=True, error_model="numpy")
 def polygon_normal(ws, at, m):
-    """Twice the vector area of the polygon of ``m`` vertices ``x_i`` at ``ws[at:]`` (Newell's method, RTCD chapter 12):
-    ``Σᵢ (x_i − x_0) × (x_{i+1} − x_0)``, along the normal about which the vertices turn counter-clockwise."""
+    """Twice the vector area of the polygon of ``m`` vertices ``x_i`` at ``ws[at:]``, along the normal about which the
+    vertices turn counter-clockwise: Newell's normal ``Σᵢ x_i × x_{i+1}`` (indices mod ``m``; M. E. Newell's method,
+    as in C. Ericson, *Real-Time Collision Detection*, chapter 12, "Geometrical Robustness"), summed as the fan of
+    triangles from ``x_0``, whose terms are smaller where the polygon lies far from the origin and whose sum is the
+    same for a closed polygon."""
     x0 = load3(ws, at)
     total = (0.0, 0.0, 0.0)
+    # Σᵢ₌₁^{m−2} (x_i − x_0) × (x_{i+1} − x_0)
     for i in range(1, m - 1):
         total = add3(total, cross(sub3(load3(ws, at + 3 * i), x0), sub3(load3(ws, at + 3 * (i + 1)), x0)))
     return total
