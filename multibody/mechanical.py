@@ -76,7 +76,9 @@ class ModelSystem:
         return self.model.chart_magnitude(q)
 
     def energy(self, q, v):
-        """Kinetic plus gravitational potential energy (J), in one pass down the tree."""
+        """Kinetic plus gravitational potential energy ``E = T + U`` (J) of ``q (..., nq)``, ``v (..., nv)``:
+        ``(...)``, a float64 scalar for one state; in one pass down the tree
+        (:func:`multibody.dynamics.mechanical_energy`)."""
         return dynamics.mechanical_energy(self.model, q, v)
 
 
@@ -180,7 +182,6 @@ class Charts:
             state[..., : self.nq] += q_chart
             return state
         return np.concatenate(self.state(q_chart, y), axis=-1)
-
 
 
 def system_parts(system):

@@ -301,7 +301,7 @@ _CONTACT_KEYS = ("contacts_count", "contacts_body", "contacts_other", "contacts_
 
 
 def _stored_contacts(contacts, batch):
-    """:attr:`Trajectory.contacts` (a list of entries, or a list of them per trajectory) as arrays without
+    """:attr:`Trajectory.contacts` (a sequence of entries, or a list of them per trajectory) as arrays without
     pickle: the number of rows of each entry ``(n,)`` (``(N, n)``), then the rows of all entries in order."""
     entries = [entry for trajectory in contacts for entry in trajectory] if batch else list(contacts)
     count = np.array([len(entry) for entry in entries], dtype=np.int64)
