@@ -554,6 +554,8 @@ def test_a_step_the_solver_does_not_finish_stops_the_run_before_it(box):
                                         "1e-12 m/s in 2 iterations (residual")
     assert np.isfinite(trajectory.q[0]).all() and np.isnan(trajectory.q[1:]).all()
     assert trajectory.complementarity[1] > TOLERANCE and np.isnan(trajectory.complementarity[2:]).all()
+
+
 def test_contact_record_names_rows_and_reads_as_a_list():
     """``Trajectory.contacts`` of a run reads the compiled record: each step's first ``count`` rows, named (a body, a
     joint for a limit, ``"ground"``, ``"limit"``), arrays copied out of the record; indexing, negative indices,

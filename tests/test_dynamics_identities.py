@@ -265,7 +265,6 @@ def test_kinetic_energy_is_quadratic_form_of_mass_matrix(name):
                batch_ndim=0)
 
 
-
 @pytest.mark.parametrize("name", EVERY)
 def test_mechanical_energy_is_kinetic_plus_potential(name):
     """The one-pass kernel of ``T + U`` (what a trajectory's ``energy`` holds) sums the same terms as the kinetic
@@ -279,6 +278,7 @@ def test_mechanical_energy_is_kinetic_plus_potential(name):
     np.testing.assert_array_equal(E, mb.kinetic_energy(model, q, v) + mb.potential_energy(model, q))
     one, one_v = np.ascontiguousarray(q[0]), np.ascontiguousarray(v[0])
     assert mechanical_energy(model, one, one_v) == mb.kinetic_energy(model, one, one_v) + mb.potential_energy(model, one)
+
 
 # dE/dt by central differences along the motion, Richardson-extrapolated from steps ε and ε/2
 # (ε = 1e-4 s), see test_work_energy. A plain central difference is only second-order: on Solo12,
