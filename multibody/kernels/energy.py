@@ -114,8 +114,9 @@ def mechanical_energy(joints, reals, frames, q, v, x2, x3, out, ws):
 
 @njit(cache=True, error_model="numpy")
 def motion_energy(joints, reals, pose, vel, v):
-    """``E = T + U`` (J) of the state whose world poses ``pose`` and body velocities ``vel`` a pass of
-    :func:`multibody.kernels.kinematics.joint_motions` gave, ``v (nv,)`` its velocity (the armature's terms)."""
+    """``E = T + U`` (J) of the state whose world poses ``pose (nj + 1, 12)`` and body velocities ``vel (nj, 6)``
+    (joint coordinates, m/s and rad/s) a pass of :func:`multibody.kernels.kinematics.joint_motions` gave, ``v (nv,)``
+    its velocity (the armature's terms)."""
     nj = joints.shape[0]
     g = load3(reals[nj], GRAVITY)
     T, U = 0.0, 0.0
