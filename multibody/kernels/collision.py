@@ -1585,6 +1585,7 @@ def clip_manifold(shape_a, size_a, vertices_a, R_a, p_a, shape_b, size_b, vertic
     m = k_a if reference_b else k_b
     sign = 1.0 if reference_b else -1.0
     origin = load3(ws, reference)
+    # N: the reference face's unit normal, or for an edge of direction u, n − (n·u) u normalised
     if k_ref >= 3:
         normal = polygon_normal(ws, reference, k_ref)
         normal = scale3(1.0 / norm3(normal), normal)
@@ -1598,6 +1599,7 @@ def clip_manifold(shape_a, size_a, vertices_a, R_a, p_a, shape_b, size_b, vertic
     for i in range(3 * m):
         ws[source + i] = ws[incident + i]
     if k_ref >= 3:
+        # the incident feature cut by each side plane of the face, ((x_{i+1} − x_i) × N)·(x − x_i) ≤ 0
         for i in range(k_ref):
             x_i = load3(ws, reference + 3 * i)
             side = cross(sub3(load3(ws, reference + 3 * ((i + 1) % k_ref)), x_i), normal)
@@ -1606,6 +1608,7 @@ def clip_manifold(shape_a, size_a, vertices_a, R_a, p_a, shape_b, size_b, vertic
             if m == 0:
                 return single
     else:
+        # cut by the planes through the edge's ends x_0, x_1 across it: u·x ≤ u·x_1 and −u·x ≤ −u·x_0
         u = sub3(load3(ws, reference + 3), origin)
         m = clip_polygon(ws, source, m, target, u, dot3(u, load3(ws, reference + 3)))
         source, target = target, source
