@@ -909,7 +909,7 @@ def deepest_gap(joints, reals, geometry, vertices, plan, q, ws):
     margin (:func:`detect` at rest) and its limited coordinates, or the margin when none is closer: the depth of the
     deepest penetration when negative. A step of zero length from ``q`` at rest moves ``q`` (:func:`separate`) exactly
     when this is below ``−plan[PLAN_PENETRATION]``. ``ws``: :func:`gap_workspace_size` floats."""
-    nj, nv = joints.shape[0], int(plan[PLAN_NV])
+    nv = int(plan[PLAN_NV])
     n_contacts = max_contacts(int(plan[PLAN_GROUNDS]), int(plan[PLAN_PAIRS]))
     margin = plan[PLAN_MARGIN]
     at = 0
