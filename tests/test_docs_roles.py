@@ -44,6 +44,8 @@ def test_roles_become_links_or_code(roles):
 def test_every_documented_module_the_pages_render_is_found(roles):
     documented = roles.documented_modules()
     assert "multibody.viewer" in documented and "multibody.dynamics" in documented
+    # the mechanical-system interface (ModelSystem, Charts, CHART_TURN) that simulate and custom systems read
+    assert "multibody.mechanical" in documented
     assert not any(module.startswith("multibody.kernels") for module in documented)
 
 
