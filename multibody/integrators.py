@@ -666,11 +666,20 @@ class CompiledRun:
         header[[stepping.PLAN_STEP_COLUMNS, stepping.PLAN_STEP_WORKSPACE, stepping.PLAN_PROJECTION_COLUMNS,
                 stepping.PLAN_PROJECTION_WORKSPACE]] = (step_columns, step_workspace, projection_columns,
                                                         projection_workspace)
+        header[stepping.PLAN_ENERGY] = 1.0
         self.plan = np.concatenate([header, tableau_block, np.zeros(nv) if damping is None else damping, settings])
         self.workspace = stepping.workspace_size(nq, nv, tableau.stages, step_columns, step_workspace,
                                                  projection_columns, projection_workspace)
         self.ws = np.empty(self.workspace)
-        self.io = np.zeros(stepping.io_size(nq, nv))
+        self.io = np.zeros(stepping.io_size(nq, nv, len(self.times)))
+        self.io[stepping.io_size(nq, nv) :] = np.nan
+
+    @property
+    def energies(self):
+        """``(n,)`` the energy (J) of each output state that the run recorded on the way (the stepping kernels'
+        :data:`~multibody.kernels.stepping.PLAN_ENERGY`), NaN where it did not (the last state, steps Python took, a
+        run with chart maps or constraints); a view of :attr:`io`."""
+        return self.io[stepping.io_size(self.nq, self.nv) :]
 
     def advance(self, states, k, stop, torque=None, joint_forces=None):
         """Steps ``k`` up to ``stop`` (exclusive) of one trajectory, ``states (n, nq + nv)`` filled in place:
@@ -691,7 +700,8 @@ class CompiledRun:
         if io[stepping.IO_STATUS] == stepping.NEED_TORQUE:
             # a Python controller: the stage's t, q, v out, τ in, and the run goes on from that stage
             nq, nv, start = self.nq, self.nv, stepping.IO_HEADER
-            q, v, tau = io[start : start + nq], io[start + nq : start + nq + nv], io[start + nq + nv :]
+            q, v = io[start : start + nq], io[start + nq : start + nq + nv]
+            tau = io[start + nq + nv : start + nq + 2 * nv]
             shape, waiting, given = (nv,), float(stepping.NEED_TORQUE), stepping.IO_TORQUE_GIVEN
             while True:
                 value = torque(io.item(stepping.IO_TIME), q.copy(), v.copy())

@@ -354,8 +354,9 @@ def test_one_coordinate_factor_equals_general(kind):
     """ABA's path for a joint of one coordinate (:func:`aba.factor_single`, scalar ``D``) gives the ``U``,
     ``U D⁻¹``, ``D⁻¹`` and ``I^a = I^A − U D⁻¹ Uᵀ`` of the general factorisation (:func:`aba.factor_joint`,
     ``D`` inverted by its LDLᵀ factor) to 1e-13, for random symmetric positive definite articulated inertias,
-    unit axes (principal and not) and armatures."""
+    subspace columns of unit axes (principal and not) moved by random poses, and armatures."""
     from multibody.kernels import joints as kinds
+    from multibody.kernels.spatial import motion_to_parent
     from multibody.tree import ARMATURE, REAL_SIZE
 
     code = kinds.REVOLUTE if kind == "revolute" else kinds.PRISMATIC
@@ -368,20 +369,52 @@ def test_one_coordinate_factor_equals_general(kind):
         arm = float(rng.uniform(0.0, 0.5))
         reals = np.zeros((1, REAL_SIZE))
         reals[0, ARMATURE] = arm
+        # the column in world coordinates, as ABA holds it
+        R = np.linalg.qr(rng.standard_normal((3, 3)))[0]
+        s = motion_to_parent(tuple(R.ravel()), tuple(rng.standard_normal(3)), kinds.subspace_column(code, axis, 0))
         at = 7  # the matrix anywhere in the workspace
-        single, general = np.full(at + 36 + 7, np.nan), np.full(at + 36 + 108 + 36 + 7, np.nan)
+        single = np.full(at + 36 + 7, np.nan)
         single[at : at + 36] = inertia.ravel()
-        general[at : at + 36] = inertia.ravel()
-        s = kinds.subspace_column(code, axis, 0)
-        U, U_D, d_inv = aba.factor_single(single, at, s, kinds.axis_rows(code), axis, arm)
-        scratch, u_d_inv = at + 36, at + 36 + 108
-        aba.factor_joint(code, axis, 1, reals, 0, general, at, scratch, u_d_inv)
+        block, scratch = np.full(aba.BLOCK, np.nan), np.full(108, np.nan)
+        block[aba.ARTICULATED : aba.ARTICULATED + 36] = inertia.ravel()
+        block[aba.SUBSPACE : aba.SUBSPACE + 6] = s
+        U, U_D, d_inv = aba.factor_single(single, at, s, arm)
+        aba.factor_joint(1, reals, 0, block, scratch)
         scale = np.abs(inertia).max()
-        np.testing.assert_allclose(U, general[scratch : scratch + 6], rtol=0, atol=1e-13 * scale)
-        np.testing.assert_allclose(U_D, general[u_d_inv : u_d_inv + 6], rtol=0, atol=1e-13)
-        assert d_inv == pytest.approx(general[scratch + 72], rel=1e-13)
-        np.testing.assert_allclose(single[at : at + 36], general[at : at + 36], rtol=0, atol=1e-13 * scale)
+        np.testing.assert_allclose(U, scratch[:6], rtol=0, atol=1e-13 * scale)
+        np.testing.assert_allclose(U_D, block[aba.U_D_INV : aba.U_D_INV + 6], rtol=0, atol=1e-13)
+        assert d_inv == pytest.approx(scratch[72], rel=1e-13)
+        np.testing.assert_allclose(single[at : at + 36], block[aba.ARTICULATED : aba.ARTICULATED + 36], rtol=0,
+                                   atol=1e-13 * scale)
         # the path's I^a is exactly symmetric, as the general one
         I_a = single[at : at + 36].reshape(6, 6)
         assert np.array_equal(I_a, I_a.T)
         assert np.isnan(single[:at]).all() and np.isnan(single[at + 36 :]).all()
+
+
+@pytest.mark.parametrize("kind", ["revolute", "prismatic"])
+def test_principal_axis_pose_equals_general(kind):
+    """The faster branch of a revolute or prismatic joint about a principal axis ``±e_x, ±e_y, ±e_z`` of its frame
+    (:func:`multibody.kernels.joints.placed_transform`) gives the pose ``X_T X_J(q)`` of the general product
+    (``compose(X_T, transform(q))``, Rodrigues' rotation) to 1e-13 on random placements and coordinates; and the
+    subspace column moved to the parent (:func:`multibody.kernels.joints.subspace_column_to_parent`) equals
+    ``motion_to_parent`` of the column for every axis."""
+    from multibody.kernels import joints as kinds
+    from multibody.kernels.spatial import compose, motion_to_parent
+
+    code = kinds.REVOLUTE if kind == "revolute" else kinds.PRISMATIC
+    rng = np.random.default_rng(23 + code)
+    principal = [tuple(float(sign) * np.eye(3)[a]) for a in range(3) for sign in (1, -1)]
+    for axis in principal + [tuple(a / np.linalg.norm(a)) for a in rng.standard_normal((3, 3))]:
+        assert (kinds.principal_axis(axis)[0] >= 0) == (axis in principal)
+        for _ in range(5):
+            R_T = tuple(np.linalg.qr(rng.standard_normal((3, 3)))[0].ravel())
+            p_T = tuple(rng.standard_normal(3))
+            q = rng.uniform(-4.0, 4.0, 2)
+            R, p = kinds.placed_transform(code, axis, q, 1, R_T, p_T)
+            R_ref, p_ref = compose(R_T, p_T, *kinds.transform(code, axis, q, 1))
+            np.testing.assert_allclose(R, R_ref, rtol=0, atol=1e-13)
+            np.testing.assert_allclose(p, p_ref, rtol=0, atol=1e-13)
+            column = kinds.subspace_column_to_parent(code, axis, 0, R, p)
+            np.testing.assert_allclose(column, motion_to_parent(R, p, kinds.subspace_column(code, axis, 0)), rtol=0,
+                                       atol=1e-13)

@@ -21,7 +21,8 @@ from __future__ import annotations
 import math
 
 from .jit import njit
-from .spatial import IDENTITY, add3, compose_rotations, cross, dot3, load3, rotate, rotate_back, scale3, store, sub3
+from .spatial import (IDENTITY, add3, compose, compose_rotations, cross, dot3, load3, motion_to_parent, rotate,
+                      rotate_back, scale3, store, sub3)
 
 REVOLUTE = 0
 PRISMATIC = 1
@@ -78,6 +79,69 @@ def transform(kind, axis, q, iq):
         return (c, -s, 0.0, s, c, 0.0, 0.0, 0.0, 1.0), (q[iq], q[iq + 1], 0.0)
     # TRANSLATION
     return IDENTITY, (q[iq], q[iq + 1], q[iq + 2])
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def principal_axis(axis):
+    """``(a, σ)`` for a unit ``axis = σ e_a`` along a principal axis of its frame (``a`` 0, 1 or 2 for x, y, z,
+    ``σ = ±1``); ``(−1, 0.0)`` for any other axis."""
+    x, y, z = axis
+    if y == 0.0 and z == 0.0 and (x == 1.0 or x == -1.0):
+        return 0, x
+    if x == 0.0 and z == 0.0 and (y == 1.0 or y == -1.0):
+        return 1, y
+    if x == 0.0 and y == 0.0 and (z == 1.0 or z == -1.0):
+        return 2, z
+    return -1, 0.0
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def placed_transform(kind, axis, q, iq, R_T, p_T):
+    """``X_T X_J(q) = (R_T R_J, p_T + R_T p_J)``: the joint frame's pose in the parent's, for a joint placed at
+    ``X_T = (R_T, p_T)`` (RBDA §4.1), from ``q[iq:]``.
+
+    A revolute or prismatic joint about a principal axis ``σ e_a`` of its frame takes a faster branch of the same
+    product: the rotation by ``θ`` about ``σ e_a`` turns only the columns ``j, k`` after ``a`` (cyclically) of
+    ``R_T``, ``R_T R_J = [.., c t_j + σ s t_k, −σ s t_j + c t_k, ..]`` with ``t_j`` the columns of ``R_T``, and
+    the slide by ``d`` along it adds ``σ d t_a`` to ``p_T``."""
+    if kind == REVOLUTE or kind == PRISMATIC:
+        a, sign = principal_axis(axis)
+        if a >= 0:
+            x = q[iq]
+            if kind == PRISMATIC:
+                # p = p_T + σ d t_a
+                d = sign * x
+                return R_T, (p_T[0] + d * R_T[a], p_T[1] + d * R_T[3 + a], p_T[2] + d * R_T[6 + a])
+            c, s = math.cos(x), sign * math.sin(x)
+            t0, t1, t2, t3, t4, t5, t6, t7, t8 = R_T
+            if a == 2:
+                R = (c * t0 + s * t1, c * t1 - s * t0, t2,
+                     c * t3 + s * t4, c * t4 - s * t3, t5,
+                     c * t6 + s * t7, c * t7 - s * t6, t8)
+            elif a == 0:
+                R = (t0, c * t1 + s * t2, c * t2 - s * t1,
+                     t3, c * t4 + s * t5, c * t5 - s * t4,
+                     t6, c * t7 + s * t8, c * t8 - s * t7)
+            else:
+                R = (c * t0 - s * t2, t1, c * t2 + s * t0,
+                     c * t3 - s * t5, t4, c * t5 + s * t3,
+                     c * t6 - s * t8, t7, c * t8 + s * t6)
+            return R, p_T
+    R_J, p_J = transform(kind, axis, q, iq)
+    return compose(R_T, p_T, R_J, p_J)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def subspace_column_to_parent(kind, axis, k, R, p):
+    """``ᴾX_J S_k``: column ``k`` of the motion subspace moved from the joint frame J to a frame P in which J sits at
+    ``X_PJ = (R, p)`` (6-tuple ``[v; ω]``): ``[p × R a; R a]`` of a revolute joint about ``a``, ``[R a; 0]`` of a
+    prismatic one, :func:`multibody.kernels.spatial.motion_to_parent` of the column otherwise."""
+    if kind == REVOLUTE:
+        w = rotate(R, axis)
+        return cross(p, w) + w
+    if kind == PRISMATIC:
+        return rotate(R, axis) + (0.0, 0.0, 0.0)
+    return motion_to_parent(R, p, subspace_column(kind, axis, k))
 
 
 @njit(cache=True, error_model="numpy")
@@ -315,10 +379,23 @@ def integrate(kind, nv, q, v, iq, iv, out):
             out[iq + k] = q[iq + k] + v[iv + k]
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", inline="always")
 def difference(kind, nv, q0, q1, iq, iv, out):
     """``out[iv : iv + nv] = q₁ ⊖ q₀``: the velocity ``v`` with ``q₀ ⊕ v = q₁`` (inverse of
-    :func:`integrate`; rotation angles in ``[0, π]``)."""
+    :func:`integrate`; rotation angles in ``[0, π]``). Angles and displacements (revolute, prismatic and
+    translation joints) subtract in place, inlined into the caller's loop over joints; the other kinds call
+    :func:`group_difference`."""
+    if kind == SPHERICAL or kind == FREE_FLYER or kind == PLANAR:
+        group_difference(kind, nv, q0, q1, iq, iv, out)
+    else:
+        # angles and displacements: q₁ − q₀
+        for k in range(nv):
+            out[iv + k] = q1[iq + k] - q0[iq + k]
+
+
+@njit(cache=True, error_model="numpy")
+def group_difference(kind, nv, q0, q1, iq, iv, out):
+    """:func:`difference` of a spherical, free-flyer or planar joint (a rotation in its configuration)."""
     if kind == SPHERICAL:
         # log(q₀* ⊗ q₁)
         store(out, iv, quat_log(quat_multiply(quat_conjugate(load4(q0, iq)), load4(q1, iq))))
@@ -345,10 +422,6 @@ def difference(kind, nv, q0, q1, iq, iv, out):
         out[iv] = (a * dx + b * dy) / det
         out[iv + 1] = (-b * dx + a * dy) / det
         out[iv + 2] = theta
-    else:
-        # angles and displacements: q₁ − q₀
-        for k in range(nv):
-            out[iv + k] = q1[iq + k] - q0[iq + k]
 
 
 @njit(cache=True, error_model="numpy")

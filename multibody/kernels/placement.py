@@ -6,7 +6,7 @@ from __future__ import annotations
 from .layout import ARMATURE, AXIS, IQ, KIND, POSITION, ROTATION
 from . import joints as kinds
 from .jit import njit
-from .spatial import compose, row3, row9
+from .spatial import row3, row9
 
 
 # (inlined at Numba's IR level: as a call, its pose comes back through memory, about a tenth of ABA's time on Panda)
@@ -14,8 +14,8 @@ from .spatial import compose, row3, row9
 def joint_pose(joints, reals, q, i):
     """``X_λ(i),i = X_T X_J(q_i)`` (RBDA §4.1): joint i's frame in its parent's, ``(R, p)``, from its
     placement ``X_T`` and its joint transform ``X_J``."""
-    R_J, p_J = kinds.transform(joints[i, KIND], row3(reals, i, AXIS), q, joints[i, IQ])
-    return compose(row9(reals, i, ROTATION), row3(reals, i, POSITION), R_J, p_J)
+    return kinds.placed_transform(joints[i, KIND], row3(reals, i, AXIS), q, joints[i, IQ], row9(reals, i, ROTATION),
+                                  row3(reals, i, POSITION))
 
 
 @njit(cache=True, error_model="numpy")

@@ -193,7 +193,7 @@ def inertia_times(I, m):
     return sub3(scale3(mass, v), cross(h, w)) + add3(cross(h, v), symmetric_times(inertia, w))
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", inline="always")
 def inertia_to_parent(R, p, I):
     """``ᴾX_C* I ᶜX_P``: a rigid-body inertia about the child frame's origin, in its axes, moved to the
     parent frame (``X_PC = (R, p)``) (RBDA eq. 2.66).

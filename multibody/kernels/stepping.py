@@ -52,7 +52,9 @@ from .spatial import all_finite, larger, nan_unless_finite, smaller
 #: every step's end), the tolerances ``rtol``, ``atol``, the longest step (s), the largest turn of a rotation vector
 #: in a step (rad), and the offset and count of the rotation vectors' first indices in ``v``.
 (PLAN_CURVED, PLAN_RTOL, PLAN_ATOL, PLAN_MAX_STEP, PLAN_CHART_TURN, PLAN_ROTATIONS, PLAN_ROTATION_COUNT) = range(16, 23)
-PLAN_HEADER = 23
+#: Whether a fixed-step run records the energy of each step's start in ``io`` (:func:`advance`).
+PLAN_ENERGY = 23
+PLAN_HEADER = 24
 
 #: Controllers: no joint forces, constant ones (the control row's first ``nv``), the PD law of the control
 #: row (:func:`pd_torque`), a compiled function, joint forces from Python.
@@ -60,7 +62,8 @@ NO_CONTROL, CONSTANT, PD, FUNCTION, PYTHON = range(5)
 
 #: The entries of a run's ``io`` vector: the next step (in and out), the step to stop before, the status
 #: (out), the stage that waits for joint forces and whether they are given (in and out), the time of what
-#: the status reports (s), a value it reports, then ``q (nq)``, ``v (nv)`` and ``τ (nv)``.
+#: the status reports (s), a value it reports, then ``q (nq)``, ``v (nv)`` and ``τ (nv)``, and after them, where
+#: the plan asks for it (:data:`PLAN_ENERGY`), the energy (J) of each output state (n) the run took a step from.
 IO_STEP, IO_STOP, IO_STATUS, IO_STAGE, IO_TORQUE_GIVEN, IO_TIME, IO_VALUE = range(7)
 IO_HEADER = 7
 
@@ -86,9 +89,9 @@ STALLED_STEPS, STALLED_SPAN = 1000, 1e-6
 SAFETY, MIN_FACTOR, MAX_FACTOR = 0.9, 0.2, 10.0
 
 
-def io_size(nq, nv):
-    """Floats of a run's ``io`` vector."""
-    return IO_HEADER + nq + 2 * nv
+def io_size(nq, nv, n=0):
+    """Floats of a run's ``io`` vector, with room for the energies of ``n`` output states."""
+    return IO_HEADER + nq + 2 * nv + n
 
 
 def workspace_size(nq, nv, stages, step_columns, step_workspace, projection_columns, projection_workspace):
@@ -119,7 +122,7 @@ def interval(times, n, t):
     return low, (t - times[low]) / (times[low + 1] - times[low])
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", inline="always")
 def pd_torque(joints, t, q, v, pd, tau, scratch):
     """The joint-space PD law into ``tau (nv,)`` at time ``t`` (s) and state ``q (nq,)``, ``v (nv,)``:
 
@@ -175,7 +178,7 @@ def no_controller(t, q, v, out):
 
 # ----------------------------------------------------------------------------- one run
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", inline="always")
 def weighted_sum(y0, h, weights, K, start, stop, out):
     """``out[c] = y₀[c] + h Σ_j weights_j K[j, c]`` for ``start ≤ c < stop`` (``out`` not ``y0``), the terms of
     non-zero weight summed in the order of the stages (as :func:`multibody.integrators.tableau_step` sums them);
@@ -237,7 +240,7 @@ def chart_state(joints, reals, frames, q_chart, y, x2, x3, out, ws):
     nan_unless_finite(q_chart, y, x2, x3, out)
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", inline="always")
 def stage_state(joints, reals, frames, charts, q_chart, y, maps):
     """The state of a stage's chart state ``y = [δ, w] (2 nv,)`` around ``q_chart (nq,)`` into ``maps`` (``q``, ``v``,
     ``κ``, ``T``: :func:`multibody.kernels.integration.unchart`): ``q = chart(q₀, δ)``, ``v = Tᵀ w``, or without
@@ -252,7 +255,7 @@ def stage_state(joints, reals, frames, charts, q_chart, y, maps):
             maps[nq + c] = y[nv + c]
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", inline="always")
 def stage_torque(controller, joints, kind, control, t, q, v, tau, scratch):
     """The joint forces ``τ (nv,)`` of the controller ``kind`` (not :data:`PYTHON`) at ``t`` (s), ``q``, ``v``: none,
     the constant ``control[:nv]``, the PD law of ``control[nv:]`` (:func:`pd_torque`, ``scratch (nq + nv)``) or the
@@ -273,13 +276,15 @@ def stage_torque(controller, joints, kind, control, t, q, v, tau, scratch):
     return kind == NO_CONTROL or kind == CONSTANT or all_finite(tau)
 
 
-@njit(cache=True, error_model="numpy")
-def stage_rates(joints, reals, frames, program, charts, damped, damping, y, maps, tau, step, step_ws, rates, K_i):
+@njit(cache=True, error_model="numpy", inline="always")
+def stage_rates(joints, reals, frames, program, charts, damped, damping, y, maps, tau, step, step_ws, rates, K_i,
+                energy):
     """A stage's rates ``K_i = [δ̇, ẇ] (2 nv,)`` at the state :func:`stage_state` put in ``maps``, with joint forces
     ``τ`` (less ``D v`` when ``damped``): the accelerations ``a`` by :func:`multibody.kernels.kkt.constrained_accelerations`
     (``program`` of constraints) or ABA, then ``ẇ = T (a + κ)``, ``δ̇ = chart_rate(δ, w)``
-    (:func:`multibody.kernels.integration.chart_rates`), or without ``charts`` ``[w, a]``. Returns whether the step
-    solved and the rates are finite."""
+    (:func:`multibody.kernels.integration.chart_rates`), or without ``charts`` ``[w, a]``. ``energy`` of length 1 (ABA
+    only) receives the state's mechanical energy (J), which ABA's pass down the tree gives on the way; of length 0,
+    nothing. Returns whether the step solved and the rates are finite."""
     nv = y.shape[0] // 2
     nq = maps.shape[0] - 2 * nv - nv * nv
     q, v = maps[:nq], maps[nq : nq + nv]
@@ -292,7 +297,14 @@ def stage_rates(joints, reals, frames, program, charts, damped, damping, y, maps
         kkt.constrained_accelerations(joints, reals, frames, q, v, tau, program, step, step_ws)
         status = step[0, step_columns - 1]
     else:
-        aba.forward_dynamics(joints, reals, frames, q, v, tau, program, step, step_ws)
+        # (aba.forward_dynamics, with the energy where asked for)
+        recorded = energy.shape[0] > 0
+        aba.articulated_body(joints, reals, q, v, tau, program, step[0], step_ws, recorded)
+        nan_unless_finite(q, v, tau, program, step)
+        if recorded:
+            at = aba.energy_offset(joints.shape[0])
+            # E = T + U
+            energy[0] = step_ws[at] + step_ws[at + 1]
         status = 0.0
     if charts:
         T = maps[nq + 2 * nv :].reshape((nv, nv))
@@ -342,7 +354,9 @@ def advance(controller, joints, reals, frames, program, times, plan, control, st
     length 0), else from :func:`multibody.kernels.kkt.constrained_accelerations`; ``controller(t, q, v, out)`` is
     the plan's ``FUNCTION`` controller (``None`` where the plan has another, whose code is then left out). ``plan``:
     the run's header and blocks (:data:`PLAN_HEADER`); ``control``: ``[τ (nv) | PD block]``; ``ws``:
-    :func:`workspace_size`, kept between the calls of a Python controller's run."""
+    :func:`workspace_size`, kept between the calls of a Python controller's run. Where the plan asks for it
+    (:data:`PLAN_ENERGY`) and ``io`` has room for ``n`` energies, a run by ABA in a vector space records the energy
+    (J) of ``states[k − 1]`` there at step ``k``'s first stage, which evaluates ABA at exactly that state."""
     nq, nv = int(plan[PLAN_NQ]), int(plan[PLAN_NV])
     charts = plan[PLAN_CHARTS] != 0.0
     s = int(plan[PLAN_STAGES])
@@ -393,6 +407,11 @@ def advance(controller, joints, reals, frames, program, times, plan, control, st
     v = maps[nq : nq + nv]
     io_q, io_v, io_tau = io[IO_HEADER : IO_HEADER + nq], io[IO_HEADER + nq : IO_HEADER + nq + nv], \
         io[IO_HEADER + nq + nv : IO_HEADER + nq + 2 * nv]
+    # energies of the output states, recorded where a stage evaluates ABA at the step's start itself: in a vector
+    # space (no chart) without constraints
+    energies = io[IO_HEADER + nq + 2 * nv :]
+    recorded = (plan[PLAN_ENERGY] != 0.0 and not charts and program.shape[0] == 0 and accelerations[0] != 0.0
+                and energies.shape[0] >= times.shape[0])
 
     k, stop = int(io[IO_STEP]), int(io[IO_STOP])
     first_stage = int(io[IO_STAGE])
@@ -454,8 +473,10 @@ def advance(controller, joints, reals, frames, program, times, plan, control, st
                     io_tau[c] = tau[c]
                 io[IO_STEP], io[IO_STAGE], io[IO_STATUS] = k, 0, NON_FINITE_TORQUE
                 return
+            # the energy of the step's start, from its first stage's ABA at exactly that state (q₀ + 0, w₀)
+            energy = energies[k - 1 : k] if recorded and i == 0 else energies[:0]
             if not stage_rates(joints, reals, frames, program, charts, damped, damping, y, maps, tau, step, step_ws,
-                               rates, K[i]):
+                               rates, K[i], energy):
                 io[IO_STEP], io[IO_STAGE], io[IO_STATUS] = k, 0, STAGE_UNSOLVED
                 return
         first_stage, given = 0, False
@@ -529,7 +550,7 @@ def compiled_stage(controller, joints, reals, frames, program, plan, control, q_
             io[IO_HEADER + nq + nv + c] = tau[c]
         return NON_FINITE_TORQUE
     if not stage_rates(joints, reals, frames, program, charts, plan[PLAN_DAMPED] != 0.0, damping, y, maps, tau, step,
-                       step_ws, rates, K_i):
+                       step_ws, rates, K_i, y[:0]):
         return STAGE_UNSOLVED
     return COMPLETED
 
