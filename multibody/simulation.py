@@ -564,7 +564,8 @@ _RUN_FAILURES = {
     stepping.NON_FINITE_STATE: lambda system, io, plan: SimulationError(
         f"the state became non-finite at t = {io[stepping.IO_TIME]:.6g} s", None),
     stepping.NON_FINITE_TORQUE: lambda system, io, plan: SimulationError(non_finite_torque(
-        system, io[stepping.IO_TIME], io[stepping.IO_HEADER + system.nq + system.nv :].copy()), None),
+        system, io[stepping.IO_TIME],
+        io[stepping.IO_HEADER + system.nq + system.nv : stepping.io_size(system.nq, system.nv)].copy()), None),
     stepping.NOT_CONVERGED: lambda system, io, plan: STATUS_ERRORS[kkt.NOT_CONVERGED](
         system, 0, -1, io[stepping.IO_VALUE], plan[int(plan[stepping.PLAN_SETTINGS]) + 1]),
 }
@@ -939,6 +940,7 @@ def _simulate_batch(constrained, charts, q0, v0, times, torque, state_dependent,
             fail(r, k, reason)
 
     bar = Progress(progress, t0, times[-1])
+    recorded = np.full((count, n), np.nan)  # the energies the compiled run records on the way
     try:
         if run is None:
             for k in range(1, n):
@@ -949,11 +951,11 @@ def _simulate_batch(constrained, charts, q0, v0, times, torque, state_dependent,
                 bar.update(times[k])
         else:
             _run_batch(run, constrained, states, last, stop, near, fail, python_step, times, bar, device,
-                       controller)
+                       controller, recorded)
     finally:
         bar.close()
     trajectory = _batch_trajectory(constrained, times, q_out, v_out, stop, last, torque, state_dependent, status,
-                                   projection_tolerance if project else None)
+                                   projection_tolerance if project else None, recorded)
     if not single:
         return trajectory
     k, one = int(stop[0]), trajectory.select(0)
@@ -962,7 +964,7 @@ def _simulate_batch(constrained, charts, q0, v0, times, torque, state_dependent,
 
 
 def _run_batch(run, constrained, states, last, stop, near, fail, python_step, times, bar, device=False,
-               controller=None):
+               controller=None, energies=None):
     """The steps of a batch by its compiled ``run`` (:meth:`~multibody.integrators.CompiledRun.advance_batch`), each
     trajectory on its own from its next step, in calls of about :data:`CHUNK_SECONDS`. A step that a trajectory's run
     leaves to Python (it starts near a singular configuration, or a stage or a projection the compiled step did not
@@ -974,16 +976,22 @@ def _run_batch(run, constrained, states, last, stop, near, fail, python_step, ti
     ``controller`` called once per stage; an error the controller raises stops it at that step.
 
     ``device``: every trajectory's steps up to the first it leaves to Python run first, in one launch on the GPU
-    (:func:`multibody.gpu.advance_batch`, one trajectory per thread); the steps left after that run here."""
+    (:func:`multibody.gpu.advance_batch`, one trajectory per thread); the steps left after that run here.
+    ``energies (N, n)``, where given, receives the energies the run recorded on the way
+    (:attr:`~multibody.integrators.CompiledRun.energies`), NaN where it did not."""
     count, n = states.shape[:2]
     system = constrained.system
     io = np.zeros((count, run.io.size))
+    tail = stepping.io_size(system.nq, system.nv)
+    io[:, tail:] = np.nan
     joint_forces = _joint_forces(constrained)
     following = np.ones(count, dtype=np.int64)  # each trajectory's next step
     handed = np.zeros(count, dtype=bool)  # whose next step the run left to Python
 
     def reports(rows):
         """Where the run of the trajectories ``rows`` stopped (their ``io`` rows), and why."""
+        if energies is not None:
+            energies[rows] = io[rows, tail:]
         following[rows] = io[rows, stepping.IO_STEP]
         last[rows] = states[rows, following[rows] - 1]
         for r in rows:
@@ -1016,6 +1024,8 @@ def _run_batch(run, constrained, states, last, stop, near, fail, python_step, ti
                 except _FAILURES as error:
                     # (the steps before the stage whose joint forces raised are done)
                     io[0] = run.io
+                    if energies is not None:
+                        energies[0] = io[0, tail:]
                     following[0] = io[0, stepping.IO_STEP]
                     last[0] = states[0, following[0] - 1]
                     fail(0, int(following[0]), str(error))
@@ -1050,11 +1060,14 @@ def warn_if_stopped(trajectory, stacklevel):
                       f"{trajectory.status[j]}", RuntimeWarning, stacklevel=stacklevel)
 
 
-def _batch_trajectory(constrained, times, q, v, stop, last, torque, state_dependent, status, projection_tolerance):
+def _batch_trajectory(constrained, times, q, v, stop, last, torque, state_dependent, status, projection_tolerance,
+                      recorded=None):
     """The :class:`Trajectory` of ``N`` trajectories' output states ``q (N, n, nq)``, ``v (N, n, nv)`` at
     ``times (n,)``, each valid before its ``stop``: :func:`_trajectory` for each, the multipliers,
     energies and residuals of all valid states in a few batched calls (NaN elsewhere). ``last (N, nq + nv)``:
-    each trajectory's last good state, which the joint forces ``torque`` see in place of a stopped one's NaN."""
+    each trajectory's last good state, which the joint forces ``torque`` see in place of a stopped one's NaN.
+    ``recorded (N, n)``, where given: the energies a compiled run recorded at those states, NaN where it did not
+    (only those are evaluated)."""
     nq, nv, m = constrained.nq, constrained.nv, constrained.num_rows
     count, n = q.shape[:2]
     batched = constrained.batched
@@ -1068,7 +1081,11 @@ def _batch_trajectory(constrained, times, q, v, stop, last, torque, state_depend
             continue
         q_s, v_s = q[:, a:b][at], v[:, a:b][at]
         t_s = np.broadcast_to(times[a:b], at.shape)[at]
-        energy[:, a:b][at] = _by_state(constrained.energy, (q_s, v_s), (), batched)[0]
+        e_s = np.full(len(q_s), np.nan) if recorded is None else recorded[:, a:b][at]
+        missing = np.isnan(e_s)
+        if missing.any():
+            e_s[missing] = _by_state(constrained.energy, (q_s[missing], v_s[missing]), (), batched)[0]
+        energy[:, a:b][at] = e_s
         if not m:
             residual[:, a:b][at] = 0.0
             continue

@@ -622,3 +622,33 @@ def test_control_rows_of_each_controller_kind():
             np.testing.assert_array_equal(rows, np.concatenate([np.zeros((1, nv)), pd.rows], axis=1))
         else:
             np.testing.assert_array_equal(rows, np.zeros((1, nv)))
+
+
+@pytest.mark.parametrize("controller", ["pd", "python", "batch"])
+def test_the_run_records_the_energy_of_each_step_start(monkeypatch, controller):
+    """A fixed-step run by ABA records the energy of every output state it takes a step from (ABA's first stage
+    evaluates the state itself): the trajectory's energy equals the system's at every state to 1e-12 (relative), and
+    only the last state's energy, from which no step starts, is evaluated after the run; with a Python controller and
+    for each trajectory of a batch alike."""
+    model = mb.robots.load("panda")
+    pd = mb.PD(100.0, 10.0, model.neutral() + 0.3)
+    q0 = model.neutral()
+    if controller == "batch":
+        q0 = np.stack([q0, q0 + 0.1, q0 - 0.2])
+    v0 = np.zeros(q0.shape[:-1] + (model.nv,))
+    evaluated = []
+    from multibody.mechanical import ModelSystem
+
+    energy = ModelSystem.energy
+
+    def counted(self, q, v):
+        evaluated.append(np.asarray(q).reshape(-1, model.nq).shape[0])
+        return energy(self, q, v)
+
+    monkeypatch.setattr(ModelSystem, "energy", counted)
+    tau = (lambda t, q, v: pd.kp * (pd.q_ref - q) - pd.kd * v) if controller == "python" else pd
+    trajectory = mb.simulate(model, q0, v0, 0.2, dt=1e-3, method="RK4", tau=tau, limits="ignore")
+    assert sum(evaluated) == (3 if controller == "batch" else 1)
+    reference = mb.kinetic_energy(model, trajectory.q, trajectory.v) + mb.potential_energy(model, trajectory.q)
+    assert np.isfinite(trajectory.energy).all()
+    np.testing.assert_allclose(trajectory.energy, reference, rtol=1e-12, atol=1e-12 * np.abs(reference).max())
