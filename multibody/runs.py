@@ -104,8 +104,9 @@ def report_limits(system, trajectory, mode, enforced=(), stacklevel=3):
     model.upper]`` of ``system.model``. ``mode="warn"``: one :class:`JointLimitWarning` per joint at its first output
     time outside (in a batch, with the trajectory that left first and how many did), warning at ``stacklevel``.
     ``mode="error"``: one trajectory raises a :class:`SimulationError` at the first output time any joint is outside,
-    carrying the trajectory up to it; in a batch each trajectory outside stops there, as a failed trajectory does
-    (its status names joint, time and value; its outputs after it are NaN). Returns the trajectory (so marked).
+    carrying the trajectory up to it (with contact, its contact entries up to it); in a batch each trajectory outside
+    stops there, as a failed trajectory does (its status names joint, time and value; its outputs after it are NaN,
+    its contact entries after it empty). Returns the trajectory (so marked).
     Unit-norm components (quaternions, planar ``(cos θ, sin θ)``) are bounded by ±1 by construction and not checked:
     rounding may take them a few ulps past; nor are the coordinates ``enforced`` (indices into ``q``), which
     :class:`multibody.JointLimits` holds to its solver's tolerance."""
@@ -146,18 +147,26 @@ def report_limits(system, trajectory, mode, enforced=(), stacklevel=3):
     if one:
         k, c = first(0)
         message = describe(0, k, c) + " (limits='error')"
-        partial = replace(trajectory, status=message, **{
-            f.name: getattr(trajectory, f.name)[:k + 1] for f in fields(trajectory)
-            if isinstance(getattr(trajectory, f.name), np.ndarray) and getattr(trajectory, f.name).shape[:1] == (n,)})
-        raise SimulationError(message, partial)
+        kept = {f.name: value[:k + 1] for f in fields(trajectory)
+                if isinstance(value := getattr(trajectory, f.name), np.ndarray) and value.shape[:1] == (n,)}
+        if trajectory.contacts is not None:
+            kept["contacts"] = list(trajectory.contacts[:k + 1])
+        raise SimulationError(message, replace(trajectory, status=message, **kept))
     status = list(trajectory.status)
-    arrays = {name: getattr(trajectory, name).copy() for name in ("q", "v", "lam", "energy", "residual")}
+    names = ("q", "v", "lam", "energy", "residual")
+    if trajectory.complementarity is not None:
+        names += ("complementarity",)
+    arrays = {name: getattr(trajectory, name).copy() for name in names}
+    contacts = None if trajectory.contacts is None else list(trajectory.contacts)
     for j in np.flatnonzero(outside.any(axis=(1, 2))):
         k, c = first(j)
         status[j] = describe(j, k, c) + " (limits='error')"
         for value in arrays.values():
             value[j, k + 1 :] = np.nan
-    return replace(trajectory, status=status, **arrays)
+        if contacts is not None:
+            # no contact rows after the stop, as for a trajectory whose step failed (entry 0 is the empty one)
+            contacts[j] = list(contacts[j][: k + 1]) + [contacts[j][0]] * (n - k - 1)
+    return replace(trajectory, status=status, contacts=contacts, **arrays)
 
 
 def projected_start(constrained, q, v, t0, stacklevel):

@@ -204,6 +204,38 @@ def test_stack_interface_forces_equal_the_weight_above():
     assert trajectory.complementarity.max() <= TOLERANCE
 
 
+def test_limits_error_stops_a_contact_run_at_the_limit_contacts_and_residuals_too():
+    """``limits="error"`` on a joint that no JointLimits holds, in a run with contact (a ball resting on the ground
+    beside an arm swinging past its limit): one trajectory raises with the part up to the output time where the arm
+    left, its contact entries and residuals cut there as its states are; in a batch that trajectory stops there with
+    its residuals NaN and its contact entries empty after it, and the other trajectory is left as it ran."""
+    b = mb.ModelBuilder("ball and arm")
+    b.add_body("ball", FreeFlyer(), inertia=inertia.sphere(1.0, 0.1))
+    b.add_collision("ball", "sphere", (0.1,))
+    b.add_body("arm", mb.joints.Revolute((0, 1, 0)), inertia=inertia.box(1.0, (0.1, 0.1, 0.5)), lower=-0.2,
+               upper=0.2)
+    system = mb.ConstrainedSystem(b.build(), [mb.Ground(bodies=["ball"])])
+    q0 = np.array([[0, 0, 0.1, 0, 0, 0, 1, 0.0]] * 2)
+    v0 = np.zeros((2, 7))
+    v0[0, 6] = 2.0  # the arm of trajectory 0 swings past 0.2 rad at t = 0.11 s
+    free = mb.simulate(system, q0, v0, 0.3, dt=0.01, limits="ignore")
+    with pytest.raises(mb.SimulationError, match="left its limits") as error:
+        mb.simulate(system, q0[0], v0[0], 0.3, dt=0.01, limits="error")
+    part = error.value.trajectory
+    kept = len(part.t)
+    assert 1 < kept < len(free.t) and part.q.shape[0] == part.complementarity.shape[0] == len(part.contacts) == kept
+    assert list(part.contacts) == list(free.contacts[0][:kept])
+    with pytest.warns(RuntimeWarning, match="1 of 2 trajectories stopped early"):
+        batch = mb.simulate(system, q0, v0, 0.3, dt=0.01, limits="error")
+    assert "left its limits" in batch.status[0] and batch.status[1] == "completed"
+    np.testing.assert_array_equal(batch.complementarity[0, :kept], free.complementarity[0, :kept])
+    assert np.isnan(batch.complementarity[0, kept:]).all() and np.isnan(batch.q[0, kept:]).all()
+    assert batch.contacts[0][:kept] == free.contacts[0][:kept]
+    assert len(free.contacts[0][-1]) == 1 and all(len(entry) == 0 for entry in batch.contacts[0][kept:])
+    np.testing.assert_array_equal(batch.complementarity[1], free.complementarity[1])
+    assert batch.contacts[1] == free.contacts[1]
+
+
 @pytest.fixture(scope="module")
 def panda():
     try:
