@@ -28,7 +28,7 @@ from numba import prange, types
 from . import driver
 from .integrators import CONTROLLER_TYPES, control_rows
 from .contact_problem import STATUS_MESSAGES
-from .kernels import collision, complementarity, kkt, stepping, timestepping
+from .kernels import collision, kkt, stepping, timestepping
 from .model import Model
 from .trajectory import Contacts, Trajectory, recorded_names
 from .tree import frame_rows
@@ -252,12 +252,15 @@ class ContactProgram:
     geometry: np.ndarray
     vertices: np.ndarray
     plan: np.ndarray
-    workspace: int
-    int_workspace: int
     records: int
     bilateral: int
     body_names: tuple
     joint_names: tuple
+
+    def workspaces(self, record):
+        """Floats and integers of one step's workspace with records of ``record`` rows
+        (:func:`multibody.kernels.timestepping.workspace_sizes`): they grow with the records."""
+        return timestepping.workspace_sizes(self.plan, len(self.frames), record)
 
 
 #: Each model's geometry rows (:func:`geometry_rows`), built on the first call and kept with the model.
@@ -338,19 +341,12 @@ def contact_program(constrained, *, tolerance=TOLERANCE, max_iterations=MAX_ITER
         program, frames = compiled
     else:
         program, frames = np.zeros(0), np.zeros((0, 13))
-    contacts = timestepping.max_contacts(len(grounds), len(pairs))
-    m = timestepping.max_rows(constrained.num_rows, len(limits), contacts)
-    solver_workspace = complementarity.workspace_size(m)
     projection_workspace = kkt.projection_workspace_size(model.njoints, nq, nv, len(frames), constrained.num_rows) \
         if constrained.num_rows else 0
     plan[timestepping.PLAN_PROJECTION_WORKSPACE] = projection_workspace
-    workspace = timestepping.workspace_size(model.njoints, nq, nv, len(frames), constrained.num_rows, len(limits),
-                                            contacts, solver_workspace, projection_workspace)
     return ContactProgram(np.ascontiguousarray(program, dtype=float), np.ascontiguousarray(frames, dtype=float),
                           np.ascontiguousarray(geometry), np.ascontiguousarray(table.vertices, dtype=float),
-                          np.ascontiguousarray(plan), workspace,
-                          timestepping.int_workspace_size(constrained.num_rows, len(limits), contacts),
-                          contacts + len(limits), constrained.num_rows, tuple(model.body_names),
+                          np.ascontiguousarray(plan), timestepping.max_contacts(len(grounds), len(pairs)) + len(limits), constrained.num_rows, tuple(model.body_names),
                           tuple(model.joint_names))
 
 
@@ -522,9 +518,9 @@ def _call_run(program, tree, kind, control, controller, times, states, records, 
     pointer = controller.pointer if kind == stepping.FUNCTION else driver.first_class(stepping.no_controller,
                                                                                        CONTROLLER_TYPES)
     entry = driver.entry_point(timestepping.run, _RUN_TYPES)
+    floats, ints = program.workspaces(records.shape[1])
     entry(pointer, tree.joints, tree.reals, program.frames, program.program, program.geometry, program.vertices, plan,
-          control[0], times, states, records, summaries, io, np.empty(program.workspace),
-          np.zeros(program.int_workspace, dtype=np.int64))
+          control[0], times, states, records, summaries, io, np.empty(floats), np.zeros(ints, dtype=np.int64))
 
 
 def _run_batch(program, tree, kind, control, controller, times, states, records, summaries, io, device=False):
@@ -534,12 +530,13 @@ def _run_batch(program, tree, kind, control, controller, times, states, records,
     plan[timestepping.PLAN_CONTROL] = kind
     pointer = controller.pointer if kind == stepping.FUNCTION else driver.first_class(stepping.no_controller,
                                                                                        CONTROLLER_TYPES)
+    floats, ints = program.workspaces(records.shape[2])
     if device:
         from . import gpu
         launcher = gpu.contact_launcher(controller.function if kind == stepping.FUNCTION else None, pointer,
                                           dict(ENTRY_POINTS)[timestepping.run])
         gpu.contact_batch(launcher, (tree.joints, tree.reals, program.frames, program.program, program.geometry,
-                                     program.vertices, plan, control, times), program.workspace, program.int_workspace,
+                                     program.vertices, plan, control, times), floats, ints,
                           states, records, summaries, io)
         return
     shares = max(1, min(driver.get_num_threads(), len(states)))
@@ -547,7 +544,7 @@ def _run_batch(program, tree, kind, control, controller, times, states, records,
     with driver.parallel_shares(shares):
         entry(driver.first_class(timestepping.run, _RUN_TYPES), pointer, tree.joints, tree.reals, program.frames,
               program.program, program.geometry, program.vertices, plan, control, times, states, records, summaries,
-              io, program.workspace, program.int_workspace, shares)
+              io, floats, ints, shares)
 
 
 def run(constrained, q, v, times, controller, torque, batch, damping=None, tolerance=TOLERANCE,

@@ -643,3 +643,67 @@ def test_records_widen_when_a_step_has_more_rows(box, monkeypatch, capacity):
         assert batch.contacts[r] == singles[r].contacts
         counts = [len(entry) for entry in batch.contacts[r]]
         assert max(counts) == 4 and (r == 1) == (min(counts[1:]) == 0)
+
+
+def box_stack():
+    """Three boxes stacked on the ground, just above it (a ground item per box and two pairs; up to 8 contact points
+    each), and their initial configuration."""
+    b = mb.ModelBuilder("stack")
+    for i in range(3):
+        b.add_body(f"box{i}", joint=FreeFlyer(), inertia=inertia.box(1.0, (0.2, 0.2, 0.1)))
+        b.add_collision(f"box{i}", "box", (0.2, 0.2, 0.1))
+    system = mb.ConstrainedSystem(b.build(), [mb.Ground(friction=0.5), mb.ContactPair("box1", "box0", friction=0.5),
+                                              mb.ContactPair("box2", "box1", friction=0.5)])
+    return system, np.concatenate([[0.01 * i, 0, 0.05 + 0.1 * i + 0.002, 0, 0, 0, 1] for i in range(3)])
+
+
+def test_step_workspace_follows_the_records():
+    """A step's workspace is sized by its record's rows ``R`` (limits and contacts): room for ``c = min(C, R)``
+    contacts and ``m = m_b + 3c + min(2L, R − c)`` rows, growing with ``R`` up to every row the plan can have
+    (``C`` contact points, ``L`` limited coordinates) and no further."""
+    from multibody.kernels import timestepping as ts
+
+    system, _ = box_stack()
+    program = contact.contact_program(system)
+    C = ts.max_contacts(3, 2)  # a ground item per box, two pairs
+    assert program.records == C == 40
+    assert ts.row_capacity(0, 0, C, 8) == (8, 24) and ts.row_capacity(0, 0, C, 50) == (40, 120)
+    # limits: their rows fill what the contacts leave of the record
+    assert ts.row_capacity(2, 3, 4, 5) == (4, 2 + 12 + 1) and ts.row_capacity(2, 3, 4, 100) == (4, 2 + 12 + 6)
+    floats = [program.workspaces(R)[0] for R in (1, 8, C, 10 * C)]
+    assert floats[0] < floats[1] < floats[2] == floats[3]
+    assert [program.workspaces(R)[1] for R in (1, 8, C, 10 * C)] == [2, 16, 80, 80]
+
+
+@pytest.mark.parametrize("capacity", [1, 5])
+def test_a_stack_whose_rows_outgrow_the_records_equals_the_wide_run(monkeypatch, capacity):
+    """Records (and with them the step's workspaces) starting at ``capacity`` rows, fewer than a box stack's
+    contacts, grow as the steps need them: the states, contacts and residuals equal, bit for bit, those of a run
+    whose records hold every row from the start, single and batched."""
+    system, q0 = box_stack()
+    v0 = np.zeros(18)
+    monkeypatch.setattr(contact, "RECORD_CAPACITY", 10**6)
+    wide = mb.simulate(system, q0, v0, 0.05, dt=DT)
+    monkeypatch.setattr(contact, "RECORD_CAPACITY", capacity)
+    narrow = mb.simulate(system, q0, v0, 0.05, dt=DT)
+    batch = mb.simulate(system, np.stack([q0, q0]), np.zeros((2, 18)), 0.05, dt=DT)
+    assert wide.status == "completed" and max(len(entry) for entry in wide.contacts) >= 12
+    runs = [(narrow.q, narrow.v, narrow.contacts, narrow.complementarity)] + \
+        [(batch.q[r], batch.v[r], batch.contacts[r], batch.complementarity[r]) for r in range(2)]
+    for q, v, contacts, residuals in runs:
+        assert np.array_equal(q, wide.q) and np.array_equal(v, wide.v)
+        assert contacts == wide.contacts and np.array_equal(residuals, wide.complementarity)
+
+
+def test_joint_limit_rows_past_the_records_grow_them(panda, monkeypatch):
+    """Joint limits' rows beyond the record's rows are counted, not written, and the run goes on with wider records
+    from that step: the Panda falling onto its limits with records of one row equals the run with every row."""
+    system = mb.ConstrainedSystem(panda, [mb.JointLimits()])
+    q0 = np.clip(panda.neutral(), panda.lower, panda.upper)
+    monkeypatch.setattr(contact, "RECORD_CAPACITY", 10**6)
+    wide = mb.simulate(system, q0, np.zeros(panda.nv), 0.3, dt=DT)
+    monkeypatch.setattr(contact, "RECORD_CAPACITY", 1)
+    narrow = mb.simulate(system, q0, np.zeros(panda.nv), 0.3, dt=DT)
+    assert wide.status == narrow.status == "completed" and max(len(entry) for entry in wide.contacts) >= 2
+    assert np.array_equal(narrow.q, wide.q) and np.array_equal(narrow.v, wide.v)
+    assert narrow.contacts == wide.contacts

@@ -134,12 +134,6 @@ def max_contacts(grounds, pairs):
     return (grounds + pairs) * collision.MAX_PAIR_CONTACTS
 
 
-@njit(cache=True, error_model="numpy")
-def max_rows(bilateral, limits, contacts):
-    """The most rows of a step's problem: the bilateral rows, two per limited coordinate, three per contact."""
-    return bilateral + 2 * limits + 3 * contacts
-
-
 def pass_workspaces(nj, nv):
     """Floats of workspace of the kinematics pass (kept through the step) and of the dynamics passes (CRBA, RNEA,
     frame motions), the plan's :data:`PLAN_KINEMATICS_WORKSPACE` and :data:`PLAN_PASSES_WORKSPACE`."""
@@ -147,20 +141,37 @@ def pass_workspaces(nj, nv):
             max(crba.workspace_size(nj, nv), rnea.workspace_size(nj, nv), kinematics.workspace_size(nj, nv)))
 
 
-def workspace_size(nj, nq, nv, nframes, bilateral, limits, contacts, solver_workspace, projection_workspace):
-    """Floats of workspace of a run's step."""
-    m = max_rows(bilateral, limits, contacts)
-    kinematic, passes = pass_workspaces(nj, nv)
-    return (2 * nv * nv + 8 * nv + 2 * nq + kinematic + passes + kkt.projection_columns(nq, nv) + projection_workspace
-            + nframes * kinematics.motion_columns(nv) + bilateral * nv + 2 * bilateral
-            + collision.MAX_PAIR_CONTACTS * collision.CONTACT_COLUMNS + collision.PAIR_WORKSPACE + 9 + 9 + 3 * 3
-            + 6 * nv + contacts * CONTACT_DATA + 3 * m * nv + m * m + 12 * m + solver_workspace)
+@njit(cache=True, error_model="numpy")
+def row_capacity(bilateral, limits, contacts, record):
+    """The contact points and rows a step has room for when its record holds ``record`` rows (limits and contacts;
+    :data:`RECORD_FULL` stops a step with more), of at most ``contacts`` contact points (:func:`max_contacts`) and
+    ``limits`` limited coordinates: ``(c, m)``. A step has ``m = m_b + r + 3 f`` rows for ``f`` contacts and ``r``
+    limit rows with ``r + f ≤ record``, ``f ≤ c = min(contacts, record)`` and ``r ≤ 2 limits``; each contact more
+    adds two rows, so the most is
+
+        m = m_b + 3 c + min(2 limits, record − c)
+
+    (every row the plan can have once ``record ≥ contacts + 2 limits``)."""
+    # (comparisons rather than min, as lower_bound)
+    c = contacts if contacts < record else record
+    rest = record - c
+    return c, bilateral + 3 * c + (2 * limits if 2 * limits < rest else rest)
 
 
-def int_workspace_size(bilateral, limits, contacts):
-    """Integers of workspace of a run's step: the blocks' kinds and first rows."""
-    blocks = bilateral + 2 * limits + contacts
-    return 2 * blocks
+def workspace_sizes(plan, nframes, record):
+    """Floats and integers of workspace of a run's step on ``plan`` (with ``nframes`` frame rows of its bilateral
+    program) whose record holds ``record`` rows (:func:`row_capacity`): its layout in :func:`step`, the solver's
+    workspace (:func:`multibody.kernels.complementarity.workspace_size`), and the blocks' kinds and first rows."""
+    nq, nv, bilateral = int(plan[PLAN_NQ]), int(plan[PLAN_NV]), int(plan[PLAN_BILATERAL])
+    contacts, m = row_capacity(bilateral, int(plan[PLAN_LIMITS]),
+                               max_contacts(int(plan[PLAN_GROUNDS]), int(plan[PLAN_PAIRS])), record)
+    floats = (2 * nv * nv + 8 * nv + 2 * nq + int(plan[PLAN_KINEMATICS_WORKSPACE]) + int(plan[PLAN_PASSES_WORKSPACE])
+              + kkt.projection_columns(nq, nv) + int(plan[PLAN_PROJECTION_WORKSPACE])
+              + nframes * kinematics.motion_columns(nv) + bilateral * nv + 2 * bilateral
+              + collision.MAX_PAIR_CONTACTS * collision.CONTACT_COLUMNS + collision.PAIR_WORKSPACE + 9 + 9 + 3 * 3
+              + 6 * nv + contacts * CONTACT_DATA + 3 * m * nv + m * m + 12 * m + complementarity.workspace_size(m))
+    # one block per bilateral row, limit row and contact: m less two rows of each contact
+    return floats, 2 * (m - 2 * contacts)
 
 
 # ----------------------------------------------------------------------------- geometry
@@ -210,10 +221,13 @@ def world_pose(pose, geometry, g, R, p):
 @njit(cache=True, error_model="numpy")
 def add_contacts(rows, count, contacts, found, body, other, mu, e, limit):
     """Append the ``count`` detected rows ``rows (k, 7)`` (``[point, normal, gap]``) to ``contacts`` after
-    ``found`` of them, with their frame ``(n, t₁, t₂)``; returns the new number (at most ``limit``)."""
+    ``found`` of them, with their frame ``(n, t₁, t₂)``; returns the new number (those past ``limit`` counted, not
+    stored)."""
     for r in range(count):
         if found >= limit:
-            break
+            # (the caller sizes contacts by its record, and grows both when a step has more)
+            found += 1
+            continue
         data = contacts[found]
         n = (rows[r, 3], rows[r, 4], rows[r, 5])
         t1, t2 = tangents(n)
@@ -231,7 +245,7 @@ def add_contacts(rows, count, contacts, found, body, other, mu, e, limit):
 @njit(cache=True, error_model="numpy")
 def detect(plan, geometry, vertices, pose, vel, dt, contacts, out, cws, R_a, p_a, R_b, p_b, normal):
     """Every contact of the ground items and pairs of ``plan`` at the joints' poses ``pose`` into ``contacts
-    (·, CONTACT_DATA)``; returns their number. Each item's margin is the plan's plus ``2 dt`` times the speeds
+    (·, CONTACT_DATA)``; returns their number (those past its rows counted, not stored). Each item's margin is the plan's plus ``2 dt`` times the speeds
     its geometries can reach (:func:`speed_bound`), so that a contact the step can close is in it."""
     margin = plan[PLAN_MARGIN]
     limit = contacts.shape[0]
@@ -564,8 +578,10 @@ def step(controller, joints, reals, frames, program, geometry, vertices, plan, c
     kind = int(plan[PLAN_CONTROL])
     mb = int(plan[PLAN_BILATERAL])
     n_limits = int(plan[PLAN_LIMITS])
-    n_contacts = max_contacts(int(plan[PLAN_GROUNDS]), int(plan[PLAN_PAIRS]))
-    m_max = max_rows(mb, n_limits, n_contacts)
+    # the rows of the record bound the step's (workspace_sizes)
+    capacity = record.shape[0]
+    n_contacts, m_max = row_capacity(mb, n_limits, max_contacts(int(plan[PLAN_GROUNDS]), int(plan[PLAN_PAIRS])),
+                                     capacity)
     tolerance, iterations = plan[PLAN_TOLERANCE], int(plan[PLAN_MAX_ITERATIONS])
     none = plan[:0]
     # workspace
@@ -697,6 +713,7 @@ def step(controller, joints, reals, frames, program, geometry, vertices, plan, c
     margin = plan[PLAN_MARGIN]
     start = int(plan[PLAN_LIMIT_START])
     first_limit = m
+    limit_rows = 0
     for k in range(n_limits):
         item = plan[start + k * LIMIT_COLUMNS : start + (k + 1) * LIMIT_COLUMNS]
         iq, iv = int(item[LIMIT_IQ]), int(item[LIMIT_IV])
@@ -707,6 +724,10 @@ def step(controller, joints, reals, frames, program, geometry, vertices, plan, c
             gap = q[iq] - item[LIMIT_LOWER] if side == 0 else item[LIMIT_UPPER] - q[iq]
             if not gap < reach:
                 continue
+            limit_rows += 1
+            if limit_rows > capacity:
+                # counted for RECORD_FULL below, with no room in the workspace
+                continue
             for col in range(nv):
                 J[m, col] = 0.0
             J[m, iv] = sign
@@ -716,13 +737,12 @@ def step(controller, joints, reals, frames, program, geometry, vertices, plan, c
             block_kinds[nb], block_starts[nb], mu[nb] = complementarity.UNILATERAL, m, 0.0
             m += 1
             nb += 1
-    limit_rows = m - first_limit
     pose, vel, _ = kinematics.joint_motions(joints, reals, q, v, kin, None)
     # the energy T + U of the step's start, in its own summary row (energy.mechanical_energy's terms)
     previous_summary[SUMMARY_ENERGY] = energy.motion_energy(joints, reals, pose, vel, v)
     found = detect(plan, geometry, vertices, pose, vel, dt, contacts, out, cws, R_a, p_a, R_b, p_b, normal)
-    if limit_rows + found > record.shape[0]:
-        # the caller sizes the record by the rows steps have, and grows it when one has more
+    if limit_rows + found > capacity:
+        # the caller sizes the record and the workspace by the rows steps have, and grows them when one has more
         summary[SUMMARY_COUNT] = limit_rows + found
         return RECORD_FULL
     for k in range(found):
@@ -879,7 +899,8 @@ def run(controller, joints, reals, frames, program, geometry, vertices, plan, co
     ``[q, v]`` at ``times (n,)``, each step ``k`` from ``states[k − 1]`` into ``states[k]``, its contact rows into
     ``record[k]`` and its summary into ``summary[k]`` (:func:`step`). Returns with the status in ``io`` and
     ``io[IO_STEP]`` the first step not taken (a step whose contact problem the solver did not finish is not taken:
-    its record and summary say how far it got)."""
+    its record and summary say how far it got). ``ws``, ``iws``: the floats and integers of :func:`workspace_sizes` for
+    the record's rows; a step with more rows than those stops the run with :data:`RECORD_FULL` before it."""
     nq = int(plan[PLAN_NQ])
     k, stop = int(io[IO_STEP]), int(io[IO_STOP])
     while k < stop:
