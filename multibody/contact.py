@@ -50,6 +50,7 @@ PROJECTION_TOLERANCE = 1e-12
 PROJECTION_ITERATIONS = 50
 #: Rows (limits and contacts) of each output step's record at a run's start: a step with more widens every record
 #: of the run to at least twice as many (at most the rows the system can have) and the run goes on from that step.
+#: The step's workspaces are sized by the records' rows (:meth:`ContactProgram.workspaces`) and grow with them.
 RECORD_CAPACITY = 8
 
 
@@ -346,8 +347,10 @@ def contact_program(constrained, *, tolerance=TOLERANCE, max_iterations=MAX_ITER
     plan[timestepping.PLAN_PROJECTION_WORKSPACE] = projection_workspace
     return ContactProgram(np.ascontiguousarray(program, dtype=float), np.ascontiguousarray(frames, dtype=float),
                           np.ascontiguousarray(geometry), np.ascontiguousarray(table.vertices, dtype=float),
-                          np.ascontiguousarray(plan), timestepping.max_contacts(len(grounds), len(pairs)) + len(limits), constrained.num_rows, tuple(model.body_names),
-                          tuple(model.joint_names))
+                          np.ascontiguousarray(plan),
+                          # a record's most rows: every contact point and both limits of each limited coordinate
+                          timestepping.max_contacts(len(grounds), len(pairs)) + 2 * len(limits), constrained.num_rows,
+                          tuple(model.body_names), tuple(model.joint_names))
 
 
 # ============================================================================= the compiled run

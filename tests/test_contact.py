@@ -699,6 +699,8 @@ def test_joint_limit_rows_past_the_records_grow_them(panda, monkeypatch):
     """Joint limits' rows beyond the record's rows are counted, not written, and the run goes on with wider records
     from that step: the Panda falling onto its limits with records of one row equals the run with every row."""
     system = mb.ConstrainedSystem(panda, [mb.JointLimits()])
+    # (the widest record: both limits of each limited coordinate)
+    assert contact.contact_program(system).records == 2 * len(system.unilateral[0].limits) > 0
     q0 = np.clip(panda.neutral(), panda.lower, panda.upper)
     monkeypatch.setattr(contact, "RECORD_CAPACITY", 10**6)
     wide = mb.simulate(system, q0, np.zeros(panda.nv), 0.3, dt=DT)

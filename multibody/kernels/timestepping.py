@@ -245,8 +245,9 @@ def add_contacts(rows, count, contacts, found, body, other, mu, e, limit):
 @njit(cache=True, error_model="numpy")
 def detect(plan, geometry, vertices, pose, vel, dt, contacts, out, cws, R_a, p_a, R_b, p_b, normal):
     """Every contact of the ground items and pairs of ``plan`` at the joints' poses ``pose`` into ``contacts
-    (·, CONTACT_DATA)``; returns their number (those past its rows counted, not stored). Each item's margin is the plan's plus ``2 dt`` times the speeds
-    its geometries can reach (:func:`speed_bound`), so that a contact the step can close is in it."""
+    (·, CONTACT_DATA)``; returns their number (those past its rows counted, not stored). Each item's margin is the
+    plan's plus ``2 dt`` times the speeds its geometries can reach (:func:`speed_bound`), so that a contact the step
+    can close is in it."""
     margin = plan[PLAN_MARGIN]
     limit = contacts.shape[0]
     found = 0
