@@ -1,9 +1,10 @@
 """Articulated Body Algorithm: forward dynamics.
 
 R. Featherstone, *Rigid Body Dynamics Algorithms* (RBDA), Springer 2008, Table 7.1, with every spatial
-quantity in world coordinates, as Pinocchio's ``aba`` computes it (J. Carpentier and N. Mansard, "Analytical
-derivatives of rigid body dynamics algorithms", RSS 2018, §III): each joint's motion subspace ``S`` and its
-body's inertia are moved to the world frame once, in the pass down the tree, and then the velocities,
+quantity in world axes, as Pinocchio's ``aba`` computes it (J. Carpentier and N. Mansard, "Analytical
+derivatives of rigid body dynamics algorithms", RSS 2018, §III), about the first joint's origin ``o`` rather than the
+world's, so that a robot far from the world origin keeps its digits (as the kinematics do): each joint's motion
+subspace ``S`` and its body's inertia are moved to that frame once, in the pass down the tree, and then the velocities,
 accelerations, articulated inertias ``I^A`` and bias forces ``p^A`` of a child add to its parent's without a
 change of coordinates (RBDA's ``λ(i)X*_i I^a_i ⁱX_λ(i)`` becomes ``I^a_i``). The joints' armature enters each
 joint's ``D = Sᵀ I^A S + diag(armature)`` (Pinocchio's ``aba``, which adds it to ``StU``), so that ABA solves
@@ -40,7 +41,7 @@ ZERO6 = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 
 #: Offsets in a joint's block of the workspace (joint i's starts at ``BLOCK i``): its pose in the world
 #: (``R`` row-major, then ``p``), articulated inertia (6×6), ``U D⁻¹`` (by columns), ``S`` (by columns), velocity,
-#: bias acceleration ``c``, bias force ``p^A``, acceleration and ``D⁻¹ u``, all in world coordinates; the scratch
+#: bias acceleration ``c``, bias force ``p^A``, acceleration and ``D⁻¹ u``, all in world axes about ``o``; the scratch
 #: blocks ``U``, ``D``, ``D⁻¹`` (6×6 each) follow the last joint's block, then the kinetic and the potential
 #: energy (:func:`energy_offset`).
 POSE, ARTICULATED, U_D_INV, SUBSPACE, VELOCITY, BIAS, BIAS_FORCE, ACCELERATION, W, BLOCK = (0, 12, 48, 84, 120, 126,
@@ -181,7 +182,7 @@ def factor_joint(nv, reals, i, J, X):
 
 @njit(cache=True, error_model="numpy")
 def articulated_body(joints, reals, q, v, tau, f_ext, qdd, ws, energy):
-    """Accelerations ``q̈ (nv,)`` (RBDA Table 7.1, world coordinates as the module docstring says) into ``qdd``:
+    """Accelerations ``q̈ (nv,)`` (RBDA Table 7.1, in world axes about the first joint's origin as the module docstring says) into ``qdd``:
     m/s² or rad/s² per coordinate, and with ``energy`` the kinetic and the potential energy (J) of the state into
     ``ws`` at :func:`energy_offset` (:mod:`multibody.kernels.energy`'s ``T`` and ``U``, the same sums).
 
@@ -197,21 +198,26 @@ def articulated_body(joints, reals, q, v, tau, f_ext, qdd, ws, energy):
     g = row3(reals, nj, GRAVITY)
     moving, torqued, loaded = v.shape[0] > 0, tau.shape[0] > 0, f_ext.shape[0] > 0
     kinetic, potential = 0.0, 0.0
+    o = (0.0, 0.0, 0.0)
     for i in range(nj):
         J = ws[BLOCK * i : BLOCK * (i + 1)]
         parent, kind, iv, nv = joints[i, PARENT], joints[i, KIND], joints[i, IV], joints[i, NV]
         P = ws[BLOCK * parent : BLOCK * (parent + 1)] if parent >= 0 else J
         axis = row3(reals, i, AXIS)
-        # ⁰X_i = ⁰X_λ(i) X_λ(i),i
+        # ⁰X_i = ⁰X_λ(i) X_λ(i),i, about the first joint's origin o
         R, p = joint_pose(joints, reals, q, i)
+        if i == 0:
+            o = p
         if parent >= 0:
             R, p = compose(load9(P, POSE), load3(P, POSE + 9), R, p)
+        else:
+            p = (p[0] - o[0], p[1] - o[1], p[2] - o[2])
         store(J, POSE, R)
         store(J, POSE + 9, p)
-        # S_i in world coordinates: ⁰X_i S_i, column by column
+        # S_i in world axes about o: ⁰X_i S_i, column by column
         for k in range(nv):
             store(J, SUBSPACE + 6 * k, kinds.subspace_column_to_parent(kind, axis, k, R, p))
-        # I_i in world coordinates: ⁰X_i* I_i ⁱX_0 ;  I^A_i = I_i
+        # I_i in world axes about o: ⁰X_i* I_i ⁱX_0 ;  I^A_i = I_i
         I = inertia_to_parent(R, p, row10(reals, i, INERTIA))
         rigid_to_matrix(I, J, ARTICULATED)
         if moving:
@@ -233,8 +239,8 @@ def articulated_body(joints, reals, q, v, tau, f_ext, qdd, ws, energy):
         else:
             v_i, c_i, p_i = ZERO6, ZERO6, ZERO6
         if energy:
-            # U −= gᵀ m_i c_i, the body's first moment about the world origin
-            potential -= dot3(g, (I[1], I[2], I[3]))
+            # U −= gᵀ m_i c_i, with m_i c_i = m_i o + h_i the first moment about the world origin
+            potential -= dot3(g, (I[1] + I[0] * o[0], I[2] + I[0] * o[1], I[3] + I[0] * o[2]))
         if loaded:
             p_i = sub6(p_i, force_to_parent(R, p, load6(f_ext, 6 * i)))
         store(J, VELOCITY, v_i)
@@ -273,7 +279,7 @@ def articulated_body(joints, reals, q, v, tau, f_ext, qdd, ws, energy):
                     p_a = add6(p_a, scale6(J[W + k], load6(X, 6 * k)))
         if parent >= 0:
             P = ws[BLOCK * parent : BLOCK * (parent + 1)]
-            # I^A_λ(i) += I^a_i ;  p^A_λ(i) += p^a_i   (both in world coordinates)
+            # I^A_λ(i) += I^a_i ;  p^A_λ(i) += p^a_i   (both in the same axes about o)
             for k in range(36):
                 P[ARTICULATED + k] += J[ARTICULATED + k]
             store(P, BIAS_FORCE, add6(load6(P, BIAS_FORCE), p_a))
