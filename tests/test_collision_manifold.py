@@ -243,8 +243,11 @@ def test_random_hulls_points_on_both_surfaces_and_the_deepest_is_epa(placed):
             total += 1
         several += len(rows) >= 3
         if len(rows) <= 3:
-            back = run_pair(b, a, margin=1e-3)
-            np.testing.assert_allclose(rows_as_set(swapped(back), 7), rows_as_set(rows, 7), atol=1e-7)
+            # (unreduced manifolds: the same points either way, to rounding; a reduction to 4 may keep others)
+            back = swapped(run_pair(b, a, margin=1e-3))
+            assert len(back) == len(rows)
+            distance = np.abs(rows[:, None, :7] - back[None, :, :7]).max(axis=2)
+            assert distance.min(axis=1).max() <= 1e-12 and distance.min(axis=0).max() <= 1e-12
     assert exact >= 0.95 * total
     if placed:
         assert several >= 50
