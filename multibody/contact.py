@@ -536,8 +536,9 @@ def _run_batch(program, tree, kind, control, controller, times, states, records,
     floats, ints = program.workspaces(records.shape[2])
     if device:
         from . import gpu
-        launcher = gpu.contact_launcher(controller.function if kind == stepping.FUNCTION else None, pointer,
-                                          dict(ENTRY_POINTS)[timestepping.run])
+        launcher = gpu.run_launcher(gpu.contact_run_source, timestepping.run,
+                                    controller.function if kind == stepping.FUNCTION else None, pointer,
+                                    dict(ENTRY_POINTS)[timestepping.run])
         gpu.contact_batch(launcher, (tree.joints, tree.reals, program.frames, program.program, program.geometry,
                                      program.vertices, plan, control, times), floats, ints,
                           states, records, summaries, io)

@@ -183,6 +183,13 @@ def check(inputs):
     return arrays, batch
 
 
+def _grid(count):
+    """``(blocks, threads)`` of a launch over ``count`` states or trajectories: at most :data:`MAX_THREADS` threads
+    in blocks of :data:`THREADS_PER_BLOCK`, ``threads`` the workspace rows it needs (one per thread)."""
+    blocks = -(-min(count, MAX_THREADS) // THREADS_PER_BLOCK)
+    return blocks, blocks * THREADS_PER_BLOCK
+
+
 def evaluate_device(kernel, tree: DeviceTree, inputs, out_shape, batch=()):
     """Run ``kernel`` on every state of ``batch`` on the GPU: ``-> device array batch + out_shape``.
 
@@ -201,10 +208,8 @@ def evaluate_device(kernel, tree: DeviceTree, inputs, out_shape, batch=()):
             rows.append(x.reshape((1, k)) if math.prod(lead) == 1 else x.reshape((n, k)))
     out = cuda.device_array((n,) + tuple(out_shape), dtype=np.float64)
     if n:
-        threads = min(n, MAX_THREADS)
-        blocks = -(-threads // THREADS_PER_BLOCK)
-        workspace = cuda.device_array((blocks * THREADS_PER_BLOCK, max(1, kernel_workspace_size(kernel, tree.joints.shape[0],
-                                                                                             tree.nv))))
+        blocks, threads = _grid(n)
+        workspace = cuda.device_array((threads, max(1, kernel_workspace_size(kernel, tree.joints.shape[0], tree.nv))))
         launcher(kernel)[blocks, THREADS_PER_BLOCK](tree.joints, tree.reals, tree.bodies, *rows, out, workspace)
     return out.reshape(tuple(batch) + tuple(out_shape))
 
@@ -247,39 +252,33 @@ def run_source(advance, controller):
     return launch
 
 
-#: The key of a ``numba.njit`` controller's launcher in the controller's own ``__dict__``.
-_LAUNCHER_KEY = "_multibody_cuda_run"
-
-
 @functools.lru_cache(maxsize=None)
-def _uncontrolled_launcher():
-    from .kernels import stepping
-    return _cuda().jit(run_source(stepping.advance, None))
+def _uncontrolled_launcher(source, kernel):
+    return _cuda().jit(source(kernel, None))
 
 
-def run_launcher(run):
-    """The ``cuda.jit`` launcher of a compiled run (:class:`multibody.integrators.CompiledRun`), compiled on first
-    launch: :func:`multibody.kernels.stepping.advance` with no controller function (the run's controller is none,
-    constant or :class:`multibody.PD`, read from its plan), or with its ``numba.njit`` controller as a device
-    function. The launcher of a controller lives in the controller's ``__dict__`` (as :func:`device_tree`'s copy
-    in the model's): it is compiled once per controller, and dies with it.
+def run_launcher(source, kernel, function, pointer, types):
+    """The ``cuda.jit`` launcher ``source(kernel, controller)`` of a run (:func:`run_source` of
+    :func:`multibody.kernels.stepping.advance`, :func:`contact_run_source` of
+    :func:`multibody.kernels.timestepping.run`), compiled on first launch: with the ``numba.njit`` controller
+    ``function`` as a device function, or with none (``function`` ``None``: the plan's controller is none, constant
+    or :class:`multibody.PD`). The launcher of a controller lives in the controller's ``__dict__`` (as
+    :func:`device_tree`'s copy in the model's): it is compiled once per controller, and dies with it.
 
-    Under ``NUMBA_ENABLE_CUDASIM=1`` the launcher calls the CPU's compiled ``advance`` with the run's first-class
-    controller (:attr:`~multibody.integrators.CompiledRun.pointer`), as :func:`_simulated` does for the kernels."""
+    Under ``NUMBA_ENABLE_CUDASIM=1`` the launcher calls the CPU's ``kernel`` compiled for the argument ``types``
+    with the first-class controller ``pointer``, as :func:`_simulated` does for the kernels."""
     from numba import config
 
-    from . import driver, integrators
-    from .kernels import stepping
+    from . import driver
     cuda = _cuda()
     if config.ENABLE_CUDASIM:
-        entry = driver.entry_point(stepping.advance, dict(integrators.ENTRY_POINTS)[stepping.advance])
-        return cuda.jit(run_source(_simulated(entry), run.pointer))
-    if run.kind != stepping.FUNCTION:
-        return _uncontrolled_launcher()
-    function = run.controller.function
-    launcher = function.__dict__.get(_LAUNCHER_KEY)
+        return cuda.jit(source(_simulated(driver.entry_point(kernel, types)), pointer))
+    if function is None:
+        return _uncontrolled_launcher(source, kernel)
+    key = f"_multibody_cuda_{source.__name__}"
+    launcher = function.__dict__.get(key)
     if launcher is None:
-        launcher = function.__dict__[_LAUNCHER_KEY] = cuda.jit(run_source(stepping.advance, function))
+        launcher = function.__dict__[key] = cuda.jit(source(kernel, function))
     return launcher
 
 
@@ -289,16 +288,19 @@ def launch(run, states, io, rows):
     device arrays: ``states (N, n, nq + nv)`` and ``io (N, io_size)`` float64, filled in place, and ``rows (k,)``
     int64. Returns at once (the launch is asynchronous); a thread runs ``rows[j]`` for ``j = thread, thread +
     threads, …`` in a workspace row of its own."""
+    from . import integrators
+    from .kernels import stepping
     cuda = _cuda()
-    count = rows.shape[0]
-    if not count:
+    if not rows.shape[0]:
         return
-    threads = min(count, MAX_THREADS)
-    blocks = -(-threads // THREADS_PER_BLOCK)
-    workspace = cuda.device_array((blocks * THREADS_PER_BLOCK, max(1, run.workspace)))
+    blocks, threads = _grid(rows.shape[0])
+    workspace = cuda.device_array((threads, max(1, run.workspace)))
     arrays = [cuda.to_device(np.ascontiguousarray(x)) for x in (run.tree.joints, run.tree.reals, run.frames,
                                                                  run.program, run.times, run.plan, run.control)]
-    run_launcher(run)[blocks, THREADS_PER_BLOCK](*arrays, states, io, rows, workspace)
+    function = run.controller.function if run.kind == stepping.FUNCTION else None
+    launcher = run_launcher(run_source, stepping.advance, function, run.pointer,
+                            dict(integrators.ENTRY_POINTS)[stepping.advance])
+    launcher[blocks, THREADS_PER_BLOCK](*arrays, states, io, rows, workspace)
 
 
 def advance_batch(run, states, io, rows):
@@ -332,38 +334,6 @@ def contact_run_source(run, controller):
     return launch
 
 
-#: The key of a ``numba.njit`` controller's contact launcher in the controller's own ``__dict__``.
-_CONTACT_LAUNCHER_KEY = "_multibody_cuda_contact_run"
-
-
-@functools.lru_cache(maxsize=None)
-def _uncontrolled_contact_launcher():
-    from .kernels import timestepping
-    return _cuda().jit(contact_run_source(timestepping.run, None))
-
-
-def contact_launcher(function, pointer, types):
-    """The ``cuda.jit`` launcher of the contact run, compiled on first launch: with the ``numba.njit`` controller
-    ``function`` as a device function (kept in its ``__dict__``, as :func:`run_launcher` keeps its own), or with none
-    (``function`` ``None``: the plan's controller is none, constant or a PD). Under ``NUMBA_ENABLE_CUDASIM=1`` it calls
-    the CPU's compiled :func:`multibody.kernels.timestepping.run`, compiled for the argument ``types`` (those of
-    :data:`multibody.contact.ENTRY_POINTS`), with the first-class controller ``pointer``."""
-    from numba import config
-
-    from . import driver
-    from .kernels import timestepping
-    cuda = _cuda()
-    if config.ENABLE_CUDASIM:
-        entry = driver.entry_point(timestepping.run, types)
-        return cuda.jit(contact_run_source(_simulated(entry), pointer))
-    if function is None:
-        return _uncontrolled_contact_launcher()
-    launcher = function.__dict__.get(_CONTACT_LAUNCHER_KEY)
-    if launcher is None:
-        launcher = function.__dict__[_CONTACT_LAUNCHER_KEY] = cuda.jit(contact_run_source(timestepping.run, function))
-    return launcher
-
-
 def contact_batch(launcher, arrays, workspace, int_workspace, states, records, summaries, io):
     """The contact run of every trajectory on the GPU, one per thread: ``arrays`` (the tree's joints and reals, the
     program's frames, program, geometry and vertices, the plan, the control rows and the times, host arrays) and the
@@ -371,13 +341,11 @@ def contact_batch(launcher, arrays, workspace, int_workspace, states, records, s
     ``io (N, io_size)`` copied to the device, the launch, and the last four copied back in place. ``workspace``,
     ``int_workspace``: the floats and integers of one thread's workspace rows."""
     cuda = _cuda()
-    count = states.shape[0]
-    if not count:
+    if not states.shape[0]:
         return
-    threads = min(count, MAX_THREADS)
-    blocks = -(-threads // THREADS_PER_BLOCK)
-    ws = cuda.device_array((blocks * THREADS_PER_BLOCK, max(1, workspace)))
-    iws = cuda.to_device(np.zeros((blocks * THREADS_PER_BLOCK, max(1, int_workspace)), dtype=np.int64))
+    blocks, threads = _grid(states.shape[0])
+    ws = cuda.device_array((threads, max(1, workspace)))
+    iws = cuda.to_device(np.zeros((threads, max(1, int_workspace)), dtype=np.int64))
     inputs = [cuda.to_device(np.ascontiguousarray(x)) for x in arrays]
     outputs = [cuda.to_device(x) for x in (states, records, summaries, io)]
     launcher[blocks, THREADS_PER_BLOCK](*inputs, *outputs, ws, iws)
