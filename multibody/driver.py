@@ -251,7 +251,8 @@ _LOCAL = threading.local()
 
 @njit(cache=True, parallel=True, error_model="numpy")
 def _batch(kernel, joints, reals, frames, X0, X1, X2, X3, OUT, workspace_size, shares):
-    # `kernel` is a first-class function (see _loop_kernel): one compiled loop serves every kernel
+    # `kernel` is the machine code of a kernel's single call as a first-class function (first_class): one loop
+    # serves every kernel, instead of a specialization per kernel that would compile its whole call tree twice more
     n = OUT.shape[0]
     for share in prange(shares):
         ws = np.empty(workspace_size)
@@ -261,15 +262,6 @@ def _batch(kernel, joints, reals, frames, X0, X1, X2, X3, OUT, workspace_size, s
                    X2[s if X2.shape[0] > 1 else 0], X3[s if X3.shape[0] > 1 else 0], OUT[s], ws)
 
 
-def _loop_kernel(kernel):
-    """``kernel`` as :func:`_batch` takes it: the machine code a single state runs (the types
-    :data:`_SINGLE_CALL_TYPES`), passed as a first-class function, a function pointer (:func:`first_class`). The
-    loop is then compiled once for every kernel, and no kernel is compiled again into a loop of its own (a
-    specialization per kernel would compile the kernel's whole call tree twice more: the loop's
-    body and the loop). Under ``NUMBA_DISABLE_JIT=1``: the Python function."""
-    return first_class(kernel, _SINGLE_CALL_TYPES)
-
-
 #: :func:`first_class` of each function, made on first use.
 _FIRST_CLASS = {}
 
@@ -277,10 +269,10 @@ _FIRST_CLASS = {}
 def first_class(function, types):
     """``function`` (a Numba dispatcher of multibody) compiled for the argument ``types``, as a first-class
     function: a value that compiled code whose argument is ``numba.types.FunctionType`` of that signature calls
-    through a pointer, so that one compiled loop serves every such function (:func:`_loop_kernel`; the compiled
-    run of :mod:`multibody.integrators`; :func:`multibody.numba_hooks.first_class`). Kept per function, for one
-    signature each as :func:`entry_point` keeps its entry: making the value costs about 30 µs, and a compiled run
-    asks for it at every chunk of steps. Under ``NUMBA_DISABLE_JIT=1``: the Python function."""
+    through a pointer, so that one compiled loop serves every such function (:func:`_batch`; the compiled run of
+    :mod:`multibody.integrators`; :func:`multibody.numba_hooks.first_class`). Kept per function, for one signature
+    each as :func:`entry_point` keeps its entry: making the value costs about 30 µs, and a compiled run asks for it
+    at every chunk of steps. Under ``NUMBA_DISABLE_JIT=1``: the Python function."""
     pointer = _FIRST_CLASS.get(function)
     if pointer is None:
         pointer = _FIRST_CLASS[function] = numba_hooks.first_class(function, types)
@@ -361,7 +353,7 @@ _VECTOR, _MATRIX = numba.types.float64[::1], numba.types.float64[:, ::1]
 _SINGLE_CALL_TYPES = (_TREE_INTS, _TREE_FLOATS, _TREE_FLOATS, _VECTOR, _VECTOR, _VECTOR, _VECTOR, _MATRIX, _VECTOR)
 
 
-#: The argument types of :func:`_batch`: a kernel's single call (:func:`_loop_kernel`), the tree's arrays and
+#: The argument types of :func:`_batch`: a kernel's single call (:func:`first_class`), the tree's arrays and
 #: the frames read-only, the input rows and the outputs writable, whatever the arrays passed are.
 _BATCH_TYPES = (numba.types.FunctionType(numba.types.none(*_SINGLE_CALL_TYPES)), _TREE_INTS, _TREE_FLOATS,
                 _TREE_FLOATS, _MATRIX, _MATRIX, _MATRIX, _MATRIX, numba.types.float64[:, :, ::1], numba.types.int64,
@@ -456,8 +448,8 @@ def evaluate(kernel, tree, inputs, out_shape, batch=(), frames=None, workspace=N
         shares = max(1, min(get_num_threads(), n // STATES_PER_THREAD))
         with parallel_shares(shares):
             rows = (_rows(x0, batch, n), _rows(x1, batch, n), _rows(x2, batch, n), _rows(x3, batch, n))
-            entry_point(_batch, _BATCH_TYPES)(_loop_kernel(kernel), tree.joints, tree.reals, frames, *rows, out,
-                                          workspace.size, shares)
+            entry_point(_batch, _BATCH_TYPES)(first_class(kernel, _SINGLE_CALL_TYPES), tree.joints, tree.reals, frames,
+                                              *rows, out, workspace.size, shares)
     return result
 
 

@@ -85,7 +85,8 @@ def test_the_package_runs_batches_where_numba_has_no_compile_result_wap(tmp_path
         q, v, a = (rng.standard_normal((300, 2)) for _ in range(3))
         batch = mb.inverse_dynamics(model, q, v, a)
         single = np.array([mb.inverse_dynamics(model, *state) for state in zip(q, v, a)])
-        assert driver._loop_kernel(kernels.rnea.inverse_dynamics) is kernels.rnea.inverse_dynamics
+        assert (driver.first_class(kernels.rnea.inverse_dynamics, driver._SINGLE_CALL_TYPES)
+                is kernels.rnea.inverse_dynamics)
         print(np.array_equal(batch, single))
     """)
     done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=600,
