@@ -406,29 +406,13 @@ def force_transform(R_AB, p_AB):
     return _pose_transform(R_AB, p_AB, (slice(3, 6), slice(0, 3)))
 
 
-def plucker_pose(R_AB, p_AB):
-    """7×7 matrix ``ᴬP_B = [[R, 0, p], [[p]× R, R, 0], [0, 0, 1]]``: the force transform ``ᴬX_B*`` (its
-    top-left 6×6 block) with the translation ``p`` beside it. ``(..., 3, 3), (..., 3) -> (..., 7, 7)``.
-
-    Products compose both at once, like products of homogeneous transforms: ``ᴬP_B ᴮP_C`` holds ``ᴬX_C*``
-    and ``p_AC = R_AB p_BC + p_AB``. Its entries ``(3:6, 6)``, zero here, become ``[p_AB]× R_AB p_BC`` in
-    a product; they only ever feed the same entries of later products (the zero block ``(0:3, 3:6)``
-    above them and the zero row 6 see to it), and no other entry depends on them.
-    """
-    P = _pose_transform(R_AB, p_AB, (slice(3, 6), slice(0, 3)), size=7)
-    P[..., :3, 6] = p_AB
-    P[..., 6, 6] = 1.0
-    return P
-
-
-def _pose_transform(R_AB, p_AB, coupling, size=6):
+def _pose_transform(R_AB, p_AB, coupling):
     """``[[R, 0], [0, R]]`` with ``[p]× R`` in the block ``coupling`` (rows, columns): the motion and
-    force transforms of a pose. ``(..., 3, 3), (..., 3) -> (..., 6, 6)``, or the top-left block of a
-    ``size × size`` matrix of zeros elsewhere."""
+    force transforms of a pose. ``(..., 3, 3), (..., 3) -> (..., 6, 6)``."""
     R_AB, p_AB = np.asarray(R_AB, dtype=float), np.asarray(p_AB, dtype=float)
-    X = np.zeros(batch_shape(R_AB.shape[:-2], p_AB.shape[:-1]) + (size, size))
+    X = np.zeros(batch_shape(R_AB.shape[:-2], p_AB.shape[:-1]) + (6, 6))
     X[..., :3, :3] = R_AB
-    X[..., 3:6, 3:6] = R_AB
+    X[..., 3:, 3:] = R_AB
     X[(...,) + coupling] = skew(p_AB) @ R_AB
     return X
 

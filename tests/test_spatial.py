@@ -141,24 +141,6 @@ def test_transform_composition(rng):
                     sp.force_transform(R_AB, p_AB) @ sp.force_transform(R_BC, p_BC), atol=1e-12)
 
 
-def test_plucker_poses_compose_force_transform_and_translation_in_chains(rng):
-    """A chain of Plücker pose products holds the force transform and the translation of the composed
-    pose; only the unused entries (3:6, 6) differ from its own Plücker pose."""
-    poses = [random_pose(rng) for _ in range(4)]
-    R, p = poses[0]
-    P = sp.plucker_pose(R, p)
-    assert_allclose(P[:6, :6], sp.force_transform(R, p), atol=0)
-    assert_allclose(P[:3, 6], p, atol=0)
-    assert_allclose(P[6], np.eye(7)[6], atol=0)
-    for R_next, p_next in poses[1:]:
-        R, p = sp.compose(R, p, R_next, p_next)
-        P = P @ sp.plucker_pose(R_next, p_next)
-        used = np.ones((7, 7), dtype=bool)
-        used[3:6, 6] = False
-        assert_allclose(P[used], sp.plucker_pose(R, p)[used], atol=1e-12)
-    assert np.abs(P[3:6, 6]).max() > 0.1  # (the unused entries did fill)
-
-
 def test_inverse_pose(rng):
     R, p = random_pose(rng)
     R_inv, p_inv = sp.inverse_pose(R, p)
