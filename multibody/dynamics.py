@@ -271,7 +271,7 @@ def mass_matrix(model, q, method="crba", *, out=None):
     q = model.check_configuration(q)
     if method == "crba":
         return evaluate_checked(model, crba.mass_matrix, (q,), (model.nv, model.nv), q.shape[:-1], out)
-    jacobians, inertias = _world_body_jacobians_and_inertias(model, q)
+    _, jacobians, inertias = _world_tree(model, q)
     # M = Σ_i J_iᵀ I_i J_i + diag(armature)
     M = np.einsum("...ick,...icd,...idl->...kl", jacobians, inertias, jacobians, optimize=True)
     M = 0.5 * (M + spatial.transpose(M))  # exactly symmetric
@@ -298,9 +298,9 @@ def mass_matrix_bias_and_frames(model, q, v, frames=()):
 
 
 def _world_tree(model, q):
-    """Each velocity coordinate's unit motion ``ξ (..., nv, 6)`` and each moving body's inertia
-    ``(..., nj, 6, 6)``, world axes at the first joint's origin O (a point near the bodies keeps the
-    moments ``p × f`` small), for the Lagrangian assemblies."""
+    """Each velocity coordinate's unit motion ``ξ (..., nv, 6)``, each moving body's Jacobian ``(..., nj, 6, nv)``
+    (the columns ``ξ`` of the coordinates that move it) and inertia ``(..., nj, 6, 6)``, world axes at the first
+    joint's origin O (a point near the bodies keeps the moments ``p × f`` small), for the Lagrangian assemblies."""
     R_WJ, p_WJ = joint_world_poses(model, q)
     p_OJ = p_WJ - p_WJ[..., :1, :]
     R, p = R_WJ[..., model.dof_joint, :, :], p_OJ[..., model.dof_joint, :]
@@ -309,14 +309,8 @@ def _world_tree(model, q):
     angular = spatial.matvec(R, S[:, 3:])
     xi = np.concatenate([spatial.matvec(R, S[:, :3]) + spatial.cross(p, angular), angular], axis=-1)
     inertias = spatial.transform_inertia(R_WJ, p_OJ, model.spatial_inertias)
-    return xi, inertias
-
-
-def _world_body_jacobians_and_inertias(model, q):
-    """World Plücker Jacobian ``(..., nj, 6, nv)`` and world inertia ``(..., nj, 6, 6)`` of each body."""
-    xi, inertias = _world_tree(model, q)
     jacobians = spatial.transpose(xi)[..., None, :, :] * model.joint_support[:, None, :]
-    return jacobians, inertias
+    return xi, jacobians, inertias
 
 
 # ============================================================================= Coriolis matrix
@@ -359,14 +353,13 @@ def mass_matrix_derivative(model, q):
     of a body that k supports, ``∂I_b/∂q_k = (ξ_k×*) I_b − I_b (ξ_k×)``.
     """
     q = model.check_configuration(q)
-    xi, inertias = _world_tree(model, q)
+    xi, jacobians, inertias = _world_tree(model, q)  # jacobians (..., b, 6, l)
     support = model.joint_support  # (nj, nv)
     # ∂ξ_l/∂q_k is non-zero when k's joint is a strict ancestor of l's joint.
     strict = model.ancestors[model.dof_joint][:, model.dof_joint].T & (model.dof_joint[:, None] != model.dof_joint[None, :])
     d_xi = spatial.motion_cross(xi[..., :, None, :], xi[..., None, :, :]) * strict[:, :, None]  # [k, l, 6]
     # ∂J_b/∂q_k: columns l of body b, (..., k, b, 6, l)
     d_jacobians = np.einsum("...klc,bl->...kbcl", d_xi, support)
-    jacobians = spatial.transpose(xi)[..., None, :, :] * support[:, None, :]  # (..., b, 6, l)
     d_inertias = (spatial.force_cross_matrix(xi)[..., :, None, :, :] @ inertias[..., None, :, :, :]
                   - inertias[..., None, :, :, :] @ spatial.motion_cross_matrix(xi)[..., :, None, :, :])
     d_inertias = d_inertias * support.T[:, :, None, None]  # (..., k, b, 6, 6)
