@@ -86,6 +86,11 @@ class Constraint:
         ``M`` and ``h`` rather than in one pass per frame."""
         return ()
 
+    def _frame_terms(self, system, q, v=None):
+        """:func:`frame_terms` ``(R_WF, p_WF, J, J̇v)`` of each of :attr:`body_frames` at ``(q, v)`` (``v``
+        ``None``: zero)."""
+        return tuple(frame_terms(system, self, q, v, body, placement) for body, placement in self.body_frames)
+
     def bind(self, system):
         """This constraint checked against ``system`` where the two meet (a
         :class:`~multibody.constrained.ConstrainedSystem`'s construction), and returned as it applies to it:
@@ -451,7 +456,25 @@ def _describe_joint(model, j, columns):
     return f"{model.joint_names[j]!r} ({kind})"
 
 
-class PointOnCurve(Constraint):
+class OnBody(Constraint):
+    """A constraint on the frame at ``point`` (m, body frame; ``None``: the origin) of ``body`` (its
+    :attr:`body_frames`), with the loads it applies there."""
+
+    def __init__(self, body, point, name):
+        super().__init__(name)
+        self.body, self.placement = body, point_placement(point)
+
+    @property
+    def body_frames(self):
+        return ((self.body, self.placement),)
+
+    def _load(self, system, q, force, point):
+        """``f_ext (njoints, 6)`` of ``force (3,)`` (N, world axes) applied to the body at the world ``point (3,)``
+        (m): :meth:`Constraint.body_forces`' layout."""
+        return wrenches_of_loads(require_model(system, self), q, [(self.body, force, point, np.zeros(3))])
+
+
+class PointOnCurve(OnBody):
     """A body point stays on a fixed parametric curve ``r(s)`` (a bead on a wire).
 
     Position level: ``φ = P(s*) (x − r(s*))`` with ``s*`` the curve parameter closest to the point
@@ -472,8 +495,8 @@ class PointOnCurve(Constraint):
 
     def __init__(self, body, curve, *, point=None, s_range=(0.0, 1.0), samples=2001, derivative=None,
                  second_derivative=None, name=None):
-        super().__init__(name or f"point of {body} on curve")
-        self.body, self.curve, self.placement = body, curve, point_placement(point)
+        super().__init__(body, point, name or f"point of {body} on curve")
+        self.curve = curve
         self.s_grid = np.linspace(float(s_range[0]), float(s_range[1]), int(samples))
         self._d1 = derivative or (lambda s: first_derivative(lambda h: curve(s + h)))
         self._d2 = second_derivative or (lambda s: _second_derivative(lambda h: curve(s + h)))
@@ -483,10 +506,6 @@ class PointOnCurve(Constraint):
 
     def independent_rows(self, system):
         return 2  # the projector normal to the tangent
-
-    @property
-    def body_frames(self):
-        return ((self.body, self.placement),)
 
     def closest_parameter(self, x):
         """Curve parameter ``s*`` of the point of the curve closest to ``x (..., 3)``: ``(...)``."""
@@ -517,25 +536,24 @@ class PointOnCurve(Constraint):
         return s, d1, tangent, projector
 
     def position(self, system, q, t=0.0):
-        _, x, _, _ = frame_terms(system, self, q, None, self.body, self.placement)
+        (_, x, _, _), = self._frame_terms(system, q)
         s, _, _, projector = self._geometry(x)
         return matvec(projector, x - self.curve(s))
 
     def body_forces(self, system, q, lam, t=0.0):
-        model = require_model(system, self)
-        _, x, _, _ = frame_terms(system, self, q, None, self.body, self.placement)
+        (_, x, _, _), = self._frame_terms(system, q)
         # Aᵀλ = Jᵀ P λ: the force P λ at the bead
-        return wrenches_of_loads(model, q, [(self.body, self._geometry(x)[3] @ lam, x, np.zeros(3))])
+        return self._load(system, q, self._geometry(x)[3] @ lam, x)
 
     def jacobian(self, system, q, t=0.0):
-        _, x, J, _ = frame_terms(system, self, q, None, self.body, self.placement)
+        (_, x, J, _), = self._frame_terms(system, q)
         return self._geometry(x)[3] @ J[..., :3, :]
 
     def acceleration_rhs(self, system, q, v, t=0.0):
         return self.evaluate(system, q, v, t)[2]
 
     def evaluate(self, system, q, v, t=0.0):
-        _, x, J, J_dot_v = frame_terms(system, self, q, v, self.body, self.placement)
+        (_, x, J, J_dot_v), = self._frame_terms(system, q, v)
         s, d1, tangent, projector = self._geometry(x)
         x_dot = matvec(J[..., :3, :], v)
         # ṫ = P r'' ṡ / |r'| with ṡ = r'·ẋ / |r'|²;  Ṗ ẋ = −ṫ (t·ẋ) − t (ṫ·ẋ)
@@ -550,7 +568,7 @@ class PointOnCurve(Constraint):
         return projector @ J[..., :3, :], np.zeros_like(gamma), gamma
 
 
-class PointOnSurface(Constraint):
+class PointOnSurface(OnBody):
     """A body point stays on a fixed implicit surface ``f(x) = 0``.
 
     One row, ``φ = f(x)``; with a unit-gradient ``f`` (a signed distance) the multiplier is the
@@ -566,8 +584,8 @@ class PointOnSurface(Constraint):
     holonomic = True
 
     def __init__(self, body, surface, *, point=None, gradient=None, hessian=None, name=None):
-        super().__init__(name or f"point of {body} on surface")
-        self.body, self.surface, self.placement = body, surface, point_placement(point)
+        super().__init__(body, point, name or f"point of {body} on surface")
+        self.surface = surface
         eye = np.eye(3)
         self._gradient = gradient or (lambda x: np.stack(
             [first_derivative(lambda h, e=e: surface(x + h * e)) for e in eye], axis=-1))
@@ -577,29 +595,24 @@ class PointOnSurface(Constraint):
     def rows(self, system):
         return 1
 
-    @property
-    def body_frames(self):
-        return ((self.body, self.placement),)
-
     def position(self, system, q, t=0.0):
-        _, x, _, _ = frame_terms(system, self, q, None, self.body, self.placement)
+        (_, x, _, _), = self._frame_terms(system, q)
         return np.asarray(self.surface(x), dtype=float)[..., None]
 
     def body_forces(self, system, q, lam, t=0.0):
-        model = require_model(system, self)
-        _, x, _, _ = frame_terms(system, self, q, None, self.body, self.placement)
+        (_, x, _, _), = self._frame_terms(system, q)
         # Aᵀλ = Jᵀ ∇f λ: the force ∇f λ at the point
-        return wrenches_of_loads(model, q, [(self.body, self._gradient(x) * lam[0], x, np.zeros(3))])
+        return self._load(system, q, self._gradient(x) * lam[0], x)
 
     def jacobian(self, system, q, t=0.0):
-        _, x, J, _ = frame_terms(system, self, q, None, self.body, self.placement)
+        (_, x, J, _), = self._frame_terms(system, q)
         return matvec(transpose(J[..., :3, :]), self._gradient(x))[..., None, :]
 
     def acceleration_rhs(self, system, q, v, t=0.0):
         return self.evaluate(system, q, v, t)[2]
 
     def evaluate(self, system, q, v, t=0.0):
-        _, x, J, J_dot_v = frame_terms(system, self, q, v, self.body, self.placement)
+        (_, x, J, J_dot_v), = self._frame_terms(system, q, v)
         gradient = self._gradient(x)
         x_dot = matvec(J[..., :3, :], v)
         # γ = −(ẋᵀ ∇²f ẋ + ∇f · J̇v)
@@ -637,14 +650,11 @@ class Distance(CompiledRows):
     def body_frames(self):
         return ((self.body_a, self.placement_a), (self.body_b, self.placement_b))
 
-    def _points(self, system, q, v):
-        return tuple(frame_terms(system, self, q, v, body, placement) for body, placement in self.body_frames)
-
     def program_entry(self, model, frame_index):
         return compiled.DISTANCE, [self.distance], *(frame_index(*frame) for frame in self.body_frames)
 
     def body_forces(self, system, q, lam, t=0.0):
-        (_, x_a, _, _), (_, x_b, _, _) = self._points(system, q, None)
+        (_, x_a, _, _), (_, x_b, _, _) = self._frame_terms(system, q)
         u = (x_a - x_b) / np.linalg.norm(x_a - x_b)
         # Aᵀλ = J_aᵀ(−u λ) + J_bᵀ(u λ): the rod pulls a towards b and b towards a
         zero = np.zeros(3)
@@ -818,9 +828,6 @@ class LoopClosure(CompiledRows):
             return self.bind(system)._levels(system, q, v, t)
         return super()._levels(system, q, v, t)
 
-    def _frames(self, system, q, v):
-        return tuple(frame_terms(system, self, q, v, body, placement) for body, placement in self.body_frames)
-
     def branch_error(self, system, q):
         """Where frame B's axes point away from frame A's at ``q (..., nq)``, on another zero of the orientation
         rows (the class docstring): the message naming the axis, the angle and the turn between the frames
@@ -866,7 +873,7 @@ class LoopClosure(CompiledRows):
     def body_forces(self, system, q, lam, t=0.0):
         if self._plane_unknown:
             return self.bind(system).body_forces(system, q, lam, t)
-        (R_a, _, _, _), (R_b, p_b, _, _) = self._frames(system, q, None)
+        (R_a, _, _, _), (R_b, p_b, _, _) = self._frame_terms(system, q)
         k = len(self.position_axes)
         # Position rows: the force R_a Sᵀ λ on B at p_B, and its opposite on A at the same point.
         force = R_a[:, list(self.position_axes)] @ lam[:k]

@@ -25,8 +25,7 @@ import numpy as np
 
 from . import spatial
 from .kernels import constraints as compiled
-from .constraints import (FIRST_STEP, CompiledRows, Constraint, first_derivative, frame_terms, path_step, point_placement,
-                          require_model, wrenches_of_loads)
+from .constraints import FIRST_STEP, CompiledRows, Constraint, OnBody, first_derivative, path_step
 from .spatial import matvec
 
 
@@ -42,15 +41,14 @@ def _plane_frame(normal):
     return n, np.column_stack([t1, np.cross(n, t1), n])
 
 
-class _RollingOnPlane(CompiledRows):
+class _RollingOnPlane(OnBody, CompiledRows):
     """Shared machinery of bodies rolling on a plane (see the module docstring)."""
 
     def __init__(self, body, radius, *, center, plane_point, plane_normal, surface_velocity, normal, name):
-        super().__init__(name)
+        super().__init__(body, center, name)
         if not radius > 0.0:
             raise ValueError(f"radius must be positive, got {radius!r}")
-        self.body, self.radius = body, float(radius)
-        self.placement = point_placement(center)
+        self.radius = float(radius)
         self.normal, self.frame = _plane_frame(plane_normal)
         self.plane_point = np.asarray(plane_point, dtype=float)
         self.surface_velocity = surface_velocity
@@ -63,10 +61,6 @@ class _RollingOnPlane(CompiledRows):
 
     def position_rows(self, system):
         return np.array([False, False, True][self._row_axes])
-
-    @property
-    def body_frames(self):
-        return ((self.body, self.placement),)
 
     def program_entry(self, model, frame_index):
         parameters = [*self.frame.T.reshape(9), self.radius, float(self.plane_point @ self.normal), *self._axis()]
@@ -92,7 +86,7 @@ class _RollingOnPlane(CompiledRows):
         return self.surface_velocity is not None
 
     def _contact(self, system, q, v, t):
-        R_WB, x_O, J, J_dot_v = frame_terms(system, self, q, v, self.body, self.placement)
+        (R_WB, x_O, J, J_dot_v), = self._frame_terms(system, q, v)
         omega = matvec(J[..., 3:, :], v)
         d, d_dot = self._offset(R_WB, omega)
         return x_O, J, J_dot_v, omega, d, d_dot
@@ -123,10 +117,8 @@ class _RollingOnPlane(CompiledRows):
         return x_O + d
 
     def body_forces(self, system, q, lam, t=0.0):
-        model = require_model(system, self)
         # Aᵀλ = (J_O − [d]× J_ω)ᵀ E λ: the contact force E λ applied at the contact point.
-        return wrenches_of_loads(model, q, [(self.body, self.frame[:, self._row_axes] @ lam, self.contact_point(system, q),
-                                     np.zeros(3))])
+        return self._load(system, q, self.frame[:, self._row_axes] @ lam, self.contact_point(system, q))
 
 
 class RollingSphere(_RollingOnPlane):
@@ -197,7 +189,7 @@ class RollingDisc(_RollingOnPlane):
         return -self.radius * e, -self.radius * e_dot
 
 
-class KnifeEdge(CompiledRows):
+class KnifeEdge(OnBody, CompiledRows):
     """A blade (or a non-slipping wheel seen from above) cannot move sideways on a plane.
 
     The point ``point`` of ``body`` has no velocity along ``w = n × e``, with ``e`` the blade's
@@ -209,8 +201,7 @@ class KnifeEdge(CompiledRows):
     undefined = "the blade is perpendicular to the plane"
 
     def __init__(self, body, *, point=None, direction=(1.0, 0.0, 0.0), plane_normal=(0.0, 0.0, 1.0), name=None):
-        super().__init__(name or f"knife edge {body}")
-        self.body, self.placement = body, point_placement(point)
+        super().__init__(body, point, name or f"knife edge {body}")
         direction = np.asarray(direction, dtype=float)
         if direction.shape != (3,) or not np.linalg.norm(direction) > 0:
             raise ValueError(f"blade direction must be a non-zero 3-vector, got {direction.tolist()}")
@@ -219,10 +210,6 @@ class KnifeEdge(CompiledRows):
 
     def rows(self, system):
         return 1
-
-    @property
-    def body_frames(self):
-        return ((self.body, self.placement),)
 
     def program_entry(self, model, frame_index):
         return compiled.KNIFE_EDGE, [*self.normal, *self.direction], frame_index(self.body, self.placement), 0
@@ -237,6 +224,5 @@ class KnifeEdge(CompiledRows):
     position = Constraint.position  # no position level
 
     def body_forces(self, system, q, lam, t=0.0):
-        model = require_model(system, self)
-        R_WB, x, _, _ = frame_terms(system, self, q, None, self.body, self.placement)
-        return wrenches_of_loads(model, q, [(self.body, self._sideways(R_WB)[0] * lam[0], x, np.zeros(3))])
+        (R_WB, x, _, _), = self._frame_terms(system, q)
+        return self._load(system, q, self._sideways(R_WB)[0] * lam[0], x)
