@@ -166,9 +166,9 @@ _FORCE_DIFFERENCE_STEP = 1.5e-8
 class _ModelLagrangian:
     """``M``, ``∂L/∂q`` and the Newton-Jacobian terms of a :class:`~multibody.model.Model` with ``q̇ = v``.
 
-    The compiled kernels are called directly, one state each, with workspaces allocated once: the
-    Newton iteration calls them a few times per step with float arrays it made itself, for which
-    the public functions' checks and batch handling would cost more than the algorithms.
+    The compiled kernels are called one state each (:func:`multibody.driver.evaluate_one`): the Newton
+    iteration calls them a few times per step with float arrays it made itself, for which the public
+    functions' checks and batch handling would cost more than the algorithms.
     """
 
     def __init__(self, model):
@@ -176,20 +176,10 @@ class _ModelLagrangian:
         self.nv = model.nv
         #: the chart of the Lie-group joints, ``None`` when the configurations form a vector space
         self.chart = None if model.is_vector_space else _LieGroupChart(model)
-        tree = model.tree
-        self._tree = (tree.joints, tree.reals, tree.bodies)
-        nj, nv = tree.joints.shape[0], tree.nv
-        self._workspaces = {kernel: np.empty(module.workspace_size(nj, nv)) for kernel, module in (
-            (crba.mass_matrix, crba), (coriolis.coriolis_matrix, coriolis),
-            (derivative_kernels.inverse_dynamics_derivatives, derivative_kernels),
-            (lagrangian_kernels.lagrangian_terms, lagrangian_kernels))}
 
     def _run(self, kernel, shape, q, v=_EMPTY, a=_EMPTY):
-        out = np.empty(shape)
         # (the step's own C-contiguous float64 vectors: the types driver.evaluate_one's callers guarantee)
-        driver.entry_point(kernel)(*self._tree, np.ascontiguousarray(q, dtype=float), v, a, _EMPTY, out,
-                               self._workspaces[kernel])
-        return out
+        return driver.evaluate_one(kernel, self.model.tree, shape, np.ascontiguousarray(q, dtype=float), v, a)
 
     def mass_matrix(self, q):
         # CRBA (RBDA Table 6.2): multibody.mass_matrix
@@ -236,9 +226,6 @@ class _ModelLagrangian:
         dCv_dv = self._run(kernel, (2 * nv, nv), q, v, np.zeros(nv))[nv:]
         return K, H, C + C.T + K - dCv_dv
 
-    def forces(self, q, v):
-        return None
-
 
 class _SystemLagrangian:
     """The same terms of a system that provides them (``LagrangianSystem.numeric()``): ``mass_matrix(q)``,
@@ -266,9 +253,6 @@ class _SystemLagrangian:
         H = self.system.lagrangian_hessian(q, v) if hasattr(self.system, "lagrangian_hessian") else zero
         K = np.asarray(K, dtype=float)
         return K, np.asarray(H, dtype=float), K.T
-
-    def forces(self, q, v):
-        return self.system.generalized_forces(q, v) if self.has_forces else None
 
 
 def _has_nonzero_forces(system):
@@ -328,10 +312,8 @@ class _LieGroupChart:
     """
 
     def __init__(self, model):
-        tree = model.tree
-        self._tree = (tree.joints, tree.reals, tree.bodies)
+        tree = self._tree = model.tree
         self.nq, self.nv = tree.nq, tree.nv
-        self._workspace = np.empty(configuration.workspace_size(tree.njoints, tree.nv))
         #: each free flyer's ``(iq, iv)``: its position and linear velocity offsets
         self._free_flyers = [(int(row[IQ]), int(row[IV])) for row in tree.joints if row[KIND] == kinds.FREE_FLYER]
         #: ``T(q)`` of the step's configurations, keyed by their bytes: a Newton iteration asks for the
@@ -343,9 +325,7 @@ class _LieGroupChart:
         kernel), but a free flyer's position moves by ``x_lin`` in the parent frame (SO(3) × R³; its
         rotation ``R exp(ω)`` does not depend on the linear part)."""
         q, x = np.ascontiguousarray(q, dtype=float), np.ascontiguousarray(x, dtype=float)
-        out = np.empty((1, self.nq))
-        driver.entry_point(configuration.integrate)(*self._tree, q, x, _EMPTY, _EMPTY, out, _EMPTY)
-        moved = out[0]
+        moved = driver.evaluate_one(configuration.integrate, self._tree, (1, self.nq), q, x)[0]
         for iq, iv in self._free_flyers:
             moved[iq:iq + 3] = q[iq:iq + 3] + x[iv:iv + 3]  # (the rotation is Model.integrate's, R exp(ω))
         return moved
@@ -362,8 +342,7 @@ class _LieGroupChart:
         if T is not None:
             return T
         # the compiled velocity_alignment holds each free flyer's R (parent from body) on its diagonal
-        aligned = np.empty((self.nv, self.nv))
-        driver.entry_point(configuration.velocity_alignment)(*self._tree, q, _EMPTY, _EMPTY, _EMPTY, aligned, _EMPTY)
+        aligned = driver.evaluate_one(configuration.velocity_alignment, self._tree, (self.nv, self.nv), q)
         T = np.eye(self.nv)
         for _, iv in self._free_flyers:
             T[iv:iv + 3, iv:iv + 3] = aligned[iv:iv + 3, iv:iv + 3].T
@@ -375,9 +354,8 @@ class _LieGroupChart:
 
     def exponential_terms(self, x):
         """``(Ad_exp(x), J_l(x))``, both ``(nv, nv)`` (:func:`multibody.kernels.configuration.exponential_terms`)."""
-        out = np.empty((2 * self.nv, self.nv))
-        driver.entry_point(configuration.exponential_terms)(*self._tree, np.ascontiguousarray(x, dtype=float), _EMPTY, _EMPTY,
-                                                        _EMPTY, out, self._workspace)
+        out = driver.evaluate_one(configuration.exponential_terms, self._tree, (2 * self.nv, self.nv),
+                                  np.ascontiguousarray(x, dtype=float))
         return out[:self.nv], out[self.nv:]
 
 
@@ -433,22 +411,6 @@ class _GroupLagrangian:
         return K_G, T.T @ H @ T + D_gravity, K_G.T
 
 
-class _GroupRows:
-    """Constraint rows in the group velocities: ``A T(q)`` (see :class:`_GroupLagrangian`)."""
-
-    def __init__(self, rows, chart):
-        self.inner, self.chart = rows, chart
-        self.m, self.holonomic, self.nonholonomic = rows.m, rows.holonomic, rows.nonholonomic
-        self.any_holonomic, self.any_nonholonomic = rows.any_holonomic, rows.any_nonholonomic
-
-    def levels(self, q, t):
-        phi, A, b = self.inner.levels(q, t)
-        return phi, A @ self.chart.alignment(q), b
-
-    def independent(self, q, A):
-        return self.inner.independent(q, A @ self.chart.alignment(q).T)
-
-
 def _group_force(force, chart):
     """``τ_G(t, q, w) = T(q)ᵀ τ(t, q, T(q) w)``: the forces' virtual work in the group velocities."""
     if force is None:
@@ -490,9 +452,19 @@ class _Rows:
         return bool(self.constrained._row_rank(q, A) == self.m)
 
 
-def _add(q, delta):
-    """``q + Δ``: the step of configurations in a vector space."""
-    return q + delta
+class _GroupRows(_Rows):
+    """Constraint rows in the group velocities: ``A T(q)`` (see :class:`_GroupLagrangian`)."""
+
+    def __init__(self, constrained, chart):
+        super().__init__(constrained)
+        self.chart = chart
+
+    def levels(self, q, t):
+        phi, A, b = super().levels(q, t)
+        return phi, A @ self.chart.alignment(q), b
+
+    def independent(self, q, A):
+        return super().independent(q, A @ self.chart.alignment(q).T)
 
 
 def _norm(x):
@@ -524,7 +496,7 @@ def _step(lagrangian, rows, rule, force, t, h, q0, p0, levels0, guess, tolerance
     nv = p0.shape[0]
     m = 0 if rows is None else rows.m
     chart = lagrangian.chart
-    advance = _add if chart is None else chart.advance
+    advance = np.add if chart is None else chart.advance  # (q ⊕ Δ = q + Δ in a vector space)
     H_rows = rows.holonomic if m else None
     N_rows = rows.nonholonomic if m else None
     # every row's impulse at the start acts along A(q_k)ᵀ: constraint forces at the nodes
@@ -946,7 +918,7 @@ def simulate(system, q0, v0, t_final, *, dt=None, tau=None, rule="midpoint", ord
     aligned = chart is not None and chart.alignment(q) is not None
     if aligned:
         lagrangian, force = _GroupLagrangian(lagrangian), _group_force(force, chart)
-        rows = None if rows is None else _GroupRows(rows, chart)
+        rows = None if rows is None else _GroupRows(constrained, chart)
         v = chart.alignment(q).T @ v
     weights = (YOSHIDA_W1, YOSHIDA_W0, YOSHIDA_W1) if order == 4 else (1.0,)
     done = 1
@@ -1019,7 +991,7 @@ def _total_force(tau, nv, lagrangian, torque_function):
             if applied is not None:
                 total = total + np.asarray(applied, dtype=float).reshape(nv)
         if has_forces:
-            total = total + np.asarray(lagrangian.forces(q, v), dtype=float).reshape(nv)
+            total = total + np.asarray(lagrangian.system.generalized_forces(q, v), dtype=float).reshape(nv)
         return total
 
     return force
