@@ -228,21 +228,14 @@ class ConstrainedSystem:
         model = self.system.model
         if not model._is_one_state(q, finite=False):
             return None
-        program, frames, out_shape, workspace = self._compiled_levels_call
+        program, frames, _ = self._compiled_step
         nv, m = self.nv, self.num_rows
-        row = driver.evaluate_one(compiled_rows.constraint_levels, model.tree, out_shape, q, driver.NO_INPUT,
-                                  driver.NO_INPUT, program, frames=frames, workspace=workspace)[0]
+        row = driver.evaluate_one(compiled_rows.constraint_levels, model.tree, (1, compiled_rows.levels_columns(nv, m)),
+                                  q, driver.NO_INPUT, driver.NO_INPUT, program, frames=frames,
+                                  workspace=compiled_rows.workspace_size(model.njoints, nv, len(frames)))[0]
         if row[-1] != 0.0:  # (a status NaN: a non-finite input)
             return None
         return row[m * nv + m : m * nv + 2 * m], row[: m * nv].reshape(m, nv), np.zeros(m)
-
-    @cached_property
-    def _compiled_levels_call(self):
-        """``(program, frame rows, output shape, workspace size)`` of :meth:`_compiled_levels`."""
-        program, frames, _ = self._compiled_step
-        model = self.system.model
-        return (program, frames, (1, compiled_rows.levels_columns(self.nv, self.num_rows)),
-                compiled_rows.workspace_size(model.njoints, self.nv, len(frames)))
 
     def _solve_program(self, q, v, tau):
         """``(a, λ, A, γ, tail)`` of :meth:`solve` by the compiled step on the program's rows
