@@ -243,49 +243,7 @@ def simulate(system, q0, v0, t_final, *, dt=None, method=None, tau=None, rtol=1e
 
     # The integrator's state is y = [δ, w] in the chart around a configuration q_c: q = chart(q_c, δ),
     # w the aligned velocity (see Model.chart). A new chart starts from each step's end state.
-    to_chart, from_chart = charts.to_chart, charts.from_chart
-
-    # With a compiled step, each evaluation is one compiled call (after the joint forces, when they
-    # depend on the state), which raises the error of a failed solve itself.
-    compiled = constrained._compiled_motion is not None
-    constant_tau = None if tau is None or callable(tau) else torque(t0, None, None)
-
-    def on_constraints(t, y, q_chart):
-        """``ẏ`` at the projection of the chart state ``y`` onto the constraints, in the same chart."""
-        q_t, v_t = charts.state(q_chart, y)
-        q_t, v_t = constrained.project(q_t, v_t, t)
-        return derivative(t, charts.coordinates(q_chart, q_t, v_t), q_chart)
-
-    def derivative(t, y, q_chart):
-        if compiled:
-            if callable(tau):
-                q_t, v_t = charts.state(q_chart, y)
-                tau_t = torque(t, q_t, v_t)
-                tau_t = None if tau_t is None else constrained._tau(tau_t)
-            else:
-                q_t, tau_t = None, constant_tau
-            y_dot = constrained._chart_derivative(q_chart, y, tau_t, q_t)
-            if y_dot is not None:
-                return y_dot
-        return _solved_chart_derivative(constrained, charts, t, q_chart, y, torque)
-
-    def settle(t, state):
-        """``state`` projected onto the constraints when, with ``project``, the projection moves a
-        coordinate by more than the tolerance. Returns the state, whether it was projected, and whether
-        the next step evaluates its stages on the constraints (the rows there are near singular)."""
-        if not np.isfinite(state).all():
-            raise SimulationError(f"the state became non-finite at t = {t:.6g} s", None)
-        if project and constrained.num_rows:
-            # Judged by the move, not the residual: near a singular configuration a residual of 1e-13
-            # can hide a velocity off the constraints by 1e-3 (a row of size ε moves v by residual/ε).
-            q_projected, v_projected, conditioning = constrained._projection(state[:nq], state[nq:], t)
-            projected = np.concatenate([q_projected, v_projected])
-            near = _near_singular(conditioning, project, constrained, charts)
-            if np.abs(projected - state).max() > projection_tolerance:
-                return projected, True, near
-            return state, False, near
-        return state, False, False
-
+    stages = _ChartStages(constrained, charts, torque, callable(tau), project, projection_tolerance, t0)
     tolerance = projection_tolerance if project else None
     times = output_times(t0, t_final, dt)
     states = np.empty((len(times), nq + nv))
@@ -299,12 +257,11 @@ def simulate(system, q0, v0, t_final, *, dt=None, method=None, tau=None, rtol=1e
         near = _near_singular(conditioning, project, constrained, charts)
         if method in EMBEDDED:
             # An embedded pair of our own (multibody.kernels.stepping.adaptive): compiled where the system's step
-            # is and the joint forces are data or compiled, else the same run as Python with the maps below; the
-            # steps that start near a singular configuration, or whose stage or projection the compiled step did
-            # not solve, run as Python too, after which the compiled run goes on.
+            # is and the joint forces are data or compiled, else the same run as Python with the maps of stages;
+            # the steps that start near a singular configuration, or whose stage or projection the compiled step
+            # did not solve, run as Python too, after which the compiled run goes on.
             run = _adaptive_run(constrained, charts, EMBEDDED[method], controller, damping, project,
-                                projection_tolerance, times, rtol, atol, max_step, compiled)
-            stages = _ChartStages(constrained, charts, derivative, on_constraints, settle)
+                                projection_tolerance, times, rtol, atol, max_step)
             stages.hand_back = run.tree is not None
             run.start(states[0], near)
             chunk, handed = _FIRST_CHUNK, False
@@ -332,23 +289,21 @@ def simulate(system, q0, v0, t_final, *, dt=None, method=None, tau=None, rtol=1e
             solver_class = METHODS[method]
 
             def start(t, state, step_size):
-                """An implicit SciPy solver from ``state`` at ``t`` in the chart around it, evaluating its stages on
-                the constraints when ``near``."""
-                q_chart, y0 = state[:nq], to_chart(state)
-                stage = on_constraints if near else derivative
+                """An implicit SciPy solver from ``state`` at ``t`` in the chart around it, with the rates of
+                ``stages`` (on the constraints when ``near``)."""
+                q_chart, y0, magnitude = state[:nq], np.empty(2 * nv), np.empty(nv)
+                stages.restart(t, state, near, y0, magnitude)
 
                 def fun(t_, y):
-                    y_dot = stage(t_, y, q_chart)
-                    # SciPy's solvers answer a non-finite derivative by shrinking the step, to no end
-                    if not all_finite(y_dot):
-                        raise SimulationError(_non_finite_rates(mechanical, t_, y, y_dot), None)
+                    y_dot = np.empty(2 * nv)
+                    stages.rates(t_, q_chart, y, y_dot)
                     return y_dot
 
                 longest = min(max_step, charts.step_limit(state))
                 first_step = None if step_size is None else min(step_size, t_final - t, longest)
                 # Errors of δ relative to the configuration's size, as when integrating q itself; the solver
                 # would measure them against δ, which is zero at every step's start.
-                atol_chart = np.concatenate([atol + rtol * charts.chart_magnitude(q_chart), np.full(nv, atol)])
+                atol_chart = np.concatenate([atol + rtol * magnitude, np.full(nv, atol)])
                 solver = solver_class(fun, t, y0, t_final, rtol=rtol, atol=atol_chart, max_step=longest,
                                       first_step=first_step)
                 return solver, q_chart
@@ -371,10 +326,11 @@ def simulate(system, q0, v0, t_final, *, dt=None, method=None, tau=None, rtol=1e
                 bar.update(solver.t)
                 inside = done + int(np.searchsorted(times[done:], solver.t, side="left"))
                 if inside > done:
-                    states[done:inside] = from_chart(q_chart, solver.dense_output()(times[done:inside]).T)
+                    states[done:inside] = charts.from_chart(q_chart, solver.dense_output()(times[done:inside]).T)
                     done = inside
                 was_near = near
-                end, projected, near = settle(solver.t, from_chart(q_chart, solver.y))
+                end = charts.from_chart(q_chart, solver.y)
+                projected, near = stages.settle(solver.t, end)
                 if done < len(times) and times[done] == solver.t:
                     states[done] = end
                     done += 1
@@ -387,12 +343,9 @@ def simulate(system, q0, v0, t_final, *, dt=None, method=None, tau=None, rtol=1e
             partial = _trajectory(constrained, times[:done], states[:done], torque, message, tolerance)
         except _FAILURES:
             # states so far out that their multipliers cannot be computed (or joint forces that are not finite
-            # at them): the states alone
-            m = constrained.num_rows
-            partial = Trajectory(t=times[:done].copy(), q=states[:done, :nq].copy(), v=states[:done, nq:].copy(),
-                                 lam=np.full((done, m), np.nan), energy=np.full(done, np.nan),
-                                 residual=np.full(done, np.nan), row_names=list(constrained.row_names), status=message,
-                                 projection_tolerance=tolerance, joint_names=recorded_names(constrained))
+            # at them): the states alone, as a batch of one that stopped before them
+            partial = _batch_trajectory(constrained, times[:done], states[None, :done, :nq], states[None, :done, nq:],
+                                        np.zeros(1, dtype=int), None, None, False, [message], tolerance).select(0)
         raise SimulationError(message, partial) from exc
     finally:
         bar.close()
@@ -473,9 +426,9 @@ def _compiled_run(constrained, charts, tableau, controller, damping, project, pr
 
 
 def _adaptive_run(constrained, charts, pair, controller, damping, project, projection_tolerance, times, rtol, atol,
-                  max_step, compiled):
+                  max_step):
     """The :class:`~multibody.integrators.AdaptiveRun` of ``constrained`` with the embedded ``pair``: compiled where
-    ``compiled`` (the system's step is) and the ``controller`` is data or compiled (as :func:`_compiled_run` makes
+    the system's step is and the ``controller`` is data or compiled (as :func:`_compiled_run` makes
     it), else one that runs as Python only. ``damping`` enters the compiled run's plan (its Python stages have it in
     their joint forces already)."""
     nq, nv = constrained.nq, constrained.nv
@@ -483,7 +436,7 @@ def _adaptive_run(constrained, charts, pair, controller, damping, project, proje
     near = NEAR_SINGULAR if bool(_near_singular(0.0, project, constrained, charts)) else -np.inf
     tolerance = projection_tolerance if project and constrained.num_rows else None
     data = controller is None or isinstance(controller, (np.ndarray, PDController, CompiledController))
-    if not (compiled and data):
+    if constrained._compiled_motion is None or not data:
         return AdaptiveRun(None, None, np.zeros(0), 0, 0, None, False, charts.curved, pair, None, None, tolerance,
                            near, times, nq, nv, rtol, atol, max_step, CHART_TURN, rotations)
     fixed = _compiled_run(constrained, charts, TABLEAUS["RK4"], controller, damping, project, projection_tolerance,
@@ -501,25 +454,49 @@ def _adaptive_run(constrained, charts, pair, controller, damping, project, proje
 
 
 class _ChartStages:
-    """The maps by which :func:`multibody.kernels.stepping.adaptive` runs as Python (a system without a compiled step,
-    a Python controller, the steps near a singular configuration): the chart maps of ``charts``, the stages'
-    rates ``derivative(t, y, q_chart)`` or, near a singular configuration, ``on_constraints(t, y, q_chart)``, and
-    the projection ``settle(t, state) -> (state, projected, near)`` of :func:`simulate`."""
+    """The stages of :func:`simulate`'s adaptive methods in the chart maps of ``charts``, with the joint forces
+    ``torque(t, q, v)`` (of the state where ``state_dependent``, else constant from ``t0`` on) and the projection at
+    a step's end (``project``, ``projection_tolerance``): the maps by which :func:`multibody.kernels.stepping.adaptive`
+    runs as Python (a system without a compiled step, a Python controller, the steps near a singular configuration),
+    whose restarts, rates and step ends SciPy's implicit solvers take too."""
 
-    def __init__(self, constrained, charts, derivative, on_constraints, settle):
-        self.constrained, self.charts = constrained, charts
-        self.derivative, self.on_constraints, self._settle = derivative, on_constraints, settle
-        self.stage = derivative
+    def __init__(self, constrained, charts, torque, state_dependent, project, projection_tolerance, t0):
+        self.constrained, self.charts, self.torque = constrained, charts, torque
+        self.state_dependent, self.project, self.projection_tolerance = state_dependent, project, projection_tolerance
+        self.constant = None if state_dependent else torque(t0, None, None)
+        #: whether the step's stages are evaluated at their projection onto the constraints (near a singular
+        #: configuration)
+        self.near = False
         #: whether the run returns after a step that ends away from a singular configuration, to go on compiled
         self.hand_back = False
 
+    def derivative(self, t, y, q_chart):
+        """``ẏ (2 nv,)`` of the chart state ``y (2 nv,)`` around ``q_chart`` at ``t`` (s), at its projection onto the
+        constraints (in the same chart) where :attr:`near`. With a compiled step, one compiled call (after the
+        joint forces, when they depend on the state), which raises the error of a failed solve itself."""
+        constrained, charts = self.constrained, self.charts
+        if self.near:
+            q_t, v_t = constrained.project(*charts.state(q_chart, y), t)
+            y = charts.coordinates(q_chart, q_t, v_t)
+        if constrained._compiled_motion is not None:
+            q_t, tau_t = None, self.constant
+            if self.state_dependent:
+                q_t, v_t = charts.state(q_chart, y)
+                tau_t = self.torque(t, q_t, v_t)
+                tau_t = None if tau_t is None else constrained._tau(tau_t)
+            y_dot = constrained._chart_derivative(q_chart, y, tau_t, q_t)
+            if y_dot is not None:
+                return y_dot
+        return _solved_chart_derivative(constrained, charts, t, q_chart, y, self.torque)
+
     def restart(self, t, state, near, y0, magnitude):
-        self.stage = self.on_constraints if near else self.derivative
+        self.near = bool(near)
         y0[:] = self.charts.to_chart(state)
         magnitude[:] = self.charts.chart_magnitude(state[: self.charts.nq])
 
     def rates(self, t, q_chart, y, out):
-        y_dot = self.stage(t, y, q_chart)
+        y_dot = self.derivative(t, y, q_chart)
+        # (SciPy's solvers would answer a non-finite derivative by shrinking the step, to no end)
         if not all_finite(y_dot):
             raise SimulationError(_non_finite_rates(self.constrained.system, t, y, y_dot), None)
         out[:] = y_dot
@@ -531,9 +508,23 @@ class _ChartStages:
         out[:] = self.charts.from_chart(q_chart, y)
 
     def settle(self, t, state):
-        end, projected, near = self._settle(t, state)
-        state[:] = end
-        return projected, bool(near)
+        """The end ``state = [q, v] (nq + nv,)`` of a step at ``t`` (s) projected in place onto the constraints
+        when, with ``project``, the projection moves a coordinate by more than the tolerance: ``(whether it was
+        projected, whether the next step evaluates its stages on the constraints)`` (the rows there are near
+        singular)."""
+        if not np.isfinite(state).all():
+            raise SimulationError(f"the state became non-finite at t = {t:.6g} s", None)
+        constrained, nq = self.constrained, self.charts.nq
+        if not (self.project and constrained.num_rows):
+            return False, False
+        # Judged by the move, not the residual: near a singular configuration a residual of 1e-13 can hide a
+        # velocity off the constraints by 1e-3 (a row of size ε moves v by residual/ε).
+        q, v, conditioning = constrained._projection(state[:nq], state[nq:], t)
+        near = bool(_near_singular(conditioning, self.project, constrained, self.charts))
+        projected = np.abs(np.concatenate([q, v]) - state).max() > self.projection_tolerance
+        if projected:
+            state[:nq], state[nq:] = q, v
+        return projected, near
 
 
 #: The tolerance and iterations of the projection at a step's end (those :meth:`ConstrainedSystem._projection`
