@@ -417,21 +417,8 @@ def _pose_transform(R_AB, p_AB, coupling):
     return X
 
 
-def transform_motion(R_AB, p_AB, m_B):
-    """Motion vector from B- to A-coordinates without forming the 6×6 matrix. ``-> (..., 6)``."""
-    w_A = matvec(R_AB, m_B[..., 3:])
-    return np.concatenate([matvec(R_AB, m_B[..., :3]) + cross(p_AB, w_A), w_A], axis=-1)
-
-
-def inverse_transform_motion(R_AB, p_AB, m_A):
-    """Motion vector from A- to B-coordinates: ``[Rᵀ (v_A − p × ω_A); Rᵀ ω_A]``."""
-    w_A = m_A[..., 3:]
-    R_BA = transpose(R_AB)
-    return np.concatenate([matvec(R_BA, m_A[..., :3] - cross(p_AB, w_A)), matvec(R_BA, w_A)], axis=-1)
-
-
 def transform_force(R_AB, p_AB, f_B):
-    """Force vector from B- to A-coordinates: ``[R f_B; R n_B + p × (R f_B)]``."""
+    """Force vector from B- to A-coordinates without forming the 6×6 matrix: ``[R f_B; R n_B + p × (R f_B)]``."""
     f_A = matvec(R_AB, f_B[..., :3])
     return np.concatenate([f_A, matvec(R_AB, f_B[..., 3:]) + cross(p_AB, f_A)], axis=-1)
 

@@ -111,11 +111,8 @@ def test_duality_invariance(rng):
 
 def test_vector_transforms_match_matrices(rng):
     R, p = random_pose(rng)
-    m, f = rng.standard_normal(6), rng.standard_normal(6)
-    Xm, Xf = sp.motion_transform(R, p), sp.force_transform(R, p)
-    assert_allclose(sp.transform_motion(R, p, m), Xm @ m, atol=TOL)
+    f, Xf = rng.standard_normal(6), sp.force_transform(R, p)
     assert_allclose(sp.transform_force(R, p, f), Xf @ f, atol=TOL)
-    assert_allclose(sp.inverse_transform_motion(R, p, Xm @ m), m, atol=TOL)
     assert_allclose(sp.inverse_transform_force(R, p, Xf @ f), f, atol=TOL)
 
 
@@ -440,8 +437,6 @@ def test_batched_shapes_equal_stacked_calls(rng):
     _check_batched(sp.inverse_pose, R, p)
     _check_batched(sp.motion_transform, R, p)
     _check_batched(sp.force_transform, R, p)
-    _check_batched(sp.transform_motion, R, p, m1)
-    _check_batched(sp.inverse_transform_motion, R, p, m1)
     _check_batched(sp.transform_force, R, p, m1)
     _check_batched(sp.inverse_transform_force, R, p, m1)
     _check_batched(sp.spatial_inertia, mass, w, Ic)
