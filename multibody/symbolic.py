@@ -77,6 +77,8 @@ class LagrangianSystem:
                 raise ValueError(f"generalized coordinate {q_k!r} is not a function of time t: "
                                  "make it with sympy.physics.mechanics.dynamicsymbols")
         self.qd = [q_k.diff(_t) for q_k in self.q]
+        #: ``{q̈_k: 0}``: what evaluates a derivative of the motion at rest accelerations (``q̈ = 0``)
+        self._no_accelerations = {qd_k.diff(_t): 0 for qd_k in self.qd}
         self.T, self.U = sp.sympify(T), sp.sympify(U)
         self.L = self.T - self.U
         if forces is None:
@@ -112,9 +114,7 @@ class LagrangianSystem:
 
     def bias(self):
         """``h(q, q̇) = d/dt ∂L/∂q̇ − ∂L/∂q − Q`` with ``q̈ = 0``, so that the equations read ``M q̈ + h = 0``."""
-        qdd = [qd_k.diff(_t) for qd_k in self.qd]
-        zero = {a: 0 for a in qdd}
-        return sp.Matrix([sp.simplify((eq.lhs - eq.rhs).subs(zero)) for eq in self.equations()])
+        return sp.Matrix([sp.simplify((eq.lhs - eq.rhs).subs(self._no_accelerations)) for eq in self.equations()])
 
     # ------------------------------------------------------------------ Hamilton
 
@@ -254,21 +254,11 @@ class LagrangianSystem:
         the acceleration term ``γ = −(d²φ/dt²)|_{q̈=0}`` are derived exactly.
         """
         phi = sp.Matrix(phi if isinstance(phi, (list, tuple, sp.MatrixBase)) else [phi])
-        substitution = self._substitution(values, [phi])
-        phi = phi.subs(substitution)
-        q_symbols, v_symbols, plain = self._plain()
-        jacobian = phi.jacobian(self.q)
-        dphi_dt = phi.diff(_t).subs({qd: 0 for qd in self.qd})  # explicit time derivative only
-        qdd = [qd.diff(_t) for qd in self.qd]
-        gamma = -phi.diff(_t, 2).subs({a: 0 for a in qdd})
-        args = [q_symbols, _t]
-        return Holonomic(
-            _vector(sp.lambdify(args, plain(phi), "numpy")),
-            _matrix(sp.lambdify(args, plain(jacobian), "numpy")),
-            name=name,
-            dphi_dt=_vector(sp.lambdify(args, plain(dphi_dt), "numpy")),
-            gamma=_vector(sp.lambdify([q_symbols, v_symbols, _t], plain(gamma), "numpy"), with_velocity=True),
-        )
+        phi = phi.subs(self._substitution(values, [phi]))
+        return Holonomic(self._function(phi), self._function(phi.jacobian(self.q), rows=True), name=name,
+                         # (the explicit time derivative only)
+                         dphi_dt=self._function(phi.diff(_t).subs({qd: 0 for qd in self.qd})),
+                         gamma=self._function(-phi.diff(_t, 2).subs(self._no_accelerations), rates=True))
 
     def pfaffian(self, A, b=None, name=None, **values):
         """A numeric :class:`~multibody.constraints.Pfaffian` for ``A(q, t) q̇ + b(q, t) = 0`` given symbolically.
@@ -280,27 +270,20 @@ class LagrangianSystem:
         b = sp.zeros(A.rows, 1) if b is None else sp.Matrix(b)
         substitution = self._substitution(values, [A, b])
         A, b = A.subs(substitution), b.subs(substitution)
+        gamma = -(A * sp.Matrix(self.qd) + b).diff(_t).subs(self._no_accelerations)
+        return Pfaffian(self._function(A, rows=True), self._function(b), name=name,
+                        gamma=self._function(gamma, rates=True))
+
+    def _function(self, expression, *, rates=False, rows=False):
+        """The NumPy function ``f(q, t)`` (``f(q, v, t)`` with ``rates``) of a SymPy matrix ``expression`` in ``q``,
+        ``q̇`` and ``t``: a float vector, or with ``rows`` a 2-D array (one row per constraint row)."""
         q_symbols, v_symbols, plain = self._plain()
-        velocity_level = A * sp.Matrix(self.qd) + b
-        qdd = [qd.diff(_t) for qd in self.qd]
-        gamma = -velocity_level.diff(_t).subs({a: 0 for a in qdd})
-        args = [q_symbols, _t]
-        return Pfaffian(
-            _matrix(sp.lambdify(args, plain(A), "numpy")),
-            _vector(sp.lambdify(args, plain(b), "numpy")),
-            name=name,
-            gamma=_vector(sp.lambdify([q_symbols, v_symbols, _t], plain(gamma), "numpy"), with_velocity=True),
-        )
-
-
-def _vector(fn, with_velocity=False):
-    if with_velocity:
-        return lambda q, v, t: np.asarray(fn(q, v, t), dtype=float).reshape(-1)
-    return lambda q, t: np.asarray(fn(q, t), dtype=float).reshape(-1)
-
-
-def _matrix(fn):
-    return lambda q, t: np.atleast_2d(np.asarray(fn(q, t), dtype=float))
+        fn = sp.lambdify([q_symbols, v_symbols, _t] if rates else [q_symbols, _t], plain(expression), "numpy")
+        if rows:
+            return lambda q, t: np.atleast_2d(np.asarray(fn(q, t), dtype=float))
+        if rates:
+            return lambda q, v, t: np.asarray(fn(q, v, t), dtype=float).reshape(-1)
+        return lambda q, t: np.asarray(fn(q, t), dtype=float).reshape(-1)
 
 
 class NumericLagrangian:
