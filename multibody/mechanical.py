@@ -13,6 +13,12 @@ from .model import Model
 from .spatial import matvec, transpose
 
 
+def _model_method(name):
+    """A member of :class:`ModelSystem` that is the method ``name`` of its model."""
+    return property(lambda system: getattr(system.model, name),
+                    doc=f"The model's :meth:`~multibody.model.Model.{name}`.")
+
+
 class ModelSystem:
     """The mechanical-system interface of a :class:`Model`, as :class:`ConstrainedSystem` uses it.
 
@@ -47,33 +53,16 @@ class ModelSystem:
         return dynamics.articulated_body_accelerations(self.model, q, v, tau, None, spatial.batch_shape(
             q.shape[:-1], v.shape[:-1], () if tau is None else tau.shape[:-1]))
 
-    def integrate(self, q, v, dt=1.0):
-        return self.model.integrate(q, v, dt)
-
-    def configuration_rate(self, q, v):
-        return self.model.configuration_rate(q, v)
-
-    def normalize(self, q):
-        return self.model.normalize(q)
-
-    # charts for Lie-group integration (see Model.chart)
-    def chart(self, q0, delta):
-        return self.model.chart(q0, delta)
-
-    def chart_coordinates(self, q0, q):
-        return self.model.chart_coordinates(q0, q)
-
-    def chart_rate(self, delta, w):
-        return self.model.chart_rate(delta, w)
-
-    def velocity_alignment(self, q):
-        return self.model.velocity_alignment(q)
-
-    def velocity_coupling(self, v):
-        return self.model.velocity_coupling(v)
-
-    def chart_magnitude(self, q):
-        return self.model.chart_magnitude(q)
+    # the configuration maps, and the charts for Lie-group integration (see Model.chart), are the model's
+    integrate = _model_method("integrate")
+    configuration_rate = _model_method("configuration_rate")
+    normalize = _model_method("normalize")
+    chart = _model_method("chart")
+    chart_coordinates = _model_method("chart_coordinates")
+    chart_rate = _model_method("chart_rate")
+    velocity_alignment = _model_method("velocity_alignment")
+    velocity_coupling = _model_method("velocity_coupling")
+    chart_magnitude = _model_method("chart_magnitude")
 
     def energy(self, q, v):
         """Kinetic plus gravitational potential energy ``E = T + U`` (J) of ``q (..., nq)``, ``v (..., nv)``:
