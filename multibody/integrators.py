@@ -475,10 +475,6 @@ class PDController:
         return driver.evaluate(stepping.pd_kernel, self.tree, (q, v, self.rows, t), (1, self.nv), batch,
                                workspace=self.nq + self.nv).reshape(batch + (self.nv,))
 
-    def trajectory(self, r):
-        """The controller of trajectory ``r`` of a batch alone."""
-        return self if len(self.rows) == 1 else PDController(self.tree, self.rows[r : r + 1], self.nq, self.nv)
-
 
 def vector_space_tree(n):
     """A compiled tree of ``n`` one-coordinate joints (:func:`multibody.kernels.joints.difference` and
@@ -547,9 +543,6 @@ class CompiledController:
         out = np.empty((n, self.nv))
         driver.entry_point(stepping.controller_rows, _CONTROLLER_ROWS_TYPES)(self.pointer, float(t), q, v, out)
         return out.reshape(batch + (self.nv,))
-
-    def trajectory(self, r):
-        return self
 
 
 _CONTROLLER_FUNCTION = types.FunctionType(types.none(*CONTROLLER_TYPES))
