@@ -19,20 +19,16 @@ configuration's size (:meth:`multibody.model.Model.chart_magnitude`), as for ``q
 interval, one chart per step. Where the system's step is compiled (a ``Model``, or built-in constraints) and the
 joint forces are ``None``, an array, :class:`multibody.PD` or a ``numba.njit`` function, every step runs in compiled
 calls (:mod:`multibody.kernels.stepping`); a Python callable is called from there once per stage (fixed-step), or
-the adaptive run's same loop runs as Python with a call per stage. A step that the
-compiled run leaves (one that starts near a singular configuration, a stage or a projection its compiled step does
-not solve) is taken by the Python loop, whose numbers it shares. They also integrate ``N`` trajectories from
-``q0 (N, nq)``, ``v0 (N, nv)``: each on its own in compiled calls on all cores, or, with a Python callable, in
-lockstep, each stage's derivatives of all of them in one compiled call (:func:`multibody.driver.evaluate`); one
-trajectory is a batch of one, run by the same loop.
-With ``project=True``, a step's end state is projected onto ``φ = 0`` and ``A v + b = 0`` when that
-moves a coordinate by more than ``projection_tolerance``, and the integrator restarts from it. The move,
-not the residual, decides: near a singular configuration of a closed chain, a row of size ``ε`` leaves
-a residual of ``ε`` times the velocity it fails to constrain. Output states from the dense output
-whose residual exceeds the tolerance are projected too (the integration itself goes on from its own
-states). The multipliers, energies and residuals
-of all output states are computed afterwards, in one batched call when the system allows it; the
-residuals are those of the returned states.
+the adaptive run's same loop runs as Python with a call per stage. A step that the compiled run leaves (one that
+starts near a singular configuration, a stage or a projection its compiled step does not solve) is taken by the
+Python loop, whose numbers it shares. They also integrate ``N`` trajectories from ``q0 (N, nq)``, ``v0 (N, nv)``:
+each on its own in compiled calls on all cores, or, with a Python callable, in lockstep, each stage's derivatives of
+all of them in one compiled call (:func:`multibody.driver.evaluate`); one trajectory is a batch of one, run by the
+same loop. With ``project=True``, a step's end state, and an output state of the dense output, is projected onto
+``φ = 0`` and ``A v + b = 0`` when that moves a coordinate by more than ``projection_tolerance`` (the move, not the
+residual, decides: :func:`simulate`'s ``project``), and the integrator restarts from a projected step end. The
+multipliers, energies and residuals of all output states are computed afterwards, in one batched call when the
+system allows it; the residuals are those of the returned states.
 """
 
 from __future__ import annotations
