@@ -12,7 +12,7 @@ The mechanisms are built here, once, by the ``*_setup`` functions, which the exa
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -67,7 +67,6 @@ class DemoResult:
     trajectory: object
     constraints: tuple = ()
     trace: tuple = ()
-    view_options: dict = field(default_factory=dict)
 
 
 def _conservation(trajectory):
@@ -170,12 +169,6 @@ def rolling_coin_setup(mass=0.01, radius=0.02, lean=0.15, spin=40.0):
 
 # ----------------------------------------------------------------------------- the demos
 
-def _save(figure, out_dir, name, paths, dpi=100):
-    path = os.path.join(out_dir, name)
-    figure.savefig(path, dpi=dpi)
-    paths.append(path)
-
-
 def rolling_ball(out_dir, duration=2.6):
     """The lecture note's nonholonomic example: a ball rolling without slipping on a tilted plane.
 
@@ -186,7 +179,7 @@ def rolling_ball(out_dir, duration=2.6):
     fixed in the world, with the ball painted with two bands so that its turning shows and its contact
     path traced. The frames are chosen so that the ball turns less than 0.5 rad from one to the next.
     """
-    from .plotting import energy_figure, multiplier_figure, new_figure, residual_figure
+    from .plotting import energy_figure, multiplier_figure, new_figure, residual_figure, save_figure
 
     setup = rolling_ball_setup()
     system, (contact,) = setup.system, setup.constraints
@@ -203,11 +196,9 @@ def rolling_ball(out_dir, duration=2.6):
     summary = {
         "downhill motion vs 5/7 g sin α (m)": float(np.abs(plane_xy[:, 0] - expected).max()),
         **_conservation(trajectory),
-        "friction / normal force (max)": float(np.abs(np.linalg.norm(trajectory.lam[:, :2], axis=1)
-                                                      / trajectory.lam[:, 2]).max()),
+        "friction / normal force (max)": _friction_ratio(trajectory),
         "largest turn of the ball between animation frames (rad)": turn,
     }
-    os.makedirs(out_dir, exist_ok=True)
     paths = []
 
     figure = new_figure((6.4, 4.2))
@@ -219,14 +210,14 @@ def rolling_ball(out_dir, duration=2.6):
     ax.set_aspect("equal", adjustable="datalim")
     ax.set_title(f"contact path on the plane tilted by {tilt:g} rad (seen from above it)", fontsize="medium")
     ax.legend(fontsize="small")
-    _save(figure, out_dir, "rolling_ball_path.png", paths)
-    _save(energy_figure(trajectory), out_dir, "rolling_ball_energy.png", paths)
-    _save(residual_figure(trajectory, system), out_dir, "rolling_ball_residual.png", paths)
+    paths.append(save_figure(figure, out_dir, "rolling_ball_path", dpi=100))
+    paths.append(save_figure(energy_figure(trajectory), out_dir, "rolling_ball_energy", dpi=100))
+    paths.append(save_figure(residual_figure(trajectory, system), out_dir, "rolling_ball_residual", dpi=100))
     figure = multiplier_figure(trajectory, system,
                                multiplier_labels=["friction along t₁ (downhill)", "friction along t₂ (across)",
                                                   "normal force"])
     figure.suptitle("contact force of the plane on the ball", fontsize="medium")
-    _save(figure, out_dir, "rolling_ball_contact_force.png", paths)
+    paths.append(save_figure(figure, out_dir, "rolling_ball_contact_force", dpi=100))
 
     paths.append(_animate_ball(trajectory, contact, plane_xy, frames, delay,
                                os.path.join(out_dir, "rolling_ball.gif")))
@@ -352,24 +343,39 @@ def _animate_ball(trajectory, contact, plane_xy, frames, delay, path, size=(6.4,
     return path
 
 
+def _constrained_demo(setup, out_dir, name, trace, summary, duration, dt, rtol, atol, **labels):
+    """Simulate ``setup`` for ``duration`` s (DOP853, a state every ``dt`` s) and write its figures
+    (:func:`multibody.plotting.plot_trajectory` with ``labels``): the :class:`DemoResult`, its summary
+    :func:`_conservation`'s lines and ``summary``'s (name -> function of the trajectory), the viewer
+    tracing the bodies ``trace``."""
+    from .plotting import plot_trajectory
+
+    trajectory = simulate(setup.system, setup.q0, setup.v0, duration, dt=dt, method="DOP853", rtol=rtol, atol=atol)
+    lines = {**_conservation(trajectory), **{key: line(trajectory) for key, line in summary.items()}}
+    paths = plot_trajectory(trajectory, out_dir, name, setup.system, **labels)
+    return DemoResult(lines, paths, setup.model, trajectory, setup.constraints, trace=trace)
+
+
+def _largest_force(trajectory):
+    """The largest norm of the multipliers over the run (N): the force of a constraint whose rows are one."""
+    return float(np.linalg.norm(trajectory.lam, axis=1).max())
+
+
+def _friction_ratio(trajectory):
+    """The largest ratio of friction to normal force of a rolling contact's multipliers (t₁, t₂, normal)."""
+    return float(np.abs(np.linalg.norm(trajectory.lam[:, :2], axis=1) / trajectory.lam[:, 2]).max())
+
+
 def bead_on_wire(out_dir, duration=3.0):
     """A bead on a helical wire: Cartesian coordinates held on the curve, the multipliers its normal force.
 
     Writes the state, energy, residual and wire-force figures; the viewer traces the bead's path and
     draws the wire's force on it.
     """
-    from .plotting import plot_trajectory
-
-    setup = bead_on_wire_setup()
-    trajectory = simulate(setup.system, setup.q0, setup.v0, duration, dt=0.01, method="DOP853",
-                          rtol=1e-11, atol=1e-12)
-    summary = {
-        **_conservation(trajectory),
-        "largest wire force (N)": float(np.linalg.norm(trajectory.lam, axis=1).max()),
-    }
-    paths = plot_trajectory(trajectory, out_dir, "bead_on_wire", setup.system, coordinate_labels=["x", "y", "z"],
-                            multiplier_labels=["wire force, x", "wire force, y", "wire force, z"])
-    return DemoResult(summary, paths, setup.model, trajectory, setup.constraints, trace=("bead",))
+    return _constrained_demo(bead_on_wire_setup(), out_dir, "bead_on_wire", ("bead",),
+                             {"largest wire force (N)": _largest_force}, duration, 0.01, 1e-11, 1e-12,
+                             coordinate_labels=["x", "y", "z"],
+                             multiplier_labels=["wire force, x", "wire force, y", "wire force, z"])
 
 
 def four_bar(out_dir, duration=4.0):
@@ -378,19 +384,10 @@ def four_bar(out_dir, duration=4.0):
     Writes the state, energy, residual and pin-force figures; the viewer traces the coupler's tip and
     draws the pin force.
     """
-    from .plotting import plot_trajectory
-
-    setup = four_bar_setup()
-    trajectory = simulate(setup.system, setup.q0, setup.v0, duration, dt=0.01, method="DOP853",
-                          rtol=1e-10, atol=1e-12)
-    summary = {
-        **_conservation(trajectory),
-        "largest pin force (N)": float(np.linalg.norm(trajectory.lam, axis=1).max()),
-    }
-    paths = plot_trajectory(trajectory, out_dir, "four_bar", setup.system,
-                            multiplier_labels=["pin force on the rocker along the coupler's x",
-                                               "pin force on the rocker along the coupler's z"])
-    return DemoResult(summary, paths, setup.model, trajectory, setup.constraints, trace=("coupler_tip",))
+    return _constrained_demo(four_bar_setup(), out_dir, "four_bar", ("coupler_tip",),
+                             {"largest pin force (N)": _largest_force}, duration, 0.01, 1e-10, 1e-12,
+                             multiplier_labels=["pin force on the rocker along the coupler's x",
+                                                "pin force on the rocker along the coupler's z"])
 
 
 def rolling_coin(out_dir, duration=2.0):
@@ -399,22 +396,15 @@ def rolling_coin(out_dir, duration=2.0):
     Writes the state, energy, residual, contact-force and contact-path figures; the viewer traces the
     coin's centre and draws the table's force on it.
     """
-    from .plotting import plot_path, plot_trajectory
+    from .plotting import plot_path
 
-    setup = rolling_coin_setup()
-    trajectory = simulate(setup.system, setup.q0, setup.v0, duration, dt=0.002, method="DOP853",
-                          rtol=1e-11, atol=1e-13)
-    (contact,) = setup.constraints
-    summary = {
-        **_conservation(trajectory),
-        "friction / normal force (max)": float(np.abs(np.linalg.norm(trajectory.lam[:, :2], axis=1)
-                                                      / trajectory.lam[:, 2]).max()),
-    }
-    paths = plot_trajectory(trajectory, out_dir, "rolling_coin", setup.system,
-                            multiplier_labels=["friction along t₁", "friction along t₂", "normal force"])
-    contact_points = np.array([contact.contact_point(setup.model, q) for q in trajectory.q])
-    paths.append(plot_path(contact_points[:, :2], out_dir, "rolling_coin", "contact path of the rolling coin"))
-    return DemoResult(summary, paths, setup.model, trajectory, setup.constraints, trace=("coin",))
+    result = _constrained_demo(rolling_coin_setup(), out_dir, "rolling_coin", ("coin",),
+                               {"friction / normal force (max)": _friction_ratio}, duration, 0.002, 1e-11, 1e-13,
+                               multiplier_labels=["friction along t₁", "friction along t₂", "normal force"])
+    (contact,) = result.constraints
+    contact_points = np.array([contact.contact_point(result.model, q) for q in result.trajectory.q])
+    result.paths.append(plot_path(contact_points[:, :2], out_dir, "rolling_coin", "contact path of the rolling coin"))
+    return result
 
 
 DEMOS = {"rolling-ball": rolling_ball, "bead-on-wire": bead_on_wire, "four-bar": four_bar,

@@ -66,14 +66,6 @@ def save_figure(figure, out_dir, name, dpi=110):
     return path
 
 
-def pyplot():
-    """``matplotlib.pyplot``, for callers that want its state machine, with the backend the user
-    chose (or matplotlib's default); this module's own figures do not use it."""
-    import matplotlib.pyplot as plt
-
-    return plt
-
-
 # ----------------------------------------------------------------------------- what is drawn
 
 def roll_pitch_yaw(quat):
