@@ -310,6 +310,14 @@ def cmd_compile(args):
     return 0
 
 
+def _model_arguments(command):
+    """The arguments that name the model of ``info``, ``view`` and ``check``: a file or robot, and how to load it."""
+    command.add_argument("urdf", metavar="URDF|MJCF|ROBOT", help="URDF or MJCF (.xml) file, or a robot name (e.g. "
+                         "double_pendulum; example-robot-data's when installed)")
+    command.add_argument("--floating-base", action="store_true", help="add a free-flyer joint at the root")
+    command.add_argument("--package-dir", action="append", default=[], help="where package:// meshes live (repeatable)")
+
+
 def build_parser():
     parser = argparse.ArgumentParser(
         prog="multibody", description="Rigid multibody dynamics from Lagrangian mechanics."
@@ -318,10 +326,7 @@ def build_parser():
     commands = parser.add_subparsers(dest="command", metavar="COMMAND")
 
     info = commands.add_parser("info", help="print a model's tree, sizes, mass and suspicious inertias")
-    info.add_argument("urdf", metavar="URDF|MJCF|ROBOT",
-                      help="URDF or MJCF (.xml) file, or a robot name (e.g. double_pendulum; example-robot-data's when installed)")
-    info.add_argument("--floating-base", action="store_true", help="add a free-flyer joint at the root")
-    info.add_argument("--package-dir", action="append", default=[], help="where package:// meshes live (repeatable)")
+    _model_arguments(info)
     info.set_defaults(run=cmd_info)
 
     from .demos import DEMOS
@@ -335,26 +340,20 @@ def build_parser():
     demo.set_defaults(run=cmd_demo)
 
     view = commands.add_parser("view", help="show a model, or a saved trajectory of it, in the 3-D viewer (browser)")
-    view.add_argument("urdf", metavar="URDF|MJCF|ROBOT",
-                      help="URDF or MJCF (.xml) file, or a robot name (e.g. double_pendulum; example-robot-data's when installed)")
+    _model_arguments(view)
     view.add_argument("--trajectory", metavar="FILE.npz", help="a trajectory saved by Trajectory.save, to play")
     view.add_argument("--port", type=int, default=8080, help="port to serve on (default 8080; the next free one if taken)")
     view.add_argument("--trace", action="append", default=[], metavar="BODY",
                       help="draw the path of this body's origin (repeatable)")
     view.add_argument("--html", metavar="FILE.html",
                       help="write a self-contained page that replays it offline, and exit instead of serving")
-    view.add_argument("--floating-base", action="store_true", help="add a free-flyer joint at the root")
-    view.add_argument("--package-dir", action="append", default=[], help="where package:// meshes live (repeatable)")
     view.set_defaults(run=cmd_view)
 
     check = commands.add_parser("check", help="compare kinematics and dynamics with Pinocchio (MJCF: MuJoCo) at random "
                                               "states")
-    check.add_argument("urdf", metavar="URDF|MJCF|ROBOT",
-                       help="URDF or MJCF (.xml) file, or a robot name (e.g. double_pendulum; example-robot-data's when installed)")
-    check.add_argument("--floating-base", action="store_true", help="add a free-flyer joint at the root")
+    _model_arguments(check)
     check.add_argument("--samples", type=int, default=20, help="number of random states (default 20)")
     check.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
-    check.add_argument("--package-dir", action="append", default=[], help="where package:// meshes live (repeatable)")
     check.set_defaults(run=cmd_check)
 
     compile_ = commands.add_parser(
