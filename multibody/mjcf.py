@@ -182,9 +182,6 @@ def _expand_includes(root, main_dir, package_dirs):
     stack = [(root, (root.file,))]
     while stack:
         node, chain = stack.pop()
-        if not any(child.tag == "include" for child in node.children):
-            stack.extend((child, chain) for child in node.children)
-            continue
         children = []
         for child in node.children:
             if child.tag != "include":
@@ -495,15 +492,15 @@ class _Defaults:
     """The ``<default>`` classes: ``{class: {element tag: {attribute: text}}}``, each class holding its
     ancestors' values under its own."""
 
-    def __init__(self, sections, report):
+    def __init__(self, sections):
         self.classes = {"main": {}}
         for section in sections:
             name = section.attrib.get("class", "main")
             if name != "main":
                 raise section.error(f"the top <default> is class 'main', got {name!r}")
-            self._add(section, self.classes["main"], report)
+            self._add(section, self.classes["main"])
 
-    def _add(self, section, values, report):
+    def _add(self, section, values):
         # (a <default> element, its class's values), iteratively, so that deep nesting keeps off the recursion
         # limit; a class takes all its own elements before its nested classes inherit them, wherever in it they
         # are written, as MuJoCo reads them
@@ -525,7 +522,6 @@ class _Defaults:
                     self.classes[name] = inherited
                     nested.append((child, inherited))
             stack.extend(reversed(nested))
-        return values
 
     def attributes(self, node, childclass, tag=None):
         """``node``'s attributes over those of its class (its ``class``, else ``childclass``, else main)."""
@@ -1064,23 +1060,19 @@ def _equalities(sections, reader, defaults, report, tree, names, sites, joints):
     out = []
     world = [body.world for body in tree.bodies]
 
-    def body(node, attrs, key, required=True):
-        name = attrs.get(key)
-        if name is None or name == "world":
-            if required and name is None:
-                raise node.error(f"missing attribute {key!r}")
-            return -1
-        if name not in tree.index:
-            raise node.error(f"attribute {key}={name!r}: no such body")
-        return tree.index[name]
-
-    def site(node, attrs, key):
+    def named(node, attrs, key, table, what):
         name = attrs.get(key)
         if name is None:
             raise node.error(f"missing attribute {key!r}")
-        if name not in sites:
-            raise node.error(f"attribute {key}={name!r}: no such site")
-        return sites[name]
+        if name not in table:
+            raise node.error(f"attribute {key}={name!r}: no such {what}")
+        return table[name]
+
+    def body(node, attrs, key, required=True):
+        # the world, which a missing body2 also is, is -1
+        if attrs.get(key, None if required else "world") == "world":
+            return -1
+        return named(node, attrs, key, tree.index, "body")
 
     equality_id = -1
     for section in sections:
@@ -1100,14 +1092,8 @@ def _equalities(sections, reader, defaults, report, tree, names, sites, joints):
                 report.add(("inactive",), node, "inactive equalities (active='false') are left out")
                 continue
             if tag == "joint":
-                if "joint1" not in attrs:
-                    raise node.error("missing attribute 'joint1'")
-                first = joints.get(attrs.get("joint1"))
-                if first is None:
-                    raise node.error(f"attribute joint1={attrs.get('joint1')!r}: no such joint")
-                second = joints.get(attrs.get("joint2")) if "joint2" in attrs else None
-                if "joint2" in attrs and second is None:
-                    raise node.error(f"attribute joint2={attrs.get('joint2')!r}: no such joint")
+                first = named(node, attrs, "joint1", joints, "joint")
+                second = named(node, attrs, "joint2", joints, "joint") if "joint2" in attrs else None
                 for joint in (first, second):
                     if joint is not None and joint.kind not in ("hinge", "slide"):
                         raise node.error(f"joint {joint.model_name!r} is a {joint.kind} joint: a joint equality "
@@ -1123,7 +1109,7 @@ def _equalities(sections, reader, defaults, report, tree, names, sites, joints):
                 raise node.error("give sites (site1, site2) or bodies (body1, body2), not both")
             if "site1" in attrs or "site2" in attrs:
                 # the two site frames coincide (in position for connect, in pose for weld)
-                (b1, frame_a), (b2, frame_b) = site(node, attrs, "site1"), site(node, attrs, "site2")
+                (b1, frame_a), (b2, frame_b) = (named(node, attrs, key, sites, "site") for key in ("site1", "site2"))
                 if attrs["site1"] == attrs["site2"]:
                     raise node.error(f"site {attrs['site1']!r} is on both sides of the equality")
             else:
@@ -1221,7 +1207,7 @@ def load_mjcf(source, *, package_dirs=None):
             elif reader.flag(flag, flag.attrib, "gravity", "enable", ("enable", "disable")) == "disable":
                 gravity = np.zeros(3)
 
-    defaults = _Defaults(sections.get("default", ()), report)
+    defaults = _Defaults(sections.get("default", ()))
     worldbodies = sections.get("worldbody", ())
     worldbody = worldbodies[0] if worldbodies else _Node("worldbody", {}, root.line, root.file)
     for extra in worldbodies[1:]:
@@ -1326,6 +1312,8 @@ def _build(root, tree, reader, meshes, gravity):
     hidden = []
     for k, (body, name, inertia) in enumerate(zip(bodies, names, inertias)):
         parent = None if body.parent < 0 else names[body.parent]
+        if len(body.joints) > 1 and any(joint.kind == "free" for joint in body.joints):
+            raise body.node.error("a body with a free joint has no other joints")
         if not body.joints:
             builder.add_body(name, jt.Fixed(), parent=parent, placement=body.pose, inertia=inertia,
                              joint_name=_FIXED + name)
@@ -1333,13 +1321,9 @@ def _build(root, tree, reader, meshes, gravity):
             joint = body.joints[0]
             if body.parent >= 0:
                 raise joint.node.error("a free joint belongs to a body whose parent is the world")
-            if len(body.joints) > 1:
-                raise body.node.error("a body with a free joint has no other joints")
             builder.add_body(name, jt.FreeFlyer(), parent=None, placement=_IDENTITY, inertia=inertia,
                              joint_name=joint.model_name, **_per_dof(joint))
         else:
-            if any(joint.kind == "free" for joint in body.joints):
-                raise body.node.error("a body with a free joint has no other joints")
             # B_k = B_{k−1} T(p_k) M_k(q_k − ref_k) T(−p_k): joint k's pre-joint frame is T(p_k − p_{k−1}) R_k(−ref_k)
             # in the frame of joint k − 1 (the body's frame for k = 1), and the body hangs T(−p_n) from the last
             previous, placement = _ZERO3, body.pose

@@ -188,13 +188,9 @@ class Model:
     def __post_init__(self):
         nj, nb = len(self.joints), len(self.body_names)
         set_ = lambda name, value: object.__setattr__(self, name, value)  # noqa: E731
-        set_("joints", tuple(self.joints))
-        set_("joint_names", tuple(self.joint_names))
-        set_("body_names", tuple(self.body_names))
-        set_("body_inertias", tuple(self.body_inertias))
-        set_("equality_constraints", tuple(self.equality_constraints))
-        set_("geometries", tuple(self.geometries))
-        set_("collision_geometries", tuple(self.collision_geometries))
+        for name in ("joints", "joint_names", "body_names", "body_inertias", "equality_constraints", "geometries",
+                     "collision_geometries"):
+            set_(name, tuple(getattr(self, name)))
         set_("parents", _frozen(self.parents, int).reshape(nj))
         set_("body_joints", _frozen(self.body_joints, int).reshape(nb))
         set_("joint_placements", _frozen(self.joint_placements).reshape(nj, 4, 4))
@@ -489,18 +485,14 @@ class Model:
 
     @staticmethod
     def _as_float_array(x, name):
-        if type(x) is np.ndarray and x.dtype == np.float64:
-            if not all_finite(x):
-                warnings.warn(f"{name} contains NaN or infinite values; results will contain NaN", RuntimeWarning,
-                              stacklevel=3)
-            return x
-        x = np.asarray(x)
-        if x.dtype == object or not (np.issubdtype(x.dtype, np.number) or x.dtype == bool):
-            raise ValueError(f"{name} must be a real numeric array, got dtype {x.dtype}")
-        if np.iscomplexobj(x):
-            raise ValueError(f"{name} must be real, got dtype {x.dtype}")
-        x = x.astype(float, copy=False)
-        if not np.all(np.isfinite(x)):
+        if not (type(x) is np.ndarray and x.dtype == np.float64):
+            x = np.asarray(x)
+            if x.dtype == object or not (np.issubdtype(x.dtype, np.number) or x.dtype == bool):
+                raise ValueError(f"{name} must be a real numeric array, got dtype {x.dtype}")
+            if np.iscomplexobj(x):
+                raise ValueError(f"{name} must be real, got dtype {x.dtype}")
+            x = x.astype(float, copy=False)
+        if not all_finite(x):
             warnings.warn(f"{name} contains NaN or infinite values; results will contain NaN", RuntimeWarning, stacklevel=3)
         return x
 

@@ -66,8 +66,8 @@ class URDFError(ValueError):
 #: Joint limits at or beyond this absolute value (``inf`` included) mean "no limit on that side".
 UNBOUNDED_LIMIT = 1e16
 
-# Joint types whose configuration is one number: the only ones a <mimic> can relate.
-_ONE_COORDINATE_TYPES = ("revolute", "continuous", "prismatic")
+# Joint types whose configuration is one number, the only ones a <mimic> can relate, and their joints.
+_ONE_COORDINATE_TYPES = {"revolute": jt.Revolute, "continuous": jt.Continuous, "prismatic": jt.Prismatic}
 
 
 class _Context:
@@ -148,20 +148,15 @@ def _check_bodies(ctx, model, invalid_inertia):
             warnings.warn(f"{ctx.source_name}: {where}: {message}", UserWarning, stacklevel=3)
 
 
-def _joint_type(ctx, joint, path, name):
+def _joint_type(ctx, joint, path):
     kind = joint.get("type")
     axis_element = joint.find("axis")
-    axis = _floats(ctx, axis_element, "xyz", path + "/<axis>", 3, (1.0, 0.0, 0.0)) if axis_element is not None \
-        else np.array([1.0, 0.0, 0.0])
-    if kind in _ONE_COORDINATE_TYPES and np.linalg.norm(axis) < 1e-12:
-        raise ctx.error(path + "/<axis>", f"attribute xyz={axis_element.get('xyz')!r}: axis must be non-zero "
-                                          "(length at least 1e-12)")
-    if kind == "revolute":
-        return jt.Revolute(axis)
-    if kind == "continuous":
-        return jt.Continuous(axis)
-    if kind == "prismatic":
-        return jt.Prismatic(axis)
+    axis = _floats(ctx, axis_element, "xyz", path + "/<axis>", 3, (1.0, 0.0, 0.0))
+    if kind in _ONE_COORDINATE_TYPES:
+        if np.linalg.norm(axis) < 1e-12:
+            raise ctx.error(path + "/<axis>", f"attribute xyz={axis_element.get('xyz')!r}: axis must be non-zero "
+                                              "(length at least 1e-12)")
+        return _ONE_COORDINATE_TYPES[kind](axis)
     if kind == "fixed":
         return jt.Fixed()
     if kind == "floating":
@@ -200,12 +195,10 @@ def _limits(ctx, joint_element, joint, path):
             else "give its range"
         warnings.warn(f"{ctx.source_name}: {path}: the limits are lower = upper = 0{reason}, which hold the "
                       f"{joint.kind} joint still; {remedy}", UserWarning, stacklevel=3)
-    if lower[0] >= UNBOUNDED_LIMIT:
-        raise ctx.error(path, f"attribute lower={limit.get('lower')!r} leaves no finite position "
-                              f"(limits at or beyond ±{UNBOUNDED_LIMIT:g} mean unbounded)")
-    if upper[0] <= -UNBOUNDED_LIMIT:
-        raise ctx.error(path, f"attribute upper={limit.get('upper')!r} leaves no finite position "
-                              f"(limits at or beyond ±{UNBOUNDED_LIMIT:g} mean unbounded)")
+    for side, unbounded in (("lower", lower[0] >= UNBOUNDED_LIMIT), ("upper", upper[0] <= -UNBOUNDED_LIMIT)):
+        if unbounded:
+            raise ctx.error(path, f"attribute {side}={limit.get(side)!r} leaves no finite position "
+                                  f"(limits at or beyond ±{UNBOUNDED_LIMIT:g} mean unbounded)")
     if lower[0] > upper[0]:
         raise ctx.error(path, f"lower limit {lower[0]:g} exceeds upper limit {upper[0]:g}{reason}")
     lower = np.where(lower <= -UNBOUNDED_LIMIT, -np.inf, lower)
@@ -262,6 +255,10 @@ def _sizes(ctx, element, attribute, path, count):
     return tuple(float(x) for x in values)
 
 
+#: The attributes, and how many numbers each holds, of the size of each primitive shape (:class:`Geometry`'s order).
+_SHAPE_SIZES = {"box": (("size", 3),), "sphere": (("radius", 1),), "cylinder": (("radius", 1), ("length", 1))}
+
+
 def _geometries(ctx, link, path, base_dir, package_dirs):
     out = []
     for kind in ("visual", "collision"):
@@ -278,16 +275,10 @@ def _geometries(ctx, link, path, base_dir, package_dirs):
                 filename = resolve_file(uri, base_dir, package_dirs)
                 scale = tuple(_floats(ctx, shape_element, "scale", element_path + "/<mesh>", 3, (1.0, 1.0, 1.0)))
                 out.append(Geometry(link.get("name"), kind, "mesh", placement, uri=uri, filename=filename, scale=scale))
-            elif shape == "box":
-                size = _sizes(ctx, shape_element, "size", element_path + "/<box>", 3)
-                out.append(Geometry(link.get("name"), kind, "box", placement, size=size))
-            elif shape == "sphere":
-                size = _sizes(ctx, shape_element, "radius", element_path + "/<sphere>", 1)
-                out.append(Geometry(link.get("name"), kind, "sphere", placement, size=size))
-            elif shape == "cylinder":
-                radius, = _sizes(ctx, shape_element, "radius", element_path + "/<cylinder>", 1)
-                length, = _sizes(ctx, shape_element, "length", element_path + "/<cylinder>", 1)
-                out.append(Geometry(link.get("name"), kind, "cylinder", placement, size=(radius, length)))
+            elif shape in _SHAPE_SIZES:
+                size = sum((_sizes(ctx, shape_element, attribute, f"{element_path}/<{shape}>", count)
+                            for attribute, count in _SHAPE_SIZES[shape]), ())
+                out.append(Geometry(link.get("name"), kind, shape, placement, size=size))
     return out
 
 
@@ -419,7 +410,7 @@ def load_urdf(source, *, floating_base=False, package_dirs=None, invalid_inertia
         path = f"<joint name='{name}'>"
         child = joint.find("child").get("link")
         visited.add(child)
-        joint_type = _joint_type(ctx, joint, path, name)
+        joint_type = _joint_type(ctx, joint, path)
         lower, upper = _limits(ctx, joint, joint_type, path)
         add_link(child, None if parent_link == world_root else parent_link, joint_type, name, _origin(ctx, joint, path),
                  lower, upper, _joint_dynamics(ctx, joint, joint_type, path))

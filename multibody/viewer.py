@@ -412,8 +412,7 @@ def scene_of(model, q=None, trajectory=None, *, constraints=None, trace=(), forc
 
     X_WB = forward_kinematics(model, qs)                       # (n, nb, 4, 4), once for every frame
     positions = X_WB[..., :3, 3]
-    xyzw = spatial.rotation_to_quat(X_WB[..., :3, :3])
-    wxyz = np.concatenate([xyzw[..., 3:], xyzw[..., :3]], axis=-1)
+    wxyz = _wxyz(X_WB[..., :3, :3])
     traces = {label: spatial.matvec(X_WB[:, b, :3, :3], point) + X_WB[:, b, :3, 3] for label, b, point in traced}
 
     # The bodies' origins and the eight corners of each shape's box, in the world at every frame: (n, k, 3).
@@ -491,10 +490,9 @@ def _identities(count):
     return np.tile([1.0, 0.0, 0.0, 0.0], (count, 1))
 
 
-def _frame_wxyz(E):
-    """Viser's ``[w, x, y, z]`` of the rotation whose columns are ``E``."""
-    x, y, z, w = spatial.rotation_to_quat(E)
-    return np.array([w, x, y, z])
+def _wxyz(R):
+    """Viser's quaternions ``[w, x, y, z] (..., 4)`` of the rotations ``R (..., 3, 3)``."""
+    return np.roll(spatial.rotation_to_quat(R), 1, axis=-1)
 
 
 class Viewer:
@@ -555,7 +553,7 @@ class Viewer:
                 origin = scene.center - ((scene.center - point) @ normal) * normal
                 ground.append(server.scene.add_grid(f"/ground/plane_{k}", extent, extent, cell_size=cell,
                                                     section_size=5 * cell, plane_color=(225, 230, 240),
-                                                    plane_opacity=0.6, wxyz=_frame_wxyz(E), position=origin))
+                                                    plane_opacity=0.6, wxyz=_wxyz(E), position=origin))
         else:
             # at z = 0, or under the lowest point of a motion that reaches below it (a hanging pendulum)
             origin = np.array([scene.center[0], scene.center[1], min(0.0, scene.low[2])])
