@@ -179,7 +179,7 @@ def rolling_ball(out_dir, duration=2.6):
     fixed in the world, with the ball painted with two bands so that its turning shows and its contact
     path traced. The frames are chosen so that the ball turns less than 0.5 rad from one to the next.
     """
-    from .plotting import energy_figure, multiplier_figure, new_figure, residual_figure, save_figure
+    from .plotting import energy_figure, multiplier_figure, plot_path, residual_figure, save_figure
 
     setup = rolling_ball_setup()
     system, (contact,) = setup.system, setup.constraints
@@ -199,19 +199,10 @@ def rolling_ball(out_dir, duration=2.6):
         "friction / normal force (max)": _friction_ratio(trajectory),
         "largest turn of the ball between animation frames (rad)": turn,
     }
-    paths = []
-
-    figure = new_figure((6.4, 4.2))
-    ax = figure.subplots()
-    ax.plot(plane_xy[:, 1], -plane_xy[:, 0], label="contact path")
-    ax.plot(plane_xy[:1, 1], -plane_xy[:1, 0], "o", color="tab:green", label="start")
-    ax.set_xlabel("across the slope, y' (m)")
-    ax.set_ylabel("up the slope, −x' (m)")
-    ax.set_aspect("equal", adjustable="datalim")
-    ax.set_title(f"contact path on the plane tilted by {tilt:g} rad (seen from above it)", fontsize="medium")
-    ax.legend(fontsize="small")
-    paths.append(save_figure(figure, out_dir, "rolling_ball_path", dpi=100))
-    paths.append(save_figure(energy_figure(trajectory), out_dir, "rolling_ball_energy", dpi=100))
+    paths = [plot_path(np.stack([plane_xy[:, 1], -plane_xy[:, 0]], axis=1), out_dir, "rolling_ball",
+                       f"contact path on the plane tilted by {tilt:g} rad (seen from above it)",
+                       ("across the slope, y' (m)", "up the slope, −x' (m)"), dpi=100),
+             save_figure(energy_figure(trajectory), out_dir, "rolling_ball_energy", dpi=100)]
     paths.append(save_figure(residual_figure(trajectory, system), out_dir, "rolling_ball_residual", dpi=100))
     figure = multiplier_figure(trajectory, system,
                                multiplier_labels=["friction along t₁ (downhill)", "friction along t₂ (across)",

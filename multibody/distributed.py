@@ -159,15 +159,6 @@ def map_states(fn, model, *arrays, chunks=None, client=None):
         return _concatenate(_map_chunks(connected, fn, model, arrays, chunks))
 
 
-def _simulate_chunk(system, q0, v0, tau, t_final, options):
-    from .simulation import simulate
-
-    with warnings.catch_warnings():
-        # the client warns once for the whole batch (trajectory.status says why each stopped)
-        warnings.filterwarnings("ignore", "\\d+ of \\d+ trajectories stopped early", RuntimeWarning)
-        return simulate(system, q0, v0, t_final, tau=tau, **options)
-
-
 def simulate_many(system, q0, v0, t_final, *, chunks=None, client=None, **kw):
     """:func:`multibody.simulate` of ``N`` initial states in chunks on a Dask cluster: each chunk a batch of
     trajectories that ``simulate`` integrates with a fixed-step method (``method="RK4"`` by default) on one worker,
@@ -191,7 +182,7 @@ def simulate_many(system, q0, v0, t_final, *, chunks=None, client=None, **kw):
     """
     from .constrained import ConstrainedSystem
     from .integrators import PD
-    from .simulation import batch_size, check_batchable, warn_if_stopped
+    from .simulation import batch_size, check_batchable, simulate, warn_if_stopped
 
     constrained = system if isinstance(system, ConstrainedSystem) else ConstrainedSystem(system)
     q0, v0 = np.asarray(q0, dtype=float), np.asarray(v0, dtype=float)
@@ -205,8 +196,6 @@ def simulate_many(system, q0, v0, t_final, *, chunks=None, client=None, **kw):
     q0 = np.broadcast_to(q0, (n, constrained.nq))
     v0 = np.broadcast_to(v0, (n, constrained.nv))
     if n == 0:
-        from .simulation import simulate
-
         return simulate(constrained, q0, v0, t_final, **kw)
     tau = kw.pop("tau", None)
     if isinstance(tau, PD):
@@ -219,7 +208,10 @@ def simulate_many(system, q0, v0, t_final, *, chunks=None, client=None, **kw):
             _leading(arrays, ("q0", "v0", "tau"))
 
     def run(shipped, q_chunk, v_chunk, tau_chunk=tau):
-        return _simulate_chunk(shipped, q_chunk, v_chunk, tau_chunk, t_final, kw)
+        with warnings.catch_warnings():
+            # the client warns once for the whole batch (trajectory.status says why each stopped)
+            warnings.filterwarnings("ignore", "\\d+ of \\d+ trajectories stopped early", RuntimeWarning)
+            return simulate(shipped, q_chunk, v_chunk, t_final, tau=tau_chunk, **kw)
 
     with _connected(client) as connected:
         trajectory = _concatenate(_map_chunks(connected, run, constrained, arrays, chunks))

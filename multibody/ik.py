@@ -199,16 +199,11 @@ def _positive_number(value, name, *, integer=False, upper=None, zero=False):
     return int(number) if integer else number
 
 
-def _vector_space_coordinates(model):
-    """Indices in ``q`` of the angles and displacements (the coordinates whose limits are kept)."""
-    return np.array([s + k for joint, s in zip(model.joints, model.idx_q) if joint.vector_space
-                     for k in range(joint.nq)], dtype=int)
-
-
 def _limits(model):
     """``(lower, upper) (nq,)``: the limits of the angles and displacements, ``∓inf`` for the others."""
     lower, upper = np.full(model.nq, -np.inf), np.full(model.nq, np.inf)
-    index = _vector_space_coordinates(model)
+    index = np.array([s + k for joint, s in zip(model.joints, model.idx_q) if joint.vector_space
+                      for k in range(joint.nq)], dtype=int)
     lower[index], upper[index] = model.lower[index], model.upper[index]
     return lower, upper
 

@@ -337,18 +337,14 @@ class _Reader:
             if default is None:
                 raise node.error(f"missing attribute {key!r}")
             return default
-        values = self._numbers.get(text)
+        values = self._numbers.get((text, count, at_least))
         if values is None:
             try:
-                values = parse_numbers(text)
+                values = parse_numbers(text, key, count, at_least=at_least)
             except ValueError as problem:
-                raise node.error(f"attribute {key}={text!r}: {problem}") from None
+                raise node.error(str(problem)) from None
             values.setflags(write=False)
-            self._numbers[text] = values
-        low = count if at_least is None else at_least
-        if count is not None and not low <= len(values) <= count:
-            expected = f"{count}" if at_least is None else f"{at_least} to {count}"
-            raise node.error(f"attribute {key}={text!r} must be {expected} number(s), got {len(values)}")
+            self._numbers[text, count, at_least] = values
         return values
 
     def number(self, node, attrs, key, default):
@@ -1240,15 +1236,13 @@ def _read_compiler(node, reader, compiler, report):
         raise node.error(f"attribute eulerseq={sequence!r} must be three of x, y, z, X, Y, Z")
     compiler.eulerseq = sequence
     compiler.meshdir = attrs.get("meshdir", attrs.get("assetdir", compiler.meshdir))
-    compiler.autolimits = reader.flag(node, attrs, "autolimits", "true" if compiler.autolimits else "false") == "true"
+    for key in ("autolimits", "balanceinertia", "strippath"):
+        setattr(compiler, key, reader.flag(node, attrs, key, "true" if getattr(compiler, key) else "false") == "true")
     compiler.inertiafromgeom = reader.flag(node, attrs, "inertiafromgeom", compiler.inertiafromgeom,
                                            ("true", "false", "auto"))
     compiler.group_range = reader.integers(node, attrs, "inertiagrouprange", 2, compiler.group_range)
     for key in ("boundmass", "boundinertia", "settotalmass"):
         setattr(compiler, key, reader.number(node, attrs, key, getattr(compiler, key)))
-    compiler.balanceinertia = reader.flag(node, attrs, "balanceinertia",
-                                          "true" if compiler.balanceinertia else "false") == "true"
-    compiler.strippath = reader.flag(node, attrs, "strippath", "true" if compiler.strippath else "false") == "true"
     for key, text in (("fusestatic", "bodies without joints are kept, not fused into their parents (fusestatic)"),
                       ("alignfree", "free bodies keep their frames (alignfree is not supported)"),
                       ("discardvisual", "visual geoms are kept (discardvisual is not supported)")):

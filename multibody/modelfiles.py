@@ -20,24 +20,28 @@ _DECIMAL = re.compile(r"[+-]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]+)?")
 _INFINITY = re.compile(r"[+-]?inf(?:inity)?", re.IGNORECASE)
 
 
-def parse_numbers(text, allow_infinite=False) -> np.ndarray:
-    """The numbers of an attribute's ``text`` (separated by white space), ``(n,)``.
+def parse_numbers(text, key, count=None, *, at_least=None, allow_infinite=False) -> np.ndarray:
+    """The numbers of attribute ``key`` written ``text`` (separated by white space), ``(n,)``: exactly ``count``
+    of them, or ``at_least`` to ``count`` (any number when ``count`` is ``None``).
 
     Each must be decimal (``-1.5``, ``2e-3``) and, unless ``allow_infinite`` (which also takes ``inf``),
-    finite and at most :data:`LARGEST_MAGNITUDE` in absolute value. Raises ``ValueError`` saying which
-    token is wrong and why, for the loader to prefix with the file, element and attribute.
+    finite and at most :data:`LARGEST_MAGNITUDE` in absolute value. Raises ``ValueError`` naming the
+    attribute and saying which token is wrong and why, for the loader to prefix with the file and element.
     """
     tokens = text.split()
     for token in tokens:
         if not (_DECIMAL.fullmatch(token) or (allow_infinite and _INFINITY.fullmatch(token))):
-            raise ValueError(f"{token!r} is not a decimal number")
+            raise ValueError(f"attribute {key}={text!r}: {token!r} is not a decimal number")
     values = [float(token) for token in tokens]
     # (a decimal past float64's range reads as inf; a file's few numbers compare faster in Python than in NumPy)
     if not allow_infinite and not all(-LARGEST_MAGNITUDE <= x <= LARGEST_MAGNITUDE for x in values):
         if not all(math.isfinite(x) for x in values):
-            raise ValueError("numbers must be finite")
-        raise ValueError(f"magnitude above {LARGEST_MAGNITUDE:g}, the largest accepted (no physical robot "
-                         "needs it; the dynamics would overflow)")
+            raise ValueError(f"attribute {key}={text!r}: numbers must be finite")
+        raise ValueError(f"attribute {key}={text!r}: magnitude above {LARGEST_MAGNITUDE:g}, the largest accepted "
+                         "(no physical robot needs it; the dynamics would overflow)")
+    if count is not None and not (count if at_least is None else at_least) <= len(values) <= count:
+        expected = count if at_least is None else f"{at_least} to {count}"
+        raise ValueError(f"attribute {key}={text!r} must be {expected} number(s), got {len(values)}")
     return np.array(values, dtype=float)
 
 

@@ -375,12 +375,15 @@ def plot_trajectory(trajectory, out_dir, name, system=None, *, coordinate_labels
 
 
 def plot_path(xy, out_dir, name, title, labels=("x (m)", "y (m)"), dpi=110):
-    """Write ``<name>_path.png``: a path ``xy (n, 2)`` seen from above, equal axes. Returns the file path."""
+    """Write ``<name>_path.png``: a path ``xy (n, 2)`` seen from above, equal axes, its start marked.
+    Returns the file path."""
     figure = new_figure((6.0, 5.0))
     ax = figure.subplots()
-    ax.plot(xy[:, 0], xy[:, 1])
+    ax.plot(xy[:, 0], xy[:, 1], label="path")
+    ax.plot(xy[:1, 0], xy[:1, 1], "o", color="tab:green", label="start")
     ax.set_aspect("equal", adjustable="datalim")
     ax.set_xlabel(labels[0])
     ax.set_ylabel(labels[1])
-    ax.set_title(title)
+    ax.set_title(title, fontsize="medium")
+    ax.legend(fontsize="small")
     return save_figure(figure, out_dir, f"{name}_path", dpi)

@@ -90,12 +90,9 @@ def _floats(ctx, element, attribute, path, count, default=None, allow_infinite=F
             raise ctx.error(path, f"missing attribute {attribute!r}")
         return np.array(default, dtype=float)
     try:
-        values = parse_numbers(text, allow_infinite)
+        return parse_numbers(text, attribute, count, allow_infinite=allow_infinite)
     except ValueError as problem:
-        raise ctx.error(path, f"attribute {attribute}={text!r}: {problem}") from None
-    if len(values) != count:
-        raise ctx.error(path, f"attribute {attribute}={text!r} must be {count} number(s), got {len(values)}")
-    return values
+        raise ctx.error(path, str(problem)) from None
 
 
 def _origin(ctx, element, path):
