@@ -190,11 +190,13 @@ def simulate(system, q0, v0, t_final, *, dt=None, method=None, tau=None, rtol=1e
         if method not in ADAPTIVE_METHODS + FIXED_STEP_METHODS:
             raise ValueError(f"method must be one of {ADAPTIVE_METHODS + FIXED_STEP_METHODS + ('variational',)}, "
                              f"got {method!r}")
-    dt = checked_timing(t0, t_final, dt, progress, limits)
+    times = output_times(t0, t_final, checked_timing(t0, t_final, dt, progress, limits))
     q, v = np.array(q0, dtype=float), np.array(v0, dtype=float)
     batch = batch_size(q, v, nq, nv)
     if device and batch is None:
-        _one_device_state(q.shape, v.shape, nq, nv)
+        raise ValueError(f"simulate on CUDA arrays integrates a batch, one trajectory per GPU thread: q0 (N, {nq}), "
+                         f"v0 (N, {nv}); got one state, q0 {q.shape} and v0 {v.shape} (simulate one state from NumPy "
+                         "arrays)")
     if batch is None:
         if q.shape != (nq,) or v.shape != (nv,):
             raise ValueError(f"q0 and v0 must have shapes ({nq},) and ({nv},), got {q.shape} and {v.shape}")
@@ -208,21 +210,19 @@ def simulate(system, q0, v0, t_final, *, dt=None, method=None, tau=None, rtol=1e
     require_finite(mechanical, "q0", q)
     require_finite(mechanical, "v0", v, rate=True)
     tau = as_controller(tau, mechanical, batch)
+    torque = torque_function(tau, nv, batch, mechanical)
     # the joint forces as the compiled run takes them, before the damping joins them
-    controller = tau if tau is None or callable(tau) else np.asarray(torque_function(tau, nv, batch, mechanical)(
-        t0, None, None))
+    controller = tau if tau is None or callable(tau) else np.asarray(torque(t0, None, None))
     damping = joint_damping_of(mechanical, joint_damping)
     if constrained.unilateral:
-        return _simulate_unilateral(constrained, q, v, output_times(t0, t_final, dt), controller, damping, batch,
-                                    limits, device)
+        return _simulate_unilateral(constrained, q, v, times, controller, damping, batch, limits, device)
     if damping is not None:
-        tau = with_joint_damping(torque_function(tau, nv, batch, mechanical), damping)
-    torque = torque_function(tau, nv, batch, mechanical)
+        tau = with_joint_damping(torque, damping)
+        torque = torque_function(tau, nv, batch, mechanical)
     charts = Charts(mechanical)
     if method in FIXED_STEP_METHODS:
         # one trajectory is a batch of one: the same run, whose result loses the batch axis
         count = 1 if batch is None else batch
-        times = output_times(t0, t_final, dt)
         # a compiled run takes joint forces that are data or compiled, and one trajectory's Python callable too
         # (called from it once per stage); a batch's Python callable takes the batch at each stage, in lockstep
         data = controller is None or isinstance(controller, (np.ndarray, PDController, CompiledController))
@@ -241,7 +241,6 @@ def simulate(system, q0, v0, t_final, *, dt=None, method=None, tau=None, rtol=1e
     # w the aligned velocity (see Model.chart). A new chart starts from each step's end state.
     stages = _ChartStages(constrained, charts, torque, callable(tau), project, projection_tolerance, t0)
     tolerance = projection_tolerance if project else None
-    times = output_times(t0, t_final, dt)
     states = np.empty((len(times), nq + nv))
     states[0] = np.concatenate([q, v])
     done = 0  # output states filled so far
@@ -689,13 +688,6 @@ _FAILURES = (SimulationError, ConstraintError, np.linalg.LinAlgError, ValueError
 #: Output states whose multipliers, energies and residuals are computed in one call (bounds the memory of
 #: the constrained step's outputs, a few dozen floats per state).
 _OUTPUT_BLOCK = 1 << 16
-
-
-def _one_device_state(q_shape, v_shape, nq, nv):
-    """The ``ValueError`` of one initial state given as CUDA arrays (the GPU runs a batch)."""
-    raise ValueError(f"simulate on CUDA arrays integrates a batch, one trajectory per GPU thread: q0 (N, {nq}), "
-                     f"v0 (N, {nv}); got one state, q0 {q_shape} and v0 {v_shape} (simulate one state from NumPy "
-                     "arrays)")
 
 
 def _check_device_run(method, tau):
