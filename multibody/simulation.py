@@ -213,20 +213,25 @@ def simulate(system, q0, v0, t_final, *, dt=None, method=None, tau=None, rtol=1e
     torque = torque_function(tau, nv, batch, mechanical)
     # the joint forces as the compiled run takes them, before the damping joins them
     controller = tau if tau is None or callable(tau) else np.asarray(torque(t0, None, None))
+    python = callable(controller) and not isinstance(controller, (PDController, CompiledController))
     damping = joint_damping_of(mechanical, joint_damping)
+    # one trajectory is a batch of one: the same run, whose result loses the batch axis
+    count = 1 if batch is None else batch
     if constrained.unilateral:
-        return _simulate_unilateral(constrained, q, v, times, controller, damping, batch, limits, device)
+        # the compiled Moreau–Jean steps of multibody.contact.run, but for a Python controller's joint forces
+        trajectory = contact.run(constrained, np.broadcast_to(q, (count, nq)), np.broadcast_to(v, (count, nv)), times,
+                                 None if python else controller, torque if python else None, batch, damping,
+                                 device=device)
+        return _finish(mechanical, trajectory, limits, contact.enforced_coordinates(constrained),
+                       f"simulate ({contact.METHOD}) stopped: ")
     if damping is not None:
         tau = with_joint_damping(torque, damping)
         torque = torque_function(tau, nv, batch, mechanical)
     charts = Charts(mechanical)
     if method in FIXED_STEP_METHODS:
-        # one trajectory is a batch of one: the same run, whose result loses the batch axis
-        count = 1 if batch is None else batch
         # a compiled run takes joint forces that are data or compiled, and one trajectory's Python callable too
         # (called from it once per stage); a batch's Python callable takes the batch at each stage, in lockstep
-        data = controller is None or isinstance(controller, (np.ndarray, PDController, CompiledController))
-        compiled = constrained._compiled_motion is not None and (data or batch is None)
+        compiled = constrained._compiled_motion is not None and (not python or batch is None)
         run = _compiled_run(constrained, charts, TABLEAUS[method], controller, damping, project, projection_tolerance,
                             times) if compiled else None
         trajectory = _simulate_batch(constrained, charts, np.broadcast_to(q, (count, nq)),
@@ -360,24 +365,6 @@ def _check_unilateral(constrained, method):
     if not isinstance(constrained.system, ModelSystem):
         raise ValueError(f"contact and joint limits need a system built on a Model; {type(constrained.system).__name__} "
                          "is not")
-
-
-def _simulate_unilateral(constrained, q, v, times, controller, damping, batch, limits, device=False):
-    """:func:`simulate` of a system with contact or joint limits from ``q (nq,)``, ``v (nv,)`` (or ``N`` of them,
-    ``batch``), checked, at the output ``times (n,)`` (s): the compiled Moreau–Jean steps of
-    :func:`multibody.contact.run` (``device``: a batch on the GPU, one trajectory per thread), with the joint forces
-    ``controller`` (``None``, an array, a bound PD, a compiled controller or a Python callable) and the viscous
-    ``damping (nv,)`` or ``None``; a failure raises :class:`SimulationError` with the trajectory up to it (one
-    trajectory), or is marked in the batch's status."""
-    mechanical, nq, nv = constrained.system, constrained.nq, constrained.nv
-    torque = None
-    if callable(controller) and not isinstance(controller, (PDController, CompiledController)):
-        torque, controller = torque_function(controller, nv, batch, mechanical), None
-    count = 1 if batch is None else batch
-    trajectory = contact.run(constrained, np.broadcast_to(q, (count, nq)), np.broadcast_to(v, (count, nv)), times,
-                             controller, torque, batch, damping, device=device)
-    return _finish(mechanical, trajectory, limits, contact.enforced_coordinates(constrained),
-                   f"simulate ({contact.METHOD}) stopped: ", stacklevel=5)
 
 
 def _finish(system, trajectory, limits, enforced=(), stopped="", stacklevel=4):
