@@ -382,17 +382,17 @@ class _Reader:
             return None
         if len(keys) > 1:
             raise node.error(f"several orientations ({', '.join(keys)}): give one")
-        return _quat_rotation(self.quaternion(node, attrs, keys[0]), node)
-
-    def quaternion(self, node, attrs, key):
-        """The quaternion ``(w, x, y, z)`` of the orientation attribute ``key`` (not normalised)."""
+        key = keys[0]
         if key == "quat":
-            return tuple(self.numbers(node, attrs, key, 4))
+            return _quat_rotation(self.numbers(node, attrs, key, 4), node)
         if key == "axisangle":
-            x, y, z, angle = self.numbers(node, attrs, key, 4)
-            return _axis_angle_quat((x, y, z), self.angle(angle), node)
+            values = self.numbers(node, attrs, key, 4)
+            norm = math.sqrt(values[:3] @ values[:3])
+            if norm < MINVAL:
+                raise node.error("attribute axisangle: the axis is zero")
+            return spatial.axis_angle_rotation(values[:3] / norm, self.angle(values[3]))
         if key == "zaxis":
-            return _z_to_vector_quat(self.numbers(node, attrs, key, 3), node)
+            return _z_to_vector(self.numbers(node, attrs, key, 3), node)
         if key == "xyaxes":
             values = self.numbers(node, attrs, key, 6)
             x, y = values[:3], values[3:]
@@ -406,17 +406,14 @@ class _Reader:
             if norm < MINVAL:
                 raise node.error("attribute xyaxes: the y axis is zero or along the x axis")
             y = y / norm
-            return spatial.rotation_to_quat(np.column_stack([x, y, np.cross(x, y)]))[[3, 0, 1, 2]]
+            return np.column_stack([x, y, np.cross(x, y)])
         # euler: one rotation per axis of eulerseq; lower case turns about the moving axes (post-multiply),
         # upper case about the fixed ones (pre-multiply)
-        angles = self.numbers(node, attrs, key, 3)
-        quat = (1.0, 0.0, 0.0, 0.0)
-        for axis, angle in zip(self.compiler.eulerseq, angles):
-            half = 0.5 * self.angle(angle)
-            turn = [math.cos(half), 0.0, 0.0, 0.0]
-            turn[1 + "xyz".index(axis.lower())] = math.sin(half)
-            quat = _quat_product(quat, turn) if axis.islower() else _quat_product(turn, quat)
-        return quat
+        R = np.eye(3)
+        for axis, angle in zip(self.compiler.eulerseq, self.numbers(node, attrs, key, 3)):
+            turn = spatial.axis_angle_rotation(np.eye(3)["xyz".index(axis.lower())], self.angle(angle))
+            R = R @ turn if axis.islower() else turn @ R
+        return R
 
     def pose(self, node, attrs, required=False):
         """4×4 pose of an element's frame (``pos``, required or zero, and orientation) in its parent's frame."""
@@ -431,14 +428,6 @@ _ZERO3 = np.zeros(3)
 _ZERO3.setflags(write=False)
 
 
-def _quat_product(a, b):
-    """Hamilton product of ``(w, x, y, z)`` quaternions."""
-    aw, ax, ay, az = a
-    bw, bx, by, bz = b
-    return (aw * bw - ax * bx - ay * by - az * bz, aw * bx + ax * bw + ay * bz - az * by,
-            aw * by - ax * bz + ay * bw + az * bx, aw * bz + ax * by - ay * bx + az * bw)
-
-
 def _quat_rotation(quat, node):
     """Rotation ``(3, 3)`` of the quaternion ``(w, x, y, z)`` (normalised here, as MuJoCo does)."""
     w, x, y, z = quat
@@ -447,28 +436,17 @@ def _quat_rotation(quat, node):
     return spatial.quat_to_rotation((x, y, z, w))
 
 
-def _axis_angle_quat(axis, angle, node):
-    x, y, z = axis
-    norm = math.sqrt(x * x + y * y + z * z)
-    if norm < MINVAL:
-        raise node.error("attribute axisangle: the axis is zero")
-    s = math.sin(0.5 * angle) / norm
-    return (math.cos(0.5 * angle), x * s, y * s, z * s)
-
-
-def _z_to_vector_quat(vector, node):
-    """The smallest rotation that takes the z axis to ``vector`` (MuJoCo's ``zaxis`` and ``fromto``): about
-    ``z × vector``, or about x by π when ``vector`` points down the z axis."""
-    x, y, z = vector
-    norm = math.sqrt(x * x + y * y + z * z)
+def _z_to_vector(vector, node):
+    """The rotation ``(3, 3)`` that takes the z axis to ``vector (3,)`` by the smallest turn (MuJoCo's ``zaxis``
+    and ``fromto``): about ``z × vector``, or about x by π when ``vector`` points down the z axis."""
+    norm = math.sqrt(vector @ vector)
     if norm < MINVAL:
         raise node.error("the z axis is zero")
-    x, y, z = x / norm, y / norm, z / norm
+    x, y, z = vector / norm
     s = math.sqrt(x * x + y * y)
     if s < 1e-10:
-        return (1.0, 0.0, 0.0, 0.0) if z > 0.0 else (0.0, 1.0, 0.0, 0.0)
-    half = 0.5 * math.atan2(s, z)
-    return (math.cos(half), -y / s * math.sin(half), x / s * math.sin(half), 0.0)
+        return np.eye(3) if z > 0.0 else np.diag([1.0, -1.0, -1.0])
+    return spatial.axis_angle_rotation(np.array([-y / s, x / s, 0.0]), math.atan2(s, z))
 
 
 def _translation(p):
@@ -723,7 +701,7 @@ class _Tree:
         length = math.sqrt(axis @ axis)
         if length < MINVAL:
             raise node.error(f"attribute fromto={attrs.get('fromto')!r}: the two ends coincide")
-        pose = spatial.pose_matrix(_quat_rotation(_z_to_vector_quat(axis, node), node), 0.5 * (ends[:3] + ends[3:]))
+        pose = spatial.pose_matrix(_z_to_vector(axis, node), 0.5 * (ends[:3] + ends[3:]))
         return pose, length
 
 
