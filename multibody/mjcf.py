@@ -682,7 +682,7 @@ class _Tree:
         contype, = reader.integers(node, attrs, "contype", 1, (1,))
         conaffinity, = reader.integers(node, attrs, "conaffinity", 1, (1,))
         geom.collides = contype != 0 or conaffinity != 0
-        geom.mass = reader.number(node, attrs, "mass", math.nan) if "mass" in attrs else None
+        geom.mass = reader.number(node, attrs, "mass", None)
         geom.density = reader.number(node, attrs, "density", 1000.0)
         if (geom.mass is not None and geom.mass < 0.0) or geom.density < 0.0:
             raise node.error("mass and density must not be negative")
@@ -929,9 +929,7 @@ def _body_inertia(body, reader, meshes, from_geoms):
         if node is None:
             return Inertia.zero()
         attrs = node.attrib
-        mass = reader.number(node, attrs, "mass", math.nan) if "mass" in attrs else None
-        if mass is None:
-            raise node.error("missing attribute 'mass'")
+        mass = float(reader.numbers(node, attrs, "mass", 1)[0])
         if mass < 0.0:
             raise node.error(f"negative mass {mass:g}")
         pose = reader.pose(node, attrs, required=True)

@@ -146,35 +146,26 @@ def _shipped_names() -> list[str]:
                   if entry.name.endswith(".urdf"))
 
 
-def _available_example_robots(robots_dir) -> list[str]:
-    """Names of :data:`EXAMPLE_ROBOTS` whose file the installed example-robot-data has."""
-    if robots_dir is None:
-        return []
-    return [name for name, (relative, _) in EXAMPLE_ROBOTS.items()
-            if os.path.isfile(os.path.join(robots_dir, relative))]
-
-
 def names(*, example_robot_data: bool = True) -> list[str]:
     """Names that :func:`load` accepts, sorted: the shipped models, and example-robot-data's robots when it
     is installed (those whose name a shipped model takes also as ``"example-robot-data:<name>"``).
     ``example_robot_data=False`` lists the shipped models only."""
     shipped = _shipped_names()
-    found = _available_example_robots(_example_robot_data_dir()) if example_robot_data else []
+    robots_dir = _example_robot_data_dir() if example_robot_data else None
+    # the robots of the table whose file the installed example-robot-data has
+    found = [] if robots_dir is None else [name for name, (relative, _) in EXAMPLE_ROBOTS.items()
+                                           if os.path.isfile(os.path.join(robots_dir, relative))]
     clashing = [EXAMPLE_ROBOT_DATA_PREFIX + name for name in found if name in shipped]
     return sorted(set(shipped) | set(found) | set(clashing))
 
 
-def _unknown(name):
-    where = "none in example-robot-data" if _example_robot_data_dir() is not None else \
-        f"example-robot-data, which has many more, is not installed: {_INSTALL_HINT}"
-    return ValueError(f"no shipped robot named {name!r} and {where}; available: {names()}")
-
-
 def _example_robot(name):
     """``(URDF path, floating base, share folder for package_dirs)`` of example-robot-data's robot ``name``."""
-    if name not in EXAMPLE_ROBOTS:
-        raise _unknown(name)
     robots_dir = _example_robot_data_dir()
+    if name not in EXAMPLE_ROBOTS:
+        where = "none in example-robot-data" if robots_dir is not None else \
+            f"example-robot-data, which has many more, is not installed: {_INSTALL_HINT}"
+        raise ValueError(f"no shipped robot named {name!r} and {where}; available: {names()}")
     if robots_dir is None:
         raise ImportError(f"robot {name!r} comes from example-robot-data, which is not installed: {_INSTALL_HINT}")
     relative, floating_base = EXAMPLE_ROBOTS[name]
