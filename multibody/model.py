@@ -766,8 +766,10 @@ class ModelBuilder:
         With ``check_inertia`` a moving rigid body (a link with everything fixed to it) whose mass
         properties no real body can have raises ``ValueError`` (see :func:`inertia_problems`).
         """
-        joints, joint_names, parents, joint_placements, lower, upper = [], [], [], [], [], []
-        per_dof = {"damping": [], "friction": [], "effort_limit": [], "velocity_limit": [], "armature": []}
+        joints, joint_names, parents, joint_placements = [], [], [], []
+        # the joints' limits (nq each) and parameters per velocity coordinate, concatenated in joint order
+        per_joint = {key: [] for key in ("lower", "upper", "damping", "friction", "effort_limit", "velocity_limit",
+                                         "armature")}
         body_joint, body_placement = {}, {}
         for spec in self._bodies:
             if spec.parent is None:
@@ -784,9 +786,7 @@ class ModelBuilder:
             joint_names.append(spec.joint_name)
             parents.append(parent_joint)
             joint_placements.append(X_joint_pre)
-            lower.append(spec.lower)
-            upper.append(spec.upper)
-            for key, values in per_dof.items():
+            for key, values in per_joint.items():
                 values.append(getattr(spec, key))
         names = [spec.name for spec in self._bodies]
         model = Model(
@@ -799,13 +799,11 @@ class ModelBuilder:
             body_joints=np.array([body_joint[n] for n in names], dtype=int),
             body_placements=np.array([body_placement[n] for n in names]).reshape(-1, 4, 4),
             body_inertias=tuple(spec.inertia for spec in self._bodies),
-            lower=np.concatenate(lower) if lower else np.zeros(0),
-            upper=np.concatenate(upper) if upper else np.zeros(0),
             gravity=self.gravity,
             geometries=tuple(self.geometries),
             collision_geometries=tuple(self.collision_geometries),
             mimic=tuple(self.mimic),
-            **{key: np.concatenate(values) if values else np.zeros(0) for key, values in per_dof.items()},
+            **{key: np.concatenate(values) if values else np.zeros(0) for key, values in per_joint.items()},
         )
         if check_inertia:
             problems = inertia_problems(model)
