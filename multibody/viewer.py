@@ -81,14 +81,13 @@ OFFLINE_FRAMES = 1000
 
 @dataclass(frozen=True)
 class Shape:
-    """One drawn shape of a body: ``vertices (k, 3)`` (m, body frame), ``faces (f, 3)``, and either one
-    ``color`` (RGB) or ``vertex_colors (k, 3)``; ``mesh`` keeps a loaded mesh with its own materials.
+    """One drawn shape of a body: ``vertices (k, 3)`` (m, body frame), ``faces (f, 3)`` and one ``color`` (RGB),
+    or ``mesh``, a mesh with its own materials (a loaded file, or a sphere painted in octants).
     ``kind``: ``"visual"`` (the model's), ``"inertia box"`` or ``"point mass"`` (stand-ins)."""
 
     vertices: np.ndarray
     faces: np.ndarray
     color: tuple = SHAPE_COLOR
-    vertex_colors: np.ndarray | None = None
     mesh: object = None
     kind: str = "visual"
 
@@ -204,13 +203,10 @@ def body_shapes(model, point_radius):
         if mesh is None:
             continue
         if geometry.shape == "sphere":
-            painted = _painted_sphere(trimesh, mesh)
-            shapes[geometry.body].append(Shape(painted.vertices, painted.faces,
-                                               vertex_colors=np.asarray(painted.visual.vertex_colors)[:, :3]))
-        elif geometry.shape == "mesh":
-            shapes[geometry.body].append(Shape(np.asarray(mesh.vertices), np.asarray(mesh.faces), mesh=mesh))
-        else:
-            shapes[geometry.body].append(Shape(np.asarray(mesh.vertices), np.asarray(mesh.faces)))
+            mesh = _painted_sphere(trimesh, mesh)
+        # a file's mesh and the painted sphere keep their materials; the other primitives are drawn in SHAPE_COLOR
+        kept = mesh if geometry.shape in ("sphere", "mesh") else None
+        shapes[geometry.body].append(Shape(np.asarray(mesh.vertices), np.asarray(mesh.faces), mesh=kept))
     for name, inertia in zip(model.body_names, model.body_inertias):
         if shapes[name]:
             continue
@@ -568,11 +564,6 @@ class Viewer:
                 child = f"{_node_name(name)}/shape_{k}"
                 if shape.mesh is not None:
                     server.scene.add_mesh_trimesh(child, shape.mesh)
-                elif shape.vertex_colors is not None:
-                    import trimesh
-
-                    server.scene.add_mesh_trimesh(child, trimesh.Trimesh(shape.vertices, shape.faces,
-                                                                         vertex_colors=shape.vertex_colors, process=False))
                 else:
                     server.scene.add_mesh_simple(child, shape.vertices.astype(np.float32), shape.faces.astype(np.uint32),
                                                  color=shape.color, flat_shading=False)
