@@ -191,13 +191,10 @@ class Model:
         for name in ("joints", "joint_names", "body_names", "body_inertias", "equality_constraints", "geometries",
                      "collision_geometries"):
             set_(name, tuple(getattr(self, name)))
-        set_("parents", _frozen(self.parents, int).reshape(nj))
-        set_("body_joints", _frozen(self.body_joints, int).reshape(nb))
-        set_("joint_placements", _frozen(self.joint_placements).reshape(nj, 4, 4))
-        set_("body_placements", _frozen(self.body_placements).reshape(nb, 4, 4))
-        set_("gravity", _frozen(self.gravity).reshape(3))
-        set_("lower", _frozen(self.lower).reshape(-1))
-        set_("upper", _frozen(self.upper).reshape(-1))
+        for name, dtype, shape in (("parents", int, nj), ("body_joints", int, nb), ("joint_placements", float, (nj, 4, 4)),
+                                   ("body_placements", float, (nb, 4, 4)), ("gravity", float, 3), ("lower", float, -1),
+                                   ("upper", float, -1)):
+            set_(name, _frozen(getattr(self, name), dtype).reshape(shape))
         if len(self.joint_names) != nj or len(self.body_inertias) != nb:
             raise ValueError("Model: joints/joint_names and body_names/body_inertias must have equal lengths")
         if any(not -1 <= p < i for i, p in enumerate(self.parents)):
