@@ -4,6 +4,8 @@ Public names are listed in ``docs/api.md``; conventions (vector ordering, frames
 ``docs/conventions.md``.
 """
 
+import importlib
+
 from . import inertia, joints, robots, spatial
 from .driver import get_num_threads, set_num_threads
 from .contact import ContactPair, Ground, JointLimits
@@ -65,20 +67,14 @@ from . import variational
 def __getattr__(name):
     # The symbolic front-end (and SymPy with it) is imported on first use only.
     if name in ("LagrangianSystem", "generalized_forces", "symbolic"):
-        import importlib
-
         symbolic = importlib.import_module("multibody.symbolic")
         return symbolic if name == "symbolic" else getattr(symbolic, name)
     # Figures (and matplotlib with them) likewise; and batches on a Dask cluster (the [dask] extra).
     if name in ("plotting", "distributed"):
-        import importlib
-
         return importlib.import_module(f"multibody.{name}")
     # The 3-D viewer (and Viser with it) too; mb.view raises an ImportError naming the [viz] extra
     # when Viser is missing.
     if name in ("view", "viewer"):
-        import importlib
-
         viewer = importlib.import_module("multibody.viewer")
         return viewer if name == "viewer" else viewer.view
     raise AttributeError(f"module 'multibody' has no attribute {name!r}")
