@@ -351,21 +351,24 @@ def test_plain_python_gives_the_compiled_numbers(tmp_path):
 
 @pytest.mark.parametrize("kind", ["revolute", "prismatic"])
 def test_one_coordinate_factor_equals_general(kind):
-    """ABA's path for a joint of one coordinate (:func:`aba.factor_single`, scalar ``D``) gives the ``U``,
-    ``U D⁻¹``, ``D⁻¹`` and ``I^a = I^A − U D⁻¹ Uᵀ`` of the general factorisation (:func:`aba.factor_joint`,
-    ``D`` inverted by its LDLᵀ factor) to 1e-13, for random symmetric positive definite articulated inertias,
-    subspace columns of unit axes (principal and not) moved by random poses, and armatures."""
+    """ABA's path for a joint of one coordinate (:func:`aba.factor_single`, scalar ``D``, and :func:`aba.add_reduced`
+    adding ``I^a = I^A − U D⁻¹ Uᵀ`` to the parent's) gives the ``U``, ``U D⁻¹``, ``D⁻¹`` and ``I^a`` of the general
+    factorisation (:func:`aba.factor_joint`, ``D`` inverted by its LDLᵀ factor, ``I^a`` in place) to 1e-13, for random
+    symmetric positive definite articulated inertias (packed), subspace columns of unit axes (principal and not)
+    moved by random poses, and armatures; and leaves the joint's ``I^A`` as it is."""
     from multibody.kernels import joints as kinds
     from multibody.kernels.spatial import motion_to_parent
     from multibody.tree import ARMATURE, REAL_SIZE
 
     code = kinds.REVOLUTE if kind == "revolute" else kinds.PRISMATIC
     rng = np.random.default_rng(11 + code)
+    upper = np.triu_indices(6)
     axes = [(0.0, 0.0, 1.0), (0.0, -1.0, 0.0), (1.0, 0.0, 0.0)] + [tuple(a / np.linalg.norm(a))
                                                                      for a in rng.standard_normal((5, 3))]
     for axis in axes:
         G = rng.standard_normal((6, 6))
         inertia = G @ G.T + 0.1 * np.eye(6)
+        packed = inertia[upper]
         arm = float(rng.uniform(0.0, 0.5))
         reals = np.zeros((1, REAL_SIZE))
         reals[0, ARMATURE] = arm
@@ -373,23 +376,36 @@ def test_one_coordinate_factor_equals_general(kind):
         R = np.linalg.qr(rng.standard_normal((3, 3)))[0]
         s = motion_to_parent(tuple(R.ravel()), tuple(rng.standard_normal(3)), kinds.subspace_column(code, axis, 0))
         at = 7  # the matrix anywhere in the workspace
-        single = np.full(at + 36 + 7, np.nan)
-        single[at : at + 36] = inertia.ravel()
+        single = np.full(at + aba.PACKED + 7, np.nan)
+        single[at : at + aba.PACKED] = packed
         block, scratch = np.full(aba.BLOCK, np.nan), np.full(108, np.nan)
-        block[aba.ARTICULATED : aba.ARTICULATED + 36] = inertia.ravel()
+        block[aba.ARTICULATED : aba.ARTICULATED + aba.PACKED] = packed
         block[aba.SUBSPACE : aba.SUBSPACE + 6] = s
         U, U_D, d_inv = aba.factor_single(single, at, s, arm)
+        reduced = np.zeros(aba.PACKED + 3)
+        aba.add_reduced(single, at, U_D, U, reduced, 3)
         aba.factor_joint(1, reals, 0, block, scratch)
         scale = np.abs(inertia).max()
         np.testing.assert_allclose(U, scratch[:6], rtol=0, atol=1e-13 * scale)
         np.testing.assert_allclose(U_D, block[aba.U_D_INV : aba.U_D_INV + 6], rtol=0, atol=1e-13)
         assert d_inv == pytest.approx(scratch[72], rel=1e-13)
-        np.testing.assert_allclose(single[at : at + 36], block[aba.ARTICULATED : aba.ARTICULATED + 36], rtol=0,
+        np.testing.assert_allclose(reduced[3:], block[aba.ARTICULATED : aba.ARTICULATED + aba.PACKED], rtol=0,
                                    atol=1e-13 * scale)
-        # the path's I^a is exactly symmetric, as the general one
-        I_a = single[at : at + 36].reshape(6, 6)
-        assert np.array_equal(I_a, I_a.T)
-        assert np.isnan(single[:at]).all() and np.isnan(single[at + 36 :]).all()
+        assert np.array_equal(reduced[:3], np.zeros(3))
+        # the joint's own I^A is read, not written
+        assert np.array_equal(single[at : at + aba.PACKED], packed)
+        assert np.isnan(single[:at]).all() and np.isnan(single[at + aba.PACKED :]).all()
+
+
+def test_packed_index_walks_the_upper_triangle_by_rows():
+    """:func:`aba.packed_index` numbers the upper triangle of a 6×6 row by row, 0 to 20, as NumPy's
+    ``triu_indices`` orders it; :func:`aba.matrix_times` of the packed triangle is the symmetric matrix's product."""
+    rows, columns = np.triu_indices(6)
+    assert [aba.packed_index(int(r), int(c)) for r, c in zip(rows, columns)] == list(range(aba.PACKED))
+    rng = np.random.default_rng(5)
+    G = rng.standard_normal((6, 6))
+    Y, m = G + G.T, rng.standard_normal(6)
+    np.testing.assert_allclose(aba.matrix_times(Y[rows, columns], 0, tuple(m)), Y @ m, rtol=1e-14, atol=1e-14)
 
 
 @pytest.mark.parametrize("kind", ["revolute", "prismatic"])

@@ -11,14 +11,15 @@ joint's ``D = Sᵀ I^A S + diag(armature)`` (Pinocchio's ``aba``, which adds it 
 ``(M_bodies + diag(armature)) q̈ = τ − h``, the ``M`` of :func:`multibody.kernels.crba.mass_matrix`.
 
 Articulated inertias are symmetric 6×6 matrices acting on motions to give forces (linear rows and
-columns first), kept row-major with both triangles equal: each update computes the upper triangle and
-mirrors it. A joint's ``S`` and ``U D⁻¹`` are kept by columns (column ``k`` at ``6 k``), ``U = I^A S`` too,
+columns first), kept packed as their upper triangle, row by row (21 floats, :func:`packed_index`): each update
+computes and stores only those entries, and a product reads each once. A joint's ``S`` and ``U D⁻¹`` are kept by columns (column ``k`` at ``6 k``), ``U = I^A S`` too,
 ``D = Sᵀ U`` and ``D⁻¹`` as the leading ``nv_i × nv_i`` block of a row-major 6×6. Each joint's data is a block
 of :data:`BLOCK` floats of the flat workspace, addressed by offsets (a reshaped view would cost a call into
 Numba's runtime per view and call). A joint of one coordinate (revolute, prismatic) takes a path of its
-own whose ``D`` is a scalar, with the same arithmetic as the general one. The per-joint helpers of that
-path are inlined at Numba's IR level (``inline="always"``): LLVM leaves them as calls, which pass their
-tuples through memory.
+own whose ``D`` is a scalar, with the same arithmetic as the general one; it leaves ``I^A`` as it is and adds
+``I^a = I^A − U D⁻¹ Uᵀ`` to the parent's in the same pass, with ``I^a c = I^A c − U D⁻¹ (Uᵀ c)``, so that the
+joint's articulated inertia is read twice and written never. The per-joint helpers of that path are inlined at
+Numba's IR level (``inline="always"``): LLVM leaves them as calls, which pass their tuples through memory.
 
 The pass down the tree has every body's velocity and world inertia at hand, so :func:`articulated_body` also
 gives the mechanical energy of the state on request (:mod:`multibody.kernels.energy` defines it): a
@@ -40,16 +41,18 @@ from .spatial import (add6, compose, dot3, dot6, force_cross, force_to_parent, i
 ZERO6 = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 
 #: Offsets in a joint's block of the workspace (joint i's starts at ``BLOCK i``): its pose in the world
-#: (``R`` row-major, then ``p``), articulated inertia (6×6), ``U D⁻¹`` (by columns), ``S`` (by columns), velocity,
+#: (``R`` row-major, then ``p``), articulated inertia (packed, 21), ``U D⁻¹`` (by columns), ``S`` (by columns), velocity,
 #: bias acceleration ``c``, bias force ``p^A``, acceleration and ``D⁻¹ u``, all in world axes about ``o``; the scratch
 #: blocks ``U``, ``D``, ``D⁻¹`` (6×6 each) follow the last joint's block, then the kinetic and the potential
 #: energy (:func:`energy_offset`).
-POSE, ARTICULATED, U_D_INV, SUBSPACE, VELOCITY, BIAS, BIAS_FORCE, ACCELERATION, W, BLOCK = (0, 12, 48, 84, 120, 126,
-                                                                                         132, 138, 144, 150)
+POSE, ARTICULATED, U_D_INV, SUBSPACE, VELOCITY, BIAS, BIAS_FORCE, ACCELERATION, W, BLOCK = (0, 12, 33, 69, 105, 111,
+                                                                                         117, 123, 129, 135)
+#: Floats of a packed symmetric 6×6 (its upper triangle).
+PACKED = 21
 
 
 def workspace_size(nj, nv):
-    """Floats of workspace one state needs: per joint its pose in the world (12), articulated inertia (36),
+    """Floats of workspace one state needs: per joint its pose in the world (12), articulated inertia (21),
     ``U D⁻¹`` and ``S`` (36 each) and five 6-vectors (velocity, bias acceleration, bias force, acceleration,
     ``D⁻¹ u``); three 6×6 scratch blocks (``U``, ``D`` and its factor, ``D⁻¹``); the two energies."""
     return BLOCK * nj + 110
@@ -63,28 +66,51 @@ def energy_offset(nj):
 
 
 # ----------------------------------------------------------------------------- 6×6 helpers
-# ``Y`` is the flat workspace and ``at`` the offset of a row-major 6×6 in it.
+# ``Y`` is the flat workspace and ``at`` the offset of a packed symmetric 6×6 in it.
+
+@njit(cache=True, error_model="numpy", inline="always")
+def packed_index(r, c):
+    """Where entry ``(r, c)``, ``r ≤ c``, of a symmetric 6×6 sits in its packed upper triangle: row ``r`` starts
+    after the ``6 + 5 + … + (7 − r)`` entries of the rows above it."""
+    return 6 * r - (r * (r - 1)) // 2 + c - r
+
 
 @njit(cache=True, error_model="numpy", inline="always")
 def rigid_to_matrix(I, Y, at):
-    """``Y = [[m 1, −[h]×], [[h]×, Ī]]``: the 6×6 matrix of the inertia 10-tuple ``I`` (RBDA eq. 2.63)."""
+    """``Y = [[m 1, −[h]×], [[h]×, Ī]]``: the 6×6 matrix of the inertia 10-tuple ``I`` (RBDA eq. 2.63), packed."""
     m, hx, hy, hz = I[0], I[1], I[2], I[3]
-    rows = ((m, 0.0, 0.0, 0.0, hz, -hy),
-            (0.0, m, 0.0, -hz, 0.0, hx),
-            (0.0, 0.0, m, hy, -hx, 0.0),
-            (0.0, -hz, hy, I[4], I[5], I[6]),
-            (hz, 0.0, -hx, I[5], I[7], I[8]),
-            (-hy, hx, 0.0, I[6], I[8], I[9]))
-    for r in range(6):
-        for c in range(6):
-            Y[at + 6 * r + c] = rows[r][c]
+    upper = (m, 0.0, 0.0, 0.0, hz, -hy,
+             m, 0.0, -hz, 0.0, hx,
+             m, hy, -hx, 0.0,
+             I[4], I[5], I[6],
+             I[7], I[8],
+             I[9])
+    for k in range(PACKED):
+        Y[at + k] = upper[k]
 
 
 @njit(cache=True, error_model="numpy", inline="always")
 def matrix_times(Y, at, m):
-    """``Y m`` for a 6×6 ``Y`` and a 6-tuple ``m``."""
-    return (dot6(load6(Y, at), m), dot6(load6(Y, at + 6), m), dot6(load6(Y, at + 12), m),
-            dot6(load6(Y, at + 18), m), dot6(load6(Y, at + 24), m), dot6(load6(Y, at + 30), m))
+    """``Y m`` for a packed symmetric 6×6 ``Y`` and a 6-tuple ``m``, each row summed from its first column."""
+    y0, y1, y2, y3, y4, y5, y6 = Y[at], Y[at + 1], Y[at + 2], Y[at + 3], Y[at + 4], Y[at + 5], Y[at + 6]
+    y7, y8, y9, y10, y11, y12, y13 = Y[at + 7], Y[at + 8], Y[at + 9], Y[at + 10], Y[at + 11], Y[at + 12], Y[at + 13]
+    y14, y15, y16, y17, y18, y19, y20 = (Y[at + 14], Y[at + 15], Y[at + 16], Y[at + 17], Y[at + 18], Y[at + 19],
+                                         Y[at + 20])
+    return (dot6((y0, y1, y2, y3, y4, y5), m), dot6((y1, y6, y7, y8, y9, y10), m),
+            dot6((y2, y7, y11, y12, y13, y14), m), dot6((y3, y8, y12, y15, y16, y17), m),
+            dot6((y4, y9, y13, y16, y18, y19), m), dot6((y5, y10, y14, y17, y19, y20), m))
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def add_reduced(Y, at, UD, U, P, to):
+    """``P += Y − (U D⁻¹) Uᵀ`` for packed symmetric 6×6 ``Y`` (at ``Y[at:]``) and ``P`` (at ``P[to:]``) and the
+    6-tuples ``U D⁻¹`` and ``U`` of a joint of one coordinate: its ``I^a`` added to its parent's ``I^A``."""
+    k = 0
+    for r in range(6):
+        for c in range(r, 6):
+            # I^a_rc = I^A_rc − (U D⁻¹)_r U_c
+            P[to + k] += Y[at + k] - UD[r] * U[c]
+            k += 1
 
 
 @njit(cache=True, error_model="numpy")
@@ -125,22 +151,16 @@ def invert_symmetric(n, X, d, d_inv):
 
 @njit(cache=True, error_model="numpy", inline="always")
 def factor_single(Y, at, s, armature_0):
-    """:func:`factor_joint` of a joint of one coordinate with subspace column ``s`` (a 6-tuple) and armature
-    ``armature_0``: returns ``(U, U D⁻¹, D⁻¹)`` (two 6-tuples and a scalar, NaN where ``D`` is not positive) and
-    leaves ``I^a = I^A − U D⁻¹ Uᵀ`` in place of ``I^A`` at ``Y[at:]``."""
+    """:func:`factor_joint` of a joint of one coordinate with subspace column ``s`` (a 6-tuple), armature
+    ``armature_0`` and articulated inertia ``I^A`` packed at ``Y[at:]``, which it leaves as it is: returns ``(U,
+    U D⁻¹, D⁻¹)`` (two 6-tuples and a scalar, NaN where ``D`` is not positive); ``I^a = I^A − U D⁻¹ Uᵀ`` is
+    :func:`add_reduced`'s."""
     # U = I^A S
     U = matrix_times(Y, at, s)
     # D = Sᵀ U + armature
     D = dot6(s, U) + armature_0
     d_inv = 1.0 / D if D > 0.0 else math.nan
-    UD = scale6(d_inv, U)
-    for r in range(6):
-        for c in range(r, 6):
-            # I^a = I^A − U D⁻¹ Uᵀ (symmetric: the upper triangle, mirrored)
-            x = Y[at + 6 * r + c] - UD[r] * U[c]
-            Y[at + 6 * r + c] = x
-            Y[at + 6 * c + r] = x
-    return U, UD, d_inv
+    return U, scale6(d_inv, U), d_inv
 
 
 @njit(cache=True, error_model="numpy")
@@ -148,7 +168,8 @@ def factor_joint(nv, reals, i, J, X):
     """For joint i of ``nv`` coordinates, its block ``J`` of the workspace (:data:`BLOCK`) with its articulated
     inertia ``I^A`` and motion subspace ``S`` (RBDA Table 7.1): ``U = I^A S`` (by columns, at ``X[0:]``),
     ``D = Sᵀ U + diag(armature)`` (the armature of joint i's coordinates in ``reals``; at ``X[36:]``, overwritten by
-    its factor), ``D⁻¹`` (at ``X[72:]``), ``U D⁻¹`` into ``J``, and ``I^a = I^A − U D⁻¹ Uᵀ`` in place of ``I^A``."""
+    its factor), ``D⁻¹`` (at ``X[72:]``), ``U D⁻¹`` into ``J``, and ``I^a = I^A − U D⁻¹ Uᵀ`` in place of ``I^A``
+    (packed)."""
     U, D, D_inv = 0, 36, 72
     for k in range(nv):
         # U = I^A S
@@ -170,12 +191,12 @@ def factor_joint(nv, reals, i, J, X):
             J[U_D_INV + 6 * k + r] = x
     for r in range(6):
         for c in range(r, 6):
-            # I^a = I^A − U D⁻¹ Uᵀ (symmetric: the upper triangle, mirrored)
-            x = J[ARTICULATED + 6 * r + c]
+            # I^a = I^A − U D⁻¹ Uᵀ (symmetric: the upper triangle)
+            at = ARTICULATED + packed_index(r, c)
+            x = J[at]
             for k in range(nv):
                 x -= J[U_D_INV + 6 * k + r] * X[U + 6 * k + c]
-            J[ARTICULATED + 6 * r + c] = x
-            J[ARTICULATED + 6 * c + r] = x
+            J[at] = x
 
 
 # ----------------------------------------------------------------------------- kernels
@@ -250,18 +271,24 @@ def articulated_body(joints, reals, q, v, tau, f_ext, qdd, ws, energy):
         J = ws[BLOCK * i : BLOCK * (i + 1)]
         parent, iv, nv = joints[i, PARENT], joints[i, IV], joints[i, NV]
         p_i = load6(J, BIAS_FORCE)
-        p_a = ZERO6
         if nv == 1:
             s = load6(J, SUBSPACE)
-            # U_i = I^A_i S_i ;  D_i = S_iᵀ U_i + armature_i ;  I^a_i = I^A_i − U_i D_i⁻¹ U_iᵀ (in place)
+            # U_i = I^A_i S_i ;  D_i = S_iᵀ U_i + armature_i
             U_0, U_D_0, d_inv = factor_single(J, ARTICULATED, s, armature(reals, i, 0))
             store(J, U_D_INV, U_D_0)
             # w_i = D_i⁻¹ u_i = D_i⁻¹ (τ_i − S_iᵀ p^A_i)
             w_0 = d_inv * ((tau[iv] if torqued else 0.0) - dot6(s, p_i))
             J[W] = w_0
             if parent >= 0:
+                c_i = load6(J, BIAS)
+                # I^a_i c_i = I^A_i c_i − U_i D_i⁻¹ (U_iᵀ c_i)
+                I_c = sub6(matrix_times(J, ARTICULATED, c_i), scale6(dot6(U_0, c_i), U_D_0))
                 # p^a_i = p^A_i + I^a_i c_i + U_i w_i
-                p_a = add6(add6(p_i, matrix_times(J, ARTICULATED, load6(J, BIAS))), scale6(w_0, U_0))
+                p_a = add6(add6(p_i, I_c), scale6(w_0, U_0))
+                P = ws[BLOCK * parent : BLOCK * (parent + 1)]
+                # I^A_λ(i) += I^a_i = I^A_i − U_i D_i⁻¹ U_iᵀ ;  p^A_λ(i) += p^a_i   (both in the same axes about o)
+                add_reduced(J, ARTICULATED, U_D_0, U_0, P, ARTICULATED)
+                store(P, BIAS_FORCE, add6(load6(P, BIAS_FORCE), p_a))
         else:
             # U_i = I^A_i S_i ;  D_i = S_iᵀ U_i + diag(armature_i) ;  I^a_i = I^A_i − U_i D_i⁻¹ U_iᵀ (in place)
             factor_joint(nv, reals, i, J, X)
@@ -277,12 +304,11 @@ def articulated_body(joints, reals, q, v, tau, f_ext, qdd, ws, energy):
                 p_a = add6(p_i, matrix_times(J, ARTICULATED, load6(J, BIAS)))
                 for k in range(nv):
                     p_a = add6(p_a, scale6(J[W + k], load6(X, 6 * k)))
-        if parent >= 0:
-            P = ws[BLOCK * parent : BLOCK * (parent + 1)]
-            # I^A_λ(i) += I^a_i ;  p^A_λ(i) += p^a_i   (both in the same axes about o)
-            for k in range(36):
-                P[ARTICULATED + k] += J[ARTICULATED + k]
-            store(P, BIAS_FORCE, add6(load6(P, BIAS_FORCE), p_a))
+                P = ws[BLOCK * parent : BLOCK * (parent + 1)]
+                # I^A_λ(i) += I^a_i ;  p^A_λ(i) += p^a_i   (both in the same axes about o)
+                for k in range(PACKED):
+                    P[ARTICULATED + k] += J[ARTICULATED + k]
+                store(P, BIAS_FORCE, add6(load6(P, BIAS_FORCE), p_a))
     a_0 = (-g[0], -g[1], -g[2], 0.0, 0.0, 0.0)
     for i in range(nj):
         J = ws[BLOCK * i : BLOCK * (i + 1)]
