@@ -652,3 +652,67 @@ def test_the_run_records_the_energy_of_each_step_start(monkeypatch, controller):
     reference = mb.kinetic_energy(model, trajectory.q, trajectory.v) + mb.potential_energy(model, trajectory.q)
     assert np.isfinite(trajectory.energy).all()
     np.testing.assert_allclose(trajectory.energy, reference, rtol=1e-12, atol=1e-12 * np.abs(reference).max())
+
+
+
+def vector_space_chain():
+    """A tree of every joint kind of a vector space (revolute about a principal and a skew axis, prismatic,
+    translation), its bodies' centres off the joint frames, with armature and damping."""
+    builder = mb.ModelBuilder("vector chain")
+    rng = np.random.default_rng(3)
+    joints = [mb.joints.Revolute((0.0, 0.0, 1.0)), mb.joints.Revolute((0.6, 0.0, 0.8)),
+              mb.joints.Prismatic((0.0, 1.0, 0.0)), mb.joints.Translation(), mb.joints.Revolute((-1.0, 0.0, 0.0))]
+    parent = None
+    for k, joint in enumerate(joints):
+        placement = np.eye(4)
+        rotation = np.linalg.qr(rng.standard_normal((3, 3)))[0]
+        placement[:3, :3] = rotation * np.sign(np.linalg.det(rotation))
+        placement[:3, 3] = rng.uniform(-0.3, 0.3, 3)
+        inertia = mb.inertia.box(float(rng.uniform(0.5, 2.0)), rng.uniform(0.1, 0.4, 3), rng.uniform(-0.2, 0.2, 3))
+        parent = builder.add_body(f"b{k}", joint, parent=parent, placement=placement, inertia=inertia,
+                                  damping=float(rng.uniform(0.0, 0.5)), armature=float(rng.uniform(0.0, 0.1)))
+    return builder.build()
+
+
+@pytest.mark.parametrize("method", FIXED)
+def test_the_vector_space_steps_equal_the_charted_steps(method):
+    """A run on a vector space without constraints takes its stages straight in ``[q, v]``
+    (:func:`multibody.kernels.stepping.vector_space_steps`): from random states of a chain of every vector-space joint
+    kind, with each controller that is not Python and with joint damping, its states equal the general run's through
+    the chart maps (the identity there) to 1e-13, and the energies it records those of its states to 1e-12."""
+    from multibody.kernels import aba
+
+    model = vector_space_chain()
+    tree, nq, nv = model.tree, model.nq, model.nv
+    assert model.is_vector_space and nq == nv
+    rng = np.random.default_rng(7)
+    times = np.linspace(0.0, 0.05, 51)
+
+    @numba.njit
+    def compiled(t, q, v, out):
+        for c in range(q.shape[0]):
+            out[c] = -3.0 * q[c] - 0.5 * v[c] + np.sin(t)
+
+    controllers = [None, rng.standard_normal(nv), integrators.as_controller(mb.PD(20.0, 1.0, rng.standard_normal(nq)),
+                                                                           model),
+                   integrators.as_controller(compiled, model)]
+    tableau = integrators.TABLEAUS[method]
+    for controller in controllers:
+        for damping in (None, model.damping):
+            q0, v0 = rng.uniform(-1.0, 1.0, nq), rng.uniform(-2.0, 2.0, nv)
+            results = []
+            for charts in (False, True):
+                run = integrators.CompiledRun(tree, tree.bodies, np.zeros(0), nv,
+                                              aba.workspace_size(model.njoints, nv), None, charts, tableau, controller,
+                                              damping, None, -np.inf, times, nq, nv)
+                states = np.full((len(times), nq + nv), np.nan)
+                states[0] = np.concatenate([q0, v0])
+                assert run.advance(states, 1, len(times)) == (len(times), stepping.COMPLETED)
+                results.append((states, run.energies.copy()))
+            (fast, energy), (general, _) = results
+            assert np.isfinite(fast).all()
+            np.testing.assert_allclose(fast, general, rtol=0, atol=1e-13 * np.abs(general).max())
+            q, v = fast[:-1, :nq], fast[:-1, nq:]
+            if method != "semi-implicit Euler":  # (whose first stage evaluates no accelerations)
+                reference = mb.kinetic_energy(model, q, v) + mb.potential_energy(model, q)
+                np.testing.assert_allclose(energy[:-1], reference, rtol=1e-12, atol=1e-12 * np.abs(reference).max())

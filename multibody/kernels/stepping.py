@@ -344,6 +344,76 @@ def settle(joints, reals, frames, program, settings, tolerance, near_singular, n
     return COMPLETED, projected[0, columns - 3] < near_singular, moved > tolerance
 
 
+@njit(cache=True, error_model="numpy", inline="always")
+def vector_space_steps(controller, joints, reals, times, s, kind, control, damped, damping, c_nodes, a_delta, a_w,
+                       b_delta, b_w, accelerations, states, io, K, y, tau, scratch, step_ws, energies, recorded):
+    """:func:`advance`'s steps on a vector space without constraints (``nq = nv``, no chart: ``q = q₀ + δ``,
+    ``v = w``, each stage's rates ``K_i = [v_i, a_i]`` by ABA alone) with a controller that is not Python: the same
+    stages, written straight into a stage state ``[q_i, v_i]`` (``states[k − 1]`` holds ``[q₀, v₀]``),
+
+        q_i = q₀ + h Σ_j a^δ_ij v_j,     v_i = v₀ + h Σ_j a^w_ij a_j,     a_i = ABA(q_i, v_i, τ(t_i, q_i, v_i) − D v_i)
+
+    and ``[q⁺, v⁺]`` into ``states[k]`` by the weights ``b``: the arithmetic of the chart state (``δ₀ = 0``), without
+    its copies. ABA writes ``a_i`` into ``K_i``; ``y (2 nv)`` holds the stage state, ``scratch`` the PD law's. The
+    status is :func:`advance`'s."""
+    nv = K.shape[1] // 2
+    k, stop = int(io[IO_STEP]), int(io[IO_STOP])
+    none = K[0, :0]
+    while k < stop:
+        t0 = times[k - 1]
+        h = times[k] - t0
+        start = states[k - 1]
+        q, v = y[:nv], y[nv:]
+        for i in range(s):
+            t = t0 + c_nodes[i] * h
+            # v_i = v₀ + h Σ_j a^w_ij a_j
+            weighted_sum(start, h, a_w[i, :i], K, nv, 2 * nv, y)
+            if accelerations[i] == 0.0:
+                # v_i alone
+                for c in range(nv):
+                    K[i, c] = v[c]
+                    K[i, nv + c] = 0.0
+                continue
+            # q_i = q₀ + h Σ_j a^δ_ij v_j
+            weighted_sum(start, h, a_delta[i, :i], K, 0, nv, y)
+            if not all_finite(y):
+                io[IO_STEP], io[IO_STAGE], io[IO_STATUS] = k, 0, STAGE_UNSOLVED
+                return
+            if not stage_torque(controller, joints, kind, control, t, q, v, tau, scratch):
+                io[IO_TIME] = t
+                for c in range(nv):
+                    io[IO_HEADER + 2 * nv + c] = tau[c]
+                io[IO_STEP], io[IO_STAGE], io[IO_STATUS] = k, 0, NON_FINITE_TORQUE
+                return
+            if damped:
+                # − D v
+                for c in range(nv):
+                    tau[c] = tau[c] - damping[c] * v[c]
+            # a_i, and the energy of the step's start from its first stage's ABA at exactly that state
+            energy = recorded and i == 0
+            a = K[i, nv:]
+            aba.articulated_body(joints, reals, q, v, tau, none, a, step_ws, energy)
+            if energy:
+                at = aba.energy_offset(joints.shape[0])
+                # E = T + U
+                energies[k - 1] = step_ws[at] + step_ws[at + 1]
+            for c in range(nv):
+                K[i, c] = v[c]
+            if not all_finite(a):
+                io[IO_STEP], io[IO_STAGE], io[IO_STATUS] = k, 0, STAGE_UNSOLVED
+                return
+        # [q⁺, v⁺] = [q₀, v₀] + h Σ_i [b^δ_i v_i, b^w_i a_i]
+        end = states[k]
+        weighted_sum(start, h, b_delta, K, 0, nv, end)
+        weighted_sum(start, h, b_w, K, nv, 2 * nv, end)
+        if not all_finite(end):
+            io[IO_TIME] = times[k]
+            io[IO_STEP], io[IO_STAGE], io[IO_STATUS] = k, 0, NON_FINITE_STATE
+            return
+        k += 1
+    io[IO_STEP], io[IO_STAGE], io[IO_STATUS] = k, 0, COMPLETED
+
+
 @njit(cache=True, error_model="numpy")
 def advance(controller, joints, reals, frames, program, times, plan, control, states, io, ws):
     """Steps ``io[IO_STEP]`` up to ``io[IO_STOP]`` (exclusive) of one trajectory: ``states (n, nq + nv)`` holds
@@ -413,6 +483,11 @@ def advance(controller, joints, reals, frames, program, times, plan, control, st
     recorded = (plan[PLAN_ENERGY] != 0.0 and not charts and program.shape[0] == 0 and accelerations[0] != 0.0
                 and energies.shape[0] >= times.shape[0])
 
+    if not charts and program.shape[0] == 0 and nq == nv and kind != PYTHON and not project:
+        vector_space_steps(controller, joints, reals, times, s, kind, control, damped, damping, c_nodes, a_delta, a_w,
+                           b_delta, b_w, accelerations, states, io, K, maps[: 2 * nv], tau, scratch, step_ws, energies,
+                           recorded)
+        return
     k, stop = int(io[IO_STEP]), int(io[IO_STOP])
     first_stage = int(io[IO_STAGE])
     given = io[IO_TORQUE_GIVEN] != 0.0
