@@ -28,18 +28,13 @@ import numpy as np
 INSTALL_HINT = "multibody.distributed needs Dask's distributed scheduler: pip install 'multibody[dask]'"
 
 
-def _distributed():
+@contextlib.contextmanager
+def _connected(client):
+    """The client to use: ``client``, else the current one, else one of a ``LocalCluster`` for this call."""
     try:
         import distributed
     except ImportError as error:
         raise ImportError(INSTALL_HINT) from error
-    return distributed
-
-
-@contextlib.contextmanager
-def _connected(client):
-    """The client to use: ``client``, else the current one, else one of a ``LocalCluster`` for this call."""
-    distributed = _distributed()
     if client is None:
         try:
             client = distributed.get_client()
