@@ -1243,17 +1243,15 @@ def _build(root, tree, reader, meshes, gravity):
     compiler = reader.compiler
     bodies = tree.bodies
     taken = {body.name for body in bodies if body.name} | {"world"}
-    for body in bodies:
+    names, index = [], {}
+    for k, body in enumerate(bodies):
         if body.name == "world":
             raise body.node.error("the name 'world' is the world body's")
-    names = []
-    for k, body in enumerate(bodies):
         names.append(body.name if body.name else _unique(f"body_{k + 1}", taken))
+        if names[-1] in index:
+            raise body.node.error(f"body {names[-1]!r} is defined twice")
+        index[names[-1]] = k
         taken.add(names[-1])
-    index = {name: k for k, name in enumerate(names)}
-    if len(index) != len(names):
-        duplicate = next(name for k, name in enumerate(names) if names.index(name) != k)
-        raise bodies[names.index(duplicate, names.index(duplicate) + 1)].node.error(f"body {duplicate!r} is defined twice")
     joint_list = [joint for body in bodies for joint in body.joints]
     taken = {joint.name for joint in joint_list if joint.name}
     joints = {}
