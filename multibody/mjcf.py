@@ -454,11 +454,6 @@ def _translation(p):
     return spatial.pose_matrix(np.eye(3), p)
 
 
-def _inverse(X):
-    """``X⁻¹`` of a pose ``(4, 4)``."""
-    return spatial.pose_matrix(*spatial.inverse_pose(X[:3, :3], X[:3, 3]))
-
-
 # ----------------------------------------------------------------------------- defaults
 
 
@@ -1095,7 +1090,7 @@ def _equalities(sections, reader, defaults, report, tree, names, sites, joints):
                 if tag == "connect":
                     # anchor in body1; body2's point is where the anchor is at qpos0
                     frame_a = _translation(anchor)
-                    frame_b = _translation((_inverse(W2) @ W1 @ np.append(anchor, 1.0))[:3])
+                    frame_b = _translation((np.linalg.inv(W2) @ W1 @ np.append(anchor, 1.0))[:3])
                 else:
                     relpose = reader.numbers(node, attrs, "relpose", 7, np.array([0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0]))
                     frame_b = _translation(anchor)
@@ -1104,7 +1099,7 @@ def _equalities(sections, reader, defaults, report, tree, names, sites, joints):
                         frame_a = spatial.pose_matrix(_quat_rotation(tuple(relpose[3:]), node), relpose[:3])
                     else:
                         # the relative pose at qpos0
-                        frame_a = _inverse(W1) @ W2 @ frame_b
+                        frame_a = np.linalg.inv(W1) @ W2 @ frame_b
             out.append(LoopClosure(None if b1 < 0 else names[b1], None if b2 < 0 else names[b2], frame_a=frame_a,
                                    frame_b=frame_b, kind=kind, name=label))
     return out
