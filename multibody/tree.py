@@ -51,8 +51,7 @@ def compile_tree(model) -> CompiledTree:
         # Ī about the joint frame's origin: Ī_c − m [c]×²
         c = inertia.com
         rotational = inertia.rotational + inertia.mass * (c @ c * np.eye(3) - np.outer(c, c))
-        reals[i, INERTIA:ARMATURE] = (inertia.mass, *(inertia.mass * c), rotational[0, 0], rotational[0, 1],
-                                      rotational[0, 2], rotational[1, 1], rotational[1, 2], rotational[2, 2])
+        reals[i, INERTIA:ARMATURE] = (inertia.mass, *(inertia.mass * c), *rotational[np.triu_indices(3)])
         reals[i, ARMATURE:ARMATURE + joint.nv] = model.armature[model.idx_v[i] : model.idx_v[i] + joint.nv]
     reals[nj, GRAVITY:GRAVITY + 3] = model.gravity
     bodies = frame_rows(model, [(b, np.eye(4)) if model.body_joints[b] >= 0 else (None, model.body_placements[b])
