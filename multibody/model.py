@@ -114,9 +114,8 @@ def _per_dof_problem(values, size, finite):
         return None
     if np.any(np.isnan(values)) or (finite and not np.all(np.isfinite(values))):
         return f"must be {'finite' if finite else 'numbers (inf for none)'}, got {values.tolist()}"
-    if np.any(values < 0.0):
-        return f"must not be negative, got {values.tolist()}"
-    return None
+    # (what is left to fail the comparisons above is a negative entry)
+    return f"must not be negative, got {values.tolist()}"
 
 
 @dataclass(frozen=True, eq=False)
