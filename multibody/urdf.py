@@ -105,7 +105,7 @@ def _origin(ctx, element, path):
     return spatial.pose_from_xyz_rpy(xyz, rpy)
 
 
-def _inertial(ctx, link, path, invalid_inertia):
+def _inertial(ctx, link, path):
     """The link's :class:`Inertia` in the link frame, from ``<inertial>`` (massless when absent)."""
     inertial = link.find("inertial")
     if inertial is None:
@@ -125,12 +125,7 @@ def _inertial(ctx, link, path, invalid_inertia):
         ixx, ixy, ixz, iyy, iyz, izz = (get(k) for k in ("ixx", "ixy", "ixz", "iyy", "iyz", "izz"))
         tensor = np.array([[ixx, ixy, ixz], [ixy, iyy, iyz], [ixz, iyz, izz]])
     # The inertial frame may be offset and rotated from the link frame.
-    X_link_inertial = _origin(ctx, inertial, path)
-    inertia = Inertia(mass, np.zeros(3), tensor).transformed(X_link_inertial)
-    non_finite = [p for p in inertia.problems() if p.startswith("non-finite")]
-    if non_finite:
-        raise ctx.error(path, non_finite[0])
-    return inertia
+    return Inertia(mass, np.zeros(3), tensor).transformed(_origin(ctx, inertial, path))
 
 
 def _check_bodies(ctx, model, invalid_inertia):
@@ -382,7 +377,7 @@ def load_urdf(source, *, floating_base=False, package_dirs=None, invalid_inertia
 
     def add_link(name, parent, joint, joint_name, placement, lower=None, upper=None, dynamics=None):
         path = f"<link name='{name}'>"
-        inertia = _inertial(ctx, links[name], path, invalid_inertia)
+        inertia = _inertial(ctx, links[name], path)
         builder.add_body(name, joint, parent=parent, placement=placement, inertia=inertia,
                          joint_name=joint_name, lower=lower, upper=upper, **(dynamics or {}))
         for geometry in _geometries(ctx, links[name], path, base_dir, package_dirs):
