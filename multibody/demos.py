@@ -243,7 +243,7 @@ def animation_frames(t, quat, max_turn=0.45, max_interval=0.04, min_delay=0.02):
     return indices, delay, float(angles.max(initial=0.0))
 
 
-def _animate_ball(trajectory, contact, plane_xy, frames, delay, path, size=(6.4, 4.4), dpi=80):
+def _animate_ball(trajectory, contact, plane_xy, frames, delay, path, size=(6.4, 4.4)):
     """The GIF: the plane seen from above it, fixed in the world, the ball drawn to scale with two
     body-fixed great circles (their half facing the viewer), the contact path traced as it goes.
 
