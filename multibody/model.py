@@ -837,8 +837,7 @@ def suspicious_inertias(model, placeholder_mass=1e-5):
     """
     out = []
     for b, (name, inertia) in enumerate(zip(model.body_names, model.body_inertias)):
-        for problem in inertia.problems():
-            out.append(f"link {name!r}: {problem}")
+        out += [f"link {name!r}: {problem}" for problem in inertia.problems()]
         if 0.0 < inertia.mass < placeholder_mass:
             out.append(f"link {name!r}: placeholder mass {inertia.mass:g} kg")
         if inertia.mass > 0.0 and not np.any(inertia.rotational) and model.body_joints[b] >= 0:
