@@ -670,8 +670,9 @@ class CompiledRun:
     @property
     def energies(self):
         """``(n,)`` the energy (J) of each output state that the run recorded on the way (the stepping kernels'
-        :data:`~multibody.kernels.stepping.PLAN_ENERGY`), NaN where it did not (the last state, steps Python took, a
-        run with chart maps or constraints); a view of :attr:`io`."""
+        :data:`~multibody.kernels.stepping.PLAN_ENERGY`; in a vector space the last state's too), NaN where it did not
+        (steps Python took, a run with chart maps or constraints, a Python controller's last state); a view of
+        :attr:`io`."""
         return self.io[stepping.io_size(self.nq, self.nv) :]
 
     def advance(self, states, k, stop, torque=None, joint_forces=None):

@@ -1045,16 +1045,18 @@ def _batch_trajectory(constrained, times, q, v, stop, last, torque, state_depend
         at = valid[:, a:b]
         if not at.any():
             continue
+        # the energies the run recorded, and the others evaluated at their states alone
+        e = energy[:, a:b]
+        if recorded is not None:
+            np.copyto(e, recorded[:, a:b], where=at)
+        r_e, k_e = np.nonzero(at & np.isnan(e))
+        if r_e.size:
+            e[r_e, k_e] = _by_state(constrained.energy, (q[r_e, a + k_e], v[r_e, a + k_e]), (), batched)[0]
+        if not m:
+            np.copyto(residual[:, a:b], 0.0, where=at)
+            continue
         q_s, v_s = q[:, a:b][at], v[:, a:b][at]
         t_s = np.broadcast_to(times[a:b], at.shape)[at]
-        e_s = np.full(len(q_s), np.nan) if recorded is None else recorded[:, a:b][at]
-        missing = np.isnan(e_s)
-        if missing.any():
-            e_s[missing] = _by_state(constrained.energy, (q_s[missing], v_s[missing]), (), batched)[0]
-        energy[:, a:b][at] = e_s
-        if not m:
-            residual[:, a:b][at] = 0.0
-            continue
         # (every output state is a step's end, projected already where that moved it: RK4 steps once per
         # output interval)
         r_s, _ = _by_state(constrained.residual, (q_s, v_s, t_s), (), batched)

@@ -355,7 +355,8 @@ def vector_space_steps(controller, joints, reals, times, s, kind, control, dampe
 
     and ``[q⁺, v⁺]`` into ``states[k]`` by the weights ``b``: the arithmetic of the chart state (``δ₀ = 0``), without
     its copies. ABA writes ``a_i`` into ``K_i``; ``y (2 nv)`` holds the stage state, ``scratch`` the PD law's. The
-    status is :func:`advance`'s."""
+    status is :func:`advance`'s. Where ``recorded``, the energy (J) of each state a step starts from goes into
+    ``energies``, and that of the last output state too, once the run reaches it."""
     nv = K.shape[1] // 2
     k, stop = int(io[IO_STEP]), int(io[IO_STOP])
     none = K[0, :0]
@@ -411,6 +412,12 @@ def vector_space_steps(controller, joints, reals, times, s, kind, control, dampe
             io[IO_STEP], io[IO_STAGE], io[IO_STATUS] = k, 0, NON_FINITE_STATE
             return
         k += 1
+    if recorded and k == times.shape[0]:
+        # the energy of the last output state, from which no step starts: ABA's pass down the tree at it
+        last = states[k - 1]
+        aba.articulated_body(joints, reals, last[:nv], last[nv:], none, none, K[0, nv:], step_ws, True)
+        at = aba.energy_offset(joints.shape[0])
+        energies[k - 1] = step_ws[at] + step_ws[at + 1]
     io[IO_STEP], io[IO_STAGE], io[IO_STATUS] = k, 0, COMPLETED
 
 
