@@ -292,15 +292,16 @@ def inverse_kinematics(model, targets, q0=None, *, tol=1e-10, max_iterations=100
 
     # per problem: [R_WT (9), p_WT (3)] per frame (a position target leaves R_WT zero)
     packed = np.zeros(batch + (len(checked), 12))
-    target_kinds, m = [], 0
+    # each target's rows of the stacked error e: 6 for a pose, 3 for a position
+    sizes = [6 if is_pose else 3 for _, is_pose in checked.values()]
+    rows_start, m = np.cumsum([0] + sizes), sum(sizes)
     for k, (x, is_pose) in enumerate(checked.values()):
         if is_pose:
             packed[..., k, :9] = x[..., :3, :3].reshape(x.shape[:-2] + (9,))
             packed[..., k, 9:] = x[..., :3, 3]
         else:
             packed[..., k, 9:] = x
-        target_kinds.append(kernels.POSE if is_pose else kernels.POSITION)
-        m += 6 if is_pose else 3
+    target_kinds = [kernels.POSE if is_pose else kernels.POSITION for _, is_pose in checked.values()]
     packed = packed.reshape(batch + (12 * len(checked),))
     table = _restart_table(model, restarts * _CANDIDATES, rng)
     header = np.empty(kernels.KINDS)
@@ -316,10 +317,6 @@ def inverse_kinematics(model, targets, q0=None, *, tol=1e-10, max_iterations=100
 
     q, e = out[..., : model.nq].copy(), out[..., model.nq : model.nq + m]
     error = np.linalg.norm(e, axis=-1)
-    frame_errors, r = {}, 0
-    for name, (_, is_pose) in checked.items():
-        size = 6 if is_pose else 3
-        frame_errors[name] = e[..., r : r + size].copy()
-        r += size
+    frame_errors = {name: e[..., start : start + size].copy() for name, start, size in zip(checked, rows_start, sizes)}
     return InverseKinematicsResult(q=q, error=error, frame_errors=MappingProxyType(frame_errors),
                                    converged=error <= tol, iterations=out[..., -1].astype(int))
