@@ -339,15 +339,15 @@ def load_urdf(source, *, floating_base=False, package_dirs=None, invalid_inertia
             raise ctx.error(f"<link name='{name}'>", "duplicate link name")
         links[name] = link
 
-    children, parent_joint, joint_names = {}, {}, set()
+    children, parent_joint, joint_types = {}, {}, {}
     for joint in root.findall("joint"):
         name = joint.get("name")
         path = f"<joint name='{name}'>"
         if not name:
             raise ctx.error("<joint>", "missing attribute 'name'")
-        if name in joint_names:
+        if name in joint_types:
             raise ctx.error(path, "duplicate joint name")
-        joint_names.add(name)
+        joint_types[name] = joint.get("type")
         ends = {}
         for end in ("parent", "child"):
             element = joint.find(end)
@@ -368,7 +368,7 @@ def load_urdf(source, *, floating_base=False, package_dirs=None, invalid_inertia
     roots = [name for name in links if name not in parent_joint]
     if len(roots) != 1:
         if not roots:
-            raise ctx.error("<robot>", f"the joints {sorted(joint_names)} form a cycle: no link is without a parent")
+            raise ctx.error("<robot>", f"the joints {sorted(joint_types)} form a cycle: no link is without a parent")
         raise ctx.error("<robot>", f"several root links {roots}: a URDF must describe a single tree")
     root_link = roots[0]
 
@@ -417,9 +417,8 @@ def load_urdf(source, *, floating_base=False, package_dirs=None, invalid_inertia
         cycle = [parent_joint[name].get("name") for name in unreached if name in parent_joint]
         raise ctx.error("<robot>", f"the joints {cycle} form a cycle: links {unreached} are not reachable "
                                    f"from root {root_link!r}")
-    joint_types = {joint.get("name"): joint.get("type") for joint in root.findall("joint")}
     for mimic in mimics:
-        if mimic.mimicked in joint_names:
+        if mimic.mimicked in joint_types:
             if joint_types[mimic.mimicked] not in _ONE_COORDINATE_TYPES:
                 raise ctx.error(f"<joint name='{mimic.joint}'>/<mimic>",
                                 f"attribute joint={mimic.mimicked!r} names a {joint_types[mimic.mimicked]} joint; "
