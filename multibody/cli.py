@@ -216,16 +216,15 @@ def _serve(viewer, html=None):
     import time
 
     try:
-        if html is not None:
-            print(f"wrote {viewer.save_html(html)}")
-            return 0
-        print(f"3-D viewer at {viewer.url} (Ctrl-C to stop)", flush=True)
-        while True:
-            time.sleep(1.0)
+        with viewer:
+            if html is not None:
+                print(f"wrote {viewer.save_html(html)}")
+                return 0
+            print(f"3-D viewer at {viewer.url} (Ctrl-C to stop)", flush=True)
+            while True:
+                time.sleep(1.0)
     except KeyboardInterrupt:
         return 0
-    finally:
-        viewer.close()
 
 
 def cmd_view(args):
