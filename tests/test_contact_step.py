@@ -10,7 +10,8 @@ import pytest
 
 import multibody as mb
 from multibody.joints import FreeFlyer, Revolute
-from multibody.kernels import complementarity, crba, kinematics
+from multibody.contact import geometry_rows
+from multibody.kernels import complementarity, configuration, crba, kinematics
 from multibody.kernels import timestepping as ts
 
 from conftest import random_inertia, random_placement, random_tree_model
@@ -100,6 +101,60 @@ def ancestors(parent):
             A[k, i] = True
             i = parent[i]
     return A
+
+
+# ----------------------------------------------------------------------------- the step's geometry and chart
+
+
+@pytest.mark.parametrize("which", ["quadruped", "random tree"])
+def test_aligned_blocks_equal_the_dense_velocity_alignment(which):
+    """:func:`~multibody.kernels.timestepping.aligned_blocks` gives ``T(q) x`` and ``T(q)ᵀ x`` of
+    :func:`~multibody.kernels.configuration.velocity_alignment`'s dense ``T`` exactly (each joint's block alone: the
+    dense sums less their zero terms), on five random states of every joint kind."""
+    model = quadruped() if which == "quadruped" else random_tree_model(3)
+    tree, nv = model.tree, model.nv
+    rng = np.random.default_rng(4)
+    none = np.zeros(0)
+    for _ in range(5):
+        q, x = model.random_configuration(rng), rng.standard_normal(nv)
+        T = np.zeros((nv, nv))
+        configuration.velocity_alignment(tree.joints, tree.reals, np.zeros((0, 13)), q, none, none, none, T, none)
+        for transpose, dense in ((False, T), (True, T.T)):
+            # the dense product summed in the order of the coordinates, as the step's loop did
+            expected = [sum((float(a) * float(b) for a, b in zip(row, x)), 0.0) for row in dense]
+            out = np.full(nv, np.nan)
+            ts.aligned_blocks(tree.joints, q, x, np.full((nv, nv), np.nan), out, transpose)
+            np.testing.assert_array_equal(out, expected)
+
+
+def test_geometry_origin_is_the_position_of_world_pose():
+    """The broad phase's :func:`~multibody.kernels.timestepping.geometry_origin` equals the position of
+    :func:`~multibody.kernels.timestepping.world_pose` exactly for every geometry (on the trunk and at the legs' ends,
+    placed off their frames) of random states, as :func:`~multibody.kernels.kinematics.frame_position` equals
+    :func:`~multibody.kernels.kinematics.frame_pose`'s position."""
+    rng = np.random.default_rng(6)
+    b = mb.ModelBuilder("quadruped")
+    b.add_body("trunk", FreeFlyer(), inertia=random_inertia(rng))
+    b.add_collision("trunk", "box", (0.4, 0.2, 0.1), random_placement(rng))
+    for leg in range(4):
+        parent = "trunk"
+        for k, axis in enumerate(((1, 0, 0), (0, 1, 0), (0, 1, 0))):
+            name = f"leg{leg}_{k}"
+            b.add_body(name, Revolute(axis), parent=parent, placement=random_placement(rng), inertia=random_inertia(rng))
+            parent = name
+        b.add_collision(parent, "sphere", (0.02,), random_placement(rng))
+    model = b.build()
+    tree, geometry = model.tree, geometry_rows(model)
+    ws = np.zeros(kinematics.workspace_size(tree.joints.shape[0], model.nv))
+    R, p = np.zeros((3, 3)), np.zeros(3)
+    for _ in range(5):
+        q = model.random_configuration(rng)
+        q[:3] += rng.uniform(-100.0, 100.0, 3)
+        kinematics.joint_motions(tree.joints, tree.reals, q, rng.standard_normal(model.nv), ws, None)
+        pose = ws[: 12 * (tree.joints.shape[0] + 1)].reshape((-1, 12))
+        for g in range(len(geometry)):
+            ts.world_pose(pose, geometry, g, R, p)
+            np.testing.assert_array_equal(ts.geometry_origin(pose, geometry, g), p)
 
 
 # ----------------------------------------------------------------------------- the warm start's modes

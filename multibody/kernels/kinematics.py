@@ -36,7 +36,7 @@ from .layout import AXIS, FRAME_JOINT, FRAME_POSITION, FRAME_ROTATION, IV, KIND,
 from . import joints as kinds
 from .jit import njit
 from .placement import joint_pose
-from .spatial import (add3, add6, compose, cross, load3, load6, load9, motion_cross, motion_to_child,
+from .spatial import (add3, add6, compose, compose_rotations, cross, load3, load6, load9, motion_cross, motion_to_child,
                       nan_unless_finite, rotate, rotate_back, scale3, store, sub3)
 
 ZERO6 = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
@@ -156,10 +156,21 @@ def frame_pose(pose, frames, k):
     ``pose (nj + 1, 12)`` of :func:`joint_placements`: ``X_WF = X_WJ X_JF`` (``X_JF`` itself for a frame
     fixed in the world)."""
     j = frame_joint(frames, k)
-    R_JF, p_JF = load9(frames[k], FRAME_ROTATION), load3(frames[k], FRAME_POSITION)
+    R_JF = load9(frames[k], FRAME_ROTATION)
     if j < 0:
-        return R_JF, sub3(p_JF, load3(pose[pose.shape[0] - 1], 9))
-    return compose(load9(pose[j], 0), load3(pose[j], 9), R_JF, p_JF)
+        return R_JF, frame_position(pose, frames, k)
+    return compose_rotations(load9(pose[j], 0), R_JF), frame_position(pose, frames, k)
+
+
+@njit(cache=True, error_model="numpy")
+def frame_position(pose, frames, k):
+    """Position ``p_OF`` (m, from the reference point O) of frame row ``k``, the position of :func:`frame_pose`
+    without its rotation: ``p_OF = p_OJ + R_WJ p_JF`` (``p_JF − p_WO`` for a frame fixed in the world)."""
+    j = frame_joint(frames, k)
+    p_JF = load3(frames[k], FRAME_POSITION)
+    if j < 0:
+        return sub3(p_JF, load3(pose[pose.shape[0] - 1], 9))
+    return add3(load3(pose[j], 9), rotate(load9(pose[j], 0), p_JF))
 
 
 @njit(cache=True, error_model="numpy")

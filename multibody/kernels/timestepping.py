@@ -207,10 +207,18 @@ def speed_bound(geometry, g, vel):
 
 
 @njit(cache=True, error_model="numpy")
+def geometry_origin(pose, geometry, g):
+    """Geometry ``g``'s world position (m), from the joints' poses ``pose`` of
+    :func:`multibody.kernels.kinematics.joint_motions`: the position :func:`world_pose` gives, without the rotation."""
+    frames = geometry[:, GEOMETRY_FRAME : GEOMETRY_FRAME + 13]
+    return kinematics.world_position(pose, kinematics.frame_position(pose, frames, g))
+
+
+@njit(cache=True, error_model="numpy")
 def world_pose(pose, geometry, g, R, p):
     """Geometry ``g``'s world rotation into ``R (3, 3)`` and position (m) into ``p (3,)``, from the joints' poses
     ``pose`` of :func:`multibody.kernels.kinematics.joint_motions`."""
-    rotation, p_O = kinematics.frame_pose(pose, geometry[g : g + 1, GEOMETRY_FRAME : GEOMETRY_FRAME + 13], 0)
+    rotation, p_O = kinematics.frame_pose(pose, geometry[:, GEOMETRY_FRAME : GEOMETRY_FRAME + 13], g)
     x = kinematics.world_position(pose, p_O)
     for r in range(3):
         p[r] = x[r]
@@ -255,14 +263,16 @@ def detect(plan, geometry, vertices, pose, vel, dt, contacts, out, cws, R_a, p_a
     for k in range(int(plan[PLAN_GROUNDS])):
         item = plan[start + k * GROUND_COLUMNS : start + (k + 1) * GROUND_COLUMNS]
         g = int(item[GROUND_GEOMETRY])
-        world_pose(pose, geometry, g, R_a, p_a)
         for c in range(3):
             normal[c] = item[GROUND_NORMAL + c]
         reach = margin + 2.0 * dt * speed_bound(geometry, g, vel)
         # broad phase: every point of the geometry is within its radius r of its origin p, so none has a gap
-        # n · x − height below the reach when n · p − height − r ≥ reach (the ground's normal is a unit vector)
-        if dot3(normal, p_a) - item[GROUND_HEIGHT] - geometry[g, GEOMETRY_RADIUS] >= reach:
+        # n · x − height below the reach when n · p − height − r ≥ reach (the ground's normal is a unit vector);
+        # the origin alone, so that the geometries far from the ground cost no world rotation
+        if dot3(normal, geometry_origin(pose, geometry, g)) - item[GROUND_HEIGHT] - geometry[g, GEOMETRY_RADIUS] \
+                >= reach:
             continue
+        world_pose(pose, geometry, g, R_a, p_a)
         first, count = int(geometry[g, GEOMETRY_VERTEX_START]), int(geometry[g, GEOMETRY_VERTEX_COUNT])
         count = collision.halfspace_contacts(int(geometry[g, GEOMETRY_SHAPE]),
                                              geometry[g, GEOMETRY_SIZE : GEOMETRY_SIZE + 3],
@@ -355,6 +365,22 @@ def lower_bound(gap, dt, u_start, u_free, e):
 
 
 # ----------------------------------------------------------------------------- one step
+
+@njit(cache=True, error_model="numpy")
+def aligned_blocks(joints, q, x, T, out, transpose):
+    """``out = T(q) x`` (``transpose``: ``T(q)ᵀ x``) for ``x (nv,)``, with ``T`` the velocity alignment of
+    :func:`multibody.kernels.configuration.velocity_alignment`, which is block-diagonal by joint: each joint's block
+    into ``T (nv, nv)`` (entries outside the blocks not written) and applied to that joint's coordinates alone."""
+    for i in range(joints.shape[0]):
+        kind, n, iv = joints[i, KIND], joints[i, NV], joints[i, IV]
+        kinds.velocity_alignment(kind, n, q, joints[i, IQ], iv, T)
+        for r in range(iv, iv + n):
+            # out_r = Σ_c T_rc x_c over the joint's block (Tᵀ: T_cr)
+            s = 0.0
+            for c in range(iv, iv + n):
+                s += (T[c, r] if transpose else T[r, c]) * x[c]
+            out[r] = s
+
 
 @njit(cache=True, error_model="numpy")
 def metric_rows(L, parent, J, W):
@@ -820,20 +846,11 @@ def step(controller, joints, reals, frames, program, geometry, vertices, plan, c
     # w⁺ = T(q_k) v⁺ ;  q⁺ = chart(q_k, dt w⁺) ;  v_{k+1} = T(q⁺)ᵀ w⁺: the semi-implicit Euler step in the chart
     # (multibody.integrators' "semi-implicit Euler"), which keeps a body's world velocity through the position
     # update (a rolling ball's centre moves parallel to the ground)
-    configuration.velocity_alignment(joints, reals, frames, q, none, none, none, T, none)
+    aligned_blocks(joints, q, v_next, T, w, False)
     for r in range(nv):
-        s = 0.0
-        for col in range(nv):
-            s += T[r, col] * v_next[col]
-        w[r] = s
-        dq[r] = dt * s
+        dq[r] = dt * w[r]
     configuration.chart(joints, reals, frames, q, dq, none, none, q_next.reshape((1, nq)), none)
-    configuration.velocity_alignment(joints, reals, frames, q_next, none, none, none, T, none)
-    for col in range(nv):
-        s = 0.0
-        for r in range(nv):
-            s += T[r, col] * w[r]
-        v_next[col] = s
+    aligned_blocks(joints, q_next, w, T, v_next, True)
 
     # penetration at the step's end (to first order: g + dt u⁺ₙ) removed by moving the positions alone
     summary[SUMMARY_SEPARATION] = separate(joints, plan, L, parent, W, sep_gap, sep_rows, count, Wn_space, G_space,
