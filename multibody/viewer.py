@@ -229,8 +229,6 @@ def body_shapes(model, point_radius):
 
 def _states(model, q, trajectory):
     """``(times (n,), q (n, nq))`` of what is shown, with clear errors."""
-    from .trajectory import Trajectory
-
     if q is not None and trajectory is not None:
         raise ValueError("give a configuration q or a trajectory, not both")
     if trajectory is None:
@@ -239,7 +237,7 @@ def _states(model, q, trajectory):
             raise ValueError(f"q must be one configuration of shape ({model.nq},), got {np.shape(q)}; "
                              f"for a motion pass trajectory=")
         return np.zeros(1), np.asarray(q, dtype=float)[None]
-    if not isinstance(trajectory, Trajectory) and not hasattr(trajectory, "q"):
+    if not hasattr(trajectory, "q"):
         raise TypeError(f"trajectory must be a multibody Trajectory, got {type(trajectory).__name__}")
     t, q = np.asarray(trajectory.t, dtype=float), np.asarray(trajectory.q, dtype=float)
     if q.ndim != 2 or t.shape != q.shape[:1]:
