@@ -254,7 +254,7 @@ def go1_single(duration=1.0, dt=1e-3, repeats=3):
     return result
 
 
-def go1_batch(n=4096, duration=0.1, dt=1e-3, repeats=1):
+def go1_batch(n=4096, duration=0.1, dt=1e-3, repeats=2):
     """``n`` Go1 standing (each at its own place on the ground and heading: x, y uniform in [−1, 1] m, yaw uniform)
     for ``duration`` s at step ``dt`` on every thread: the wall time per trajectory-step (µs, best of ``repeats``) of
     one ``mb.simulate`` call with ``q0 (n, nq)`` and of ``mujoco.rollout`` with one ``MjData`` per thread, the

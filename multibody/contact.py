@@ -51,7 +51,9 @@ PROJECTION_ITERATIONS = 50
 #: Rows (limits and contacts) of each output step's record at a run's start: a step with more widens every record
 #: of the run to at least twice as many (at most the rows the system can have) and the run goes on from that step.
 #: The step's workspaces are sized by the records' rows (:meth:`ContactProgram.workspaces`) and grow with them.
-RECORD_CAPACITY = 8
+#: Four rows hold a box resting on a face or a quadruped on its feet; a batch's records are most of the memory its
+#: steps write (4 rows: 352 bytes per step, beside a state's 8 (nq + nv) bytes).
+RECORD_CAPACITY = 4
 
 
 class Unilateral:
