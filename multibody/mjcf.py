@@ -810,15 +810,6 @@ class _Meshes:
                 path = None if file is None else resolve_file(file, mesh_dirs, package_dirs)
                 self.meshes[name] = (node, attrs, file, path, mode, scale, refpos, refquat)
 
-    def visual(self, name, node):
-        """``(uri, filename, scale, placement (4, 4))`` of a mesh for the viewer: the file drawn scaled,
-        then placed; MuJoCo moves the vertices by ``refpos`` and turns them by ``refquat`` before scaling."""
-        file, path, scale, placement, exact = self.drawn(name, node)
-        if not exact:
-            self.reader.report.add(("refquat scale",), self._get(name, node)[0], "a mesh scaled unevenly and turned "
-                                                                                 "by refquat is drawn approximately")
-        return file, path, scale, placement
-
     def drawn(self, name, node):
         """``(uri, filename, scale, placement (4, 4), exact)`` of a mesh drawn as its file scaled, then placed:
         ``exact`` unless it is scaled unevenly and turned by ``refquat`` (MuJoCo scales after turning)."""
@@ -1371,7 +1362,10 @@ def _geometry(geom, body, meshes, kind):
     their vertices, which have no file for the viewer to read)."""
     a, b, c = geom.size
     if geom.kind == "mesh":
-        uri, filename, scale, placement = meshes.visual(geom.mesh, geom.node)
+        uri, filename, scale, placement, exact = meshes.drawn(geom.mesh, geom.node)
+        if not exact:
+            meshes.reader.report.add(("refquat scale",), meshes.meshes[geom.mesh][0], "a mesh scaled unevenly and "
+                                                                                     "turned by refquat is drawn approximately")
         if uri is None:
             return None
         return Geometry(body, kind, "mesh", geom.pose @ placement, uri=uri, filename=filename, scale=scale)
