@@ -576,7 +576,8 @@ class _Tree:
             elif tag == "site":
                 attrs = defaults.attributes(child, childclass)
                 report.attributes(child, attrs)
-                (self.world_sites if b < 0 else body.sites).append((child, frame @ self._site_pose(child, attrs)))
+                pose = self._fromto_pose(child, attrs)[0] if "fromto" in attrs else reader.pose(child, attrs)
+                (self.world_sites if b < 0 else body.sites).append((child, frame @ pose))
             elif tag == "inertial":
                 if b < 0:
                     raise child.error("the world body has no <inertial>")
@@ -684,9 +685,6 @@ class _Tree:
         if reader.flag(node, attrs, "shellinertia", "false") == "true":
             self.report.add(("shellinertia",), node, "shell inertia of a geom is not supported: its volume is used")
         return geom
-
-    def _site_pose(self, node, attrs):
-        return self._fromto_pose(node, attrs)[0] if "fromto" in attrs else self.reader.pose(node, attrs)
 
     def _fromto_pose(self, node, attrs):
         """``(pose (4, 4), length)`` of a geom's or site's ``fromto``: at the middle, its z axis turned by the
