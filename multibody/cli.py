@@ -67,10 +67,6 @@ def _load(source, floating_base, package_dirs):
     return robots.load(source, invalid_inertia="warn", **options)
 
 
-def _format_vector(x):
-    return "[" + ", ".join(f"{value:.6g}" for value in np.asarray(x)) + "]"
-
-
 def _tree_lines(model):
     """The joint tree, each moving joint with its type/axis and the links it carries."""
     def links_of(joint):
@@ -106,7 +102,8 @@ def cmd_info(args):
         model = _load(args.urdf, args.floating_base, args.package_dir)
     print(f"model {model.name!r}")
     print(f"  nq = {model.nq}, nv = {model.nv}, {model.njoints} moving joints, {model.nbodies} bodies")
-    print(f"  total mass = {model.total_mass:.6g} kg, gravity = {_format_vector(model.gravity)} m/s^2")
+    gravity = ", ".join(f"{g:.6g}" for g in model.gravity)
+    print(f"  total mass = {model.total_mass:.6g} kg, gravity = [{gravity}] m/s^2")
     print("tree (joint [type, axis] -> links it moves, with masses):")
     for line in _tree_lines(model):
         print("  " + line)

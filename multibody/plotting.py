@@ -209,10 +209,6 @@ def row_units(system, rows):
 
 # ----------------------------------------------------------------------------- figures
 
-def _label(unit, unknown):
-    return f"{QUANTITIES.get(unit, 'value')} ({unit})" if unit else unknown
-
-
 def _legend(ax, curves):
     if len(curves) <= 12:
         ax.legend(fontsize="small", ncol=2 if len(curves) > 4 else 1)
@@ -236,7 +232,7 @@ def state_figure(trajectory, system=None, **labels):
                                                (ax_v, vs, f"{unit}/s" if unit else "", f"v (units unknown: {missing})")):
             for curve in curves:
                 ax.plot(t, curve.values, label=curve.name)
-            ax.set_ylabel(_label(axis_unit, unknown))
+            ax.set_ylabel(f"{QUANTITIES.get(axis_unit, 'value')} ({axis_unit})" if axis_unit else unknown)
             _legend(ax, curves)
     axes[0, 0].set_title("configuration")
     # free-flyer, planar and spherical velocities are in the moving joint frame (docs/conventions.md)
