@@ -12,8 +12,9 @@ joint's ``D = Sᵀ I^A S + diag(armature)`` (Pinocchio's ``aba``, which adds it 
 
 Articulated inertias are symmetric 6×6 matrices acting on motions to give forces (linear rows and
 columns first), kept packed as their upper triangle, row by row (21 floats, :func:`packed_index`): each update
-computes and stores only those entries, and a product reads each once. A joint's ``S`` and ``U D⁻¹`` are kept by columns (column ``k`` at ``6 k``), ``U = I^A S`` too,
-``D = Sᵀ U`` and ``D⁻¹`` as the leading ``nv_i × nv_i`` block of a row-major 6×6. Each joint's data is a block
+computes and stores only those entries, and a product reads each once. A joint's ``S`` and ``U D⁻¹`` are kept by
+columns (column ``k`` at ``6 k``), ``U = I^A S`` too, ``D = Sᵀ U`` and ``D⁻¹`` as the leading ``nv_i × nv_i`` block of
+a row-major 6×6. Each joint's data is a block
 of :data:`BLOCK` floats of the flat workspace, addressed by offsets (a reshaped view would cost a call into
 Numba's runtime per view and call). A joint of one coordinate (revolute, prismatic) takes a path of its
 own whose ``D`` is a scalar, with the same arithmetic as the general one; it leaves ``I^A`` as it is and adds
@@ -41,10 +42,10 @@ from .spatial import (add6, compose, dot3, dot6, force_cross, force_to_parent, i
 ZERO6 = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 
 #: Offsets in a joint's block of the workspace (joint i's starts at ``BLOCK i``): its pose in the world
-#: (``R`` row-major, then ``p``), articulated inertia (packed, 21), ``U D⁻¹`` (by columns), ``S`` (by columns), velocity,
-#: bias acceleration ``c``, bias force ``p^A``, acceleration and ``D⁻¹ u``, all in world axes about ``o``; the scratch
-#: blocks ``U``, ``D``, ``D⁻¹`` (6×6 each) follow the last joint's block, then the kinetic and the potential
-#: energy (:func:`energy_offset`).
+#: (``R`` row-major, then ``p``), articulated inertia (packed, 21), ``U D⁻¹`` (by columns), ``S`` (by columns),
+#: velocity, bias acceleration ``c``, bias force ``p^A``, acceleration and ``D⁻¹ u``, all in world axes about ``o``;
+#: the scratch blocks ``U``, ``D``, ``D⁻¹`` (6×6 each) follow the last joint's block, then the kinetic and the
+#: potential energy (:func:`energy_offset`).
 POSE, ARTICULATED, U_D_INV, SUBSPACE, VELOCITY, BIAS, BIAS_FORCE, ACCELERATION, W, BLOCK = (0, 12, 33, 69, 105, 111,
                                                                                          117, 123, 129, 135)
 #: Floats of a packed symmetric 6×6 (its upper triangle).
