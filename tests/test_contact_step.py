@@ -11,7 +11,7 @@ import pytest
 import multibody as mb
 from multibody.joints import FreeFlyer, Revolute
 from multibody.contact import geometry_rows
-from multibody.kernels import complementarity, configuration, crba, kinematics
+from multibody.kernels import complementarity, configuration, crba, kinematics, rnea
 from multibody.kernels import timestepping as ts
 
 from conftest import random_inertia, random_placement, random_tree_model
@@ -125,6 +125,36 @@ def test_aligned_blocks_equal_the_dense_velocity_alignment(which):
             out = np.full(nv, np.nan)
             ts.aligned_blocks(tree.joints, q, x, np.full((nv, nv), np.nan), out, transpose)
             np.testing.assert_array_equal(out, expected)
+
+
+@pytest.mark.parametrize("which", ["quadruped", "random tree"])
+def test_placed_motions_from_the_bias_pass_equal_joint_motions(which):
+    """The step's one pass down the tree: :func:`~multibody.kernels.kinematics.placed_motions` on the poses and
+    velocities of :func:`~multibody.kernels.rnea.forces` gives :func:`~multibody.kernels.kinematics.joint_motions`'s
+    world poses (the reference point's row too) and body velocities exactly, and
+    :func:`~multibody.kernels.rnea.joint_torques` on its forces the bias ``h`` of ``mb.inverse_dynamics``, on five
+    random states of every joint kind far from the world origin."""
+    model = quadruped() if which == "quadruped" else random_tree_model(3)
+    tree, nj, nv = model.tree, model.tree.joints.shape[0], model.nv
+    rng = np.random.default_rng(9)
+    none = np.zeros(0)
+    for _ in range(5):
+        q, v = model.random_configuration(rng), rng.standard_normal(nv)
+        q[:3] += rng.uniform(-100.0, 100.0, 3)
+        expected = np.zeros(kinematics.workspace_size(nj, nv))
+        kinematics.joint_motions(tree.joints, tree.reals, q, v, expected, None)
+        passes = np.zeros(rnea.workspace_size(nj, nv))
+        local, velocities, _, forces = rnea.forces(tree.joints, tree.reals, q, v, none, none, passes)
+        # (Python receives a kernel's returned views as its whole workspace: read the pass's arrays there)
+        local, velocities = passes[: 12 * nj].reshape((nj, 12)), passes[12 * nj : 18 * nj].reshape((nj, 6))
+        forces = passes[24 * nj : 30 * nj].reshape((nj, 6))
+        placed = np.full(kinematics.workspace_size(nj, nv), np.nan)
+        kinematics.placed_motions(tree.joints, tree.reals, q, local, velocities, placed)
+        size = 12 * (nj + 1) + 6 * nj
+        np.testing.assert_array_equal(placed[:size], expected[:size])
+        h = np.full(nv, np.nan)
+        rnea.joint_torques(tree.joints, tree.reals, none, forces, h)
+        np.testing.assert_array_equal(h, mb.inverse_dynamics(model, q, v, np.zeros(nv)))
 
 
 def test_geometry_origin_is_the_position_of_world_pose():

@@ -145,6 +145,31 @@ def joint_motions(joints, reals, q, v, ws, qdd):
 
 
 @njit(cache=True, error_model="numpy")
+def placed_motions(joints, reals, q, local, velocities, ws):
+    """The world poses and body velocities of :func:`joint_motions` (no accelerations) from the joints' poses in
+    their parents ``local (nj, 12)`` and their body velocities ``velocities (nj, 6)``, as a pass of
+    :func:`multibody.kernels.rnea.forces` at ``q``, ``v`` returns them: the same numbers, without the joints'
+    transforms and velocities computed a second time. Returns ``pose (nj + 1, 12)`` and ``vel (nj, 6)`` in ``ws`` as
+    :func:`joint_motions` does."""
+    nj = joints.shape[0]
+    pose = ws[: 12 * (nj + 1)].reshape((nj + 1, 12))
+    vel = ws[12 * (nj + 1) : 12 * (nj + 1) + 6 * nj].reshape((nj, 6))
+    origin = reference_point(joints, reals, q, pose)
+    for i in range(nj):
+        parent = joints[i, PARENT]
+        R, p = load9(local[i], 0), load3(local[i], 9)
+        if parent < 0:
+            R_W, p_W = R, sub3(p, origin)
+        else:
+            # X_Wi = X_Wλ X_λ(i),i
+            R_W, p_W = compose(load9(pose[parent], 0), load3(pose[parent], 9), R, p)
+        store(pose[i], 0, R_W)
+        store(pose[i], 9, p_W)
+        store(vel[i], 0, load6(velocities[i], 0))
+    return pose, vel
+
+
+@njit(cache=True, error_model="numpy")
 def frame_joint(frames, k):
     """The joint that moves frame row ``k`` (``-1``: fixed in the world)."""
     return int(frames[k, FRAME_JOINT])

@@ -85,8 +85,15 @@ def inverse_dynamics(joints, reals, frames, q, v, a, f_ext, out, ws):
     ``q (nq,)``, ``v, a (nv,)`` (length 0: zero, which gives ``g`` or ``h``), ``f_ext (6 nj,)`` or
     empty. ``frames`` is unused.
     """
-    force = forces(joints, reals, q, v, a, f_ext, ws)[3]
-    tau = out[0]
+    joint_torques(joints, reals, a, forces(joints, reals, q, v, a, f_ext, ws)[3], out[0])
+    nan_unless_finite(q, v, a, f_ext, out)
+
+
+@njit(cache=True, error_model="numpy")
+def joint_torques(joints, reals, a, force, tau):
+    """``τ = Sᵢᵀ fᵢ + armature ⊙ a`` into ``tau (nv,)`` (N or N m) from the forces ``force (nj, 6)`` that
+    :func:`forces` returns for the accelerations ``a (nv,)`` (length 0: zero): the last step of
+    :func:`inverse_dynamics`."""
     accelerated = a.shape[0] > 0
     for i in range(joints.shape[0]):
         kind, iv, nv = joints[i, KIND], joints[i, IV], joints[i, NV]
@@ -96,7 +103,6 @@ def inverse_dynamics(joints, reals, frames, q, v, a, f_ext, out, ws):
             for k in range(nv):
                 # τ_i,k += armature_i,k q̈_i,k
                 tau[iv + k] += armature(reals, i, k) * a[iv + k]
-    nan_unless_finite(q, v, a, f_ext, out)
 
 
 @njit(cache=True, error_model="numpy")

@@ -711,7 +711,10 @@ def step(controller, joints, reals, frames, program, geometry, vertices, plan, c
     # free velocity in the parent-aligned axes of the chart at q_k, w* = T w_k + dt T (a + κ), written in the joints'
     # axes at q_k
     crba.mass_matrix(joints, reals, frames, q, none, none, none, L, passes)
-    rnea.inverse_dynamics(joints, reals, frames, q, v, none, none, h, passes)
+    local, body_velocities, _, body_forces = rnea.forces(joints, reals, q, v, none, none, passes)
+    rnea.joint_torques(joints, reals, none, body_forces, h[0])
+    # the joints' world poses and velocities from the same pass (the contacts' detection and rows read them)
+    pose, vel = kinematics.placed_motions(joints, reals, q, local, body_velocities, kin)
     crba.coordinate_parents(joints, parent)
     if not crba.factor_ltl(L, parent):
         return NOT_POSITIVE_DEFINITE
@@ -764,7 +767,6 @@ def step(controller, joints, reals, frames, program, geometry, vertices, plan, c
             block_kinds[nb], block_starts[nb], mu[nb] = complementarity.UNILATERAL, m, 0.0
             m += 1
             nb += 1
-    pose, vel, _ = kinematics.joint_motions(joints, reals, q, v, kin, None)
     # the energy T + U of the step's start, in its own summary row (energy.mechanical_energy's terms)
     previous_summary[SUMMARY_ENERGY] = energy.motion_energy(joints, reals, pose, vel, v)
     found = detect(plan, geometry, vertices, pose, vel, dt, contacts, out, cws, R_a, p_a, R_b, p_b, normal)
