@@ -89,7 +89,7 @@ PTX = textwrap.dedent(r"""
         if i == 0:
             found = ts.detect(plan, geometry, vertices, pose, vel, 1e-3, contacts, out, cws, R, p, R, p, vectors[0])
             for k in range(found):
-                ts.contact_rows(joints, reals, pose, geometry, contacts[k], J, 3 * k, J6)
+                ts.contact_rows(joints, reals, pose, contacts[k], J, 3 * k, J6)
                 vectors[1, k] = ts.lower_bound(contacts[k, ts.C_GAP], 1e-3, vectors[2, k], vectors[3, k], 0.5)
             ts.warm_start(plan, J, contacts, found, 0, 0, vectors[4], 0, previous, vectors[5], 1e-3, vectors[6])
             ts.separate(joints, plan, W, blocks[2], Y, vectors[7], vectors[8], found, vectors[16], vectors[9],

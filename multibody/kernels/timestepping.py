@@ -118,10 +118,11 @@ COMPLETED, NOT_POSITIVE_DEFINITE, UNDEFINED, NOT_SOLVED, NON_FINITE_STATE, NON_F
     RECORD_FULL = range(8)
 
 #: A contact's data while the step is built: the bodies (model indices; a ground's ``other`` is GROUND), point
-#: (3), normal, tangents (3 each), gap, restitution, friction, and its first row in the step's problem.
-C_BODY, C_OTHER, C_POINT, C_NORMAL, C_T1, C_T2, C_GAP, C_RESTITUTION, C_FRICTION, C_ROW = \
-    0, 1, 2, 5, 8, 11, 14, 15, 16, 17
-CONTACT_DATA = 18
+#: (3), normal, tangents (3 each), gap, restitution, friction, its first row in the step's problem, and the joints
+#: that move the two bodies (``-1``: the world or the ground).
+C_BODY, C_OTHER, C_POINT, C_NORMAL, C_T1, C_T2, C_GAP, C_RESTITUTION, C_FRICTION, C_ROW, C_JOINT, C_OTHER_JOINT = \
+    0, 1, 2, 5, 8, 11, 14, 15, 16, 17, 18, 19
+CONTACT_DATA = 20
 
 #: The smallest pivot² of the Cholesky factor of ``G_AA``, relative to its row's diagonal entry of ``G``, with which
 #: :func:`held_modes` solves: below it the row depends on the others to within rounding.
@@ -227,10 +228,10 @@ def world_pose(pose, geometry, g, R, p):
 
 
 @njit(cache=True, error_model="numpy")
-def add_contacts(rows, count, contacts, found, body, other, mu, e, limit):
+def add_contacts(rows, count, contacts, found, body, other, joint, other_joint, mu, e, limit):
     """Append the ``count`` detected rows ``rows (k, 7)`` (``[point, normal, gap]``) to ``contacts`` after
-    ``found`` of them, with their frame ``(n, t₁, t₂)``; returns the new number (those past ``limit`` counted, not
-    stored)."""
+    ``found`` of them, with their frame ``(n, t₁, t₂)`` and the joints that move their two bodies; returns the new
+    number (those past ``limit`` counted, not stored)."""
     for r in range(count):
         if found >= limit:
             # (the caller sizes contacts by its record, and grows both when a step has more)
@@ -239,7 +240,7 @@ def add_contacts(rows, count, contacts, found, body, other, mu, e, limit):
         data = contacts[found]
         n = (rows[r, 3], rows[r, 4], rows[r, 5])
         t1, t2 = tangents(n)
-        data[C_BODY], data[C_OTHER] = body, other
+        data[C_BODY], data[C_OTHER], data[C_JOINT], data[C_OTHER_JOINT] = body, other, joint, other_joint
         for c in range(3):
             data[C_POINT + c] = rows[r, c]
             data[C_NORMAL + c] = n[c]
@@ -278,7 +279,8 @@ def detect(plan, geometry, vertices, pose, vel, dt, contacts, out, cws, R_a, p_a
                                              geometry[g, GEOMETRY_SIZE : GEOMETRY_SIZE + 3],
                                              vertices[first : first + count], R_a, p_a, normal, item[GROUND_HEIGHT],
                                              reach, out, cws)
-        found = add_contacts(out, count, contacts, found, geometry[g, GEOMETRY_BODY], GROUND, item[GROUND_FRICTION],
+        found = add_contacts(out, count, contacts, found, geometry[g, GEOMETRY_BODY], GROUND,
+                             geometry[g, GEOMETRY_FRAME + FRAME_JOINT], -1.0, item[GROUND_FRICTION],
                              item[GROUND_RESTITUTION], limit)
     start = int(plan[PLAN_PAIR_START])
     for k in range(int(plan[PLAN_PAIRS])):
@@ -294,24 +296,13 @@ def detect(plan, geometry, vertices, pose, vel, dt, contacts, out, cws, R_a, p_a
                                         int(geometry[b, GEOMETRY_SHAPE]), geometry[b, GEOMETRY_SIZE : GEOMETRY_SIZE + 3],
                                         vertices[first_b : first_b + count_b], R_b, p_b, reach, out, cws)
         found = add_contacts(out, count, contacts, found, geometry[a, GEOMETRY_BODY], geometry[b, GEOMETRY_BODY],
+                             geometry[a, GEOMETRY_FRAME + FRAME_JOINT], geometry[b, GEOMETRY_FRAME + FRAME_JOINT],
                              item[PAIR_FRICTION], item[PAIR_RESTITUTION], limit)
     return found
 
 
 @njit(cache=True, error_model="numpy")
-def body_joint(geometry, body):
-    """The joint that moves the body of model index ``body`` (``-1``: the world or the ground), read from the
-    first geometry row of that body."""
-    if body < 0.0:
-        return -1
-    for g in range(geometry.shape[0]):
-        if geometry[g, GEOMETRY_BODY] == body:
-            return int(geometry[g, GEOMETRY_FRAME + FRAME_JOINT])
-    return -1
-
-
-@njit(cache=True, error_model="numpy")
-def contact_rows(joints, reals, pose, geometry, data, J, row, J6):
+def contact_rows(joints, reals, pose, data, J, row, J6):
     """The three rows ``[n; t₁; t₂]ᵀ (J_a − J_b)`` of one contact into ``J[row : row + 3]``: the velocity of body a
     relative to body b at the contact point, in the contact frame (m/s per unit of ``v``). ``J6 (6, nv)`` is
     scratch for a body's Jacobian (:func:`multibody.kernels.kinematics.jacobian_columns`, world axes)."""
@@ -323,7 +314,7 @@ def contact_rows(joints, reals, pose, geometry, data, J, row, J6):
     origin = kinematics.world_origin(pose)
     x = (data[C_POINT] + origin[0], data[C_POINT + 1] + origin[1], data[C_POINT + 2] + origin[2])
     for side in range(2):
-        j = body_joint(geometry, data[C_BODY] if side == 0 else data[C_OTHER])
+        j = int(data[C_JOINT] if side == 0 else data[C_OTHER_JOINT])
         if j < 0:
             continue
         sign = 1.0 if side == 0 else -1.0
@@ -776,7 +767,7 @@ def step(controller, joints, reals, frames, program, geometry, vertices, plan, c
         return RECORD_FULL
     for k in range(found):
         data = contacts[k]
-        contact_rows(joints, reals, pose, geometry, data, J, m, J6)
+        contact_rows(joints, reals, pose, data, J, m, J6)
         # ℓ from the gap less the pair's deepest penetration p = min(0, min gⱼ): affine in the contact points'
         # positions, as the gaps are, so the dependent normal rows of a face landing flat (its corners' gaps a little
         # either side of zero) keep a consistent problem, where ℓ = −max(g, 0)/dt would ask those rows for velocities
