@@ -128,12 +128,13 @@ def test_aligned_blocks_equal_the_dense_velocity_alignment(which):
 
 
 @pytest.mark.parametrize("which", ["quadruped", "random tree"])
-def test_placed_motions_from_the_bias_pass_equal_joint_motions(which):
+def test_the_bias_pass_gives_joint_motions_and_the_mass_matrix(which):
     """The step's one pass down the tree: :func:`~multibody.kernels.kinematics.placed_motions` on the poses and
     velocities of :func:`~multibody.kernels.rnea.forces` gives :func:`~multibody.kernels.kinematics.joint_motions`'s
-    world poses (the reference point's row too) and body velocities exactly, and
-    :func:`~multibody.kernels.rnea.joint_torques` on its forces the bias ``h`` of ``mb.inverse_dynamics``, on five
-    random states of every joint kind far from the world origin."""
+    world poses (the reference point's row too) and body velocities exactly,
+    :func:`~multibody.kernels.rnea.joint_torques` on its forces the bias ``h`` of ``mb.inverse_dynamics``, and
+    :func:`~multibody.kernels.crba.placed_mass_matrix` on its joint poses ``mb.mass_matrix``, on five random states of
+    every joint kind far from the world origin."""
     model = quadruped() if which == "quadruped" else random_tree_model(3)
     tree, nj, nv = model.tree, model.tree.joints.shape[0], model.nv
     rng = np.random.default_rng(9)
@@ -155,6 +156,9 @@ def test_placed_motions_from_the_bias_pass_equal_joint_motions(which):
         h = np.full(nv, np.nan)
         rnea.joint_torques(tree.joints, tree.reals, none, forces, h)
         np.testing.assert_array_equal(h, mb.inverse_dynamics(model, q, v, np.zeros(nv)))
+        M = np.full((nv, nv), np.nan)
+        crba.placed_mass_matrix(tree.joints, tree.reals, M, passes)
+        np.testing.assert_array_equal(M, mb.mass_matrix(model, q))
 
 
 def test_geometry_origin_is_the_position_of_world_pose():

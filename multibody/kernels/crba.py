@@ -34,12 +34,24 @@ def mass_matrix(joints, reals, frames, q, x1, x2, x3, out, ws):
     """
     nj = joints.shape[0]
     pose = ws[: 12 * nj].reshape((nj, 12))
-    composite = ws[12 * nj : 22 * nj].reshape((nj, 10))
     for i in range(nj):
         # X_λ(i),i = X_T X_J(q_i)
         R, p = joint_pose(joints, reals, q, i)
         store_row(pose, i, 0, R)
         store_row(pose, i, 9, p)
+    placed_mass_matrix(joints, reals, out, ws)
+    nan_unless_finite(q, x1, x2, x3, out)
+
+
+@njit(cache=True, error_model="numpy")
+def placed_mass_matrix(joints, reals, out, ws):
+    """:func:`mass_matrix` into ``out (nv, nv)`` from the joints' poses in their parents already in ``ws[: 12 nj]``
+    (rows ``[R (9, row-major), p (3)]``, as :func:`mass_matrix` and :func:`multibody.kernels.rnea.forces` leave
+    them), so that a step that has run one of those passes computes no joint transform again."""
+    nj = joints.shape[0]
+    pose = ws[: 12 * nj].reshape((nj, 12))
+    composite = ws[12 * nj : 22 * nj].reshape((nj, 10))
+    for i in range(nj):
         # I^c_i = I_i
         store_row(composite, i, 0, row10(reals, i, INERTIA))
     n = out.shape[0]
@@ -78,7 +90,6 @@ def mass_matrix(joints, reals, frames, q, x1, x2, x3, out, ws):
                     h = dot6(kinds.subspace_column(kind_j, axis_j, m), F)
                     out[iv_j + m, col] = h
                     out[col, iv_j + m] = h
-    nan_unless_finite(q, x1, x2, x3, out)
 
 
 # ----------------------------------------------------------------------------- sparse factorization

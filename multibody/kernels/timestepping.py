@@ -701,11 +701,12 @@ def step(controller, joints, reals, frames, program, geometry, vertices, plan, c
     # M = Lᵀ L (the tree's sparse factor, RBDA §6.5) and h at (q_k, v_k); v* = v_k + dt (M⁻¹ (τ − h) + κ(v_k)): the
     # free velocity in the parent-aligned axes of the chart at q_k, w* = T w_k + dt T (a + κ), written in the joints'
     # axes at q_k
-    crba.mass_matrix(joints, reals, frames, q, none, none, none, L, passes)
     local, body_velocities, _, body_forces = rnea.forces(joints, reals, q, v, none, none, passes)
     rnea.joint_torques(joints, reals, none, body_forces, h[0])
-    # the joints' world poses and velocities from the same pass (the contacts' detection and rows read them)
+    # the joints' world poses and velocities from the same pass (the contacts' detection and rows read them), then M
+    # from its joint poses (CRBA's composite inertias overwrite the pass's velocities)
     pose, vel = kinematics.placed_motions(joints, reals, q, local, body_velocities, kin)
+    crba.placed_mass_matrix(joints, reals, L, passes)
     crba.coordinate_parents(joints, parent)
     if not crba.factor_ltl(L, parent):
         return NOT_POSITIVE_DEFINITE
