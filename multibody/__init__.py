@@ -4,7 +4,7 @@ Public names are listed in ``docs/api.md``; conventions (vector ordering, frames
 ``docs/conventions.md``.
 """
 
-import importlib
+from importlib import import_module as _import_module
 
 from . import inertia, joints, robots, spatial
 from .driver import get_num_threads, set_num_threads
@@ -67,15 +67,15 @@ from . import variational
 def __getattr__(name):
     # The symbolic front-end (and SymPy with it) is imported on first use only.
     if name in ("LagrangianSystem", "generalized_forces", "symbolic"):
-        symbolic = importlib.import_module("multibody.symbolic")
+        symbolic = _import_module("multibody.symbolic")
         return symbolic if name == "symbolic" else getattr(symbolic, name)
     # Figures (and matplotlib with them) likewise; and batches on a Dask cluster (the [dask] extra).
     if name in ("plotting", "distributed"):
-        return importlib.import_module(f"multibody.{name}")
+        return _import_module(f"multibody.{name}")
     # The 3-D viewer (and Viser with it) too; mb.view raises an ImportError naming the [viz] extra
     # when Viser is missing.
     if name in ("view", "viewer"):
-        viewer = importlib.import_module("multibody.viewer")
+        viewer = _import_module("multibody.viewer")
         return viewer if name == "viewer" else viewer.view
     raise AttributeError(f"module 'multibody' has no attribute {name!r}")
 from .urdf import URDFError, load_urdf

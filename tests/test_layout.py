@@ -151,3 +151,14 @@ def test_every_eagerly_bound_name_of_the_api_is_in_all():
              if name in bound and not isinstance(bound[name], types.ModuleType)}
     assert {"Ground", "ContactPair", "JointLimits"} <= names
     assert sorted(names - set(multibody.__all__)) == []
+
+
+def test_no_outside_module_is_a_public_attribute():
+    """``import multibody`` binds no module of another package under a public name (``mb.importlib`` would be
+    one): every public module attribute is one of multibody's own."""
+    import types
+
+    outside = sorted(name for name, value in vars(multibody).items()
+                     if isinstance(value, types.ModuleType) and not name.startswith("_")
+                     and not value.__name__.startswith("multibody."))
+    assert outside == []
