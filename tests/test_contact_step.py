@@ -17,17 +17,22 @@ from multibody.kernels import timestepping as ts
 from conftest import random_inertia, random_placement, random_tree_model
 
 
-def quadruped():
-    """A free-flyer trunk with four legs of three revolute joints (Go1's tree)."""
+def quadruped(collisions=False):
+    """A free-flyer trunk with four legs of three revolute joints (Go1's tree); with ``collisions``, a box on the
+    trunk and a sphere at each leg's end, placed off their bodies' frames."""
     rng = np.random.default_rng(5)
     b = mb.ModelBuilder("quadruped")
     b.add_body("trunk", FreeFlyer(), inertia=random_inertia(rng))
+    if collisions:
+        b.add_collision("trunk", "box", (0.4, 0.2, 0.1), random_placement(rng))
     for leg in range(4):
         parent = "trunk"
         for k, axis in enumerate(((1, 0, 0), (0, 1, 0), (0, 1, 0))):
             name = f"leg{leg}_{k}"
             b.add_body(name, Revolute(axis), parent=parent, placement=random_placement(rng), inertia=random_inertia(rng))
             parent = name
+        if collisions:
+            b.add_collision(parent, "sphere", (0.02,), random_placement(rng))
     return b.build()
 
 
@@ -167,17 +172,7 @@ def test_geometry_origin_is_the_position_of_world_pose():
     placed off their frames) of random states, as :func:`~multibody.kernels.kinematics.frame_position` equals
     :func:`~multibody.kernels.kinematics.frame_pose`'s position."""
     rng = np.random.default_rng(6)
-    b = mb.ModelBuilder("quadruped")
-    b.add_body("trunk", FreeFlyer(), inertia=random_inertia(rng))
-    b.add_collision("trunk", "box", (0.4, 0.2, 0.1), random_placement(rng))
-    for leg in range(4):
-        parent = "trunk"
-        for k, axis in enumerate(((1, 0, 0), (0, 1, 0), (0, 1, 0))):
-            name = f"leg{leg}_{k}"
-            b.add_body(name, Revolute(axis), parent=parent, placement=random_placement(rng), inertia=random_inertia(rng))
-            parent = name
-        b.add_collision(parent, "sphere", (0.02,), random_placement(rng))
-    model = b.build()
+    model = quadruped(collisions=True)
     tree, geometry = model.tree, geometry_rows(model)
     ws = np.zeros(kinematics.workspace_size(tree.joints.shape[0], model.nv))
     R, p = np.zeros((3, 3)), np.zeros(3)
