@@ -382,16 +382,19 @@ def test_one_coordinate_factor_equals_general(kind):
         block[aba.ARTICULATED : aba.ARTICULATED + aba.PACKED] = packed
         block[aba.SUBSPACE : aba.SUBSPACE + 6] = s
         U, U_D, d_inv = aba.factor_single(single, at, s, arm)
-        reduced = np.zeros(aba.PACKED + 3)
+        # the parent's I^A (packed, at offset 3), to which I^a is added
+        parent = rng.standard_normal(aba.PACKED)
+        reduced = np.full(aba.PACKED + 3, np.nan)
+        reduced[3:] = parent
         aba.add_reduced(single, at, U_D, U, reduced, 3)
         aba.factor_joint(1, reals, 0, block, scratch)
         scale = np.abs(inertia).max()
         np.testing.assert_allclose(U, scratch[:6], rtol=0, atol=1e-13 * scale)
         np.testing.assert_allclose(U_D, block[aba.U_D_INV : aba.U_D_INV + 6], rtol=0, atol=1e-13)
         assert d_inv == pytest.approx(scratch[72], rel=1e-13)
-        np.testing.assert_allclose(reduced[3:], block[aba.ARTICULATED : aba.ARTICULATED + aba.PACKED], rtol=0,
+        np.testing.assert_allclose(reduced[3:] - parent, block[aba.ARTICULATED : aba.ARTICULATED + aba.PACKED], rtol=0,
                                    atol=1e-13 * scale)
-        assert np.array_equal(reduced[:3], np.zeros(3))
+        assert np.isnan(reduced[:3]).all()
         # the joint's own I^A is read, not written
         assert np.array_equal(single[at : at + aba.PACKED], packed)
         assert np.isnan(single[:at]).all() and np.isnan(single[at + aba.PACKED :]).all()
