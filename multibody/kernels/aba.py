@@ -105,7 +105,8 @@ def matrix_times(Y, at, m):
 @njit(cache=True, error_model="numpy", inline="always")
 def add_reduced(Y, at, UD, U, P, to):
     """``P += Y − (U D⁻¹) Uᵀ`` for packed symmetric 6×6 ``Y`` (at ``Y[at:]``) and ``P`` (at ``P[to:]``) and the
-    6-tuples ``U D⁻¹`` and ``U`` of a joint of one coordinate: its ``I^a`` added to its parent's ``I^A``."""
+    6-tuples ``U D⁻¹`` and ``U`` of a joint of one coordinate: its ``I^a`` added to its parent's ``I^A`` (RBDA
+    Table 7.1, ``I^A_λ(i) += I^a_i``), in the same axes."""
     k = 0
     for r in range(6):
         for c in range(r, 6):

@@ -45,9 +45,11 @@ def mass_matrix(joints, reals, frames, q, x1, x2, x3, out, ws):
 
 @njit(cache=True, error_model="numpy")
 def placed_mass_matrix(joints, reals, out, ws):
-    """:func:`mass_matrix` into ``out (nv, nv)`` from the joints' poses in their parents already in ``ws[: 12 nj]``
-    (rows ``[R (9, row-major), p (3)]``, as :func:`mass_matrix` and :func:`multibody.kernels.rnea.forces` leave
-    them), so that a step that has run one of those passes computes no joint transform again."""
+    """:func:`mass_matrix` (the composite-inertia passes of RBDA Table 6.2, plus ``diag(armature)``; kg, kg m, kg m²)
+    into ``out (nv, nv)`` from the joints' poses in their parents already in ``ws[: 12 nj]`` (rows
+    ``[R (9, row-major), p (3)]``, as :func:`mass_matrix` and :func:`multibody.kernels.rnea.forces` leave them), so
+    that a step that has run one of those passes computes no joint transform again; ``ws[12 nj : 22 nj]`` takes the
+    composite inertias."""
     nj = joints.shape[0]
     pose = ws[: 12 * nj].reshape((nj, 12))
     composite = ws[12 * nj : 22 * nj].reshape((nj, 10))

@@ -91,9 +91,9 @@ def inverse_dynamics(joints, reals, frames, q, v, a, f_ext, out, ws):
 
 @njit(cache=True, error_model="numpy")
 def joint_torques(joints, reals, a, force, tau):
-    """``τ = Sᵢᵀ fᵢ + armature ⊙ a`` into ``tau (nv,)`` (N or N m) from the forces ``force (nj, 6)`` that
-    :func:`forces` returns for the accelerations ``a (nv,)`` (length 0: zero): the last step of
-    :func:`inverse_dynamics`."""
+    """``τ = Sᵢᵀ fᵢ + armature ⊙ a`` into ``tau (nv,)`` (N or N m) from the forces ``force (nj, 6)`` (each in its
+    joint's frame) that :func:`forces` returns for the accelerations ``a (nv,)`` (length 0: zero): the projection
+    that ends RBDA Table 5.1, the last step of :func:`inverse_dynamics`."""
     accelerated = a.shape[0] > 0
     for i in range(joints.shape[0]):
         kind, iv, nv = joints[i, KIND], joints[i, IV], joints[i, NV]
