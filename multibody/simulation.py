@@ -367,12 +367,14 @@ def _check_unilateral(constrained, method):
                          "is not")
 
 
-def _finish(system, trajectory, limits, enforced=(), stopped="", stacklevel=4):
-    """The end of a fixed-step or contact run of ``system`` (the mechanical system): one trajectory that stopped early
-    raises :class:`SimulationError` (its status after ``stopped``) with the part so far; the joint limits are
-    reported (:func:`multibody.runs.report_limits`, but for the coordinates ``enforced``); and a batch gives one
-    warning of the trajectories that stopped early, each warning ``stacklevel`` calls up from here. Returns the
-    trajectory."""
+def _finish(system, trajectory, limits, enforced=(), stopped=""):
+    """The end of a fixed-step or contact run of ``system`` (the mechanical system), called by :func:`simulate`: one
+    trajectory that stopped early raises :class:`SimulationError` (its status after ``stopped``) with the part so far;
+    the joint limits are reported (:func:`multibody.runs.report_limits`, but for the coordinates ``enforced``); and a
+    batch gives one warning of the trajectories that stopped early, each warning at the line that called
+    :func:`simulate`. Returns the trajectory."""
+    # (the warnings' frames: report_limits or warn_if_stopped, this function, simulate, its caller)
+    stacklevel = 4
     one = trajectory.batch_size is None
     if one and trajectory.status != "completed":
         raise SimulationError(stopped + trajectory.status, trajectory)

@@ -709,3 +709,22 @@ def test_joint_limit_rows_past_the_records_grow_them(panda, monkeypatch):
     assert wide.status == narrow.status == "completed" and max(len(entry) for entry in wide.contacts) >= 2
     assert np.array_equal(narrow.q, wide.q) and np.array_equal(narrow.v, wide.v)
     assert narrow.contacts == wide.contacts
+
+
+def test_a_contact_runs_warnings_point_at_the_caller():
+    """A contact run's warning of a joint limit it does not enforce, left, names the line that called ``simulate``,
+    as a fixed-step run's does."""
+    import os
+
+    b = mb.ModelBuilder("limited pendulum")
+    placement = np.eye(4)
+    placement[2, 3] = 1.0
+    b.add_body("bob", mb.joints.Revolute((0.0, 1.0, 0.0)), placement=placement, lower=[-0.1], upper=[0.1],
+               inertia=inertia.sphere(1.0, 0.05).transformed(mb.spatial.pose_matrix(np.eye(3), [0.0, 0.0, -0.5])))
+    b.add_collision("bob", "sphere", 0.05)
+    model = b.build()
+    system = mb.ConstrainedSystem(model, [mb.Ground()])
+    with pytest.warns(mb.JointLimitWarning) as caught:
+        mb.simulate(system, [0.05], [3.0], 0.05, dt=DT)
+    assert [os.path.basename(w.filename) for w in caught if issubclass(w.category, mb.JointLimitWarning)] == \
+        [os.path.basename(__file__)]
