@@ -26,7 +26,8 @@ each on its own in compiled calls on all cores, or, with a Python callable, in l
 all of them in one compiled call (:func:`multibody.driver.evaluate`); one trajectory is a batch of one, run by the
 same loop. With ``project=True``, a step's end state, and an output state of the dense output, is projected onto
 ``φ = 0`` and ``A v + b = 0`` when that moves a coordinate by more than ``projection_tolerance`` (the move, not the
-residual, decides: :func:`simulate`'s ``project``), and the integrator restarts from a projected step end. The
+residual, decides: near a singular configuration of a closed chain, a row of size ``ε`` leaves a residual of ``ε``
+times the velocity it fails to constrain), and the integrator restarts from a projected step end. The
 multipliers, energies and residuals of all output states are computed afterwards, in one batched call when the
 system allows it; the residuals are those of the returned states.
 """
