@@ -10,17 +10,17 @@ change of coordinates (RBDA's ``λ(i)X*_i I^a_i ⁱX_λ(i)`` becomes ``I^a_i``).
 joint's ``D = Sᵀ I^A S + diag(armature)`` (Pinocchio's ``aba``, which adds it to ``StU``), so that ABA solves
 ``(M_bodies + diag(armature)) q̈ = τ − h``, the ``M`` of :func:`multibody.kernels.crba.mass_matrix`.
 
-Articulated inertias are symmetric 6×6 matrices acting on motions to give forces (linear rows and
-columns first), kept packed as their upper triangle, row by row (21 floats, :func:`packed_index`): each update
-computes and stores only those entries, and a product reads each once. A joint's ``S`` and ``U D⁻¹`` are kept by
-columns (column ``k`` at ``6 k``), ``U = I^A S`` too, ``D = Sᵀ U`` and ``D⁻¹`` as the leading ``nv_i × nv_i`` block of
-a row-major 6×6. Each joint's data is a block
-of :data:`BLOCK` floats of the flat workspace, addressed by offsets (a reshaped view would cost a call into
-Numba's runtime per view and call). A joint of one coordinate (revolute, prismatic) takes a path of its
-own whose ``D`` is a scalar, with the same arithmetic as the general one; it leaves ``I^A`` as it is and adds
-``I^a = I^A − U D⁻¹ Uᵀ`` to the parent's in the same pass, with ``I^a c = I^A c − U D⁻¹ (Uᵀ c)``, so that the
-joint's articulated inertia is read twice and written never. The per-joint helpers of that path are inlined at
-Numba's IR level (``inline="always"``): LLVM leaves them as calls, which pass their tuples through memory.
+Articulated inertias are symmetric 6×6 matrices acting on motions to give forces (linear rows and columns first),
+kept packed as their upper triangle, row by row (21 floats, :func:`packed_index`): each update computes and stores
+only those entries, and a product reads each once. A joint's ``S`` and ``U D⁻¹`` are kept by columns (column ``k`` at
+``6 k``), ``U = I^A S`` too, ``D = Sᵀ U`` and ``D⁻¹`` as the leading ``nv_i × nv_i`` block of a row-major 6×6. Each
+joint's data is a block of :data:`BLOCK` floats of the flat workspace, addressed by offsets (a reshaped view would
+cost a call into Numba's runtime per view and call). A joint of one coordinate (revolute, prismatic) takes a path of
+its own whose ``D`` is a scalar, the general factorisation's equations in scalars; it leaves ``I^A`` as it is and
+adds ``I^a = I^A − U D⁻¹ Uᵀ`` to the parent's in the same pass, with ``I^a c = I^A c − U D⁻¹ (Uᵀ c)``, so that the
+joint's articulated inertia is read twice and written never (the numbers equal the general path's to rounding). The
+per-joint helpers of that path are inlined at Numba's IR level (``inline="always"``): LLVM leaves them as calls,
+which pass their tuples through memory.
 
 The pass down the tree has every body's velocity and world inertia at hand, so :func:`articulated_body` also
 gives the mechanical energy of the state on request (:mod:`multibody.kernels.energy` defines it): a
