@@ -66,6 +66,14 @@ def energy_offset(nj):
     return BLOCK * nj + 108
 
 
+@njit(cache=True, error_model="numpy", inline="always")
+def recorded_energy(ws, nj):
+    """The mechanical energy ``E = T + U`` (J) that :func:`articulated_body` called with ``energy`` left in ``ws``
+    (a tree of ``nj`` joints)."""
+    at = energy_offset(nj)
+    return ws[at] + ws[at + 1]
+
+
 # ----------------------------------------------------------------------------- 6×6 helpers
 # ``Y`` is the flat workspace and ``at`` the offset of a packed symmetric 6×6 in it.
 

@@ -145,13 +145,6 @@ def subspace_column_to_parent(kind, axis, k, R, p):
 
 
 @njit(cache=True, error_model="numpy")
-def axis_rows(kind):
-    """Where the axis sits in the one subspace column of a one-coordinate joint: rows 3–5 (angular) of a
-    revolute joint, rows 0–2 (linear) of a prismatic one."""
-    return 3 if kind == REVOLUTE else 0
-
-
-@njit(cache=True, error_model="numpy")
 def subspace_column(kind, axis, k):
     """Column ``k`` of the motion subspace ``S`` in joint-frame coordinates (6-tuple ``[v; ω]``)."""
     if kind == REVOLUTE:

@@ -302,9 +302,7 @@ def stage_rates(joints, reals, frames, program, charts, damped, damping, y, maps
         aba.articulated_body(joints, reals, q, v, tau, program, step[0], step_ws, recorded)
         nan_unless_finite(q, v, tau, program, step)
         if recorded:
-            at = aba.energy_offset(joints.shape[0])
-            # E = T + U
-            energy[0] = step_ws[at] + step_ws[at + 1]
+            energy[0] = aba.recorded_energy(step_ws, joints.shape[0])
         status = 0.0
     if charts:
         T = maps[nq + 2 * nv :].reshape((nv, nv))
@@ -395,9 +393,7 @@ def vector_space_steps(controller, joints, reals, times, s, kind, control, dampe
             a = K[i, nv:]
             aba.articulated_body(joints, reals, q, v, tau, none, a, step_ws, energy)
             if energy:
-                at = aba.energy_offset(joints.shape[0])
-                # E = T + U
-                energies[k - 1] = step_ws[at] + step_ws[at + 1]
+                energies[k - 1] = aba.recorded_energy(step_ws, joints.shape[0])
             for c in range(nv):
                 K[i, c] = v[c]
             if not all_finite(a):
@@ -416,8 +412,7 @@ def vector_space_steps(controller, joints, reals, times, s, kind, control, dampe
         # the energy of the last output state, from which no step starts: ABA's pass down the tree at it
         last = states[k - 1]
         aba.articulated_body(joints, reals, last[:nv], last[nv:], none, none, K[0, nv:], step_ws, True)
-        at = aba.energy_offset(joints.shape[0])
-        energies[k - 1] = step_ws[at] + step_ws[at + 1]
+        energies[k - 1] = aba.recorded_energy(step_ws, joints.shape[0])
     io[IO_STEP], io[IO_STAGE], io[IO_STATUS] = k, 0, COMPLETED
 
 
