@@ -146,7 +146,7 @@ def cmd_check(args):
     try:
         __import__("mujoco" if mjcf else "pinocchio")
     except ImportError:
-        print(f"multibody check: needs {reference}: pip install {'mujoco' if mjcf else 'pin'}", file=sys.stderr)
+        print(f"multibody check: needs {reference}: pip install {'multibody[mjcf]' if mjcf else 'pin'}", file=sys.stderr)
         return 2
     if mjcf and args.floating_base:
         raise InputError(_MJCF_FLOATING_BASE)

@@ -233,7 +233,7 @@ MJCF_GEOMS = """<mujoco><asset><mesh name="tet" vertex="0 0 0  1 0 0  0 1 0  0 0
 def test_mjcf_collision_filter_ellipsoid_and_vertex_mesh():
     """MuJoCo's filter decides: geoms with ``contype`` and ``conaffinity`` 0 are not collision geometries
     (whatever their group), the others are (any group); an ellipsoid is left out with a warning; a mesh given
-    by its vertices is the convex hull of them, scaled (the interior vertex dropped); the world's plane is
+    by its vertices is the convex hull of MuJoCo's compiled vertices (the interior vertex dropped); the world's plane is
     not a body's geometry. ``model.geometries`` (the viewer's) is unchanged."""
     with pytest.warns(UserWarning, match=r"ellipsoid geoms of bodies are left out of the collision geometries"):
         model = mb.load_mjcf(MJCF_GEOMS)
@@ -242,9 +242,12 @@ def test_mjcf_collision_filter_ellipsoid_and_vertex_mesh():
     assert [(g.kind, g.shape) for g in model.geometries] == [
         ("visual", "box"), ("collision", "sphere"), ("collision", "capsule"), ("visual", "cylinder"),
         ("visual", "ellipsoid")]
+    # MuJoCo's compiled vertices, centred on the mesh's inertial frame, at the geom's compiled pose: in the
+    # body, the scaled tetrahedron at the geom's pos, to MuJoCo's single precision
     tetrahedron = model.collision_geometries[2]
-    np.testing.assert_array_equal(tetrahedron.placement, pose_from_xyz_rpy((1.0, 0.0, 0.0)))
-    np.testing.assert_array_equal(sort_rows(tetrahedron.vertices), sort_rows(2.0 * np.vstack([np.zeros(3), np.eye(3)])))
+    X = tetrahedron.placement
+    np.testing.assert_allclose(sort_rows(np.round(tetrahedron.vertices @ X[:3, :3].T + X[:3, 3], 6)),
+                               sort_rows(2.0 * np.vstack([np.zeros(3), np.eye(3)]) + [1.0, 0.0, 0.0]), rtol=0, atol=1e-6)
     table = geo.collision_table(model)
     assert table.shapes.tolist() == [geo.BOX, geo.CAPSULE, geo.CONVEX]
     np.testing.assert_array_equal(table.sizes, [[0.1, 0.2, 0.3], [0.1, 0.4, 0.0], [0.0, 0.0, 0.0]])
@@ -346,13 +349,13 @@ def test_builder_refuses_bad_input(args, kwargs, message):
 
 
 def test_mjcf_flat_vertex_mesh_is_left_out_with_a_warning():
-    """A colliding mesh given by vertices in one plane has no convex hull with volume: it is left out of the
-    collision geometries with a warning naming its line, and the model loads."""
-    xml = ('<mujoco><asset><mesh name="flat" vertex="0 0 0  1 0 0  0 1 0  1 1 0"/></asset><worldbody>'
+    """A colliding mesh given by vertices within 1e-12 of one plane, which MuJoCo compiles, has no convex hull
+    with volume: it is left out of the collision geometries with a warning naming it, and the model loads."""
+    xml = ('<mujoco><asset><mesh name="flat" vertex="0 0 0  1 0 0  0 1 0  1 1 0  0.5 0.5 1e-12"/></asset><worldbody>'
            '<body name="b"><joint type="hinge"/><inertial pos="0 0 0" mass="1" diaginertia="1 1 1"/>'
            '<geom type="mesh" mesh="flat" mass="0"/><geom type="sphere" size="0.1"/></body></worldbody></mujoco>')
-    with pytest.warns(UserWarning, match=r":1: <mesh name=.flat.>: a mesh without a convex hull is left out of the collision "
-                                         r"geometries: its vertices lie in one plane"):
+    with pytest.warns(UserWarning, match=r"^<MJCF string>: mesh 'flat': a mesh without a convex hull is left out of the "
+                                         r"collision geometries: its vertices lie in one plane"):
         model = mb.load_mjcf(xml)
     assert [g.shape for g in model.collision_geometries] == ["sphere"]
 
@@ -405,15 +408,15 @@ def test_add_collision_geometry_takes_a_model_files_shapes_as_given():
         geo.collision_table(model)
 
 
-@pytest.mark.parametrize("reference_pose, shape", [('refpos="0.05 0 0"', "mesh"),
-                                                   ('refpos="0.05 0 0" refquat="0.9 0.1 0.3 0.2"', "convex")])
-def test_mjcf_mesh_file_hull_is_mujocos(tmp_path, reference_pose, shape):
+@pytest.mark.parametrize("reference_pose, exact", [('refpos="0.05 0 0"', True),
+                                                   ('refpos="0.05 0 0" refquat="0.9 0.1 0.3 0.2"', False)])
+def test_mjcf_mesh_file_hull_is_mujocos(tmp_path, reference_pose, exact):
     """A colliding mesh geom read from a file (scaled unevenly, moved by ``refpos``, placed by ``pos`` and
     ``euler``) is the convex hull MuJoCo collides: its support function ``max_v d·v`` in the world equals
     that of MuJoCo's mesh vertices placed at the geom's pose, in every direction, to MuJoCo's single
     precision, and so does the viewer's mesh, drawn without a warning. Turned by ``refquat`` as well, the
-    file's placement cannot draw it (MuJoCo scales after turning, and the viewer warns): its hull is read at
-    load, a ``"convex"`` geometry."""
+    file's placement cannot draw it (MuJoCo scales after turning, and the viewer warns); the collision hull,
+    from MuJoCo's compiled vertices, is exact either way."""
     mujoco = pytest.importorskip("mujoco")
     mesh = trimesh.creation.icosphere(subdivisions=1, radius=0.3)
     mesh.vertices[:, 0] += 0.2 * mesh.vertices[:, 1] ** 2  # (not symmetric: the re-centring shows)
@@ -426,15 +429,14 @@ def test_mjcf_mesh_file_hull_is_mujocos(tmp_path, reference_pose, shape):
         warnings.simplefilter("always")
         model = mb.load_mjcf(str(tmp_path / "blob.xml"))
     assert [str(w.message).split(": ", 1)[1] for w in caught] == \
-        ([] if shape == "mesh" else ["<mesh name='blob'>: a mesh scaled unevenly and turned by refquat is drawn "
-                                     "approximately"])
+        ([] if exact else ["mesh 'blob': a mesh scaled unevenly and turned by refquat is drawn approximately"])
     reference = mujoco.MjModel.from_xml_path(str(tmp_path / "blob.xml"))
     data = mujoco.MjData(reference)
     rng = np.random.default_rng(3)
     q = model.random_configuration(rng)
     data.qpos[:] = mb.mjcf.to_mujoco(model, q, np.zeros(model.nv))[0]
     mujoco.mj_kinematics(reference, data)
-    assert [g.shape for g in model.collision_geometries] == [shape]
+    assert [g.shape for g in model.collision_geometries] == ["convex"]
     table = geo.collision_table(model)
     assert table.shapes.tolist() == [geo.CONVEX]
     X = mb.forward_kinematics(model, q)[table.frames[0]] @ table.placements[0]
@@ -444,7 +446,7 @@ def test_mjcf_mesh_file_hull_is_mujocos(tmp_path, reference_pose, shape):
     directions = rng.normal(size=(200, 3))
     support = (directions @ theirs.T).max(axis=1)
     np.testing.assert_allclose((directions @ ours.T).max(axis=1), support, rtol=0, atol=1e-6)
-    if shape == "mesh":
+    if exact:
         (geometry, drawn), = geo.load_meshes(model)
         body = mb.forward_kinematics(model, q)[model.body_index(geometry.body)]
         world = np.asarray(drawn.vertices) @ body[:3, :3].T + body[:3, 3]
