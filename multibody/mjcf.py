@@ -51,8 +51,8 @@ equations of motion and are ignored without a word.
 
 What MuJoCo refuses raises :class:`MJCFError` with MuJoCo's message (it names the element and the
 line) after the file; so does what MuJoCo compiles and the model cannot hold (a number that is not finite
-or past ``1e50``, a negative damping), naming the element. MuJoCo is an extra (``pip install "multibody[mjcf]"``), imported when a file is
-loaded.
+or past ``1e50``, a negative damping), naming the element. MuJoCo is an extra
+(``pip install "multibody[mjcf]"``), imported when a file is loaded.
 """
 
 from __future__ import annotations
@@ -281,7 +281,8 @@ def _check_magnitudes(m, object_name):
     kinds = {"body": mujoco.mjtObj.mjOBJ_BODY, "joint": mujoco.mjtObj.mjOBJ_JOINT, "site": mujoco.mjtObj.mjOBJ_SITE,
              "geom": mujoco.mjtObj.mjOBJ_GEOM, "equality": mujoco.mjtObj.mjOBJ_EQUALITY}
     arrays = [(kind, field, getattr(m, field)) for kind, fields in _READ.items() for field in fields]
-    for kind, field, values in arrays + [("option", "gravity", m.opt.gravity[None]), ("joint", "qpos0", m.qpos0[:, None])]:
+    arrays += [("option", "gravity", m.opt.gravity[None]), ("joint", "qpos0", m.qpos0[:, None])]
+    for kind, field, values in arrays:
         bad = np.flatnonzero(~np.all(np.abs(values) <= LARGEST_MAGNITUDE, axis=tuple(range(1, values.ndim))))
         if len(bad):
             k = bad[0]
@@ -327,7 +328,8 @@ def _report_left_out(m, report):
         if count:
             report.add(text, named(kind, 0, what), count)
     for ids, kind, what, text in (
-            (np.flatnonzero(m.jnt_stiffness), obj.mjOBJ_JOINT, "joint", "joint springs (stiffness) are not modelled"),
+            (np.flatnonzero(m.jnt_stiffness), obj.mjOBJ_JOINT, "joint",
+             "joint springs (stiffness, springdamper) are not modelled"),
             (np.flatnonzero(m.body_gravcomp), obj.mjOBJ_BODY, "body", "gravity compensation (gravcomp) is not modelled"),
             (np.flatnonzero(m.jnt_limited & (m.jnt_type == int(mujoco.mjtJoint.mjJNT_BALL))), obj.mjOBJ_JOINT, "joint",
              "a ball joint's range (a cone around its reference) is not modelled")):

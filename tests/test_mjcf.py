@@ -731,7 +731,7 @@ def test_left_out_elements_warn_once_each_kind(tmp_path):
     assert sorted(str(w.message) for w in caught) == sorted([
         f"{path}: actuator 'm': actuators are not modelled: give the joint forces as tau (2 elements)",
         f"{path}: tendon 't': tendons are not modelled",
-        f"{path}: joint 'j': joint springs (stiffness) are not modelled (2 elements)",
+        f"{path}: joint 'j': joint springs (stiffness, springdamper) are not modelled (2 elements)",
         f"{path}: body 'a': gravity compensation (gravcomp) is not modelled",
         f"{path}: joint 'ball': a ball joint's range (a cone around its reference) is not modelled",
         f"{path}: <option>: fluid forces (wind, density, viscosity) are not modelled",
