@@ -10,8 +10,8 @@ three rows of rank two, as the loop is planar), and a ``joint`` equality makes t
 the right one. Eight joints less five independent rows leave three degrees of freedom, as in MuJoCo.
 
 The model leaves out what is not rigid-body dynamics. The spring links' springs (``stiffness``
-towards ``springref``) are added back as joint torques, ``τ = −k (q − q_spring)``, read from the file
-(:func:`joint_springs`). Those springs press each coupler onto the upper end of its range (MuJoCo's own
+towards ``springref``) are added back as joint torques, ``τ = −k (q − q_spring)``, as MuJoCo compiles
+them from the file (:func:`joint_springs`). Those springs press each coupler onto the upper end of its range (MuJoCo's own
 simulation of this stroke has both coupler limits active from its second 0.1 ms step to the end), which
 keeps the finger's pad parallel until it touches something; the model enforces no limits, so the stroke
 holds each coupler there with a ``mb.JointCoupling(None, coupler, offset=upper)``, whose multiplier is
@@ -65,24 +65,6 @@ def panda_xml():
     return path if os.path.isfile(path) else None
 
 
-def _default_class(root, name):
-    """The ``<default class=name>`` element of ``root`` and its ancestors, outermost (the main class) first."""
-    def walk(node, chain):
-        for child in node.findall("default"):
-            here = chain + [child]
-            if child.get("class") == name:
-                return here
-            found = walk(child, here)
-            if found:
-                return found
-        return None
-
-    chain = walk(root, [])
-    if chain is None:
-        raise ValueError(f"no default class {name!r}")
-    return chain
-
-
 def gripper_mjcf(panda_path):
     """The gripper of ``panda_path`` as an MJCF document of its own (a string): the compiler settings, the
     ``2f85`` default class, the gripper's meshes (``meshdir`` the folder of ``panda_path``, absolute, so
@@ -117,22 +99,15 @@ def gripper_mjcf(panda_path):
     return ET.tostring(out, encoding="unicode")
 
 
-def joint_springs(xml, model):
+def joint_springs(xml):
     """``(stiffness (nv,), spring reference (nv,))`` of the joints of the MJCF document ``xml`` (N·m/rad,
-    rad): each joint's ``stiffness`` and ``springref`` from its own attributes or its default classes (zero
-    where it has none; the file's angles are in radians); the loader leaves the springs out."""
-    root = ET.fromstring(xml)
-    stiffness, reference = np.zeros(model.nv), np.zeros(model.nv)
-    for joint in root.find("worldbody").iter("joint"):
-        values = {}
-        # the joint's class, else the childclass of the gripper's bodies
-        for default in _default_class(root, joint.get("class", GRIPPER_CLASS)):
-            values.update(getattr(default.find("joint"), "attrib", {}))
-        values.update(joint.attrib)
-        index = model.idx_v[model.joint_index(joint.get("name"))]
-        stiffness[index] = float(values.get("stiffness", 0.0))
-        reference[index] = float(values.get("springref", 0.0))
-    return stiffness, reference
+    rad): MuJoCo's compiled ``jnt_stiffness`` and ``qpos_spring`` (each joint's ``stiffness`` and
+    ``springref``, its default classes resolved); the loader leaves the springs out. The gripper's joints
+    are hinges, so MuJoCo's joint order is the model's velocity order."""
+    import mujoco
+
+    reference = mujoco.MjModel.from_xml_string(xml)
+    return reference.jnt_stiffness.copy(), reference.qpos_spring.copy()
 
 
 def load_gripper(panda_path):
@@ -165,7 +140,7 @@ def stroke_torques(model, xml, closed=CLOSED):
     """The joint torques of the stroke, a callable ``tau(t, q, v) -> (nv,)`` (N·m): the springs of
     :func:`joint_springs`, and on the right driver joint a PD controller (:data:`GAIN`, :data:`DAMPING`)
     following :func:`minimum_jerk` from 0 to ``closed`` (rad)."""
-    stiffness, reference = joint_springs(xml, model)
+    stiffness, reference = joint_springs(xml)
     driver = model.idx_v[model.joint_index("right_driver_joint")]
 
     def tau(t, q, v):
@@ -210,7 +185,7 @@ def mujoco_stroke(xml, model, tau, times):
     reference = mujoco.MjModel.from_xml_string(xml)
     reference.opt.timestep = 1e-4
     data = mujoco.MjData(reference)
-    stiffness, spring = joint_springs(xml, model)
+    stiffness, spring = joint_springs(xml)
     out = []
     for time in times:
         while data.time < time - 0.5 * reference.opt.timestep:
