@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import copy
 import inspect
+import weakref
 from dataclasses import dataclass
 
 import numba
@@ -500,6 +501,8 @@ def is_compiled_controller(tau) -> bool:
     """Whether ``tau`` is a ``numba.njit`` function of four parameters ``f(t, q, v, out)``."""
     if not numba.extending.is_jitted(tau):
         return False
+    if tau in _CONTROLLER_POINTERS:  # compiled for f(t, q, v, out) already
+        return True
     try:
         return len(inspect.signature(tau.py_func).parameters) == 4
     except (TypeError, ValueError):
@@ -516,19 +519,11 @@ class CompiledController:
 
     def __init__(self, function, nv):
         self.function, self.nv = function, nv
-        name = getattr(function, "__name__", repr(function))
-        try:
-            function.compile(CONTROLLER_TYPES)
-        except NumbaError as error:
-            raise TypeError(f"tau: the numba.njit controller {name}(t, q, v, out) does not compile for t a float and "
-                            f"q, v, out float64 vectors: {error}") from error
-        returned = numba_hooks.return_type(function, CONTROLLER_TYPES)
-        if returned != types.none:
-            raise TypeError(f"tau: the numba.njit controller {name}(t, q, v, out) must write the joint forces into "
-                            f"out and return nothing; it returns {returned}")
-        #: the function as the compiled run takes it (a first-class function)
-        # (not kept by the driver, which would hold every controller made: this object keeps it)
-        self.pointer = numba_hooks.first_class(function, CONTROLLER_TYPES)
+        #: the function as the compiled run takes it (a first-class function), checked and made once per function
+        # (kept while the function lives, not by the driver, which would hold every controller made)
+        self.pointer = _CONTROLLER_POINTERS.get(function)
+        if self.pointer is None:
+            self.pointer = _CONTROLLER_POINTERS[function] = _controller_pointer(function)
 
     def __call__(self, t, q, v):
         q, v = driver.contiguous(np.asarray(q, dtype=float)), driver.contiguous(np.asarray(v, dtype=float))
@@ -545,6 +540,25 @@ class CompiledController:
         return out.reshape(batch + (self.nv,))
 
 
+def _controller_pointer(function):
+    """The ``numba.njit`` controller ``function`` compiled for :data:`CONTROLLER_TYPES`, as a first-class function;
+    ``TypeError`` names it when it does not compile for them or returns a value."""
+    name = getattr(function, "__name__", repr(function))
+    try:
+        function.compile(CONTROLLER_TYPES)
+    except NumbaError as error:
+        raise TypeError(f"tau: the numba.njit controller {name}(t, q, v, out) does not compile for t a float and "
+                        f"q, v, out float64 vectors: {error}") from error
+    returned = numba_hooks.return_type(function, CONTROLLER_TYPES)
+    if returned != types.none:
+        raise TypeError(f"tau: the numba.njit controller {name}(t, q, v, out) must write the joint forces into "
+                        f"out and return nothing; it returns {returned}")
+    return numba_hooks.first_class(function, CONTROLLER_TYPES)
+
+
+#: The first-class function of each compiled controller (:func:`_controller_pointer`), by the ``numba.njit``
+#: function, held while that lives: a function defined again is another key, compiled and checked again.
+_CONTROLLER_POINTERS = weakref.WeakKeyDictionary()
 _CONTROLLER_FUNCTION = types.FunctionType(types.none(*CONTROLLER_TYPES))
 _CONTROLLER_ROWS_TYPES = (_CONTROLLER_FUNCTION, types.float64, types.float64[:, ::1], types.float64[:, ::1],
                           types.float64[:, ::1])
@@ -684,12 +698,14 @@ class CompiledRun:
         io[stepping.IO_STEP], io[stepping.IO_STOP] = k, stop
         io[stepping.IO_STAGE] = io[stepping.IO_TORQUE_GIVEN] = 0.0
         tree = self.tree
-        if self.kind == stepping.FUNCTION:
-            self.advance_batch(states[None], io[None], np.zeros(1, dtype=np.int64), threads=1)
-            return int(io[stepping.IO_STEP]), int(io[stepping.IO_STATUS])
-        entry = driver.entry_point(stepping.run, _RUN_TYPES)
         arguments = (tree.joints, tree.reals, self.frames, self.program, self.times, self.plan, self.control[0], states,
                      io, self.ws)
+        if self.kind == stepping.FUNCTION:
+            # stepping.advance with the controller's pointer, on this thread (the batch's parallel loop would wake
+            # Numba's thread pool for one trajectory); the others by stepping.run, compiled without a controller
+            entry, arguments = driver.entry_point(stepping.advance, _ADVANCE_TYPES), (self.pointer,) + arguments
+        else:
+            entry = driver.entry_point(stepping.run, _RUN_TYPES)
         entry(*arguments)
         if io[stepping.IO_STATUS] == stepping.NEED_TORQUE:
             # a Python controller: the stage's t, q, v out, τ in, and the run goes on from that stage

@@ -177,9 +177,11 @@ def projected_start(constrained, q, v, t0, stacklevel):
     distance and the coordinates that moved most; where the projection fails, its ``ConstraintError``."""
     # (the rows' rank warning, on the system's first projection, also points at the caller)
     q_projected, v_projected, conditioning = constrained._projection(q, v, t0, stacklevel=stacklevel + 1)
+    if not constrained.num_rows:  # (without rows the projection normalises q only, which is not reported)
+        return q_projected, v_projected, conditioning
     dq, dv = np.abs(q_projected - q), np.abs(v_projected - v)
     moved = max(dq.max(initial=0.0), dv.max(initial=0.0))
-    if moved > 1e-10 and constrained.num_rows:
+    if moved > 1e-10:
         largest = [f"{coordinate_name(constrained.system, int(np.argmax(d)), rate)} by {d.max():.3g}"
                    for d, rate in ((dq, False), (dv, True)) if d.size and d.max() > 1e-10]
         warnings.warn(f"initial state violated the constraints; projected onto them (moved by {moved:.3g}: "

@@ -518,7 +518,7 @@ _PROJECTION_TOLERANCE, _PROJECTION_ITERATIONS = 1e-12, 50
 
 #: A compiled run's first call takes this many steps; the next ones about :data:`CHUNK_SECONDS` of wall time
 #: each, so that the progress bar moves and an interrupt is answered.
-_FIRST_CHUNK, CHUNK_SECONDS = 16, 0.2
+_FIRST_CHUNK, CHUNK_SECONDS = 64, 0.2
 
 
 def _next_chunk(chunk, seconds):

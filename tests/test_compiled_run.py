@@ -415,7 +415,8 @@ def test_a_batch_with_a_compiled_controller_equals_its_trajectories_alone():
 
 def test_the_run_s_first_class_functions_are_made_once_and_a_controller_is_not_kept(monkeypatch):
     """The driver makes the first-class value of each of multibody's functions once (about 30 µs each) however
-    many runs and chunks ask for it; a user's compiled controller keeps its own, and the driver holds none."""
+    many runs and chunks ask for it; a user's compiled controller has its own, made once per function (a function
+    defined again makes its own, and runs its own law), and the driver holds none."""
     from multibody import driver, numba_hooks
 
     made = []
@@ -429,16 +430,68 @@ def test_the_run_s_first_class_functions_are_made_once_and_a_controller_is_not_k
     ball, system = ball_system()
     q0, v0 = system.project(*random_states(ball, system, 2, seed=5))
 
-    @numba.njit
-    def push(t, q, v, out):
-        out[0] = np.sin(3.0 * t)
+    def defined(gain):
+        @numba.njit
+        def push(t, q, v, out):
+            out[0] = gain * np.sin(3.0 * t)
+        return push
 
+    push = defined(1.0)
     runs = [mb.simulate(system, q0, v0, 0.1, dt=0.01, method="RK4", tau=push) for _ in range(2)]
     assert_same(runs[0], runs[1], tol=0.0)
-    assert made.count(push) == 2, "each run's controller makes its own first-class value"
-    ours = [function for function in made if function is not push]
+    assert made.count(push) == 1, "the controller's first-class value is made once per function"
+    again = defined(-1.0)
+    other = mb.simulate(system, q0, v0, 0.1, dt=0.01, method="RK4", tau=again)
+    assert made.count(again) == 1, "a function defined again makes its own"
+    assert not np.array_equal(other.q[:, -1], runs[0].q[:, -1]), "the function defined again runs its own law"
+    assert_same(other, mb.simulate(system, q0, v0, 0.1, dt=0.01, method="RK4",
+                                   tau=lambda t, q, v: np.array([-np.sin(3.0 * t), 0, 0, 0, 0, 0])), tol=1e-12)
+    ours = [function for function in made if function not in (push, again)]
     assert len(ours) == len(set(ours)), f"made again: {ours}"
-    assert push not in driver._FIRST_CLASS
+    assert push not in driver._FIRST_CLASS and again not in driver._FIRST_CLASS
+
+
+def test_a_compiled_controller_made_once_serves_each_model_at_its_size():
+    """The same numba.njit controller bound to models of different sizes: one first-class value (the same machine
+    code), each bound controller with its own model's nv, and each run equal to the same law as a Python callable."""
+    @numba.njit
+    def damp(t, q, v, out):
+        for c in range(v.shape[0]):
+            out[c] = -0.5 * v[c] - q[c]
+
+    bound = []
+    for model in (oscillator(), mb.robots.load("panda")):
+        controller = integrators.as_controller(damp, model)
+        bound.append(controller)
+        q0, v0 = model.neutral() + 0.1, np.full(model.nv, 0.2)
+        assert controller(0.0, q0, v0).shape == (model.nv,)
+        compiled = mb.simulate(model, q0, v0, 0.05, dt=0.01, method="RK4", tau=damp, limits="ignore")
+        python = mb.simulate(model, q0, v0, 0.05, dt=0.01, method="RK4", tau=lambda t, q, v: -0.5 * v - q,
+                             limits="ignore")
+        assert_same(compiled, python, tol=1e-12)
+    assert bound[0].pointer is bound[1].pointer
+    assert (bound[0].nv, bound[1].nv) == (1, 9)
+
+
+def test_one_trajectory_with_a_compiled_controller_runs_on_the_calling_thread(monkeypatch):
+    """One trajectory's compiled controller runs in the run itself (stepping.advance on this thread), not through
+    the batch's parallel loop, and equals the same law as a Python callable."""
+    def parallel(*arguments, **options):
+        raise AssertionError("one trajectory ran through the batch's parallel loop")
+
+    model, q0, v0 = panda()
+    q_ref = model.neutral()
+
+    @numba.njit
+    def pd(t, q, v, out):
+        for c in range(v.shape[0]):
+            out[c] = 50.0 * (q_ref[c] - q[c]) - 2.0 * v[c]
+
+    python = mb.simulate(model, q0, v0, 0.05, dt=0.001, method="RK4", tau=lambda t, q, v: 50.0 * (q_ref - q) - 2.0 * v,
+                         limits="ignore")
+    monkeypatch.setattr(integrators.CompiledRun, "advance_batch", parallel)
+    compiled = mb.simulate(model, q0, v0, 0.05, dt=0.001, method="RK4", tau=pd, limits="ignore")
+    assert_same(compiled, python, tol=1e-12)
 
 
 def test_a_batch_through_singular_configurations_hands_those_steps_to_python(statuses):
