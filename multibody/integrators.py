@@ -64,11 +64,17 @@ class Tableau:
         return tuple(self.b_velocity[i] != 0.0 or any(self.a_velocity[j][i] != 0.0 for j in range(i + 1, s))
                      for i in range(s))
 
+    def __post_init__(self):
+        # (the block of an immutable tableau, made once rather than at every run; read-only, since runs share it)
+        block = np.concatenate([np.ravel(x) for x in (self.c, self.a_position, self.a_velocity, self.b_position,
+                                                      self.b_velocity, self.needs_acceleration)]).astype(float)
+        block.setflags(write=False)
+        object.__setattr__(self, "_block", block)
+
     def block(self) -> np.ndarray:
-        """The coefficients as :mod:`multibody.kernels.stepping` reads them: ``c``, ``a_position``,
+        """The coefficients as :mod:`multibody.kernels.stepping` reads them (read-only): ``c``, ``a_position``,
         ``a_velocity`` (row-major), ``b_position``, ``b_velocity``, :attr:`needs_acceleration`."""
-        return np.concatenate([np.ravel(x) for x in (self.c, self.a_position, self.a_velocity, self.b_position,
-                                                     self.b_velocity, self.needs_acceleration)]).astype(float)
+        return self._block
 
 
 def _runge_kutta(c, a, b, order):
@@ -432,25 +438,22 @@ class PD:
                 raise ValueError(f"mb.PD: {name} has shape {getattr(self, name).shape}, for {count} trajectories, but "
                                  f"the simulation has {batch} initial states")
         count = batch if sizes else 1
-        q_ref = np.broadcast_to(self.q_ref.reshape((-1, n, nq)) if self.q_ref.ndim > 1 + table
-                                else self.q_ref.reshape((1, n, nq)), (count, n, nq))
+        # each trajectory's row [k_p | k_d | τ_ff | n | t_ref | q_ref | v_ref], each part broadcast as it is written
+        rows = np.empty((count, 3 * nv + 1 + n * (1 + nq + nv)))
+        at = 0
+        for value, size in ((self.kp, nv), (self.kd, nv), (self.tau_ff, nv), (float(n), 1),
+                            (self.t_ref if table else 0.0, n), (self.q_ref.reshape((-1, n * nq)), n * nq),
+                            (None if self.v_ref is None else self.v_ref.reshape((-1, n * nv)), n * nv)):
+            rows[:, at : at + size] = 0.0 if value is None else value
+            at += size
         if model is not None:
             try:
-                model.check_configuration(q_ref, "q_ref")
+                model.check_configuration(rows[:, 3 * nv + 1 + n : 3 * nv + 1 + n * (1 + nq)].reshape((count, n, nq)),
+                                          "q_ref")
             except ValueError as error:
                 raise ValueError(f"mb.PD: q_ref: {error}") from None
-        v_ref = (np.zeros((1, n, nv)) if self.v_ref is None else
-                 self.v_ref.reshape((-1, n, nv)) if self.v_ref.ndim > 1 + table else self.v_ref.reshape((1, n, nv)))
-
-        def per_trajectory(value):
-            return np.broadcast_to(0.0 if value is None else value, (count, nv))
-
-        times = np.broadcast_to(self.t_ref if table else [0.0], (count, n))
-        rows = np.concatenate([per_trajectory(self.kp), per_trajectory(self.kd), per_trajectory(self.tau_ff),
-                               np.full((count, 1), float(n)), times, q_ref.reshape(count, n * nq),
-                               np.broadcast_to(v_ref, (count, n, nv)).reshape(count, n * nv)], axis=1)
         tree = model.tree if model is not None else vector_space_tree(nq)
-        return PDController(tree, np.ascontiguousarray(rows), nq, nv)
+        return PDController(tree, rows, nq, nv)
 
 
 class PDController:

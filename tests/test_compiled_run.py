@@ -651,6 +651,20 @@ def test_a_python_controller_that_raises_keeps_the_steps_before_its_stage(python
     assert_same(outcomes[0].trajectory, outcomes[1].trajectory, tol=0.0)
 
 
+def test_a_tableau_s_block_is_made_once_and_read_only():
+    """Each run reads its method's coefficients from the one block the tableau made (read-only, as runs share it):
+    c, a_position, a_velocity, b_position, b_velocity and which stages need the accelerations."""
+    for name, tableau in integrators.TABLEAUS.items():
+        block = tableau.block()
+        assert block is tableau.block(), name
+        assert not block.flags.writeable, name
+        s = tableau.stages
+        expected = np.concatenate([tableau.c, np.ravel(tableau.a_position), np.ravel(tableau.a_velocity),
+                                   tableau.b_position, tableau.b_velocity, tableau.needs_acceleration])
+        np.testing.assert_array_equal(block, expected)
+        assert block.size == 4 * s + 2 * s * s, name
+
+
 def test_control_rows_of_each_controller_kind():
     """:func:`multibody.integrators.control_rows`: the kind each controller runs as and its rows, one row of ``nv``
     zeros where the kind reads none."""
