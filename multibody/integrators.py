@@ -524,9 +524,11 @@ class CompiledController:
         self.function, self.nv = function, nv
         #: the function as the compiled run takes it (a first-class function), checked and made once per function
         # (kept while the function lives, not by the driver, which would hold every controller made)
-        self.pointer = _CONTROLLER_POINTERS.get(function)
-        if self.pointer is None:
-            self.pointer = _CONTROLLER_POINTERS[function] = _controller_pointer(function)
+        # (the machine code the pointer was made from must still be the function's: ``recompile()`` replaces it)
+        compiled, self.pointer = _CONTROLLER_POINTERS.get(function, (None, None))
+        if compiled is None or compiled is not function.overloads.get(CONTROLLER_TYPES):
+            self.pointer = _controller_pointer(function)
+            _CONTROLLER_POINTERS[function] = (function.overloads[CONTROLLER_TYPES], self.pointer)
 
     def __call__(self, t, q, v):
         q, v = driver.contiguous(np.asarray(q, dtype=float)), driver.contiguous(np.asarray(v, dtype=float))
@@ -559,8 +561,9 @@ def _controller_pointer(function):
     return numba_hooks.first_class(function, CONTROLLER_TYPES)
 
 
-#: The first-class function of each compiled controller (:func:`_controller_pointer`), by the ``numba.njit``
-#: function, held while that lives: a function defined again is another key, compiled and checked again.
+#: The compiled overload and first-class function of each controller (:func:`_controller_pointer`), by the
+#: ``numba.njit`` function, held while that lives: a function defined again is another key, and one compiled
+#: again has another overload, so either is checked and made again.
 _CONTROLLER_POINTERS = weakref.WeakKeyDictionary()
 _CONTROLLER_FUNCTION = types.FunctionType(types.none(*CONTROLLER_TYPES))
 _CONTROLLER_ROWS_TYPES = (_CONTROLLER_FUNCTION, types.float64, types.float64[:, ::1], types.float64[:, ::1],

@@ -446,9 +446,27 @@ def test_the_run_s_first_class_functions_are_made_once_and_a_controller_is_not_k
     assert not np.array_equal(other.q[:, -1], runs[0].q[:, -1]), "the function defined again runs its own law"
     assert_same(other, mb.simulate(system, q0, v0, 0.1, dt=0.01, method="RK4",
                                    tau=lambda t, q, v: np.array([-np.sin(3.0 * t), 0, 0, 0, 0, 0])), tol=1e-12)
-    ours = [function for function in made if function not in (push, again)]
+    ours = [function for function in made if function not in (push, again, steered)]
     assert len(ours) == len(set(ours)), f"made again: {ours}"
     assert push not in driver._FIRST_CLASS and again not in driver._FIRST_CLASS
+
+    # a function compiled again (Numba freezes the global it reads at each compilation) runs its new code
+    global STEERING_GAIN
+    STEERING_GAIN = 1.0
+    first = mb.simulate(system, q0, v0, 0.1, dt=0.01, method="RK4", tau=steered)
+    STEERING_GAIN = -1.0
+    steered.recompile()
+    assert_same(mb.simulate(system, q0, v0, 0.1, dt=0.01, method="RK4", tau=steered), other, tol=0.0)
+    assert_same(first, runs[0], tol=0.0)
+    assert made.count(steered) == 2, "a function compiled again makes its first-class value again"
+
+
+STEERING_GAIN = 1.0
+
+
+@numba.njit
+def steered(t, q, v, out):
+    out[0] = STEERING_GAIN * np.sin(3.0 * t)
 
 
 def test_a_compiled_controller_made_once_serves_each_model_at_its_size():
