@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from functools import cached_property
+from functools import cache, cached_property
 from typing import ClassVar
 
 import numpy as np
@@ -48,23 +48,39 @@ UNIT_SQUARED_NORMS = ((1.0 - UNIT_NORM_TOLERANCE) ** 2, (1.0 + UNIT_NORM_TOLERAN
 _DEFAULT_TRANSLATION_RANGE = 1.0
 
 def _unit(axis, what):
-    axis = np.array(axis, dtype=float).reshape(-1)
+    values = np.array(axis, dtype=float).reshape(-1).tolist()
     # three numbers: Python's arithmetic costs less than NumPy's reductions (model loaders make many joints)
-    values = axis.tolist()
     if len(values) != 3 or not all(math.isfinite(x) for x in values):
         raise ValueError(f"{what} axis must be 3 finite numbers, got {values}")
     norm = math.sqrt(values[0] * values[0] + values[1] * values[1] + values[2] * values[2])
     if norm < 1e-12:
-        raise ValueError(f"{what} axis must be non-zero, got {axis.tolist()}")
-    axis = axis / norm
-    axis.setflags(write=False)
-    return axis
+        raise ValueError(f"{what} axis must be non-zero, got {values}")
+    return [x / norm for x in values]
+
+
+def _set_axis(joint, start, what):
+    """Make ``joint.axis`` its unit axis ``(3,)`` and ``joint.motion_subspace`` ``(6, 1)`` that axis from row ``start``
+    (3: angular, 0: linear), both read-only."""
+    subspace = np.zeros((6, 1))
+    subspace[start : start + 3, 0] = _unit(joint.axis, what)
+    subspace.setflags(write=False)
+    object.__setattr__(joint, "axis", subspace[start : start + 3, 0])
+    object.__setattr__(joint, "motion_subspace", subspace)
 
 
 def _constant(array):
     array = np.array(array, dtype=float)
     array.setflags(write=False)
     return array
+
+
+@cache
+def _default_limits(nq, unit_norm):
+    """:attr:`Joint.default_limits` of a joint of ``nq`` coordinates whose ``unit_norm`` slice has norm 1 (made once)."""
+    lower, upper = np.full(nq, -np.inf), np.full(nq, np.inf)
+    if unit_norm is not None:
+        lower[unit_norm[0] : unit_norm[1]], upper[unit_norm[0] : unit_norm[1]] = -1.0, 1.0
+    return _constant(lower), _constant(upper)
 
 
 def _require_unit_norm(values, joint_name, what):
@@ -225,8 +241,9 @@ class Joint:
 
     @property
     def default_limits(self):
-        """``(lower, upper)`` position limits, ``(nq,)`` each, when the description gives none."""
-        return np.full(self.nq, -np.inf), np.full(self.nq, np.inf)
+        """``(lower, upper)`` position limits, ``(nq,)`` each (read-only), when the description gives none:
+        unbounded, but ``±1`` on the :attr:`unit_norm` components, which can never leave them."""
+        return _default_limits(self.nq, self.unit_norm)
 
     def describe(self) -> str:
         """Type and axis for printing."""
@@ -243,9 +260,7 @@ class Revolute(Joint):
     nv: ClassVar[int] = 1
 
     def __post_init__(self):
-        axis = _unit(self.axis, f"{self.kind} joint")
-        object.__setattr__(self, "axis", axis)
-        object.__setattr__(self, "motion_subspace", _constant(np.concatenate([np.zeros(3), axis])[:, None]))
+        _set_axis(self, 3, f"{self.kind} joint")
 
     def random(self, rng, lower, upper, shape=()):
         return _random_uniform(rng, lower, upper, np.pi, shape)
@@ -271,9 +286,7 @@ class Prismatic(Joint):
     nv: ClassVar[int] = 1
 
     def __post_init__(self):
-        axis = _unit(self.axis, "prismatic joint")
-        object.__setattr__(self, "axis", axis)
-        object.__setattr__(self, "motion_subspace", _constant(np.concatenate([axis, np.zeros(3)])[:, None]))
+        _set_axis(self, 0, "prismatic joint")
 
     def describe(self):
         return f"{self.kind} axis {np.round(self.axis, 6).tolist()}"
@@ -314,10 +327,6 @@ class Planar(Joint):
         theta = rng.uniform(-np.pi, np.pi, size=shape)
         return np.concatenate([xy, np.cos(theta)[..., None], np.sin(theta)[..., None]], axis=-1)
 
-    @property
-    def default_limits(self):
-        return np.array([-np.inf, -np.inf, -1.0, -1.0]), np.array([np.inf, np.inf, 1.0, 1.0])
-
 
 @dataclass(frozen=True, eq=False)
 class Spherical(Joint):
@@ -335,10 +344,6 @@ class Spherical(Joint):
 
     def random(self, rng, lower, upper, shape=()):
         return _random_unit_quaternion(rng, shape)
-
-    @property
-    def default_limits(self):
-        return -np.ones(4), np.ones(4)
 
 
 @dataclass(frozen=True, eq=False)
@@ -361,10 +366,6 @@ class FreeFlyer(Joint):
     def random(self, rng, lower, upper, shape=()):
         p = _random_uniform(rng, lower[:3], upper[:3], _DEFAULT_TRANSLATION_RANGE, shape)
         return np.concatenate([p, _random_unit_quaternion(rng, shape)], axis=-1)
-
-    @property
-    def default_limits(self):
-        return (np.array([-np.inf] * 3 + [-1.0] * 4), np.array([np.inf] * 3 + [1.0] * 4))
 
 
 @dataclass(frozen=True, eq=False)

@@ -58,7 +58,9 @@ or past ``1e50``, a negative damping), naming the element. MuJoCo is an extra
 from __future__ import annotations
 
 import dataclasses
+import functools
 import os
+import pathlib
 import re
 import warnings
 import xml.parsers.expat
@@ -71,12 +73,7 @@ from .constraints import JointCoupling, LoopClosure
 from .geometry import hull_vertices
 from .inertia import Inertia
 from .model import Geometry, ModelBuilder
-from .modelfiles import (
-    LARGEST_MAGNITUDE,
-    is_xml_text,
-    package_directories,
-    resolve_file,
-)
+from .modelfiles import LARGEST_MAGNITUDE, is_xml_text, package_directories, resolve_file
 
 #: MuJoCo's smallest meaningful value (``mjMINVAL``): shorter quaternions are refused.
 MINVAL = 1e-15
@@ -157,17 +154,14 @@ def _compile(source, package_dirs):
         name = os.fspath(source)
         if not os.path.isfile(name):
             raise FileNotFoundError(f"MJCF file not found: {name}")
-        with open(name, encoding="utf-8", errors="replace") as stream:
-            text = stream.read()
+        with open(name, "rb", buffering=0) as stream:  # (unbuffered: the file is read at once)
+            text = stream.read().decode("utf-8", errors="replace")
     root = _root_tag(lambda parser: parser.Parse(text, True))
     # (MuJoCo would compile a URDF too)
     if root is not None and root != "mujoco":
         raise MJCFError(f"{name}: the root element must be <mujoco>, got <{root}>")
     found = _package_files(text, package_dirs) if package_dirs else {}
-    files = {}
-    for key, path in found.items():
-        with open(path, "rb") as stream:
-            files[key] = stream.read()
+    files = {key: pathlib.Path(path).read_bytes() for key, path in found.items()}
     try:
         if name == "<MJCF string>":
             spec = mujoco.MjSpec.from_string(text, include=files, assets=files)
@@ -240,30 +234,28 @@ def _build(spec, m, found, report):
     gravity = np.zeros(3) if m.opt.disableflags & int(mujoco.mjtDisableBit.mjDSBL_GRAVITY) else np.array(m.opt.gravity)
     builder = ModelBuilder(spec.modelname, gravity=gravity)
     _check_magnitudes(m, object_name)
-    hidden = _add_bodies(builder, m, body_names, joint_names)
-    meshes = _MeshFiles(spec, m, found)
-    geom_poses = _pose(m.geom_quat, m.geom_pos)
-    for g in range(m.ngeom):
-        if m.geom_bodyid[g] > 0:
-            _add_geom(builder, m, g, geom_poses[g], body_names[m.geom_bodyid[g] - 1], meshes, report)
-    site_poses = _pose(m.site_quat, m.site_pos)
-    for s in range(m.nsite):
+    # the poses of the bodies, of their principal axes, of the geoms and of the sites, in one call
+    poses = _pose(np.concatenate((m.body_quat, m.body_iquat, m.geom_quat, m.site_quat)),
+                  np.concatenate((m.body_pos, m.body_ipos, m.geom_pos, m.site_pos)))
+    geoms = 2 * m.nbody + m.ngeom
+    hidden = _add_bodies(builder, m, body_names, joint_names, poses[: m.nbody], poses[m.nbody : 2 * m.nbody, :3, :3])
+    _add_geoms(builder, m, poses[2 * m.nbody : geoms], body_names, _MeshFiles(spec, m, found), report)
+    for s, body in enumerate(m.site_bodyid.tolist()):
         site = object_name(mujoco.mjtObj.mjOBJ_SITE, s)
         if site in body_names:
             report.add("a site named as a body is no frame of the model (the body keeps the name)", f"site {site!r}")
         elif site:
-            builder.add_body(site, jt.Fixed(), parent=_body_name(m.site_bodyid[s], body_names),
-                             placement=site_poses[s], joint_name=_FIXED + site)
+            builder.add_body(site, jt.Fixed(), parent=_body_name(body, body_names), placement=poses[geoms + s],
+                             joint_name=_FIXED + site)
     model = builder.build(check_inertia=False)
-    if hidden:
-        keep = [b for b, body in enumerate(model.body_names) if body not in hidden]
-        model = dataclasses.replace(model, body_names=tuple(model.body_names[b] for b in keep),
-                                    body_joints=model.body_joints[keep], body_placements=model.body_placements[keep],
-                                    body_inertias=tuple(model.body_inertias[b] for b in keep))
+    keep = [b for b, body in enumerate(model.body_names) if body not in hidden]
     constraints = _equalities(m, body_names, joint_names, object_name, report)
-    if constraints:
-        model = dataclasses.replace(model, equality_constraints=tuple(constraints))
-    return model
+    if not hidden and not constraints:
+        return model
+    return dataclasses.replace(model, body_names=tuple(model.body_names[b] for b in keep),
+                               body_joints=model.body_joints[keep], body_placements=model.body_placements[keep],
+                               body_inertias=tuple(model.body_inertias[b] for b in keep),
+                               equality_constraints=tuple(constraints))
 
 
 #: The compiled arrays the model is made of, by the element their rows belong to.
@@ -278,10 +270,11 @@ def _check_magnitudes(m, object_name):
     where the dynamics would overflow: a ``ValueError`` naming the element and the array."""
     import mujoco
 
-    kinds = {"body": mujoco.mjtObj.mjOBJ_BODY, "joint": mujoco.mjtObj.mjOBJ_JOINT, "site": mujoco.mjtObj.mjOBJ_SITE,
-             "geom": mujoco.mjtObj.mjOBJ_GEOM, "equality": mujoco.mjtObj.mjOBJ_EQUALITY}
     arrays = [(kind, field, getattr(m, field)) for kind, fields in _READ.items() for field in fields]
     arrays += [("option", "gravity", m.opt.gravity[None]), ("joint", "qpos0", m.qpos0[:, None])]
+    # (one pass over all the numbers; the element is looked for only when one fails)
+    if np.abs(np.concatenate([values for _, _, values in arrays], axis=None)).max() <= LARGEST_MAGNITUDE:
+        return
     for kind, field, values in arrays:
         bad = np.flatnonzero(~np.all(np.abs(values) <= LARGEST_MAGNITUDE, axis=tuple(range(1, values.ndim))))
         if len(bad):
@@ -290,8 +283,8 @@ def _check_magnitudes(m, object_name):
                 kind, k = "joint", m.dof_jntid[k]
             elif field == "qpos0":
                 k = np.flatnonzero(m.jnt_qposadr <= k)[-1]
-            label = object_name(kinds[kind], int(k)) if kind in kinds else ""
-            element = f"<{kind}>" if kind not in kinds else f"{kind} {label!r}" if label else f"{kind} {int(k)}"
+            label = object_name(getattr(mujoco.mjtObj, f"mjOBJ_{kind.upper()}"), int(k)) if kind != "option" else ""
+            element = "<option>" if kind == "option" else f"{kind} {label!r}" if label else f"{kind} {int(k)}"
             raise ValueError(f"{element}: {field} {np.array2string(values[bad[0]], precision=3)}: not finite or of "
                              f"magnitude above {LARGEST_MAGNITUDE:g}, the largest accepted (the dynamics would overflow)")
 
@@ -327,21 +320,28 @@ def _report_left_out(m, report):
             (m.nflex, obj.mjOBJ_FLEX, "flex", "flexes are not supported")):
         if count:
             report.add(text, named(kind, 0, what), count)
-    for ids, kind, what, text in (
-            (np.flatnonzero(m.jnt_stiffness), obj.mjOBJ_JOINT, "joint",
-             "joint springs (stiffness, springdamper) are not modelled"),
-            (np.flatnonzero(m.body_gravcomp), obj.mjOBJ_BODY, "body", "gravity compensation (gravcomp) is not modelled"),
-            (np.flatnonzero(m.jnt_limited & (m.jnt_type == int(mujoco.mjtJoint.mjJNT_BALL))), obj.mjOBJ_JOINT, "joint",
+    ball, opt = int(mujoco.mjtJoint.mjJNT_BALL), m.opt
+    for values, kind, what, text in (
+            (m.jnt_stiffness, obj.mjOBJ_JOINT, "joint", "joint springs (stiffness, springdamper) are not modelled"),
+            (m.body_gravcomp, obj.mjOBJ_BODY, "body", "gravity compensation (gravcomp) is not modelled"),
+            (m.jnt_limited & (m.jnt_type == ball), obj.mjOBJ_JOINT, "joint",
              "a ball joint's range (a cone around its reference) is not modelled")):
-        if len(ids):
+        ids = [k for k, x in enumerate(values.tolist()) if x]
+        if ids:
             report.add(text, named(kind, ids[0], what), len(ids))
-    if m.opt.density or m.opt.viscosity or np.any(m.opt.wind):
+    if opt.density or opt.viscosity or any(opt.wind.tolist()):
         report.add("fluid forces (wind, density, viscosity) are not modelled", "<option>")
 
 
 #: the start of the names of what the builder needs named and the model does not show: the fixed joints of
 #: bodies and sites, and the bodies between the joints of one MuJoCo body (no MuJoCo name holds it)
 _FIXED = "\x00"
+
+
+@functools.cache
+def _kinds(enum):
+    """``{code: name}`` of a MuJoCo enum's members, each name in lower case after its prefix (``mjJNT_HINGE``: hinge)."""
+    return {int(code): name.partition("_")[2].lower() for name, code in enum.__members__.items()}
 
 
 def _pose(quat, pos):
@@ -354,65 +354,62 @@ def _translation(p):
     return spatial.pose_matrix(np.eye(3), p)
 
 
-def _add_bodies(builder, m, body_names, joint_names):
-    """MuJoCo's bodies and joints into ``builder``; returns the names of the bodies it adds between the joints of
+def _add_bodies(builder, m, body_names, joint_names, poses, principal):
+    """MuJoCo's bodies and joints into ``builder``, given the bodies' ``poses (nbody, 4, 4)`` in their parents and
+    ``principal (nbody, 3, 3)`` axes of inertia; returns the names of the bodies it adds between the joints of
     one MuJoCo body (to drop from the model)."""
     import mujoco
 
-    # (each attribute of MjModel makes a new array: read once)
-    kinds = {int(getattr(mujoco.mjtJoint, f"mjJNT_{kind.upper()}")): kind for kind in ("free", "ball", "slide", "hinge")}
-    types = [kinds[t] for t in m.jnt_type.tolist()]
-    jnt_pos, jnt_axis, jnt_range, jnt_limited = m.jnt_pos.copy(), m.jnt_axis.copy(), m.jnt_range.copy(), m.jnt_limited
-    refs, dof_start = m.qpos0[m.jnt_qposadr], m.jnt_dofadr.tolist()
-    per_dof = {"damping": m.dof_damping.copy(), "friction": m.dof_frictionloss.copy(), "armature": m.dof_armature.copy()}
-    nv = {"free": 6, "ball": 3, "slide": 1, "hinge": 1}
+    types, jnt_pos, refs = [_kinds(mujoco.mjtJoint)[t] for t in m.jnt_type.tolist()], m.jnt_pos, m.qpos0[m.jnt_qposadr]
+    # B_k = B_{k−1} T(p_k) M_k(q_k − ref_k) T(−p_k): joint k's pre-joint frame is T(p_k − p_{k−1}) R_k(−ref_k)
+    # in the frame of joint k − 1 (the body's frame B for k = 1), and the body hangs T(−p_n) from the last;
+    # all joints' at once (a stacked matrix product gives each the numbers of its own)
+    first = m.body_jntadr[m.jnt_bodyid] == np.arange(m.njnt)
+    X = _translation(np.concatenate((jnt_pos - np.where(first[:, None], 0.0, jnt_pos[np.arange(-1, m.njnt - 1)]),
+                                     -jnt_pos)))
+    X, ends = X[: m.njnt], X[m.njnt :]
+    hinge = (m.jnt_type == int(mujoco.mjtJoint.mjJNT_HINGE)) & (refs != 0.0)
+    if hinge.any():
+        X[hinge] = X[hinge] @ spatial.pose_matrix(spatial.axis_angle_rotation(m.jnt_axis[hinge], -refs[hinge]), np.zeros(3))
+    if "slide" in types:
+        slide = m.jnt_type == int(mujoco.mjtJoint.mjJNT_SLIDE)
+        X[slide] = X[slide] @ _translation(-refs[slide, None] * m.jnt_axis[slide])
+    placements = np.where(first[:, None, None], poses[m.jnt_bodyid], _IDENTITY) @ X
+    # I = R diag(moments) Rᵀ, R the principal axes (body_iquat), of all bodies at once
+    rotational = (principal * m.body_inertia[:, None, :]) @ np.swapaxes(principal, 1, 2)
+    moved, limited, ranges, axes = jnt_pos.any(axis=1).tolist(), m.jnt_limited.tolist(), m.jnt_range.tolist(), \
+        m.jnt_axis.tolist()
+    # each joint's damping, friction and armature: numbers for one coordinate, lists for more
+    nv, per_dof = {"free": 6, "ball": 3, "slide": 1, "hinge": 1}, {
+        "damping": m.dof_damping.tolist(), "friction": m.dof_frictionloss.tolist(), "armature": m.dof_armature.tolist()}
+    dynamics = [{key: v[d] if nv[t] == 1 else v[d : d + nv[t]] for key, v in per_dof.items()}
+                for t, d in zip(types, m.jnt_dofadr.tolist())]
     hidden = set()
-    poses, principal = _pose(m.body_quat, m.body_pos), _pose(m.body_iquat, m.body_ipos)[:, :3, :3]
-    for b, mass, com, moments, mocap, parent_id, first, count in zip(
-            range(1, m.nbody), m.body_mass[1:], m.body_ipos[1:], m.body_inertia[1:], m.body_mocapid[1:].tolist(),
+    for b, mass, com, mocap, parent_id, j0, count in zip(
+            range(1, m.nbody), m.body_mass[1:], m.body_ipos[1:], m.body_mocapid[1:].tolist(),
             m.body_parentid[1:].tolist(), m.body_jntadr[1:].tolist(), m.body_jntnum[1:].tolist()):
-        body, R = body_names[b - 1], principal[b]
-        inertia = Inertia(mass, com, (R * moments) @ R.T)
+        body, inertia = body_names[b - 1], Inertia(mass, com, rotational[b])
         parent = None if mocap >= 0 else _body_name(parent_id, body_names)
-        placement = poses[b]
-        joints = range(first, first + count)
-        if not count:
-            builder.add_body(body, jt.Fixed(), parent=parent, placement=placement, inertia=inertia,
-                             joint_name=_FIXED + body)
-            continue
-        if types[first] == "free":
+        if count and types[j0] == "free":
             # (MuJoCo allows a free joint alone, in a body whose parent is the world)
             builder.add_body(body, jt.FreeFlyer(), parent=None, placement=_IDENTITY, inertia=inertia,
-                             joint_name=joint_names[first],
-                             **{key: values[dof_start[first] : dof_start[first] + 6] for key, values in per_dof.items()})
+                             joint_name=joint_names[j0], **dynamics[j0])
             continue
-        # B_k = B_{k−1} T(p_k) M_k(q_k − ref_k) T(−p_k): joint k's pre-joint frame is T(p_k − p_{k−1}) R_k(−ref_k)
-        # in the frame of joint k − 1 (the body's frame for k = 1), and the body hangs T(−p_n) from the last
-        previous = np.zeros(3)
-        for j in joints:
-            kind, pos, axis, ref = types[j], jnt_pos[j], jnt_axis[j], refs[j]
+        for j in range(j0, j0 + count):
             try:
                 # (MuJoCo compiles an axis whose square overflows to zero)
-                joint = {"hinge": jt.Revolute, "slide": jt.Prismatic}[kind](axis) if nv[kind] == 1 else jt.Spherical()
+                joint = jt.Spherical() if types[j] == "ball" else {"hinge": jt.Revolute, "slide": jt.Prismatic}[types[j]](axes[j])
             except ValueError as error:
                 raise ValueError(f"joint {joint_names[j]!r}: {error}") from None
-            X = _translation(pos - previous)
-            if kind == "hinge" and ref:
-                X = X @ spatial.pose_matrix(spatial.axis_angle_rotation(axis, -ref), np.zeros(3))
-            elif kind == "slide":
-                X = X @ _translation(-ref * axis)
-            placement = placement @ X
-            carrier = body if j == joints[-1] and not pos.any() else f"{_FIXED}{b}:{j}"
+            carrier = body if j == j0 + count - 1 and not moved[j] else f"{_FIXED}{b}:{j}"
             if carrier != body:
                 hidden.add(carrier)
-            limited = kind in ("hinge", "slide") and jnt_limited[j]
-            lower, upper = (jnt_range[j, :1], jnt_range[j, 1:]) if limited else (None, None)
-            builder.add_body(carrier, joint, parent=parent, placement=placement, joint_name=joint_names[j],
-                             lower=lower, upper=upper, inertia=inertia if carrier == body else None,
-                             **{key: values[dof_start[j] : dof_start[j] + nv[kind]] for key, values in per_dof.items()})
-            parent, previous, placement = carrier, pos, _IDENTITY
-        if parent != body:
-            builder.add_body(body, jt.Fixed(), parent=parent, placement=_translation(-previous), inertia=inertia,
+            lower, upper = (ranges[j][:1], ranges[j][1:]) if types[j] != "ball" and limited[j] else (None, None)
+            builder.add_body(carrier, joint, parent=parent, placement=placements[j], joint_name=joint_names[j],
+                             lower=lower, upper=upper, inertia=inertia if carrier == body else None, **dynamics[j])
+            parent = carrier
+        if parent != body:  # (a body without joints, or one that hangs from its last joint)
+            builder.add_body(body, jt.Fixed(), parent=parent, placement=ends[j] if count else poses[b], inertia=inertia,
                              joint_name=_FIXED + body)
     return hidden
 
@@ -457,36 +454,41 @@ _SIZES = {"sphere": lambda s: (s[0],), "capsule": lambda s: (s[0], 2.0 * s[1]),
           "cylinder": lambda s: (s[0], 2.0 * s[1]), "ellipsoid": lambda s: tuple(s), "box": lambda s: tuple(2.0 * s)}
 
 
-def _add_geom(builder, m, g, pose, body, meshes, report):
-    """Geom ``g`` of ``body`` (at ``pose (4, 4)`` in it) as the viewer's shape and, when it collides, as a collision
-    shape."""
+def _add_geoms(builder, m, poses, body_names, meshes, report):
+    """The geoms of bodies (at ``poses (ngeom, 4, 4)`` in them) as the viewer's shapes and, those that collide, as
+    collision shapes."""
     import mujoco
 
-    shape = mujoco.mjtGeom(m.geom_type[g]).name[len("mjGEOM_"):].lower()
-    kind = "visual" if m.geom_group[g] <= 2 else "collision"
-    if shape == "mesh":
-        drawn = meshes.drawn(m.geom_dataid[g], report)
-        if drawn is not None:
-            uri, filename, scale, placement = drawn
-            builder.add_geometry(Geometry(body, kind, "mesh", pose @ placement, uri=uri, filename=filename,
-                                          scale=scale))
-    elif shape in _SIZES:
-        builder.add_geometry(Geometry(body, kind, shape, pose, size=_SIZES[shape](m.geom_size[g])))
-    if not (m.geom_contype[g] or m.geom_conaffinity[g]):
-        return
-    if shape in ("sphere", "box", "capsule", "cylinder"):
-        builder.add_collision_geometry(Geometry(body, "collision", shape, pose, size=_SIZES[shape](m.geom_size[g])))
-    elif shape == "mesh":
-        try:
-            vertices = meshes.hull(m.geom_dataid[g])
-        except ValueError as problem:
-            report.add(f"a mesh without a convex hull is left out of the collision geometries: its vertices {problem}",
-                       f"mesh {meshes.spec.meshes[m.geom_dataid[g]].name!r}")
-            return
-        builder.add_collision_geometry(Geometry(body, "collision", "convex", pose, vertices=vertices))
-    else:
-        report.add(f"{shape} geoms of bodies are left out of the collision geometries (contact detection has no such "
-                   "shape)", f"geom {g} of body {body!r}")
+    for g, (b, shape, group, k, collides, size, pose) in enumerate(zip(
+            m.geom_bodyid.tolist(), m.geom_type.tolist(), m.geom_group.tolist(), m.geom_dataid.tolist(),
+            ((m.geom_contype != 0) | (m.geom_conaffinity != 0)).tolist(), m.geom_size, poses)):
+        if b == 0:
+            continue
+        body, shape, kind = body_names[b - 1], _kinds(mujoco.mjtGeom)[shape], "visual" if group <= 2 else "collision"
+        if shape == "mesh":
+            drawn = meshes.drawn(k, report)
+            if drawn is not None:
+                uri, filename, scale, placement = drawn
+                builder.add_geometry(Geometry(body, kind, "mesh", pose @ placement, uri=uri, filename=filename,
+                                              scale=scale))
+        elif shape in _SIZES:
+            size = _SIZES[shape](size)
+            builder.add_geometry(Geometry(body, kind, shape, pose, size=size))
+        if not collides:
+            continue
+        if shape in ("sphere", "box", "capsule", "cylinder"):
+            builder.add_collision_geometry(Geometry(body, "collision", shape, pose, size=size))
+        elif shape == "mesh":
+            try:
+                vertices = meshes.hull(k)
+            except ValueError as problem:
+                report.add(f"a mesh without a convex hull is left out of the collision geometries: its vertices "
+                           f"{problem}", f"mesh {meshes.spec.meshes[k].name!r}")
+                continue
+            builder.add_collision_geometry(Geometry(body, "collision", "convex", pose, vertices=vertices))
+        else:
+            report.add(f"{shape} geoms of bodies are left out of the collision geometries (contact detection has no "
+                       "such shape)", f"geom {g} of body {body!r}")
 
 
 def _equalities(m, body_names, joint_names, object_name, report):
@@ -495,7 +497,7 @@ def _equalities(m, body_names, joint_names, object_name, report):
 
     out = []
     for e in range(m.neq):
-        kind = mujoco.mjtEq(m.eq_type[e]).name[len("mjEQ_"):].lower()
+        kind = _kinds(mujoco.mjtEq)[m.eq_type[e]]
         label = object_name(mujoco.mjtObj.mjOBJ_EQUALITY, e) or f"{kind} equality {e}"
         if kind not in ("connect", "weld", "joint"):
             report.add(f"{kind} equalities are left out", f"equality {label!r}")

@@ -9,6 +9,7 @@ neutral configuration. Each link ("body") sits at ``body_placements[b]`` in the 
 
 from __future__ import annotations
 
+import collections
 import dataclasses
 import difflib
 import math
@@ -103,19 +104,24 @@ def _frozen(array, dtype=float):
 
 def _per_dof_problem(values, size, finite):
     """What is wrong with per-coordinate joint parameters ``values`` (damping, friction, effort and
-    velocity limits), or ``None``: they must have shape ``(size,)`` and be non-negative, and finite
-    when ``finite`` (a limit may be ``inf``: none)."""
-    if values.shape != (size,):
-        return f"must have shape ({size},), got {values.shape}"
-    # A joint's few numbers compare faster in Python than through NumPy's reductions (a NaN fails both
-    # comparisons and goes on to the checks that name it)
-    entries = values.tolist()
-    if all(0.0 <= x < math.inf for x in entries) if finite else all(0.0 <= x for x in entries):
+    velocity limits: an array, a list of floats, or a number for each coordinate), or ``None``: they must have
+    shape ``(size,)`` and be non-negative, and finite when ``finite`` (a limit may be ``inf``: none)."""
+    if isinstance(values, (int, float)):
+        # (a number needs one comparison, and a list only to be named)
+        if (0.0 <= values < math.inf) if finite else 0.0 <= values:
+            return None
+        values = [float(values)] * size
+    shape, entries = (values.shape, values.tolist()) if isinstance(values, np.ndarray) else ((len(values),), values)
+    if shape != (size,):
+        return f"must have shape ({size},), got {shape}"
+    # (a sum of finite entries is finite, one with a NaN unequal to itself: with the least entry, faster than a loop)
+    total = sum(entries)
+    if (math.isfinite(total) if finite else total == total) and min(entries, default=0.0) >= 0.0:
         return None
-    if np.any(np.isnan(values)) or (finite and not np.all(np.isfinite(values))):
-        return f"must be {'finite' if finite else 'numbers (inf for none)'}, got {values.tolist()}"
-    # (what is left to fail the comparisons above is a negative entry)
-    return f"must not be negative, got {values.tolist()}"
+    if any(math.isnan(x) for x in entries) or (finite and not all(math.isfinite(x) for x in entries)):
+        return f"must be {'finite' if finite else 'numbers (inf for none)'}, got {entries}"
+    # (a negative entry, or finite ones whose sum overflows)
+    return f"must not be negative, got {entries}" if min(entries) < 0.0 else None
 
 
 @dataclass(frozen=True, eq=False)
@@ -196,9 +202,9 @@ class Model:
             set_(name, _frozen(getattr(self, name), dtype).reshape(shape))
         if len(self.joint_names) != nj or len(self.body_inertias) != nb:
             raise ValueError("Model: joints/joint_names and body_names/body_inertias must have equal lengths")
-        if any(not -1 <= p < i for i, p in enumerate(self.parents)):
+        if any(not -1 <= p < i for i, p in enumerate(self.parents.tolist())):
             raise ValueError("Model: every joint's parent must come before it (parents[i] < i)")
-        if any(not -1 <= j < nj for j in self.body_joints):
+        if any(not -1 <= j < nj for j in self.body_joints.tolist()):
             raise ValueError("Model: body_joints must index joints (or be -1 for the world)")
         if self.lower.shape != (self.nq,) or self.upper.shape != (self.nq,):
             raise ValueError(f"Model: lower and upper limits must have shape ({self.nq},)")
@@ -573,22 +579,12 @@ class Model:
 #: What the size of each shape of :meth:`ModelBuilder.add_collision` holds, in order (m).
 _COLLISION_SIZES = {"sphere": ("radius",), "box": ("x", "y", "z"), "cylinder": ("radius", "length"),
                     "capsule": ("radius", "length"), "convex": ()}
+#: the mass properties of a body given none, and the pose of a frame in itself (immutable, so shared)
+_MASSLESS, _IDENTITY = Inertia.zero(), _frozen(np.eye(4))
 
-@dataclass
-class _BodySpec:
-    name: str
-    parent: str | None
-    joint: jt.Joint
-    joint_name: str
-    placement: np.ndarray
-    inertia: Inertia
-    lower: np.ndarray
-    upper: np.ndarray
-    damping: np.ndarray
-    friction: np.ndarray
-    effort_limit: np.ndarray
-    velocity_limit: np.ndarray
-    armature: np.ndarray
+#: What :meth:`ModelBuilder.add_body` keeps of a body: its limits and per-coordinate parameters as lists of floats
+_BodySpec = collections.namedtuple("_BodySpec", "name parent joint joint_name placement inertia lower upper damping "
+                                                "friction effort_limit velocity_limit armature")
 
 
 class ModelBuilder:
@@ -664,16 +660,18 @@ class ModelBuilder:
         for key, value, finite in (("damping", damping, True), ("friction", friction, True),
                                    ("effort_limit", effort_limit, False), ("velocity_limit", velocity_limit, False),
                                    ("armature", armature, True)):
-            try:
-                value = np.array(value, dtype=float)
-            except (TypeError, ValueError):  # (text, or a ragged sequence)
-                raise ValueError(f"{key} of joint {joint_name!r} must be numbers, got {value!r}") from None
-            per_dof[key] = np.full(joint.nv, float(value)) if value.ndim == 0 else value.reshape(-1)
-            problem = _per_dof_problem(per_dof[key], joint.nv, finite)
+            if not isinstance(value, (int, float)):
+                try:
+                    value = np.array(value, dtype=float)
+                except (TypeError, ValueError):  # (text, or a ragged sequence)
+                    raise ValueError(f"{key} of joint {joint_name!r} must be numbers, got {value!r}") from None
+                value = value.reshape(-1).tolist() if value.ndim else float(value)
+            problem = _per_dof_problem(value, joint.nv, finite)
             if problem:
                 raise ValueError(f"{key} of joint {joint_name!r} {problem}")
+            per_dof[key] = value if isinstance(value, list) else [float(value)] * joint.nv  # (a number for each)
         self._bodies.append(_BodySpec(name, parent, joint, joint_name, placement,
-                                      Inertia.zero() if inertia is None else inertia, lower, upper, **per_dof))
+                                      _MASSLESS if inertia is None else inertia, lower.tolist(), upper.tolist(), **per_dof))
         self._names.add(name)
         self._joint_names.add(joint_name)
         return name
@@ -762,33 +760,29 @@ class ModelBuilder:
         With ``check_inertia`` a moving rigid body (a link with everything fixed to it) whose mass
         properties no real body can have raises ``ValueError`` (see :func:`inertia_problems`).
         """
-        joints, joint_names, parents, joint_placements = [], [], [], []
-        # the joints' limits (nq each) and parameters per velocity coordinate, concatenated in joint order
-        per_joint = {key: [] for key in ("lower", "upper", "damping", "friction", "effort_limit", "velocity_limit",
-                                         "armature")}
+        moving, parents, joint_placements = [], [], []
         body_joint, body_placement = {}, {}
-        for spec in self._bodies:
+        # (most parent bodies are their joints' frames: those products in one stacked call, the same numbers)
+        products = _IDENTITY @ np.array([spec.placement for spec in self._bodies]).reshape(-1, 4, 4)
+        for spec, product in zip(self._bodies, products):
             if spec.parent is None:
-                parent_joint, X_parent = -1, np.eye(4)
+                parent_joint, X_parent = -1, _IDENTITY
             else:
                 parent_joint, X_parent = body_joint[spec.parent], body_placement[spec.parent]
             # Pose of the pre-joint frame in the frame of the joint that moves the parent body.
-            X_joint_pre = X_parent @ spec.placement
+            X_joint_pre = product if X_parent is _IDENTITY else X_parent @ spec.placement
             if spec.joint.nv == 0:
                 body_joint[spec.name], body_placement[spec.name] = parent_joint, X_joint_pre
                 continue
-            body_joint[spec.name], body_placement[spec.name] = len(joints), np.eye(4)
-            joints.append(spec.joint)
-            joint_names.append(spec.joint_name)
+            body_joint[spec.name], body_placement[spec.name] = len(moving), _IDENTITY
+            moving.append(spec)
             parents.append(parent_joint)
             joint_placements.append(X_joint_pre)
-            for key, values in per_joint.items():
-                values.append(getattr(spec, key))
         names = [spec.name for spec in self._bodies]
         model = Model(
             name=self.name,
-            joints=tuple(joints),
-            joint_names=tuple(joint_names),
+            joints=tuple(spec.joint for spec in moving),
+            joint_names=tuple(spec.joint_name for spec in moving),
             parents=np.array(parents, dtype=int),
             joint_placements=np.array(joint_placements).reshape(-1, 4, 4),
             body_names=tuple(names),
@@ -799,7 +793,9 @@ class ModelBuilder:
             geometries=tuple(self.geometries),
             collision_geometries=tuple(self.collision_geometries),
             mimic=tuple(self.mimic),
-            **{key: np.concatenate(values) if values else np.zeros(0) for key, values in per_joint.items()},
+            # the joints' limits (nq each) and parameters per velocity coordinate, in joint order
+            **{key: np.array([x for spec in moving for x in getattr(spec, key)], dtype=float)
+               for key in ("lower", "upper", "damping", "friction", "effort_limit", "velocity_limit", "armature")},
         )
         if check_inertia:
             problems = inertia_problems(model)

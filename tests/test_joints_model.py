@@ -634,6 +634,41 @@ def test_builder_errors():
     assert model.body_names == ("a",) and model.joint_names == ("a_joint",)
 
 
+def test_default_limits_bound_only_the_unit_norm_parts_and_are_shared_read_only():
+    inf = np.inf
+    expected = {jt.Revolute(): ([-inf], [inf]), jt.Prismatic(): ([-inf], [inf]), jt.Fixed(): ([], []),
+                jt.Translation(): ([-inf] * 3, [inf] * 3), jt.Planar(): ([-inf, -inf, -1, -1], [inf, inf, 1, 1]),
+                jt.Spherical(): ([-1] * 4, [1] * 4), jt.FreeFlyer(): ([-inf] * 3 + [-1] * 4, [inf] * 3 + [1] * 4)}
+    for joint, (lower, upper) in expected.items():
+        got = joint.default_limits
+        assert got[0].tolist() == lower and got[1].tolist() == upper, joint.kind
+        # made once per kind of joint, so no caller may change them
+        assert got[0] is type(joint)().default_limits[0] and not got[0].flags.writeable and not got[1].flags.writeable
+
+
+def test_builder_per_coordinate_numbers_and_lists_agree_and_errors_name_every_coordinate():
+    def build(**dynamics):
+        b = mb.ModelBuilder()
+        b.add_body("a", jt.Spherical(), **dynamics)
+        return b.build(check_inertia=False)
+
+    numbers, lists = build(damping=0.5, armature=2), build(damping=[0.5] * 3, armature=np.full(3, 2.0))
+    for name in ("damping", "friction", "effort_limit", "velocity_limit", "armature", "lower", "upper"):
+        assert getattr(numbers, name).tobytes() == getattr(lists, name).tobytes(), name
+    assert numbers.effort_limit.tolist() == [np.inf] * 3 and numbers.lower.tolist() == [-1.0] * 4
+    # finite entries whose sum overflows are accepted
+    assert build(damping=[1e308] * 3).damping.tolist() == [1e308] * 3
+    for dynamics, message in ((dict(damping=-1.0), r"damping of joint 'a_joint' must not be negative, got \[-1.0, -1.0, -1.0\]"),
+                              (dict(friction=np.nan), r"friction .* must be finite, got \[nan, nan, nan\]"),
+                              (dict(armature=[0.0, np.inf, 1.0]), r"armature .* must be finite, got \[0.0, inf, 1.0\]"),
+                              (dict(effort_limit=-np.inf), r"effort_limit .* must not be negative, got \[-inf, -inf, -inf\]"),
+                              (dict(velocity_limit=[1.0, np.nan, 2.0]), r"velocity_limit .* numbers \(inf for none\)"),
+                              (dict(damping=[1.0, 2.0]), r"damping .* must have shape \(3,\), got \(2,\)"),
+                              (dict(damping="x"), r"damping .* must be numbers, got 'x'")):
+        with pytest.raises(ValueError, match=message):
+            build(**dynamics)
+
+
 def test_builder_refuses_impossible_inertia():
     b = mb.ModelBuilder()
     b.add_body("a", jt.Revolute(), inertia=Inertia(1.0, np.zeros(3), np.diag([1.0, 1.0, 5.0])))
