@@ -272,6 +272,30 @@ def test_reference_tables_are_interpolated_on_the_manifold_and_held_at_the_ends(
         np.testing.assert_allclose(velocity(t, q, zero), v_ref, atol=1e-14)
 
 
+def test_the_law_on_a_vector_space_is_the_joint_formula_to_the_last_bit():
+    """On the Panda (angles and displacements only, nq = nv) q_ref ⊖ q is q_ref − q and q_i ⊕ s (q_{i+1} ⊖ q_i) is
+    q_i + (q_{i+1} − q_i) s: the law equals k_p (q_ref − q) + k_d (v_ref − v) + τ_ff in that order of operations
+    bit for bit, between the rows of a table, on them and beyond its ends, and equals model.difference's error."""
+    model, _, _ = panda()
+    rng = np.random.default_rng(3)
+    t_ref = np.array([0.0, 0.3, 1.0])
+    table, velocities = model.random_configuration(rng, (3,)), rng.standard_normal((3, model.nv))
+    kp, kd, tau_ff = (rng.uniform(1.0, 50.0, model.nv), rng.uniform(0.5, 5.0, model.nv),
+                      rng.standard_normal(model.nv))
+    law = mb.PD(kp, kd, table, velocities, tau_ff, t_ref=t_ref).bind(model)
+    q, v = model.random_configuration(rng), rng.standard_normal(model.nv)
+    for t in (-0.5, 0.0, 0.1, 0.3, 0.77, 1.0, 2.0):
+        i = min(max(int(np.searchsorted(t_ref, t, side="right")) - 1, 0), 1)
+        s = float(np.clip((t - t_ref[i]) / (t_ref[i + 1] - t_ref[i]), 0.0, 1.0))
+        q_ref = table[i] + (table[i + 1] - table[i]) * s if 0.0 < s < 1.0 else table[i if s == 0.0 else i + 1]
+        v_ref = velocities[i] + s * (velocities[i + 1] - velocities[i]) if 0.0 < s < 1.0 else \
+            velocities[i if s == 0.0 else i + 1]
+        expected = kp * (q_ref - q) + kd * (v_ref - v) + tau_ff
+        np.testing.assert_array_equal(law(t, q, v), expected)
+        np.testing.assert_allclose(mb.PD(1.0, 0.0, q_ref).bind(model)(t, q, v), model.difference(q, q_ref),
+                                   rtol=0.0, atol=1e-15)
+
+
 def test_tracking_a_reference_table_equals_the_same_law_in_python():
     """Panda tracking a trajectory of joint angles given at 11 times (linear between them: np.interp), inside the
     compiled step, against the law as a Python callable."""

@@ -140,23 +140,31 @@ def pd_torque(joints, t, q, v, pd, tau, scratch):
     Q = pd[start + n : start + n + n * nq]
     V = pd[start + n + n * nq : start + n + n * (nq + nv)]
     i, s = interval(times, n, t)
-    reference, error = scratch[:nq], scratch[nq : nq + nv]
-    row = Q[i * nq : (i + 1) * nq]
-    if s == 0.0:
-        for c in range(nq):
-            reference[c] = row[c]
-    else:
+    # a configuration space of as many coordinates as velocities has angles and displacements alone (every
+    # rotation joint has more), where ⊕ and ⊖ add and subtract: the joint loop's dispatch is left out
+    vector_space = nq == nv
+    error = scratch[nq : nq + nv]
+    reference = Q[i * nq : (i + 1) * nq]
+    if s != 0.0:
         # q_ref = q_i ⊕ s (q_{i+1} ⊖ q_i)
-        following = Q[(i + 1) * nq : (i + 2) * nq]
-        for j in range(joints.shape[0]):
-            kinds.difference(joints[j, KIND], joints[j, NV], row, following, joints[j, IQ], joints[j, IV], error)
-        for c in range(nv):
-            error[c] *= s
-        for j in range(joints.shape[0]):
-            kinds.integrate(joints[j, KIND], joints[j, NV], row, error, joints[j, IQ], joints[j, IV], reference)
+        row, following, reference = reference, Q[(i + 1) * nq : (i + 2) * nq], scratch[:nq]
+        if vector_space:
+            for c in range(nq):
+                reference[c] = row[c] + (following[c] - row[c]) * s
+        else:
+            for j in range(joints.shape[0]):
+                kinds.difference(joints[j, KIND], joints[j, NV], row, following, joints[j, IQ], joints[j, IV], error)
+            for c in range(nv):
+                error[c] *= s
+            for j in range(joints.shape[0]):
+                kinds.integrate(joints[j, KIND], joints[j, NV], row, error, joints[j, IQ], joints[j, IV], reference)
     # q_ref ⊖ q
-    for j in range(joints.shape[0]):
-        kinds.difference(joints[j, KIND], joints[j, NV], q, reference, joints[j, IQ], joints[j, IV], error)
+    if vector_space:
+        for c in range(nv):
+            error[c] = reference[c] - q[c]
+    else:
+        for j in range(joints.shape[0]):
+            kinds.difference(joints[j, KIND], joints[j, NV], q, reference, joints[j, IQ], joints[j, IV], error)
     for c in range(nv):
         v_ref = V[i * nv + c]
         if s != 0.0:
