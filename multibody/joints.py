@@ -48,23 +48,25 @@ UNIT_SQUARED_NORMS = ((1.0 - UNIT_NORM_TOLERANCE) ** 2, (1.0 + UNIT_NORM_TOLERAN
 _DEFAULT_TRANSLATION_RANGE = 1.0
 
 def _unit(axis, what):
-    values = np.array(axis, dtype=float).reshape(-1).tolist()
+    axis = np.array(axis, dtype=float).reshape(-1)
     # three numbers: Python's arithmetic costs less than NumPy's reductions (model loaders make many joints)
+    values = axis.tolist()
     if len(values) != 3 or not all(math.isfinite(x) for x in values):
         raise ValueError(f"{what} axis must be 3 finite numbers, got {values}")
     norm = math.sqrt(values[0] * values[0] + values[1] * values[1] + values[2] * values[2])
     if norm < 1e-12:
         raise ValueError(f"{what} axis must be non-zero, got {values}")
-    return [x / norm for x in values]
+    axis = axis / norm
+    axis.setflags(write=False)
+    return axis
 
 
 def _set_axis(joint, start, what):
-    """Make ``joint.axis`` its unit axis ``(3,)`` and ``joint.motion_subspace`` ``(6, 1)`` that axis from row ``start``
-    (3: angular, 0: linear), both read-only."""
-    subspace = np.zeros((6, 1))
-    subspace[start : start + 3, 0] = _unit(joint.axis, what)
+    """Set ``joint.axis`` to its unit ``(3,)`` and ``joint.motion_subspace`` ``(6, 1)`` to it from row ``start``, read-only."""
+    axis, subspace = _unit(joint.axis, what), np.zeros((6, 1))
+    subspace[start : start + 3, 0] = axis
     subspace.setflags(write=False)
-    object.__setattr__(joint, "axis", subspace[start : start + 3, 0])
+    object.__setattr__(joint, "axis", axis)
     object.__setattr__(joint, "motion_subspace", subspace)
 
 

@@ -377,8 +377,7 @@ def _add_bodies(builder, m, body_names, joint_names, poses, principal):
     placements = np.where(first[:, None, None], poses[m.jnt_bodyid], _IDENTITY) @ X
     # I = R diag(moments) Rᵀ, R the principal axes (body_iquat), of all bodies at once
     rotational = (principal * m.body_inertia[:, None, :]) @ np.swapaxes(principal, 1, 2)
-    moved, limited, ranges, axes = jnt_pos.any(axis=1).tolist(), m.jnt_limited.tolist(), m.jnt_range.tolist(), \
-        m.jnt_axis.tolist()
+    moved, limited, ranges = jnt_pos.any(axis=1).tolist(), m.jnt_limited.tolist(), m.jnt_range.tolist()
     # each joint's damping, friction and armature: numbers for one coordinate, lists for more
     nv, per_dof = {"free": 6, "ball": 3, "slide": 1, "hinge": 1}, {
         "damping": m.dof_damping.tolist(), "friction": m.dof_frictionloss.tolist(), "armature": m.dof_armature.tolist()}
@@ -398,7 +397,7 @@ def _add_bodies(builder, m, body_names, joint_names, poses, principal):
         for j in range(j0, j0 + count):
             try:
                 # (MuJoCo compiles an axis whose square overflows to zero)
-                joint = jt.Spherical() if types[j] == "ball" else {"hinge": jt.Revolute, "slide": jt.Prismatic}[types[j]](axes[j])
+                joint = jt.Spherical() if types[j] == "ball" else {"hinge": jt.Revolute, "slide": jt.Prismatic}[types[j]](m.jnt_axis[j])
             except ValueError as error:
                 raise ValueError(f"joint {joint_names[j]!r}: {error}") from None
             carrier = body if j == j0 + count - 1 and not moved[j] else f"{_FIXED}{b}:{j}"

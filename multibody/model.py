@@ -106,11 +106,7 @@ def _per_dof_problem(values, size, finite):
     """What is wrong with per-coordinate joint parameters ``values`` (damping, friction, effort and
     velocity limits: an array, a list of floats, or a number for each coordinate), or ``None``: they must have
     shape ``(size,)`` and be non-negative, and finite when ``finite`` (a limit may be ``inf``: none)."""
-    if isinstance(values, (int, float)):
-        # (a number needs one comparison, and a list only to be named)
-        if (0.0 <= values < math.inf) if finite else 0.0 <= values:
-            return None
-        values = [float(values)] * size
+    values = [float(values)] * size if isinstance(values, (int, float)) else values
     shape, entries = (values.shape, values.tolist()) if isinstance(values, np.ndarray) else ((len(values),), values)
     if shape != (size,):
         return f"must have shape ({size},), got {shape}"
@@ -660,6 +656,9 @@ class ModelBuilder:
         for key, value, finite in (("damping", damping, True), ("friction", friction, True),
                                    ("effort_limit", effort_limit, False), ("velocity_limit", velocity_limit, False),
                                    ("armature", armature, True)):
+            if isinstance(value, (int, float)) and ((0.0 <= value < math.inf) if finite else 0.0 <= value):
+                per_dof[key] = [float(value)] * joint.nv  # (a number stands for each coordinate: one comparison)
+                continue
             if not isinstance(value, (int, float)):
                 try:
                     value = np.array(value, dtype=float)
