@@ -761,15 +761,13 @@ class ModelBuilder:
         """
         moving, parents, joint_placements = [], [], []
         body_joint, body_placement = {}, {}
-        # (most parent bodies are their joints' frames: those products in one stacked call, the same numbers)
-        products = _IDENTITY @ np.array([spec.placement for spec in self._bodies]).reshape(-1, 4, 4)
-        for spec, product in zip(self._bodies, products):
+        for spec in self._bodies:
             if spec.parent is None:
                 parent_joint, X_parent = -1, _IDENTITY
             else:
                 parent_joint, X_parent = body_joint[spec.parent], body_placement[spec.parent]
             # Pose of the pre-joint frame in the frame of the joint that moves the parent body.
-            X_joint_pre = product if X_parent is _IDENTITY else X_parent @ spec.placement
+            X_joint_pre = spec.placement if X_parent is _IDENTITY else X_parent @ spec.placement
             if spec.joint.nv == 0:
                 body_joint[spec.name], body_placement[spec.name] = parent_joint, X_joint_pre
                 continue
