@@ -122,6 +122,30 @@ def interval(times, n, t):
     return low, (t - times[low]) / (times[low + 1] - times[low])
 
 
+@njit(cache=True, error_model="numpy")
+def manifold_error(joints, pd, at, s, q, scratch):
+    """``q_ref ⊖ q`` into ``scratch[nq:] (nv,)`` for :func:`pd_torque` on a configuration space with rotations:
+    ``q_ref = q_i ⊕ s (q_{i+1} ⊖ q_i)`` with ``q_i`` the table row at ``pd[at:]`` (``q_ref`` itself into
+    ``scratch[:nq]``), by the joints' maps (:func:`multibody.kernels.joints.difference`, ``integrate``)."""
+    nq, nv = q.shape[0], scratch.shape[0] - q.shape[0]
+    row, following = pd[at : at + nq], pd[at + nq : at + 2 * nq]
+    reference, error = scratch[:nq], scratch[nq:]
+    if s == 0.0:
+        for c in range(nq):
+            reference[c] = row[c]
+    else:
+        # q_ref = q_i ⊕ s (q_{i+1} ⊖ q_i)
+        for j in range(joints.shape[0]):
+            kinds.difference(joints[j, KIND], joints[j, NV], row, following, joints[j, IQ], joints[j, IV], error)
+        for c in range(nv):
+            error[c] *= s
+        for j in range(joints.shape[0]):
+            kinds.integrate(joints[j, KIND], joints[j, NV], row, error, joints[j, IQ], joints[j, IV], reference)
+    # q_ref ⊖ q
+    for j in range(joints.shape[0]):
+        kinds.difference(joints[j, KIND], joints[j, NV], q, reference, joints[j, IQ], joints[j, IV], error)
+
+
 @njit(cache=True, error_model="numpy", inline="always")
 def pd_torque(joints, t, q, v, pd, tau, scratch):
     """The joint-space PD law into ``tau (nv,)`` at time ``t`` (s) and state ``q (nq,)``, ``v (nv,)``:
@@ -136,39 +160,24 @@ def pd_torque(joints, t, q, v, pd, tau, scratch):
     nq, nv = q.shape[0], v.shape[0]
     n = int(pd[3 * nv])
     start = 3 * nv + 1
-    times = pd[start : start + n]
-    Q = pd[start + n : start + n + n * nq]
-    V = pd[start + n + n * nq : start + n + n * (nq + nv)]
-    i, s = interval(times, n, t)
-    # a configuration space of as many coordinates as velocities has angles and displacements alone (every
-    # rotation joint has more), where ⊕ and ⊖ add and subtract: the joint loop's dispatch is left out
-    vector_space = nq == nv
+    i, s = interval(pd[start : start + n], n, t)
+    # the rows i of q_ref and v_ref (the next rows follow them)
+    at_q, at_v = start + n + i * nq, start + n + n * nq + i * nv
     error = scratch[nq : nq + nv]
-    reference = Q[i * nq : (i + 1) * nq]
-    if s != 0.0:
-        # q_ref = q_i ⊕ s (q_{i+1} ⊖ q_i)
-        row, following, reference = reference, Q[(i + 1) * nq : (i + 2) * nq], scratch[:nq]
-        if vector_space:
-            for c in range(nq):
-                reference[c] = row[c] + (following[c] - row[c]) * s
-        else:
-            for j in range(joints.shape[0]):
-                kinds.difference(joints[j, KIND], joints[j, NV], row, following, joints[j, IQ], joints[j, IV], error)
-            for c in range(nv):
-                error[c] *= s
-            for j in range(joints.shape[0]):
-                kinds.integrate(joints[j, KIND], joints[j, NV], row, error, joints[j, IQ], joints[j, IV], reference)
-    # q_ref ⊖ q
-    if vector_space:
+    if nq == nv:
+        # angles and displacements alone (every rotation joint has more coordinates than velocities), where ⊕ and
+        # ⊖ add and subtract: q_ref ⊖ q = q_i + (q_{i+1} − q_i) s − q, read in place
         for c in range(nv):
-            error[c] = reference[c] - q[c]
+            reference = pd[at_q + c]
+            if s != 0.0:
+                reference += (pd[at_q + nq + c] - pd[at_q + c]) * s
+            error[c] = reference - q[c]
     else:
-        for j in range(joints.shape[0]):
-            kinds.difference(joints[j, KIND], joints[j, NV], q, reference, joints[j, IQ], joints[j, IV], error)
+        manifold_error(joints, pd, at_q, s, q, scratch[: nq + nv])
     for c in range(nv):
-        v_ref = V[i * nv + c]
+        v_ref = pd[at_v + c]
         if s != 0.0:
-            v_ref += s * (V[(i + 1) * nv + c] - V[i * nv + c])
+            v_ref += s * (pd[at_v + nv + c] - pd[at_v + c])
         tau[c] = pd[c] * error[c] + pd[nv + c] * (v_ref - v[c]) + pd[2 * nv + c]
 
 
