@@ -65,7 +65,7 @@ class Tableau:
                      for i in range(s))
 
     def __post_init__(self):
-        # (the block of an immutable tableau, made once rather than at every run; read-only, since runs share it)
+        # (every run of an immutable tableau reads the same coefficients: one block, read-only as runs share it)
         block = np.concatenate([np.ravel(x) for x in (self.c, self.a_position, self.a_velocity, self.b_position,
                                                       self.b_velocity, self.needs_acceleration)]).astype(float)
         block.setflags(write=False)
@@ -525,10 +525,15 @@ class CompiledController:
         #: the function as the compiled run takes it (a first-class function), checked and made once per function
         # (kept while the function lives, not by the driver, which would hold every controller made)
         # (the machine code the pointer was made from must still be the function's: ``recompile()`` replaces it)
-        compiled, self.pointer = _CONTROLLER_POINTERS.get(function, (None, None))
-        if compiled is None or compiled is not function.overloads.get(CONTROLLER_TYPES):
+        made, self.pointer = _CONTROLLER_POINTERS.get(function, (None, None))
+        code = numba_hooks.compiled_code(function, CONTROLLER_TYPES)
+        if code is None or made is not code:
             self.pointer = _controller_pointer(function)
-            _CONTROLLER_POINTERS[function] = (function.overloads[CONTROLLER_TYPES], self.pointer)
+            code = numba_hooks.compiled_code(function, CONTROLLER_TYPES)
+            # (without Numba's record of the code nothing tells the pointer is current; a pointer that is the
+            # function itself would keep its weak key alive)
+            if code is not None and self.pointer is not function:
+                _CONTROLLER_POINTERS[function] = (code, self.pointer)
 
     def __call__(self, t, q, v):
         q, v = driver.contiguous(np.asarray(q, dtype=float)), driver.contiguous(np.asarray(v, dtype=float))

@@ -20,6 +20,9 @@ Internal (undocumented), each with its fallback:
 * :func:`entry_point`: a compiled overload's ``entry_point`` (``Dispatcher.overloads[types]``), the
   machine code's Python entry without the dispatcher's look at every argument's type (a third of a
   small robot's single call); fallback: the dispatcher itself.
+* :func:`compiled_code`: a compiled overload (``Dispatcher.overloads[types]``), the record of the machine code a
+  dispatcher runs for the types, which ``recompile()`` replaces; fallback: ``None`` (no record, so a caller
+  that keeps what it made from the code makes it again).
 * :func:`first_class`: ``CompileResultWAP`` of ``numba.core.types.function_type``, a compiled overload
   as a first-class function without a look-up per call; fallback: the dispatcher, compiled for the
   types, which Numba passes as a first-class function all the same.
@@ -97,6 +100,17 @@ def entry_point(dispatcher, types):
         return dispatcher.overloads[types].entry_point
     except _CHANGED:
         return dispatcher
+
+
+def compiled_code(dispatcher, types):
+    """The compiled overload of ``dispatcher`` for the argument ``types`` (a tuple of Numba types): an object that
+    stays the same until the dispatcher compiles those types again (``recompile()``), so that what was made from
+    it is known to be current (internal, ``Dispatcher.overloads``); ``None`` where it is not compiled for them or
+    that member is absent."""
+    try:
+        return dispatcher.overloads[tuple(types)]
+    except _CHANGED:
+        return None
 
 
 def first_class(dispatcher, types):

@@ -493,6 +493,35 @@ def steered(t, q, v, out):
     out[0] = STEERING_GAIN * np.sin(3.0 * t)
 
 
+def test_a_controller_whose_code_numba_does_not_record_is_made_again_and_computes_the_same(monkeypatch):
+    """The cache of compiled controllers asks :func:`multibody.numba_hooks.compiled_code` whether a pointer is
+    current; where that has no answer (``None``, a Numba without the internal record) each controller is checked
+    and made again, and every one computes the same forces."""
+    from multibody import numba_hooks
+
+    made = []
+    first_class = numba_hooks.first_class
+
+    def recorded(function, types):
+        made.append(function)
+        return first_class(function, types)
+
+    monkeypatch.setattr(numba_hooks, "first_class", recorded)
+
+    @numba.njit
+    def spring(t, q, v, out):
+        out[0] = -2.0 * q[0] - 0.5 * v[0] + t
+
+    kept = [integrators.CompiledController(spring, 1) for _ in range(2)]
+    assert made.count(spring) == 1 and kept[0].pointer is kept[1].pointer
+    monkeypatch.setattr(numba_hooks, "compiled_code", lambda dispatcher, types: None)
+    remade = [integrators.CompiledController(spring, 1) for _ in range(2)]
+    assert made.count(spring) == 3
+    q, v = np.array([[1.0], [2.0]]), np.array([[0.0], [4.0]])
+    for controller in kept + remade:
+        np.testing.assert_array_equal(controller(0.5, q, v), [[-1.5], [-5.5]])
+
+
 def test_a_compiled_controller_made_once_serves_each_model_at_its_size():
     """The same numba.njit controller bound to models of different sizes: one first-class value (the same machine
     code), each bound controller with its own model's nv, and each run equal to the same law as a Python callable."""

@@ -181,6 +181,20 @@ def test_cache_directory_falls_back_beside_the_file_without_numbas_locators(monk
     assert numba_hooks.cache_directory(_scaled, here) == os.path.join(os.path.dirname(here), "__pycache__")
 
 
+def test_compiled_code_is_the_overload_until_recompiled_and_none_without_numbas_table(monkeypatch):
+    """``compiled_code``: ``None`` before the types are compiled, then one object until ``recompile()`` makes
+    another; ``None`` where Numba's table of overloads answers no look-up."""
+    dispatcher = numba.njit(_scaled)
+    assert numba_hooks.compiled_code(dispatcher, TWO_VECTORS) is None
+    dispatcher.compile(TWO_VECTORS)
+    code = numba_hooks.compiled_code(dispatcher, TWO_VECTORS)
+    assert code is not None and numba_hooks.compiled_code(dispatcher, list(TWO_VECTORS)) is code
+    dispatcher.recompile()
+    assert numba_hooks.compiled_code(dispatcher, TWO_VECTORS) not in (None, code)
+    monkeypatch.setattr(dispatcher, "overloads", _NoLookups())
+    assert numba_hooks.compiled_code(dispatcher, TWO_VECTORS) is None
+
+
 def test_return_type_reads_the_documented_signatures():
     dispatcher = numba.njit(lambda x, out: out.sum())
     with pytest.raises(ValueError, match="not compiled"):
