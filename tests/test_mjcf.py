@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import importlib.util
 import os
+import subprocess
 import sys
 import textwrap
 import warnings
@@ -838,8 +839,21 @@ def test_refusals_of_whole_files(tmp_path):
         load_mjcf(str(tmp_path / "missing.xml"))
 
 
+def test_a_mesh_file_not_found_is_refused_even_for_the_viewer_alone(tmp_path, monkeypatch):
+    """MuJoCo's compiler reads every mesh file, so one that is not found is MuJoCo's error after the file, also
+    for a geom only the viewer draws (the body's mass from its ``<inertial>``)."""
+    monkeypatch.chdir(tmp_path)
+    body = ('<body><joint/><inertial pos="0 0 0" mass="1" diaginertia="1 1 1"/>'
+            '<geom type="mesh" mesh="missing" contype="0" conaffinity="0" group="1"/></body>')
+    with pytest.raises(MJCFError, match=r"^<MJCF string>: Error: Error opening file 'missing.stl'"):
+        load_mjcf(f'<mujoco><asset><mesh file="missing.stl"/></asset><worldbody>{body}</worldbody></mujoco>')
+
+
 def test_without_mujoco_the_loader_says_how_to_install_it(monkeypatch):
     """MuJoCo is an extra: ``import multibody`` works without it, and ``load_mjcf`` names the extra."""
+    done = subprocess.run([sys.executable, "-c", "import sys; sys.modules['mujoco'] = None; import multibody; "
+                           "print(multibody.load_mjcf.__name__)"], capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0 and done.stdout.split() == ["load_mjcf"], done.stderr
     monkeypatch.setitem(sys.modules, "mujoco", None)
     with pytest.raises(ImportError, match=r'pip install "multibody\[mjcf\]"'):
         load_mjcf("<mujoco/>")
