@@ -154,8 +154,7 @@ def _compile(source, package_dirs):
         name = os.fspath(source)
         if not os.path.isfile(name):
             raise FileNotFoundError(f"MJCF file not found: {name}")
-        with open(name, "rb", buffering=0) as stream:  # (unbuffered: the file is read at once)
-            text = stream.read().decode("utf-8", errors="replace")
+        text = pathlib.Path(name).read_text(encoding="utf-8", errors="replace")
     root = _root_tag(lambda parser: parser.Parse(text, True))
     # (MuJoCo would compile a URDF too)
     if root is not None and root != "mujoco":
