@@ -96,10 +96,7 @@ def entry_point(dispatcher, types):
     if not is_jitted(dispatcher):
         return dispatcher
     dispatcher.compile(types)
-    try:
-        return dispatcher.overloads[types].entry_point
-    except _CHANGED:
-        return dispatcher
+    return getattr(compiled_code(dispatcher, types), "entry_point", dispatcher)
 
 
 def compiled_code(dispatcher, types):

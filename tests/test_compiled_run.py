@@ -437,11 +437,11 @@ def test_a_batch_with_a_compiled_controller_equals_its_trajectories_alone():
         assert_same(batch.select(r), mb.simulate(system, q0[r], v0[r], 0.3, dt=0.01, method="RK4", tau=push), tol=0.0)
 
 
-def test_the_run_s_first_class_functions_are_made_once_and_a_controller_is_not_kept(monkeypatch):
-    """The driver makes the first-class value of each of multibody's functions once (about 30 µs each) however
-    many runs and chunks ask for it; a user's compiled controller has its own, made once per function (a function
-    defined again makes its own, and runs its own law), and the driver holds none."""
-    from multibody import driver, numba_hooks
+@pytest.fixture
+def made(monkeypatch):
+    """The functions :func:`multibody.numba_hooks.first_class` is asked to make first-class during a test, in
+    order (it still makes them)."""
+    from multibody import numba_hooks
 
     made = []
     first_class = numba_hooks.first_class
@@ -451,6 +451,15 @@ def test_the_run_s_first_class_functions_are_made_once_and_a_controller_is_not_k
         return first_class(function, types)
 
     monkeypatch.setattr(numba_hooks, "first_class", recorded)
+    return made
+
+
+def test_the_run_s_first_class_functions_are_made_once_and_a_controller_is_not_kept(made):
+    """The driver makes the first-class value of each of multibody's functions once (about 30 µs each) however
+    many runs and chunks ask for it; a user's compiled controller has its own, made once per function (a function
+    defined again makes its own, and runs its own law), and the driver holds none."""
+    from multibody import driver
+
     ball, system = ball_system()
     q0, v0 = system.project(*random_states(ball, system, 2, seed=5))
 
@@ -493,20 +502,11 @@ def steered(t, q, v, out):
     out[0] = STEERING_GAIN * np.sin(3.0 * t)
 
 
-def test_a_controller_whose_code_numba_does_not_record_is_made_again_and_computes_the_same(monkeypatch):
+def test_a_controller_whose_code_numba_does_not_record_is_made_again_and_computes_the_same(made, monkeypatch):
     """The cache of compiled controllers asks :func:`multibody.numba_hooks.compiled_code` whether a pointer is
     current; where that has no answer (``None``, a Numba without the internal record) each controller is checked
     and made again, and every one computes the same forces."""
     from multibody import numba_hooks
-
-    made = []
-    first_class = numba_hooks.first_class
-
-    def recorded(function, types):
-        made.append(function)
-        return first_class(function, types)
-
-    monkeypatch.setattr(numba_hooks, "first_class", recorded)
 
     @numba.njit
     def spring(t, q, v, out):
