@@ -50,7 +50,8 @@ _NO_TREE = vector_space_tree(0)
 
 def _failing_constraint(system, row):
     """The constraint of ``system`` (a :class:`ConstrainedSystem`) that holds constraint row ``row``."""
-    return system.constraints[int(np.searchsorted(np.cumsum(system._rows), row, side="right"))]
+    ends = np.cumsum([c.rows(system.system) for c in system.constraints])
+    return system.constraints[int(np.searchsorted(ends, row, side="right"))]
 
 
 #: The one table of the compiled solve's and projection's failures (:mod:`multibody.kernels.kkt`): each status
@@ -226,7 +227,7 @@ class ConstrainedSystem:
         program; ``None`` for anything else, or where a row is undefined or an entry not finite (the
         constraints' own methods then raise or warn)."""
         model = self.system.model
-        if not model._is_one_state(q, finite=False):
+        if not model.is_one_state(q, finite=False):
             return None
         program, frames, _ = self._compiled_step
         nv, m = self.nv, self.num_rows
@@ -517,7 +518,7 @@ class ConstrainedSystem:
 
     def _check_state(self, q, v):
         model = self.model
-        if model is not None and model._is_one_state(q, v):
+        if model is not None and model.is_one_state(q, v):
             return q, v
         q, v = np.asarray(q, dtype=float), np.asarray(v, dtype=float)
         if q.shape[-1:] != (self.nq,) or v.shape[-1:] != (self.nv,) or q.shape[:-1] != v.shape[:-1]:
@@ -743,7 +744,7 @@ class ConstrainedSystem:
     def _compiled_rank(self, q):
         """:meth:`rank` at one state ``q`` by the compiled step on the program's rows, with ``M``, in one call;
         ``None`` where it does not apply (no compiled step, a batch)."""
-        if self._compiled_step is None or not self.system.model._is_one_state(q, finite=False):
+        if self._compiled_step is None or not self.system.model.is_one_state(q, finite=False):
             return None
         tail = self._solve_program(q, np.zeros(self.nv), None)[-1]
         self._raise_failure(tail)
@@ -785,7 +786,7 @@ class ConstrainedSystem:
         """:meth:`_projection` without the rank check: by one call of :func:`multibody.kernels.kkt.project` per state
         on compiled rows, else by the same Gauss–Newton corrections and rule on rows evaluated in Python
         (:meth:`_project_rows`)."""
-        if self._compiled_step is not None and self.system.model._is_one_state(q, v):
+        if self._compiled_step is not None and self.system.model.is_one_state(q, v):
             # (the kernel normalises q as below; a state that passes the checks unchanged skips them)
             return self._project_compiled(q, v, tolerance, max_iterations)
         q = self.system.normalize(np.asarray(q, dtype=float)) if hasattr(self.system, "normalize") else np.asarray(q, dtype=float)

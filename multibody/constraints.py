@@ -820,8 +820,9 @@ class LoopClosure(CompiledRows):
         """``(k, 3)``: the directions of the position rows in frame A's axes, along which their multipliers
         act: frame A's axes, or for ``"planar"`` the two axes of the plane (the class docstring). ``system``
         is needed only by a planar closure whose plane is inferred."""
-        bound = self.bind(system) if self._plane_unknown else self
-        return bound._turn[:, list(self.position_axes)].T
+        if self._plane_unknown:
+            return self.bind(system).position_directions()
+        return self._turn[:, list(self.position_axes)].T
 
     def _levels(self, system, q, v, t):
         if self._plane_unknown:

@@ -46,7 +46,7 @@ from .model import NOT_GIVEN, all_finite
 def checked_arguments(model, q, v=NOT_GIVEN, a=NOT_GIVEN, tau=NOT_GIVEN, f_ext=None):
     """Validated float arrays and their common batch shape (``f_ext`` flattened to ``(..., 6 nj)``);
     the arguments a function does not take come back as ``None``."""
-    if f_ext is None and model._is_one_state(q, v, tau if a is NOT_GIVEN else a):
+    if f_ext is None and model.is_one_state(q, v, tau if a is NOT_GIVEN else a):
         given = [None if x is NOT_GIVEN else x for x in (v, a, tau)]
         return q, *given, None, ()
     q = model.check_configuration(q)
@@ -55,10 +55,7 @@ def checked_arguments(model, q, v=NOT_GIVEN, a=NOT_GIVEN, tau=NOT_GIVEN, f_ext=N
     tau = None if tau is NOT_GIVEN else model.check_velocity(tau, "tau")
     shapes = {name: x.shape[:-1] for name, x in (("q", q), ("v", v), ("a", a), ("tau", tau)) if x is not None}
     if f_ext is not None:
-        f_ext = model._as_float_array(f_ext, "f_ext")
-        if f_ext.shape[-2:] != (model.njoints, 6):
-            raise ValueError(f"f_ext must have shape (..., {model.njoints}, 6) (one spatial force per moving "
-                             f"joint, in its frame), got {f_ext.shape}")
+        f_ext = model.check_external_forces(f_ext)
         shapes["f_ext"] = f_ext.shape[:-2]
         f_ext = f_ext.reshape(f_ext.shape[:-2] + (6 * model.njoints,))
     try:
@@ -71,12 +68,12 @@ def checked_arguments(model, q, v=NOT_GIVEN, a=NOT_GIVEN, tau=NOT_GIVEN, f_ext=N
 
 def _single(model, kernel, out_shape, q, v=NOT_GIVEN, w=NOT_GIVEN):
     """``kernel``'s output ``out_shape`` for one state when ``q`` and the velocities ``v``, ``w`` given are
-    exactly that, C-contiguous float64 vectors of sizes ``nq`` and ``nv`` (``Model._is_one_state``), and
+    exactly that, C-contiguous float64 vectors of sizes ``nq`` and ``nv`` (:meth:`multibody.Model.is_one_state`), and
     its output is finite; ``None`` otherwise, for the general path (conversion, broadcasting, the full
     checks and their warnings).
 
     The single call's path, which leaves the entries to :func:`multibody.driver.vouches`."""
-    if not model._is_one_state(q, v, w, finite=False):
+    if not model.is_one_state(q, v, w, finite=False):
         return None
     out = driver.evaluate_one(kernel, model.tree, out_shape, q, NO_INPUT if v is NOT_GIVEN else v,
                               NO_INPUT if w is NOT_GIVEN else w)

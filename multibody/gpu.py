@@ -125,7 +125,7 @@ def _launch_source(kernel):
     def launch(joints, reals, frames, X0, X1, X2, X3, OUT, WS):
         thread = cuda.grid(1)
         for s in range(thread, OUT.shape[0], cuda.gridsize(1)):
-            # an input of one row serves every state, as in driver._batch
+            # an input of one row serves every state, as in driver.evaluate's batches
             kernel(joints, reals, frames, X0[s if X0.shape[0] > 1 else 0], X1[s if X1.shape[0] > 1 else 0],
                    X2[s if X2.shape[0] > 1 else 0], X3[s if X3.shape[0] > 1 else 0], OUT[s], WS[thread])
 

@@ -72,15 +72,6 @@ def _point(point):
     return point
 
 
-def _body_frame(model, body):
-    """The frame row ``(1, 13)`` of a body given by name or index."""
-    if type(body) is str or type(body) is int:  # (a bool, a float or an unknown name gets body_index's check)
-        row = model._body_frames.get(body)
-        if row is not None:
-            return row
-    return model._body_frames[model.body_index(body)]
-
-
 #: The kernels' code of each ``reference`` (module docstring), as the one-entry vector they read
 _REFERENCES = {"world": kernels.WORLD, "local": kernels.LOCAL, "local_world_aligned": kernels.LOCAL_WORLD_ALIGNED}
 _REFERENCE_VECTORS = {name: np.array([float(code)]) for name, code in _REFERENCES.items()}
@@ -103,7 +94,7 @@ def frame_placement(model, q, name, *, out=None):
     gives every body at once. ``out`` as :func:`forward_kinematics`. Pinocchio counterpart:
     ``updateFramePlacements`` + ``data.oMf``.
     """
-    q, rows = model.check_configuration(q), _body_frame(model, name)
+    q, rows = model.check_configuration(q), model.body_frame_row(name)
     return frame_world_placements(model, q, rows, q.shape[:-1], out, (4, 4))
 
 
@@ -117,12 +108,12 @@ def jacobian(model, q, body, point=None, reference="local_world_aligned", *, out
     :func:`forward_kinematics`. Pinocchio counterpart: ``getFrameJacobian`` with ``LOCAL_WORLD_ALIGNED``,
     ``WORLD`` or ``LOCAL``.
     """
-    if point is None and out is None and model._is_one_state(q, finite=False):
+    if point is None and out is None and model.is_one_state(q, finite=False):
         J = driver.evaluate_one(kernels.frame_jacobian, model.tree, (6, model.nv), q, driver.NO_INPUT,
-                                _reference(reference), frames=_body_frame(model, body))
+                                _reference(reference), frames=model.body_frame_row(body))
         if driver.vouches(J):
             return J
-    q, rows, point = model.check_configuration(q), _body_frame(model, body), _point(point)
+    q, rows, point = model.check_configuration(q), model.body_frame_row(body), _point(point)
     batch = q.shape[:-1] if point is None else spatial.batch_shape(q.shape[:-1], point.shape[:-1])
     return driver.evaluate(kernels.frame_jacobian, model.tree, (q, point, _reference(reference)), (6, model.nv),
                            batch, rows, out=out)
@@ -138,7 +129,7 @@ def jacobian_time_variation(model, q, v, body, point=None, reference="local_worl
     the same reference.
     """
     q, v = model.check_configuration(q), model.check_velocity(v)
-    rows, point = _body_frame(model, body), _point(point)
+    rows, point = model.body_frame_row(body), _point(point)
     shapes = (q.shape[:-1], v.shape[:-1]) + (() if point is None else (point.shape[:-1],))
     return driver.evaluate(kernels.frame_jacobian_time_variation, model.tree, (q, v, point, _reference(reference)),
                            (6, model.nv), spatial.batch_shape(*shapes), rows, out=out)

@@ -30,7 +30,7 @@ STANDARD_GRAVITY = (0.0, 0.0, -9.81)
 #: Largest input whose finiteness check sums a Python list rather than reducing in NumPy
 _PYTHON_SUM_SIZE = 64
 _FLOAT = np.dtype(np.float64)
-#: An argument that is not there (``Model._is_one_state``, the dynamics functions' checks): ``None`` is a value,
+#: An argument that is not there (:meth:`Model.is_one_state`, the dynamics functions' checks): ``None`` is a value,
 #: which the checks refuse.
 NOT_GIVEN = object()
 
@@ -321,6 +321,15 @@ class Model:
         rows = [self.tree.bodies[b : b + 1] for b in range(self.nbodies)]
         return {**dict(zip(self.body_names, rows)), **dict(enumerate(rows))}
 
+    def body_frame_row(self, body) -> np.ndarray:
+        """The frame row ``(1, 13)`` of :attr:`tree` (``tree.bodies``) that a kernel reads as the frame of
+        ``body``, a name or an index; ``ValueError`` as :meth:`body_index`."""
+        if type(body) is str or type(body) is int:  # (a bool, a float or an unknown name gets body_index's check)
+            row = self._body_frames.get(body)
+            if row is not None:
+                return row
+        return self._body_frames[self.body_index(body)]
+
     # ------------------------------------------------------------------ mass properties
 
     @cached_property
@@ -494,11 +503,11 @@ class Model:
             warnings.warn(f"{name} contains NaN or infinite values; results will contain NaN", RuntimeWarning, stacklevel=3)
         return x
 
-    def _is_one_state(self, q, v=NOT_GIVEN, w=NOT_GIVEN, finite=True):
+    def is_one_state(self, q, v=NOT_GIVEN, w=NOT_GIVEN, finite=True) -> bool:
         """Whether ``q`` and the velocities ``v``, ``w`` (each :data:`NOT_GIVEN` when not there) make
-        one state that the checks below would pass unchanged: C-contiguous float64 arrays of shapes
-        ``(nq,)`` and ``(nv,)`` with finite entries (not looked at with ``finite=False``), and ``q``'s
-        unit-norm blocks of unit norm within tolerance. Plain Python on the state's few numbers, a
+        one state that :meth:`check_configuration` and :meth:`check_velocity` would pass unchanged: C-contiguous
+        float64 arrays of shapes ``(nq,)`` and ``(nv,)`` with finite entries (not looked at with ``finite=False``),
+        and ``q``'s :attr:`unit_norm_slices` of unit norm within tolerance. Plain Python on the state's few numbers, a
         fraction of the checks' cost; ``False`` sends the caller to the full checks, which convert,
         warn and raise."""
         total = 0.0
@@ -506,7 +515,7 @@ class Model:
             if (type(q) is not np.ndarray or q.dtype is not _FLOAT or q.ndim != 1 or len(q) != self.nq
                     or not q.flags.c_contiguous):
                 return False
-            slices = self._unit_norm_slices
+            slices = self.unit_norm_slices
             if slices or finite:
                 values = q.tolist()
                 lower, upper = jt.UNIT_SQUARED_NORMS
@@ -535,7 +544,7 @@ class Model:
         Quaternions must have unit norm within :data:`multibody.joints.UNIT_NORM_TOLERANCE`
         (they are then used as normalised). Non-finite values warn and propagate as NaN.
         """
-        if self._is_one_state(q):
+        if self.is_one_state(q):
             return q
         q = self._as_float_array(q, name)
         spatial.require_last_axis(q, self.nq, name)
@@ -551,17 +560,27 @@ class Model:
                      if joint.unit_norm is not None)
 
     @cached_property
-    def _unit_norm_slices(self):
-        """``(start, stop)`` in ``q`` of each block that must have unit norm."""
+    def unit_norm_slices(self):
+        """``((start, stop), ...)``: the slice of ``q`` of each block that must have unit norm (a quaternion, a
+        planar joint's ``(cos θ, sin θ)``)."""
         return tuple((start + joint.unit_norm[0], start + joint.unit_norm[1]) for joint, _, start in self._unit_norm_blocks)
 
     def check_velocity(self, v, name="v") -> np.ndarray:
         """``v`` as a float array of shape ``(..., nv)``, or ``ValueError``."""
-        if self._is_one_state(NOT_GIVEN, v):
+        if self.is_one_state(NOT_GIVEN, v):
             return v
         v = self._as_float_array(v, name)
         spatial.require_last_axis(v, self.nv, name)
         return v
+
+    def check_external_forces(self, f_ext, name="f_ext") -> np.ndarray:
+        """``f_ext`` as a float array of shape ``(..., njoints, 6)`` (one spatial force per moving joint, in its
+        frame: N, N m), or ``ValueError``."""
+        f_ext = self._as_float_array(f_ext, name)
+        if f_ext.shape[-2:] != (self.njoints, 6):
+            raise ValueError(f"{name} must have shape (..., {self.njoints}, 6) (one spatial force per moving "
+                             f"joint, in its frame), got {f_ext.shape}")
+        return f_ext
 
     def __repr__(self):
         return (

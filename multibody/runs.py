@@ -114,7 +114,7 @@ def report_limits(system, trajectory, mode, enforced=(), stacklevel=3):
     one = trajectory.batch_size is None
     q = trajectory.q[None] if one else trajectory.q
     outside = (q < model.lower) | (q > model.upper)  # (NaN compares False: stopped trajectories stay inside)
-    for start, stop in model._unit_norm_slices:
+    for start, stop in model.unit_norm_slices:
         outside[..., start:stop] = False
     outside[..., list(enforced)] = False
     if not outside.any():

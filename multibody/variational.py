@@ -315,7 +315,7 @@ class _LieGroupChart:
         tree = self._tree = model.tree
         self.nq, self.nv = tree.nq, tree.nv
         #: each free flyer's ``(iq, iv)``: its position and linear velocity offsets
-        self._free_flyers = [(int(row[IQ]), int(row[IV])) for row in tree.joints if row[KIND] == kinds.FREE_FLYER]
+        self.free_flyers = [(int(row[IQ]), int(row[IV])) for row in tree.joints if row[KIND] == kinds.FREE_FLYER]
         #: ``T(q)`` of the step's configurations, keyed by their bytes: a Newton iteration asks for the
         #: alignment of the same few configurations several times (mass matrix, gradient, rows)
         self._alignments = {}
@@ -326,7 +326,7 @@ class _LieGroupChart:
         rotation ``R exp(ω)`` does not depend on the linear part)."""
         q, x = np.ascontiguousarray(q, dtype=float), np.ascontiguousarray(x, dtype=float)
         moved = driver.evaluate_one(configuration.integrate, self._tree, (1, self.nq), q, x)[0]
-        for iq, iv in self._free_flyers:
+        for iq, iv in self.free_flyers:
             moved[iq:iq + 3] = q[iq:iq + 3] + x[iv:iv + 3]  # (the rotation is Model.integrate's, R exp(ω))
         return moved
 
@@ -334,7 +334,7 @@ class _LieGroupChart:
         """``T(q) (nv, nv)`` with the joint velocities ``v = T w`` of the group velocities ``w``: ``Rᵀ`` on a
         free flyer's linear velocity (the group's is in the parent frame), the identity elsewhere; ``None``
         without free flyers."""
-        if not self._free_flyers:
+        if not self.free_flyers:
             return None
         q = np.ascontiguousarray(q, dtype=float)
         key = q.tobytes()
@@ -344,7 +344,7 @@ class _LieGroupChart:
         # the compiled velocity_alignment holds each free flyer's R (parent from body) on its diagonal
         aligned = driver.evaluate_one(configuration.velocity_alignment, self._tree, (self.nv, self.nv), q)
         T = np.eye(self.nv)
-        for _, iv in self._free_flyers:
+        for _, iv in self.free_flyers:
             T[iv:iv + 3, iv:iv + 3] = aligned[iv:iv + 3, iv:iv + 3].T
         T.setflags(write=False)
         if len(self._alignments) >= 8:
@@ -401,7 +401,7 @@ class _GroupLagrangian:
         M, minus_g = self.inner.terms(q, np.zeros(self.nv))  # ∂L/∂q at rest is −g
         E, D_momentum, D_gravity = (np.zeros((self.nv, self.nv)) for _ in range(3))
         p = M @ v
-        for _, iv in self.chart._free_flyers:
+        for _, iv in self.chart.free_flyers:
             lin, ang = slice(iv, iv + 3), slice(iv + 3, iv + 6)
             R = T[lin, lin].T
             E[lin, ang] = spatial.skew(v[lin])

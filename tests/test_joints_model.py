@@ -742,6 +742,25 @@ def test_model_index_lookups(tree):
         tree.joint_index("nope")
 
 
+def test_model_members_the_algorithms_read(tree):
+    """One state's quick check, the unit-norm blocks of ``q``, a body's frame row by name or index and the
+    check of external forces: the members the dynamics, kinematics and constrained modules ask the model for."""
+    q, v = tree.neutral(), np.zeros(tree.nv)
+    nan = np.full(tree.nv, np.nan)
+    assert tree.is_one_state(q, v) and tree.is_one_state(q, nan, finite=False)
+    assert not (tree.is_one_state(q[None], v) or tree.is_one_state(q, v[:-1]) or tree.is_one_state(q, nan))
+    slices = tree.unit_norm_slices
+    assert len(slices) == sum(joint.unit_norm is not None for joint in tree.joints) > 0
+    assert all(stop - start in (2, 4) and np.linalg.norm(q[start:stop]) == 1.0 for start, stop in slices)
+    assert tree.body_frame_row(tree.body_names[3]) is tree.body_frame_row(3)
+    np.testing.assert_array_equal(tree.body_frame_row(np.int64(3)), tree.tree.bodies[3:4])
+    with pytest.raises(ValueError, match="unknown body 'nope'"):
+        tree.body_frame_row("nope")
+    f_ext = tree.check_external_forces(np.zeros((2, tree.njoints, 6), dtype=int))
+    assert f_ext.dtype == np.float64 and f_ext.shape == (2, tree.njoints, 6)
+    with pytest.raises(ValueError, match=rf"^f_ext must have shape \(\.\.\., {tree.njoints}, 6\)"):
+        tree.check_external_forces(np.zeros((tree.njoints, 3)))
+
 def test_misspelled_names_suggest_the_close_ones():
     model = mb.robots.load("four_bar")
     with pytest.raises(ValueError, match=r"unknown body 'coupler_tp'; did you mean 'coupler_tip'") as info:

@@ -343,7 +343,7 @@ def test_compiled_projection_normalizes_the_quaternion_first():
     q = model.integrate(model.neutral(), 0.2 * rng.standard_normal(model.nv))
     q[3:7] *= 1.0 + 1e-9
     v = rng.standard_normal(model.nv)
-    assert model._is_one_state(q, v)
+    assert model.is_one_state(q, v)
     fast, slow = system.project(q, v), python_rows_projection(system, q, v)
     assert abs(np.linalg.norm(fast[0][3:7]) - 1.0) <= 1e-15
     assert_close(fast[0], slow[0], 1e-14, scale=1.0, what="q")

@@ -80,7 +80,7 @@ def _group_difference(model, chart, q0, q1):
     """``x`` with ``chart.advance(q0, x) = q1``: ``Model.difference``, but a free flyer's translation
     is the difference of its positions (SO(3) × R³)."""
     x = model.difference(q0, q1)
-    for iq, iv in chart._free_flyers:
+    for iq, iv in chart.free_flyers:
         x[iv:iv + 3] = q1[iq:iq + 3] - q0[iq:iq + 3]
     return x
 
