@@ -57,7 +57,6 @@ or past ``1e50``, a negative damping), naming the element. MuJoCo is an extra
 
 from __future__ import annotations
 
-import dataclasses
 import functools
 import os
 import pathlib
@@ -246,15 +245,8 @@ def _build(spec, m, found, report):
         elif site:
             builder.add_body(site, jt.Fixed(), parent=_body_name(body, body_names), placement=poses[geoms + s],
                              joint_name=_FIXED + site)
-    model = builder.build(check_inertia=False)
-    keep = [b for b, body in enumerate(model.body_names) if body not in hidden]
-    constraints = _equalities(m, body_names, joint_names, object_name, report)
-    if not hidden and not constraints:
-        return model
-    return dataclasses.replace(model, body_names=tuple(model.body_names[b] for b in keep),
-                               body_joints=model.body_joints[keep], body_placements=model.body_placements[keep],
-                               body_inertias=tuple(model.body_inertias[b] for b in keep),
-                               equality_constraints=tuple(constraints))
+    builder.equality_constraints += _equalities(m, body_names, joint_names, object_name, report)
+    return builder.build(check_inertia=False, hidden=hidden)
 
 
 #: The compiled arrays the model is made of, by the element their rows belong to.

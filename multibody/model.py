@@ -627,6 +627,7 @@ class ModelBuilder:
         self.geometries: list[Geometry] = []
         self.collision_geometries: list[Geometry] = []
         self.mimic: list[Mimic] = []
+        self.equality_constraints: list = []  # built-in constraints of multibody.constraints (Model's)
 
     def add_body(self, name, joint=None, *, parent=None, placement=None, inertia=None, joint_name=None,
                  lower=None, upper=None, damping=0.0, friction=0.0, effort_limit=np.inf,
@@ -772,12 +773,17 @@ class ModelBuilder:
         """Record a mimic relation between two joints (both stay independent coordinates)."""
         self.mimic.append(mimic)
 
-    def build(self, check_inertia=True) -> Model:
+    def build(self, check_inertia=True, hidden=()) -> Model:
         """Lump fixed attachments and return the immutable :class:`Model`.
 
         With ``check_inertia`` a moving rigid body (a link with everything fixed to it) whose mass
-        properties no real body can have raises ``ValueError`` (see :func:`inertia_problems`).
+        properties no real body can have raises ``ValueError`` (see :func:`inertia_problems`). ``hidden``:
+        the names of massless bodies added only to carry a joint (between the joints of one MJCF body),
+        left out of the model's bodies; the joints they carry stay.
         """
+        carried = {spec.name: spec.inertia.mass for spec in self._bodies if spec.name in hidden}
+        if len(carried) < len(set(hidden)) or any(carried.values()):
+            raise ValueError(f"hidden must name massless bodies of the builder, got {sorted(hidden)}")
         moving, parents, joint_placements = [], [], []
         body_joint, body_placement = {}, {}
         for spec in self._bodies:
@@ -794,7 +800,8 @@ class ModelBuilder:
             moving.append(spec)
             parents.append(parent_joint)
             joint_placements.append(X_joint_pre)
-        names = [spec.name for spec in self._bodies]
+        bodies = [spec for spec in self._bodies if spec.name not in hidden]
+        names = [spec.name for spec in bodies]
         model = Model(
             name=self.name,
             joints=tuple(spec.joint for spec in moving),
@@ -804,11 +811,12 @@ class ModelBuilder:
             body_names=tuple(names),
             body_joints=np.array([body_joint[n] for n in names], dtype=int),
             body_placements=np.array([body_placement[n] for n in names]).reshape(-1, 4, 4),
-            body_inertias=tuple(spec.inertia for spec in self._bodies),
+            body_inertias=tuple(spec.inertia for spec in bodies),
             gravity=self.gravity,
             geometries=tuple(self.geometries),
             collision_geometries=tuple(self.collision_geometries),
             mimic=tuple(self.mimic),
+            equality_constraints=tuple(self.equality_constraints),
             # the joints' limits (nq each) and parameters per velocity coordinate, in joint order
             **{key: np.array([x for spec in moving for x in getattr(spec, key)], dtype=float)
                for key in ("lower", "upper", "damping", "friction", "effort_limit", "velocity_limit", "armature")},

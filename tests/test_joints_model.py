@@ -718,6 +718,21 @@ def test_builder_lumps_fixed_bodies():
     assert model.total_mass == pytest.approx(I_w.mass + I_a.mass + I_b.mass + I_c.mass, rel=1e-15)
 
 
+def test_builder_hides_joint_carriers_and_keeps_the_equality_constraints():
+    """A body added only to carry a joint (``hidden``) is left out of the model's bodies, its joint kept; the
+    builder's equality constraints are the model's."""
+    b = mb.ModelBuilder("slider")
+    b.add_body("carrier", jt.Prismatic([1, 0, 0]))
+    b.add_body("arm", jt.Revolute([0, 0, 1]), parent="carrier", inertia=Inertia(1.0, [0.1, 0, 0], np.eye(3)))
+    b.equality_constraints.append(mb.JointCoupling(None, "carrier_joint", offset=0.2))
+    model = b.build(hidden={"carrier"})
+    assert model.body_names == ("arm",) and model.joint_names == ("carrier_joint", "arm_joint")
+    assert model.body_joints.tolist() == [1] and model.parents.tolist() == [-1, 0]
+    assert model.equality_constraints == tuple(b.equality_constraints)
+    for wrong in ({"arm"}, {"carrier", "nope"}):
+        with pytest.raises(ValueError, match=r"^hidden must name massless bodies of the builder"):
+            b.build(hidden=wrong)
+
 def test_builder_default_joint_names_and_limits():
     b = mb.ModelBuilder("m")
     b.add_body("a", jt.Revolute(), lower=[-1.0], upper=[2.0])
