@@ -140,13 +140,9 @@ def _package_files(text, package_dirs):
     return found
 
 
-def _compile(source, package_dirs):
+def _compile(mujoco, source, package_dirs):
     """``(spec, compiled model, the source's name for messages, {name: path} of package files)`` of MuJoCo's
-    compiler on ``source`` (a path or XML text)."""
-    try:
-        import mujoco
-    except ImportError as error:
-        raise ImportError('load_mjcf needs MuJoCo\'s compiler: pip install "multibody[mjcf]"') from error
+    compiler (the module ``mujoco``) on ``source`` (a path or XML text)."""
     if is_xml_text(source):
         name, text = "<MJCF string>", source
     else:
@@ -207,11 +203,15 @@ def load_mjcf(source, *, package_dirs=None):
         FileNotFoundError: ``source`` is neither an existing file nor XML text.
         ImportError: MuJoCo is not installed (``pip install "multibody[mjcf]"``).
     """
-    spec, m, name, found = _compile(source, package_directories(package_dirs))
-    report = _Report(name)
-    _report_left_out(m, report)
     try:
-        model = _build(spec, m, found, report)
+        import mujoco
+    except ImportError as error:
+        raise ImportError('load_mjcf needs MuJoCo\'s compiler: pip install "multibody[mjcf]"') from error
+    spec, m, name, found = _compile(mujoco, source, package_directories(package_dirs))
+    report = _Report(name)
+    _report_left_out(mujoco, m, report)
+    try:
+        model = _build(mujoco, spec, m, found, report)
     except ValueError as error:
         # what MuJoCo compiles and the model refuses (a NaN, a negative damping), after the file
         raise MJCFError(f"{name}: {error}") from None
@@ -219,11 +219,9 @@ def load_mjcf(source, *, package_dirs=None):
     return model
 
 
-def _build(spec, m, found, report):
+def _build(mujoco, spec, m, found, report):
     """The :class:`Model` of MuJoCo's compiled model ``m`` (of ``spec``, with the package files ``found``), what
     it leaves out told to ``report``; ``ValueError`` naming the element for what the model cannot hold."""
-    import mujoco
-
     def object_name(kind, k):
         return mujoco.mj_id2name(m, kind, k) or ""
 
@@ -231,13 +229,13 @@ def _build(spec, m, found, report):
     joint_names = _unique_names([object_name(mujoco.mjtObj.mjOBJ_JOINT, j) for j in range(m.njnt)], "joint_", 0)
     gravity = np.zeros(3) if m.opt.disableflags & int(mujoco.mjtDisableBit.mjDSBL_GRAVITY) else np.array(m.opt.gravity)
     builder = ModelBuilder(spec.modelname, gravity=gravity)
-    _check_magnitudes(m, object_name)
+    _check_magnitudes(mujoco, m, object_name)
     # the poses of the bodies, of their principal axes, of the geoms and of the sites, in one call
     poses = _pose(np.concatenate((m.body_quat, m.body_iquat, m.geom_quat, m.site_quat)),
                   np.concatenate((m.body_pos, m.body_ipos, m.geom_pos, m.site_pos)))
     geoms = 2 * m.nbody + m.ngeom
-    hidden = _add_bodies(builder, m, body_names, joint_names, poses[: m.nbody], poses[m.nbody : 2 * m.nbody, :3, :3])
-    _add_geoms(builder, m, poses[2 * m.nbody : geoms], body_names, _MeshFiles(spec, m, found), report)
+    hidden = _add_bodies(mujoco, builder, m, body_names, joint_names, poses[: m.nbody], poses[m.nbody : 2 * m.nbody, :3, :3])
+    _add_geoms(mujoco, builder, m, poses[2 * m.nbody : geoms], body_names, _MeshFiles(spec, m, found), report)
     for s, body in enumerate(m.site_bodyid.tolist()):
         site = object_name(mujoco.mjtObj.mjOBJ_SITE, s)
         if site in body_names:
@@ -245,7 +243,7 @@ def _build(spec, m, found, report):
         elif site:
             builder.add_body(site, jt.Fixed(), parent=_body_name(body, body_names), placement=poses[geoms + s],
                              joint_name=_FIXED + site)
-    builder.equality_constraints += _equalities(m, body_names, joint_names, object_name, report)
+    builder.equality_constraints += _equalities(mujoco, m, body_names, joint_names, object_name, report)
     return builder.build(check_inertia=False, hidden=hidden)
 
 
@@ -255,12 +253,10 @@ _READ = {"body": ("body_pos", "body_quat", "body_mass", "body_ipos", "body_iquat
          "site": ("site_pos", "site_quat"), "geom": ("geom_pos", "geom_quat", "geom_size"), "equality": ("eq_data",)}
 
 
-def _check_magnitudes(m, object_name):
+def _check_magnitudes(mujoco, m, object_name):
     """Refuse compiled numbers that are not finite or past ``LARGEST_MAGNITUDE`` (MuJoCo compiles a NaN it reads,
     and sizes and densities within its bounds can make masses past ours, such as a sphere of radius 1e20 m),
     where the dynamics would overflow: a ``ValueError`` naming the element and the array."""
-    import mujoco
-
     arrays = [(kind, field, getattr(m, field)) for kind, fields in _READ.items() for field in fields]
     arrays += [("option", "gravity", m.opt.gravity[None]), ("joint", "qpos0", m.qpos0[:, None])]
     # (one pass over all the numbers; the element is looked for only when one fails)
@@ -295,10 +291,8 @@ def _unique_names(names, prefix, first):
     return out
 
 
-def _report_left_out(m, report):
+def _report_left_out(mujoco, m, report):
     """Each kind of thing MuJoCo compiled that the dynamics leaves out, to ``report``."""
-    import mujoco
-
     def named(kind, k, what):
         name = mujoco.mj_id2name(m, kind, k)
         return f"{what} {name!r}" if name else f"{what} {k}"
@@ -345,12 +339,10 @@ def _translation(p):
     return spatial.pose_matrix(np.eye(3), p)
 
 
-def _add_bodies(builder, m, body_names, joint_names, poses, principal):
+def _add_bodies(mujoco, builder, m, body_names, joint_names, poses, principal):
     """MuJoCo's bodies and joints into ``builder``, given the bodies' ``poses (nbody, 4, 4)`` in their parents and
     ``principal (nbody, 3, 3)`` axes of inertia; returns the names of the bodies it adds between the joints of
     one MuJoCo body (to drop from the model)."""
-    import mujoco
-
     types, jnt_pos, refs = [_kinds(mujoco.mjtJoint)[t] for t in m.jnt_type.tolist()], m.jnt_pos, m.qpos0[m.jnt_qposadr]
     # B_k = B_{k−1} T(p_k) M_k(q_k − ref_k) T(−p_k): joint k's pre-joint frame is T(p_k − p_{k−1}) R_k(−ref_k)
     # in the frame of joint k − 1 (the body's frame B for k = 1), and the body hangs T(−p_n) from the last;
@@ -444,11 +436,9 @@ _SIZES = {"sphere": lambda s: (s[0],), "capsule": lambda s: (s[0], 2.0 * s[1]),
           "cylinder": lambda s: (s[0], 2.0 * s[1]), "ellipsoid": lambda s: tuple(s), "box": lambda s: tuple(2.0 * s)}
 
 
-def _add_geoms(builder, m, poses, body_names, meshes, report):
+def _add_geoms(mujoco, builder, m, poses, body_names, meshes, report):
     """The geoms of bodies (at ``poses (ngeom, 4, 4)`` in them) as the viewer's shapes and, those that collide, as
     collision shapes."""
-    import mujoco
-
     for g, (b, shape, group, k, collides, size, pose) in enumerate(zip(
             m.geom_bodyid.tolist(), m.geom_type.tolist(), m.geom_group.tolist(), m.geom_dataid.tolist(),
             ((m.geom_contype != 0) | (m.geom_conaffinity != 0)).tolist(), m.geom_size, poses)):
@@ -481,10 +471,8 @@ def _add_geoms(builder, m, poses, body_names, meshes, report):
                        "such shape)", f"geom {g} of body {body!r}")
 
 
-def _equalities(m, body_names, joint_names, object_name, report):
+def _equalities(mujoco, m, body_names, joint_names, object_name, report):
     """The built-in constraints of MuJoCo's compiled equalities (module docstring)."""
-    import mujoco
-
     out = []
     for e in range(m.neq):
         kind = _kinds(mujoco.mjtEq)[m.eq_type[e]]
