@@ -420,7 +420,7 @@ class _MeshFiles:
         refquat = np.asarray(mesh.refquat, dtype=float)
         if not np.allclose(scale, scale[0]) and np.any(refquat[1:]):
             report.add("a mesh scaled unevenly and turned by refquat is drawn approximately", f"mesh {mesh.name!r}")
-        turn = _pose(refquat / np.linalg.norm(refquat), np.zeros(3))[:3, :3].T
+        turn = spatial.quat_to_rotation(refquat[[1, 2, 3, 0]]).T  # (MuJoCo's (w, x, y, z), of any norm)
         placement = np.linalg.inv(_pose(self.m.mesh_quat[k], self.m.mesh_pos[k])) @ spatial.pose_matrix(
             turn, -scale * (turn @ np.asarray(mesh.refpos, dtype=float)))
         return mesh.file, filename, tuple(float(s) for s in scale), placement
