@@ -452,12 +452,12 @@ def _add_geoms(mujoco, builder, m, poses, body_names, meshes, report):
                 builder.add_geometry(Geometry(body, kind, "mesh", pose @ placement, uri=uri, filename=filename,
                                               scale=scale))
         elif shape in _SIZES:
-            size = _SIZES[shape](size)
-            builder.add_geometry(Geometry(body, kind, shape, pose, size=size))
+            dimensions = _SIZES[shape](size)
+            builder.add_geometry(Geometry(body, kind, shape, pose, size=dimensions))
         if not collides:
             continue
         if shape in ("sphere", "box", "capsule", "cylinder"):
-            builder.add_collision_geometry(Geometry(body, "collision", shape, pose, size=size))
+            builder.add_collision_geometry(Geometry(body, "collision", shape, pose, size=dimensions))
         elif shape == "mesh":
             try:
                 vertices = meshes.hull(k)
