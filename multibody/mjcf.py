@@ -405,7 +405,8 @@ class _MeshFiles:
 
     def drawn(self, k, report):
         """``(uri, filename, scale, placement (4, 4))`` of mesh ``k`` drawn as its file scaled, then placed in the
-        geom frame (``None`` for a mesh without a file).
+        geom frame (``None`` for a mesh without a file; ``filename`` ``None``, told to ``report``, where the file
+        MuJoCo read is not found again).
 
         MuJoCo compiles a file's vertices ``v`` into ``Rₘᵀ (S R_refᵀ (v − p_ref) − pₘ)`` (``S`` the scale, ``pₘ``,
         ``Rₘ`` its ``mesh_pos``, ``mesh_quat``); where ``S`` and ``R_ref`` commute (``S`` uniform or
@@ -416,6 +417,9 @@ class _MeshFiles:
             return None
         uri = mesh.file if os.path.isabs(mesh.file) else os.path.join(self.spec.meshdir, mesh.file)
         filename = self.found.get(uri) or resolve_file(uri, self.base, [])
+        if filename is None:
+            report.add("a mesh whose file MuJoCo read but the viewer does not find there is not drawn",
+                       f"mesh {mesh.name!r}, looked for at {os.path.join(self.base, uri)}")
         scale = np.asarray(self.m.mesh_scale[k], dtype=float)
         refquat = np.asarray(mesh.refquat, dtype=float)
         if not np.allclose(scale, scale[0]) and np.any(refquat[1:]):

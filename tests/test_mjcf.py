@@ -12,6 +12,7 @@ from __future__ import annotations
 import ast
 import importlib.util
 import os
+import re
 import subprocess
 import sys
 import textwrap
@@ -438,6 +439,23 @@ def test_a_mesh_is_drawn_where_mujoco_compiles_its_vertices(tmp_path, scale):
     distances = np.linalg.norm(drawn[:, None] - compiled[None], axis=-1)
     tolerance = 4 * np.finfo(np.float32).eps * np.abs(compiled).max()  # (MuJoCo keeps its vertices in float32)
     assert distances.min(axis=0).max() < tolerance and distances.min(axis=1).max() < tolerance
+
+def test_a_mesh_file_mujoco_read_that_the_viewer_does_not_find_warns(tmp_path):
+    """MuJoCo reads an attached model's mesh from that model's folder and ``meshdir``; the viewer looks for it
+    in the main file's folder, finds none, and leaves it undrawn (``filename`` ``None``), warning with the
+    mesh's name and the path it tried."""
+    (tmp_path / "arm").mkdir()
+    write_meshes(tmp_path / "arm")
+    write_model(tmp_path, """<mujoco><compiler meshdir="meshes"/><asset><mesh name="block" file="block.stl"/></asset>
+        <worldbody><body name="link"><joint/><geom type="mesh" mesh="block"/></body></worldbody></mujoco>""",
+                "arm/arm.xml")
+    path = write_model(tmp_path, """<mujoco><asset><model name="arm" file="arm/arm.xml"/></asset>
+        <worldbody><body name="base"><attach model="arm" prefix="a_"/></body></worldbody></mujoco>""")
+    tried = os.path.join(mujoco.MjSpec.from_file(path).modelfiledir, "block.stl")
+    with pytest.warns(UserWarning, match=f"^{re.escape(path)}: mesh 'a_block', looked for at {re.escape(tried)}: a "
+                                         "mesh whose file MuJoCo read but the viewer does not find there is not drawn$"):
+        model = load_mjcf(path)
+    assert [(g.uri, g.filename) for g in model.geometries] == [("block.stl", None)]
 
 def test_sites_are_frames(features):
     """A site is a named frame of the model: its placement and Jacobian by name, as MuJoCo's site."""
