@@ -99,14 +99,12 @@ def gripper_mjcf(panda_path):
     return ET.tostring(out, encoding="unicode")
 
 
-def joint_springs(xml):
-    """``(stiffness (nv,), spring reference (nv,))`` of the joints of the MJCF document ``xml`` (N·m/rad,
-    rad): MuJoCo's compiled ``jnt_stiffness`` and ``qpos_spring`` (each joint's ``stiffness`` and
-    ``springref``, its default classes resolved); the loader leaves the springs out. The gripper's joints
-    are hinges, so MuJoCo's joint order is the model's velocity order."""
-    import mujoco
-
-    reference = mujoco.MjModel.from_xml_string(xml)
+def joint_springs(reference):
+    """``(stiffness (nv,), spring reference (nv,))`` of the joints of ``reference``, MuJoCo's compiled model
+    (``mujoco.MjModel``) of the gripper's MJCF document (N·m/rad, rad): its ``jnt_stiffness`` and
+    ``qpos_spring`` (each joint's ``stiffness`` and ``springref``, its default classes resolved); the loader
+    leaves the springs out. The gripper's joints are hinges, so MuJoCo's joint order is the model's velocity
+    order."""
     return reference.jnt_stiffness.copy(), reference.qpos_spring.copy()
 
 
@@ -140,7 +138,9 @@ def stroke_torques(model, xml, closed=CLOSED):
     """The joint torques of the stroke, a callable ``tau(t, q, v) -> (nv,)`` (N·m): the springs of
     :func:`joint_springs`, and on the right driver joint a PD controller (:data:`GAIN`, :data:`DAMPING`)
     following :func:`minimum_jerk` from 0 to ``closed`` (rad)."""
-    stiffness, reference = joint_springs(xml)
+    import mujoco
+
+    stiffness, reference = joint_springs(mujoco.MjModel.from_xml_string(xml))
     driver = model.idx_v[model.joint_index("right_driver_joint")]
 
     def tau(t, q, v):
@@ -185,7 +185,7 @@ def mujoco_stroke(xml, model, tau, times):
     reference = mujoco.MjModel.from_xml_string(xml)
     reference.opt.timestep = 1e-4
     data = mujoco.MjData(reference)
-    stiffness, spring = joint_springs(xml)
+    stiffness, spring = joint_springs(reference)
     out = []
     for time in times:
         while data.time < time - 0.5 * reference.opt.timestep:

@@ -112,13 +112,24 @@ def test_springs_are_the_files(example, gripper):
     spring-link joints, the velocity coordinates of those joints by name: the file's ``2f85`` class gives
     them ``stiffness="0.05" springref="2.62"``."""
     model, xml = gripper
-    stiffness, spring = example["joint_springs"](xml)
+    stiffness, spring = example["joint_springs"](mujoco_model(xml))
     springs = [model.idx_v[model.joint_index(f"{side}_spring_link_joint")] for side in ("right", "left")]
     expected = np.zeros(model.nv)
     expected[springs] = 1.0
     np.testing.assert_array_equal(stiffness, 0.05 * expected)
     np.testing.assert_array_equal(spring, 2.62 * expected)
 
+
+def test_the_example_compiles_the_document_in_mujoco_once_per_use(example, gripper, monkeypatch):
+    """Besides ``load_mjcf``, MuJoCo compiles the gripper's document once for the stroke's springs and once for
+    its own simulation of the stroke, which reads the springs from its compiled model."""
+    model, xml = gripper
+    compile_, compiled = mujoco.MjModel.from_xml_string, []
+    monkeypatch.setattr(mujoco.MjModel, "from_xml_string", staticmethod(
+        lambda text: compiled.append(text) or compile_(text)))
+    tau = example["stroke_torques"](model, xml)
+    assert example["mujoco_stroke"](xml, model, tau, [0.0, 1e-3]).shape == (2, model.nq)
+    assert compiled == [xml, xml]
 
 def test_stroke_keeps_the_closures_and_closes(example, gripper, stroke):
     """The 1 s stroke: the closure residual stays within what the step ends' projection leaves (its
