@@ -20,7 +20,7 @@ import numpy as np
 from . import derivatives, differences, driver, dynamics, kinematics, spatial
 from .constraints import CompiledRows, frame_key, constraint_program
 from .contact import Unilateral
-from .integrators import vector_space_tree
+from .integrators import CompiledStep, vector_space_tree
 from .kernels import aba, integration, kkt
 from .kernels import constraints as compiled_rows
 from .mechanical import ModelSystem
@@ -43,6 +43,10 @@ class RankDeficientWarning(UserWarning):
     constraint holds less than it seems to (a planar loop closure in a plane that is not the loop's).
     """
 
+
+#: The tolerance (largest ``|φ|`` left, m or rad) and the iterations of :meth:`ConstrainedSystem.project` by default,
+#: which the compiled runs' projection at a step's end takes too (:attr:`ConstrainedSystem.compiled_step`).
+PROJECTION_TOLERANCE, PROJECTION_ITERATIONS = 1e-12, 50
 
 #: The tree :func:`multibody.kernels.kkt.solve_arrays` and ``correction_arrays`` are called with: they read no tree.
 _NO_TREE = vector_space_tree(0)
@@ -161,6 +165,11 @@ class ConstrainedSystem:
             acceleration-level rows become ``A a = γ − 2α (A v + b) − β² φ`` (``φ`` for holonomic
             rows only; ``β = α`` when a single number is given, the critically damped choice).
         rank_tolerance: relative singular-value threshold below which constraint rows count as redundant.
+
+    :attr:`compiled_step`, :meth:`chart_derivative`, :meth:`chart_derivatives`, :meth:`projection`,
+    :meth:`checked_tau`, :meth:`row_space_projectors` and :meth:`position_and_velocity_levels` serve the simulation
+    layer (:mod:`multibody.simulation`, :mod:`multibody.variational`, :mod:`multibody.runs`), which reads the system
+    through them alone.
     """
 
     def __init__(self, model, constraints=(), *, baumgarte=None, rank_tolerance=1e-10):
@@ -180,8 +189,9 @@ class ConstrainedSystem:
                 raise ValueError(f"Baumgarte gains must be non-negative, got {baumgarte!r}")
             self.baumgarte = (float(alpha), float(beta))
         self.rank_tolerance = rank_tolerance
-        # whether the rows' rank has been checked, at the first projected state (_projection)
+        # whether the rows' rank has been checked, at the first projected state (projection)
         self._rank_checked = False
+        self._settings = {}  # kkt.project's settings for each (tolerance, max_iterations): _projection_settings
         self._rows = [c.rows(self.system) for c in self.constraints]
         masks = [np.asarray(c.position_rows(self.system), dtype=bool) for c in self.constraints]
         self._position_mask = np.concatenate(masks) if masks else np.zeros(0, dtype=bool)
@@ -282,43 +292,52 @@ class ConstrainedSystem:
                                                          iterations)
 
     @cached_property
-    def _compiled_motion(self):
-        """``(kernel, program, frame rows, workspace size)`` of the compiled chart derivative
-        (:mod:`multibody.kernels.integration`: ``chart_derivative`` without constraints, its program ``None``,
-        else ``constrained_chart_derivative``), or ``None`` when the step is not compiled."""
+    def compiled_step(self):
+        """The step of this system as the compiled runs take it (:class:`~multibody.integrators.CompiledStep`), with
+        the projection at a step's end of :meth:`project`'s default tolerance and iterations; ``None`` where the step
+        is not compiled (a constraint without compiled rows, a moving surface, a system that is not a
+        :class:`Model`)."""
         if not isinstance(self.system, ModelSystem):
             return None
-        model = self.system.model
-        if not self.num_rows:
-            kernel, program, frames = integration.chart_derivative, None, model.tree.bodies
-            step_workspace, step_columns = aba.workspace_size(model.njoints, self.nv), self.nv
-        elif self._compiled_step is not None:
-            kernel = integration.constrained_chart_derivative
-            program, frames, step_workspace = self._compiled_step
-            step_columns = kkt.output_columns(self.nv, self.num_rows)
-        else:
+        model, nv, m = self.system.model, self.nv, self.num_rows
+        if not m:
+            # without constraints on a vector space (q = q_c + δ, T = 1, κ = 0) the stages skip the chart maps
+            return CompiledStep(model.tree, model.tree.bodies, np.zeros(0), nv, aba.workspace_size(model.njoints, nv),
+                                np.zeros(2), 0, 0, not self.system.vector_space)
+        if self._compiled_step is None:
             return None
-        return kernel, program, frames, integration.workspace_size(self.nq, self.nv, step_workspace, step_columns)
+        program, frames, workspace = self._compiled_step
+        return CompiledStep(model.tree, frames, program, kkt.output_columns(nv, m), workspace,
+                            self._projection_settings(PROJECTION_TOLERANCE, PROJECTION_ITERATIONS),
+                            *self._projection_sizes, True)
 
     @cached_property
-    def _by_aba_alone(self):
-        """Whether the chart derivative is ABA alone: no constraints on a vector space, where
-        ``q = q_c + δ``, ``T = 1`` and ``κ = 0``, so that ``ẏ = [w, a(q, w, τ)]`` with the arithmetic of
-        the chart derivative, without its maps (a third of its cost)."""
-        return not self.num_rows and self.system.vector_space
+    def _compiled_motion(self):
+        """``(kernel, program, frame rows, workspace size, whether ABA alone)`` of the compiled chart derivative
+        (:mod:`multibody.kernels.integration`: ``chart_derivative`` without constraints, its program ``None``, else
+        ``constrained_chart_derivative``), or ``None`` when the step is not compiled. ABA alone: no chart maps
+        (:attr:`~multibody.integrators.CompiledStep.charts`), so that ``ẏ = [w, a(q_c + δ, w, τ)]`` with the arithmetic
+        of the chart derivative, without its maps (a third of its cost)."""
+        step = self.compiled_step
+        if step is None:
+            return None
+        kernel = integration.constrained_chart_derivative if self.num_rows else integration.chart_derivative
+        return (kernel, step.program if self.num_rows else None, step.frames,
+                integration.workspace_size(self.nq, self.nv, step.step_workspace, step.step_columns), not step.charts)
 
-    def _chart_derivative(self, q_chart, y, tau, q=None):
-        """``ẏ (2 nv,)`` of the chart state ``y = [δ, w]`` around ``q_chart`` with constant joint forces
-        ``tau`` (``None``: zero), by one compiled call. A constrained step that fails raises the error of its status
-        (:data:`STATUS_ERRORS`); a non-finite input gives non-finite rates. ``None`` where ABA alone gives
-        non-finite rates (the caller's :meth:`forward_dynamics` then raises the error that names the joint). ``q``:
-        the configuration ``chart(q_chart, δ)``, where the caller has it already."""
-        kernel, program, frames, workspace = self._compiled_motion
+    def chart_derivative(self, q_chart, y, tau, q=None):
+        """``ẏ = [δ̇, ẇ] (2 nv,)`` of the chart state ``y = [δ, w] (2 nv,)`` around ``q_chart (nq,)``
+        (:meth:`multibody.model.Model.chart`) with constant joint forces ``tau (nv,)`` (N·m or N; ``None``: zero), by
+        one compiled call, where :attr:`compiled_step` is not ``None``. A constrained step that fails raises the error
+        of its status (:data:`STATUS_ERRORS`); a non-finite input gives non-finite rates. ``None`` where ABA alone
+        gives non-finite rates (the caller's :meth:`forward_dynamics` then raises the error that names the joint).
+        ``q``: the configuration ``chart(q_chart, δ)``, where the caller has it already."""
+        kernel, program, frames, workspace, aba_alone = self._compiled_motion
         nv, tree = self.nv, self.system.model.tree
         y = driver.contiguous(y)
         tau = driver.NO_INPUT if tau is None else driver.contiguous(tau)
-        if self._by_aba_alone:
-            # as in _chart_derivatives: ẏ = [w, a(q_c + δ, w, τ)]
+        if aba_alone:
+            # as in chart_derivatives: ẏ = [w, a(q_c + δ, w, τ)]
             w = y[nv:]
             q = q_chart + y[:nv] if q is None else driver.contiguous(q)
             a = driver.evaluate_one(aba.forward_dynamics, tree, (1, nv), q, w, tau)[0]
@@ -332,15 +351,15 @@ class ConstrainedSystem:
         self._raise_failure(row[-kkt.TAIL :])
         return y_dot
 
-    def _chart_derivatives(self, q_chart, y, tau):
-        """:meth:`_chart_derivative` of a batch, in one compiled call on all cores: ``ẏ (n, 2 nv)`` of the
-        chart states ``y (n, 2 nv)`` around ``q_chart (n, nq)``, with joint forces ``tau`` ``(n, nv)``, ``(nv,)``
-        (every state) or ``None`` (zero), and for each state that failed, ``{index: error}``: the error of its
+    def chart_derivatives(self, q_chart, y, tau):
+        """:meth:`chart_derivative` of a batch, in one compiled call on all cores: ``ẏ (n, 2 nv)`` of the
+        chart states ``y (n, 2 nv)`` around ``q_chart (n, nq)``, with joint forces ``tau`` (N·m or N) ``(n, nv)``,
+        ``(nv,)`` (every state) or ``None`` (zero), and for each state that failed, ``{index: error}``: the error of its
         status (:data:`STATUS_ERRORS`), or ``None`` where ABA alone gave non-finite rates. A state with a
         non-finite input gets non-finite rates and no entry."""
-        kernel, program, frames, workspace = self._compiled_motion
+        kernel, program, frames, workspace, aba_alone = self._compiled_motion
         nv = self.nv
-        if self._by_aba_alone:
+        if aba_alone:
             a = driver.evaluate(aba.forward_dynamics, self.system.model.tree, (q_chart + y[:, :nv], y[:, nv:], tau),
                                 (1, nv), (len(y),))[:, 0]
             y_dot = np.concatenate([y[:, nv:], a], axis=1)
@@ -458,13 +477,14 @@ class ConstrainedSystem:
         if not self.num_rows:
             return 0.0 if q.ndim == 1 else np.zeros(q.shape[:-1])
         self._check_branches(q)
-        phi, A, b = self._position_and_velocity_levels(q, t)
+        phi, A, b = self.position_and_velocity_levels(q, t)
         worst = np.maximum(np.abs(phi).max(axis=-1), np.abs(matvec(A, v) + b).max(axis=-1))
         return float(worst) if q.ndim == 1 else worst
 
-    def _position_and_velocity_levels(self, q, t):
-        """Stacked ``(φ, A, b)``, each constraint evaluated once; those of one state with compiled rows by
-        one call of their kernel (:meth:`_compiled_levels`)."""
+    def position_and_velocity_levels(self, q, t=0.0):
+        """Stacked ``(φ (..., m), A (..., m, nv), b (..., m))`` at ``q (..., nq)`` and ``t`` (s), each constraint
+        evaluated once, without the check of the branch (:meth:`position_error`); those of one state with compiled
+        rows by one call of their kernel (:meth:`_compiled_levels`)."""
         if self._compiled_step is not None and (levels := self._compiled_levels(q)) is not None:
             return levels
         levels = [c.position_and_velocity_level(self.system, q, t) for c in self.constraints]
@@ -489,13 +509,13 @@ class ConstrainedSystem:
             return *self.system.mass_matrix_and_bias(q, v), self.system
         return self.system.mass_matrix(q), self.system.bias_forces(q, v), self.system
 
-    def _row_space_projectors(self, q, t=0.0):
-        """``(P_position, P_velocity)``, each ``(nv, nv)``: ``P = M⁻¹Aᵀ (A M⁻¹ Aᵀ)⁺ A`` at one state ``q``, for ``A``
-        the rows with a position level and for all rows. ``P δ`` is the part of a velocity-space vector ``δ``
-        that the projection (:meth:`project`, to first order) removes: the ``M``-orthogonal projection onto the
-        rows' range, with the rank decision of :meth:`solve`."""
+    def row_space_projectors(self, q, t=0.0):
+        """``(P_position, P_velocity)``, each ``(nv, nv)``: ``P = M⁻¹Aᵀ (A M⁻¹ Aᵀ)⁺ A`` at one state ``q (nq,)`` and
+        ``t`` (s), for ``A`` the rows with a position level and for all rows. ``P δ`` is the part of a velocity-space
+        vector ``δ`` that the projection (:meth:`project`, to first order) removes: the ``M``-orthogonal projection
+        onto the rows' range, with the rank decision of :meth:`solve`."""
         q = np.asarray(q, dtype=float)
-        A, M = self._position_and_velocity_levels(q, t)[1], self.system.mass_matrix(q)
+        A, M = self.position_and_velocity_levels(q, t)[1], self.system.mass_matrix(q)
 
         def projector(rows):
             if not rows.shape[0]:
@@ -507,8 +527,9 @@ class ConstrainedSystem:
         velocity = projector(A)
         return (velocity if holonomic.all() else projector(A[holonomic])), velocity
 
-    def _tau(self, tau, batch=()):
-        """``tau`` as a float array ``(nv,)`` or ``batch + (nv,)``, or ``ValueError``."""
+    def checked_tau(self, tau, batch=()):
+        """Joint forces ``tau`` (N·m or N) as a float array ``(nv,)`` or ``batch + (nv,)``, or ``ValueError`` naming
+        its shape."""
         if type(tau) is np.ndarray and tau.dtype == np.float64 and tau.shape == (self.nv,):
             return tau
         tau = np.asarray(tau, dtype=float)
@@ -543,7 +564,7 @@ class ConstrainedSystem:
         (:data:`STATUS_ERRORS`); a state with a non-finite input gets NaN results and rank 0.
         """
         q, v = self._check_state(q, v)
-        tau = None if tau is None else self._tau(tau, q.shape[:-1])
+        tau = None if tau is None else self.checked_tau(tau, q.shape[:-1])
         if not self.num_rows and hasattr(self.system, "forward_dynamics"):
             batch = q.shape[:-1]
             try:
@@ -679,13 +700,14 @@ class ConstrainedSystem:
 
         return differences.five_point_jacobian(values, displace, nv, h)
 
-    def rank(self, q, t=0.0, *, rows=None):
+    def rank(self, q, t=0.0, *, rows=None, A=None):
         """Rank of the constraint Jacobian at ``q``: the number of independent rows, judged as :meth:`solve`
         judges them, by the singular values of ``A L⁻ᵀ`` (``M = L Lᵀ``) above ``rank_tolerance`` times the
         largest.
 
         ``rows``: a boolean mask ``(m,)`` of the rows to count (e.g. :attr:`position_rows`), or ``None`` for
-        all. An ``int`` for one state; ``(...)`` ints for a batch ``q (..., nq)`` (see :attr:`batched`).
+        all. ``A (..., m, nv)``: the rows at ``q``, where the caller has them. An ``int`` for one state; ``(...)`` ints
+        for a batch ``q (..., nq)`` (see :attr:`batched`).
         """
         q = np.asarray(q, dtype=float)
         if rows is not None:
@@ -697,7 +719,7 @@ class ConstrainedSystem:
             return 0 if q.ndim == 1 else np.zeros(q.shape[:-1], dtype=int)
         if rows is None and (rank := self._compiled_rank(q)) is not None:
             return rank
-        A = self.jacobian(q, t)
+        A = self.jacobian(q, t) if A is None else A
         rank = self._row_rank(q, A if rows is None else A[..., rows, :])
         return int(rank) if np.ndim(rank) == 0 else rank
 
@@ -720,7 +742,7 @@ class ConstrainedSystem:
         if not self.num_rows:
             return
         q = np.asarray(q, dtype=float)
-        A = self._position_and_velocity_levels(q, t)[1]
+        A = self.position_and_velocity_levels(q, t)[1]
         if not np.isfinite(A).all():
             return
         M = self.system.mass_matrix(q)
@@ -752,7 +774,7 @@ class ConstrainedSystem:
 
     # ------------------------------------------------------------------ projection onto the constraints
 
-    def project(self, q, v, t=0.0, *, tolerance=1e-12, max_iterations=50):
+    def project(self, q, v, t=0.0, *, tolerance=PROJECTION_TOLERANCE, max_iterations=PROJECTION_ITERATIONS):
         """The nearest consistent state: ``φ(q', t) = 0`` and ``A v' + b = 0``.
 
         Positions by Gauss–Newton steps ``δ = −M⁻¹Aᵀ (A M⁻¹ Aᵀ)⁺ φ`` on the rows with a position level (the
@@ -766,10 +788,12 @@ class ConstrainedSystem:
         The first projection of this system (here, or at the initial state of :func:`multibody.simulate`)
         gives a :class:`RankDeficientWarning` when the rows at the projected state are not independent.
         """
-        return self._projection(q, v, t, tolerance, max_iterations)[:2]
+        return self.projection(q, v, t, tolerance, max_iterations)[:2]
 
-    def _projection(self, q, v, t=0.0, tolerance=1e-12, max_iterations=50, stacklevel=3):
-        """:meth:`project`, and the conditioning of the rows at the projected state ``(...)``: the
+    def projection(self, q, v, t=0.0, tolerance=PROJECTION_TOLERANCE, max_iterations=PROJECTION_ITERATIONS,
+                   stacklevel=3):
+        """:meth:`project` of ``q (..., nq)``, ``v (..., nv)`` at ``t`` (s): ``(q, v, conditioning)``, the
+        conditioning of the rows at the projected state ``(...)`` being the
         smallest singular value of ``A L⁻ᵀ`` above rounding (``m ε σ_max``, which leaves out redundant rows)
         over the largest, or (compiled, where the LQ factor decides) a lower bound on it within a factor
         ``m``; 1 without rows. Every projected state is checked for a wrong branch (:meth:`_check_branches`),
@@ -783,7 +807,7 @@ class ConstrainedSystem:
         return projected
 
     def _projected(self, q, v, t, tolerance, max_iterations):
-        """:meth:`_projection` without the rank check: by one call of :func:`multibody.kernels.kkt.project` per state
+        """:meth:`projection` without the rank check: by one call of :func:`multibody.kernels.kkt.project` per state
         on compiled rows, else by the same Gauss–Newton corrections and rule on rows evaluated in Python
         (:meth:`_project_rows`)."""
         if self._compiled_step is not None and self.system.model.is_one_state(q, v):
@@ -826,7 +850,7 @@ class ConstrainedSystem:
         holonomic = self._position_mask
         # Each pass gives φ, A and b together: A serves both the next position step and, at the end,
         # the velocity projection.
-        phi, A, b = self._position_and_velocity_levels(q, t)
+        phi, A, b = self.position_and_velocity_levels(q, t)
         if holonomic.any():
             previous = np.full(q.shape[:-1], np.inf)
             for _ in range(max_iterations):
@@ -838,32 +862,33 @@ class ConstrainedSystem:
                 # Only the states still off the constraints move: each state of a batch takes the steps
                 # it would take alone.
                 q = np.where(off[..., None], self.system.integrate(q, -dq, 1.0), q)
-                phi, A, b = self._position_and_velocity_levels(q, t)
+                phi, A, b = self.position_and_velocity_levels(q, t)
             else:
                 raise STATUS_ERRORS[kkt.NOT_CONVERGED](self, 0, -1, np.abs(phi[..., holonomic]).max(), max_iterations)
         dv, _, tail = self._correction(q, A, matvec(A, v) + b, None)
         return q, v - dv, tail[..., kkt.CONDITIONING]
 
     @cached_property
-    def _projection_call(self):
-        """``(output shape, workspace size, {(tolerance, max_iterations): settings})`` of
-        :meth:`_project_compiled`; the settings vectors (:func:`multibody.kernels.kkt.project`) are made
-        once for each pair of options."""
-        _, frames, _ = self._compiled_step
-        return ((1, kkt.projection_columns(self.nq, self.nv)),
-                kkt.projection_workspace_size(self.system.model.njoints, self.nq, self.nv, len(frames), self.num_rows),
-                {})
+    def _projection_sizes(self):
+        """``(output columns, workspace size)`` of :func:`multibody.kernels.kkt.project` on the compiled step's rows."""
+        return (kkt.projection_columns(self.nq, self.nv), kkt.projection_workspace_size(
+            self.system.model.njoints, self.nq, self.nv, len(self._compiled_step[1]), self.num_rows))
+
+    def _projection_settings(self, tolerance, max_iterations):
+        """``[tolerance, max_iterations, position mask (m)]`` of :func:`multibody.kernels.kkt.project`, made once for
+        each pair of options."""
+        settings = self._settings.get((tolerance, max_iterations))
+        if settings is None:
+            settings = self._settings[tolerance, max_iterations] = np.concatenate(
+                ([tolerance, max_iterations], self._position_mask.astype(float)))
+        return settings
 
     def _project_compiled(self, q, v, tolerance, max_iterations):
-        """:meth:`_projection` by one call of :func:`multibody.kernels.kkt.project` per state (on all cores for
+        """:meth:`projection` by one call of :func:`multibody.kernels.kkt.project` per state (on all cores for
         a batch); a failure raises the error of its status (:data:`STATUS_ERRORS`)."""
-        program, frames, _ = self._compiled_step
+        (program, frames, _), (columns, workspace) = self._compiled_step, self._projection_sizes
         model, nq, nv = self.system.model, self.nq, self.nv
-        out_shape, workspace, settings = self._projection_call
-        settings = settings.get((tolerance, max_iterations))
-        if settings is None:
-            settings = self._projection_call[2][tolerance, max_iterations] = np.concatenate(
-                ([tolerance, max_iterations], self._position_mask.astype(float)))
+        out_shape, settings = (1, columns), self._projection_settings(tolerance, max_iterations)
         if q.ndim == 1 and v.ndim == 1 and q.flags.c_contiguous and v.flags.c_contiguous:
             # (float64 arrays of the right sizes, as every caller has checked)
             row = driver.evaluate_one(kkt.project, model.tree, out_shape, q, v, settings, program, frames=frames,

@@ -639,19 +639,63 @@ ENTRY_POINTS = ((stepping.run, _RUN_TYPES), (stepping.advance, _ADVANCE_TYPES), 
                 (stepping.adaptive_run, _RUN_TYPES), (stepping.adaptive_run_function, _ADVANCE_TYPES))
 
 
+@dataclass(frozen=True)
+class CompiledStep:
+    """The compiled step of a system as the compiled runs take it (made by
+    :attr:`multibody.constrained.ConstrainedSystem.compiled_step`).
+
+    Attributes:
+        tree: the model's compiled tree; ``frames``: the constraint frames' rows (``tree.bodies`` without constraints);
+            ``program``: the constraints' program (length 0 without constraints).
+        step_columns, step_workspace: the output columns and workspace of the step (ABA's ``nv`` and its workspace
+            without constraints, the KKT step's with them).
+        settings: ``[tolerance, max_iterations, position mask (m)]`` of the projection at a step's end
+            (:func:`multibody.kernels.kkt.project`), ``[0, 0]`` without constraints; ``projection_columns``,
+            ``projection_workspace``: its output columns and workspace (0 without constraints).
+        charts: whether the stages go through the chart maps (a curved configuration space, or constraints); else
+            ``q = q₀ + δ``, ``v = w``.
+    """
+
+    tree: CompiledTree | None
+    frames: np.ndarray | None
+    program: np.ndarray
+    step_columns: int
+    step_workspace: int
+    settings: np.ndarray
+    projection_columns: int
+    projection_workspace: int
+    charts: bool
+
+
+#: The step of an adaptive run without a compiled step, which runs as Python only.
+_PYTHON_STEP = CompiledStep(None, None, np.zeros(0), 0, 0, np.zeros(2), 0, 0, False)
+
+
+def _plan(step, method, kind, damping, projection_tolerance, near_singular, nq, nv, rotations=np.zeros(0)):
+    """The plan of a run of ``method`` (a :class:`Tableau` or an :class:`EmbeddedPair`) on ``step`` as
+    :mod:`multibody.kernels.stepping` reads it: the header, the method's block, the damping ``(nv,)``, the
+    projection's settings and the ``rotations`` (an adaptive run's)."""
+    block = method.block()
+    start = stepping.PLAN_HEADER
+    header = np.zeros(start)
+    header[[stepping.PLAN_NQ, stepping.PLAN_NV, stepping.PLAN_CHARTS, stepping.PLAN_STAGES, stepping.PLAN_CONTROL,
+            stepping.PLAN_PROJECT, stepping.PLAN_PROJECTION_TOLERANCE, stepping.PLAN_NEAR_SINGULAR,
+            stepping.PLAN_DAMPED, stepping.PLAN_TABLEAU, stepping.PLAN_DAMPING, stepping.PLAN_SETTINGS,
+            stepping.PLAN_STEP_COLUMNS, stepping.PLAN_STEP_WORKSPACE, stepping.PLAN_PROJECTION_COLUMNS,
+            stepping.PLAN_PROJECTION_WORKSPACE, stepping.PLAN_ROTATIONS, stepping.PLAN_ROTATION_COUNT]] = (
+        nq, nv, step.charts, method.stages, kind, projection_tolerance is not None, projection_tolerance or 0.0,
+        near_singular, damping is not None, start, start + block.size, start + block.size + nv, step.step_columns,
+        step.step_workspace, step.projection_columns, step.projection_workspace,
+        start + block.size + nv + step.settings.size, rotations.size)
+    return np.concatenate([header, block, np.zeros(nv) if damping is None else damping, step.settings, rotations])
+
+
 class CompiledRun:
     """The fixed-step run of one system, method and controller at the output ``times (n,)`` (s), one step per
     interval, compiled (:mod:`multibody.kernels.stepping`).
 
     Args:
-        tree: the model's compiled tree; ``frames``: the constraint frames' rows (``tree.bodies`` without
-            constraints); ``program``: the constraints' program (length 0 without constraints).
-        step_columns, step_workspace: the output columns and workspace of the step (ABA's ``nv`` and its
-            workspace without constraints, the KKT step's with them).
-        projection: ``(settings, output columns, workspace)`` of :func:`multibody.kernels.kkt.project` with
-            constraints, ``None`` without; ``settings = [tolerance, max_iterations, position mask (m)]``.
-        charts: whether the stages go through the chart maps (a curved configuration space, or constraints);
-            else ``q = q₀ + δ``, ``v = w``.
+        step: the system's compiled step (:class:`CompiledStep`).
         tableau: the method (:data:`TABLEAUS`).
         controller: ``None``; constant joint forces ``(nv,)`` (or ``(N, nv)``); a :class:`PDController`; a
             :class:`CompiledController`; or any other callable ``(t, q, v)``, called from Python at each stage
@@ -662,32 +706,17 @@ class CompiledRun:
             stages on the constraints), or ``-inf``.
     """
 
-    def __init__(self, tree, frames, program, step_columns, step_workspace, projection, charts, tableau, controller,
-                 damping, projection_tolerance, near_singular, times, nq, nv):
-        self.tree, self.frames, self.program = tree, frames, np.ascontiguousarray(program, dtype=float)
+    def __init__(self, step, tableau, controller, damping, projection_tolerance, near_singular, times, nq, nv):
+        self.tree, self.frames, self.program = step.tree, step.frames, np.ascontiguousarray(step.program, dtype=float)
         self.times, self.nq, self.nv = np.ascontiguousarray(times, dtype=float), nq, nv
-        self.constrained = self.program.size > 0
-        settings, projection_columns, projection_workspace = projection or (np.zeros(2), 0, 0)
         kind, control = control_rows(controller, nv)
         self.kind, self.control, self.controller = kind, control, controller
         self.pointer = controller.pointer if kind == stepping.FUNCTION else driver.first_class(
             stepping.no_controller, CONTROLLER_TYPES)
-        tableau_block = tableau.block()
-        header = np.zeros(stepping.PLAN_HEADER)
-        header[[stepping.PLAN_NQ, stepping.PLAN_NV, stepping.PLAN_CHARTS, stepping.PLAN_STAGES, stepping.PLAN_CONTROL,
-                stepping.PLAN_PROJECT, stepping.PLAN_PROJECTION_TOLERANCE, stepping.PLAN_NEAR_SINGULAR,
-                stepping.PLAN_DAMPED]] = (nq, nv, charts, tableau.stages, kind, projection_tolerance is not None,
-                                         projection_tolerance or 0.0, near_singular, damping is not None)
-        start = stepping.PLAN_HEADER
-        header[[stepping.PLAN_TABLEAU, stepping.PLAN_DAMPING, stepping.PLAN_SETTINGS]] = (
-            start, start + tableau_block.size, start + tableau_block.size + nv)
-        header[[stepping.PLAN_STEP_COLUMNS, stepping.PLAN_STEP_WORKSPACE, stepping.PLAN_PROJECTION_COLUMNS,
-                stepping.PLAN_PROJECTION_WORKSPACE]] = (step_columns, step_workspace, projection_columns,
-                                                        projection_workspace)
-        header[stepping.PLAN_ENERGY] = 1.0
-        self.plan = np.concatenate([header, tableau_block, np.zeros(nv) if damping is None else damping, settings])
-        self.workspace = stepping.workspace_size(nq, nv, tableau.stages, step_columns, step_workspace,
-                                                 projection_columns, projection_workspace)
+        self.plan = _plan(step, tableau, kind, damping, projection_tolerance, near_singular, nq, nv)
+        self.plan[stepping.PLAN_ENERGY] = 1.0
+        self.workspace = stepping.workspace_size(nq, nv, tableau.stages, step.step_columns, step.step_workspace,
+                                                 step.projection_columns, step.projection_workspace)
         self.ws = np.empty(self.workspace)
         self.io = np.zeros(stepping.io_size(nq, nv, len(self.times)))
         self.io[stepping.io_size(nq, nv) :] = np.nan
@@ -703,7 +732,8 @@ class CompiledRun:
     def advance(self, states, k, stop, torque=None, joint_forces=None):
         """Steps ``k`` up to ``stop`` (exclusive) of one trajectory, ``states (n, nq + nv)`` filled in place:
         ``(the first step not taken, status)``. A Python controller ``torque(t, q, v)`` gives the joint forces of
-        each stage, a float64 array ``(nv,)`` or anything ``joint_forces(value)`` turns into one (or raises for).
+        each stage: ``None`` (zero), a float64 array ``(nv,)`` or anything ``joint_forces(value)`` turns into one
+        (or raises for).
         The status's report: :attr:`io` (``IO_TIME``, ``IO_VALUE``, ``τ``)."""
         io = self.io
         io[stepping.IO_STEP], io[stepping.IO_STOP] = k, stop
@@ -726,7 +756,9 @@ class CompiledRun:
             shape, waiting, given = (nv,), float(stepping.NEED_TORQUE), stepping.IO_TORQUE_GIVEN
             while True:
                 value = torque(io.item(stepping.IO_TIME), q.copy(), v.copy())
-                if type(value) is not np.ndarray or value.dtype != np.float64 or value.shape != shape:
+                if value is None:
+                    value = 0.0
+                elif type(value) is not np.ndarray or value.dtype != np.float64 or value.shape != shape:
                     value = joint_forces(value)
                 tau[:] = value
                 io[given] = 1.0
@@ -757,43 +789,30 @@ class AdaptiveRun:
     compiled run leaves, the same function run as Python with the system's maps from Python.
 
     Args:
-        tree, frames, program, step_columns, step_workspace, projection, controller, damping: as
-            :class:`CompiledRun` takes them, and ``projection_tolerance``, ``near_singular`` too (``tree`` ``None``: a
-            system without a compiled step, which runs as Python only).
-        charts: whether the stages go through the chart maps; ``curved``: whether each step's end starts a new chart.
+        step, controller, damping: as :class:`CompiledRun` takes them, and ``projection_tolerance``, ``near_singular``
+            too (``step`` ``None``: a system without a compiled step, which runs as Python only).
+        curved: whether each step's end starts a new chart.
         pair: the method (:data:`EMBEDDED`); ``rtol``, ``atol``: its tolerances; ``max_step``: its longest step (s).
         turn: the largest turn of a rotation vector of the chart in a step (rad), at the angular speeds of its start;
             ``rotations``: the first index in ``v`` of each rotation vector's three.
     """
 
-    def __init__(self, tree, frames, program, step_columns, step_workspace, projection, charts, curved, pair,
-                 controller, damping, projection_tolerance, near_singular, times, nq, nv, rtol, atol, max_step, turn,
-                 rotations):
-        self.tree, self.frames = tree, frames
-        self.program = np.ascontiguousarray(program, dtype=float)
+    def __init__(self, step, curved, pair, controller, damping, projection_tolerance, near_singular, times, nq, nv,
+                 rtol, atol, max_step, turn, rotations):
+        step = _PYTHON_STEP if step is None else step
+        self.tree, self.frames = step.tree, step.frames
+        self.program = np.ascontiguousarray(step.program, dtype=float)
         self.times, self.nq, self.nv = np.ascontiguousarray(times, dtype=float), nq, nv
-        settings, projection_columns, projection_workspace = projection or (np.zeros(2), 0, 0)
         kind, control = control_rows(controller, nv)
         self.kind, self.control = kind, control
         self.pointer = controller.pointer if kind == stepping.FUNCTION else None
-        block = pair.block()
-        rotations = np.asarray(rotations, dtype=float).ravel()
-        header = np.zeros(stepping.PLAN_HEADER)
-        start = stepping.PLAN_HEADER
-        header[[stepping.PLAN_NQ, stepping.PLAN_NV, stepping.PLAN_CHARTS, stepping.PLAN_STAGES, stepping.PLAN_CONTROL,
-                stepping.PLAN_PROJECT, stepping.PLAN_PROJECTION_TOLERANCE, stepping.PLAN_NEAR_SINGULAR,
-                stepping.PLAN_DAMPED, stepping.PLAN_TABLEAU, stepping.PLAN_DAMPING, stepping.PLAN_SETTINGS,
-                stepping.PLAN_STEP_COLUMNS, stepping.PLAN_STEP_WORKSPACE, stepping.PLAN_PROJECTION_COLUMNS,
-                stepping.PLAN_PROJECTION_WORKSPACE, stepping.PLAN_CURVED, stepping.PLAN_RTOL, stepping.PLAN_ATOL,
-                stepping.PLAN_MAX_STEP, stepping.PLAN_CHART_TURN, stepping.PLAN_ROTATIONS,
-                stepping.PLAN_ROTATION_COUNT]] = (
-            nq, nv, charts, pair.stages, kind, projection_tolerance is not None, projection_tolerance or 0.0,
-            near_singular, damping is not None, start, start + block.size, start + block.size + nv, step_columns,
-            step_workspace, projection_columns, projection_workspace, curved, rtol, atol, max_step, turn,
-            start + block.size + nv + settings.size, rotations.size)
-        self.plan = np.concatenate([header, block, np.zeros(nv) if damping is None else damping, settings, rotations])
-        self.ws = np.zeros(stepping.adaptive_workspace_size(nq, nv, pair.rows, len(pair.flips), step_columns,
-                                                            step_workspace, projection_columns, projection_workspace))
+        self.plan = _plan(step, pair, kind, damping, projection_tolerance, near_singular, nq, nv,
+                          np.asarray(rotations, dtype=float).ravel())
+        self.plan[[stepping.PLAN_CURVED, stepping.PLAN_RTOL, stepping.PLAN_ATOL, stepping.PLAN_MAX_STEP,
+                   stepping.PLAN_CHART_TURN]] = (curved, rtol, atol, max_step, turn)
+        self.ws = np.zeros(stepping.adaptive_workspace_size(nq, nv, pair.rows, len(pair.flips), step.step_columns,
+                                                            step.step_workspace, step.projection_columns,
+                                                            step.projection_workspace))
         self.io = np.zeros(stepping.io_size(nq, nv))
 
     def start(self, state, near):

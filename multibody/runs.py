@@ -176,7 +176,7 @@ def projected_start(constrained, q, v, t0, stacklevel):
     conditioning there. Where it moved the state by more than ``1e-10``, a warning ``stacklevel`` calls up gives the
     distance and the coordinates that moved most; where the projection fails, its ``ConstraintError``."""
     # (the rows' rank warning, on the system's first projection, also points at the caller)
-    q_projected, v_projected, conditioning = constrained._projection(q, v, t0, stacklevel=stacklevel + 1)
+    q_projected, v_projected, conditioning = constrained.projection(q, v, t0, stacklevel=stacklevel + 1)
     if not constrained.num_rows:  # (without rows the projection normalises q only, which is not reported)
         return q_projected, v_projected, conditioning
     dq, dv = np.abs(q_projected - q), np.abs(v_projected - v)

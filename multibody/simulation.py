@@ -47,7 +47,7 @@ from .constrained import STATUS_ERRORS, ConstrainedSystem, ConstraintError, as_s
 from .constraints import CompiledRows
 from .integrators import (EMBEDDED, PD, TABLEAUS, AdaptiveRun, CompiledController, CompiledRun, PDController,
                           as_controller, is_compiled_controller, tableau_step)
-from .kernels import aba, kkt, stepping
+from .kernels import kkt, stepping
 from .mechanical import CHART_TURN, Charts, ModelSystem
 from .model import all_finite
 # JointLimitWarning is the warning simulate's docstring names, and scripts import it from here
@@ -232,7 +232,7 @@ def simulate(system, q0, v0, t_final, *, dt=None, method=None, tau=None, rtol=1e
     if method in FIXED_STEP_METHODS:
         # a compiled run takes joint forces that are data or compiled, and one trajectory's Python callable too
         # (called from it once per stage); a batch's Python callable takes the batch at each stage, in lockstep
-        compiled = constrained._compiled_motion is not None and (not python or batch is None)
+        compiled = constrained.compiled_step is not None and (not python or batch is None)
         run = _compiled_run(constrained, charts, TABLEAUS[method], controller, damping, project, projection_tolerance,
                             times) if compiled else None
         trajectory = _simulate_batch(constrained, charts, np.broadcast_to(q, (count, nq)),
@@ -390,24 +390,11 @@ def _compiled_run(constrained, charts, tableau, controller, damping, project, pr
     """The :class:`~multibody.integrators.CompiledRun` of ``constrained`` (its step compiled) with ``tableau``, the
     ``controller`` (``None``, constant joint forces, a bound PD, a compiled or a Python controller) and ``damping``
     (``(nv,)`` or ``None``), at the output ``times``: the steps :func:`_simulate_batch`'s Python step would take,
-    with the projection at each step's end as it makes it (:meth:`ConstrainedSystem._projection`'s tolerance and
+    with the projection at each step's end as it makes it (:meth:`ConstrainedSystem.projection`'s tolerance and
     iterations) and the rule of :func:`_near_singular`."""
-    model = constrained.system.model
-    nq, nv, m = constrained.nq, constrained.nv, constrained.num_rows
-    if m:
-        program, frames, step_workspace = constrained._compiled_step
-        projection_columns, projection_workspace, _ = constrained._projection_call
-        settings = np.concatenate(([_PROJECTION_TOLERANCE, _PROJECTION_ITERATIONS],
-                                   constrained._position_mask.astype(float)))
-        projection = (settings, projection_columns[1], projection_workspace)
-        step_columns = kkt.output_columns(nv, m)
-    else:
-        program, frames, projection = np.zeros(0), model.tree.bodies, None
-        step_columns, step_workspace = nv, aba.workspace_size(model.njoints, nv)
-    near = NEAR_SINGULAR if bool(_near_singular(0.0, project, constrained, charts)) else -np.inf
-    return CompiledRun(model.tree, frames, program, step_columns, step_workspace, projection,
-                       not constrained._by_aba_alone, tableau, controller, damping,
-                       projection_tolerance if project and m else None, near, times, nq, nv)
+    return CompiledRun(constrained.compiled_step, tableau, controller, damping,
+                       *_run_projection(constrained, charts, project, projection_tolerance), times, constrained.nq,
+                       constrained.nv)
 
 
 def _adaptive_run(constrained, charts, pair, controller, damping, project, projection_tolerance, times, rtol, atol,
@@ -416,26 +403,22 @@ def _adaptive_run(constrained, charts, pair, controller, damping, project, proje
     the system's step is and the ``controller`` is data or compiled (as :func:`_compiled_run` makes
     it), else one that runs as Python only. ``damping`` enters the compiled run's plan (its Python stages have it in
     their joint forces already)."""
-    nq, nv = constrained.nq, constrained.nv
-    rotations = charts.rotations[:, 0]
-    near = NEAR_SINGULAR if bool(_near_singular(0.0, project, constrained, charts)) else -np.inf
-    tolerance = projection_tolerance if project and constrained.num_rows else None
-    data = controller is None or isinstance(controller, (np.ndarray, PDController, CompiledController))
-    if constrained._compiled_motion is None or not data:
-        return AdaptiveRun(None, None, np.zeros(0), 0, 0, None, False, charts.curved, pair, None, None, tolerance,
-                           near, times, nq, nv, rtol, atol, max_step, CHART_TURN, rotations)
-    fixed = _compiled_run(constrained, charts, TABLEAUS["RK4"], controller, damping, project, projection_tolerance,
-                          times)
-    plan = fixed.plan
-    projection = None
-    if constrained.num_rows:
-        settings = plan[int(plan[stepping.PLAN_SETTINGS]) : int(plan[stepping.PLAN_SETTINGS]) + 2 + constrained.num_rows]
-        projection = (settings, int(plan[stepping.PLAN_PROJECTION_COLUMNS]),
-                      int(plan[stepping.PLAN_PROJECTION_WORKSPACE]))
-    return AdaptiveRun(fixed.tree, fixed.frames, fixed.program, int(plan[stepping.PLAN_STEP_COLUMNS]),
-                       int(plan[stepping.PLAN_STEP_WORKSPACE]), projection, bool(plan[stepping.PLAN_CHARTS]),
-                       charts.curved, pair, controller, damping, tolerance, near, times, nq, nv, rtol, atol, max_step,
-                       CHART_TURN, rotations)
+    step = constrained.compiled_step
+    if not (controller is None or isinstance(controller, (np.ndarray, PDController, CompiledController))):
+        step = None
+    if step is None:
+        controller = damping = None
+    return AdaptiveRun(step, charts.curved, pair, controller, damping,
+                       *_run_projection(constrained, charts, project, projection_tolerance), times, constrained.nq,
+                       constrained.nv, rtol, atol, max_step, CHART_TURN, charts.rotations[:, 0])
+
+
+def _run_projection(constrained, charts, project, projection_tolerance):
+    """``(projection tolerance, near singular)`` of a run's plan: the largest move left unprojected at a step's end
+    (``None``: no projection), and the conditioning below which the next step leaves the run
+    (:data:`NEAR_SINGULAR` where :func:`_near_singular` applies, else ``-inf``)."""
+    return (projection_tolerance if project and constrained.num_rows else None,
+            NEAR_SINGULAR if bool(_near_singular(0.0, project, constrained, charts)) else -np.inf)
 
 
 class _ChartStages:
@@ -463,13 +446,13 @@ class _ChartStages:
         if self.near:
             q_t, v_t = constrained.project(*charts.state(q_chart, y), t)
             y = charts.coordinates(q_chart, q_t, v_t)
-        if constrained._compiled_motion is not None:
+        if constrained.compiled_step is not None:
             q_t, tau_t = None, self.constant
             if self.state_dependent:
                 q_t, v_t = charts.state(q_chart, y)
                 tau_t = self.torque(t, q_t, v_t)
-                tau_t = None if tau_t is None else constrained._tau(tau_t)
-            y_dot = constrained._chart_derivative(q_chart, y, tau_t, q_t)
+                tau_t = None if tau_t is None else constrained.checked_tau(tau_t)
+            y_dot = constrained.chart_derivative(q_chart, y, tau_t, q_t)
             if y_dot is not None:
                 return y_dot
         return _solved_chart_derivative(constrained, charts, t, q_chart, y, self.torque)
@@ -504,17 +487,13 @@ class _ChartStages:
             return False, False
         # Judged by the move, not the residual: near a singular configuration a residual of 1e-13 can hide a
         # velocity off the constraints by 1e-3 (a row of size ε moves v by residual/ε).
-        q, v, conditioning = constrained._projection(state[:nq], state[nq:], t)
+        q, v, conditioning = constrained.projection(state[:nq], state[nq:], t)
         near = bool(_near_singular(conditioning, self.project, constrained, self.charts))
         projected = np.abs(np.concatenate([q, v]) - state).max() > self.projection_tolerance
         if projected:
             state[:nq], state[nq:] = q, v
         return projected, near
 
-
-#: The tolerance and iterations of the projection at a step's end (those :meth:`ConstrainedSystem._projection`
-#: takes by default, which ``settle`` calls).
-_PROJECTION_TOLERANCE, _PROJECTION_ITERATIONS = 1e-12, 50
 
 #: A compiled run's first call takes this many steps; the next ones about :data:`CHUNK_SECONDS` of wall time
 #: each, so that the progress bar moves and an interrupt is answered.
@@ -524,13 +503,6 @@ _FIRST_CHUNK, CHUNK_SECONDS = 64, 0.2
 def _next_chunk(chunk, seconds):
     """The steps of a compiled run's next call, after ``chunk`` steps took ``seconds``."""
     return max(_FIRST_CHUNK, min(int(chunk * CHUNK_SECONDS / max(seconds, 1e-9)), 64 * chunk, 1 << 30))
-
-
-def _joint_forces(constrained):
-    """What a Python controller's value (joint forces) is to a compiled run: a float64 array ``(nv,)`` (zeros for
-    ``None``), or the ``ValueError`` of :meth:`ConstrainedSystem._tau` for another shape."""
-    zeros = np.zeros(constrained.nv)
-    return lambda value: zeros if value is None else constrained._tau(value)
 
 
 #: The failures a compiled run reports (:mod:`multibody.kernels.stepping`), each as the error the Python loop raises
@@ -596,7 +568,7 @@ def _tangent_map(constrained, charts, q_chart, t, y):
     (``δ`` and ``v = T⁻¹ w`` are velocity-space vectors): ``Π = diag(1 − P_position, T (1 − P_velocity) T⁻¹)``."""
     nv = charts.nv
     q_t, T, _ = charts.unchart(q_chart, y)
-    position, velocity = constrained._row_space_projectors(q_t, t)
+    position, velocity = constrained.row_space_projectors(q_t, t)
     if T is not None:
         # on w = T v: T P T⁻¹
         velocity = T @ np.linalg.solve(T.T, velocity.T).T
@@ -698,7 +670,7 @@ def check_batchable(constrained, method, q_shape, v_shape):
         raise ValueError(f"a batch of initial states (q0 {q_shape}, v0 {v_shape}) is integrated in lockstep, which "
                          f"needs a fixed-step method {FIXED_STEP_METHODS}; {method!r} chooses its own steps for each "
                          "trajectory: pass method='RK4' with a step dt, or simulate the states one at a time")
-    if constrained.batched and constrained._compiled_motion is not None:
+    if constrained.batched and constrained.compiled_step is not None:
         return
     mechanical = constrained.system
     if not isinstance(mechanical, ModelSystem):
@@ -742,7 +714,7 @@ def _simulate_batch(constrained, charts, q0, v0, times, torque, state_dependent,
     step that the run leaves to Python (rows near a singular configuration, a stage the compiled step did not
     solve) is taken by the lockstep step below, for the trajectories at that step. Without one, the trajectories
     run in lockstep, each stage's chart derivatives of all of them in one compiled call on all cores
-    (:meth:`ConstrainedSystem._chart_derivatives`).
+    (:meth:`ConstrainedSystem.chart_derivatives`).
 
     A trajectory that fails (a non-finite state or joint forces, a constrained step without solution, a projection
     that does not converge) stops: its status says when and why, its outputs from the next output time on are NaN,
@@ -768,7 +740,7 @@ def _simulate_batch(constrained, charts, q0, v0, times, torque, state_dependent,
 
         def torque(t, q, v):
             value = one_state(t, q, v) if q is None else one_state(t, q[0], v[0])
-            return None if value is None else constrained._tau(value)
+            return None if value is None else constrained.checked_tau(value)
     status = ["completed"] * count
     stop = np.full(count, n)  # each trajectory's outputs [stop:] are NaN
 
@@ -784,7 +756,7 @@ def _simulate_batch(constrained, charts, q0, v0, times, torque, state_dependent,
         """The projection of a batch of states ``(q, v)`` at ``t`` onto the constraints, ``(n, nq + nv + 1)``:
         the states, and the conditioning of the rows there last."""
         def projected(q, v):
-            q, v, conditioning = constrained._projection(q, v, t)
+            q, v, conditioning = constrained.projection(q, v, t)
             return np.concatenate([q, v, conditioning[..., None]], axis=-1)
         return projected
 
@@ -850,11 +822,11 @@ def _simulate_batch(constrained, charts, q0, v0, times, torque, state_dependent,
         whole = rows.size == count
         q_rows, y_rows = (q_chart, y) if whole else (q_chart[rows], y[rows])
         tau_rows = tau if tau is None or tau.ndim == 1 or whole else tau[rows]
-        if constrained._compiled_motion is None:
+        if constrained.compiled_step is None:
             # (a step evaluated in Python: each state by the constrained step below)
             y_dot, failures = np.full_like(y_rows, np.nan), dict.fromkeys(range(len(y_rows)))
         else:
-            y_dot, failures = constrained._chart_derivatives(q_rows, y_rows, tau_rows)
+            y_dot, failures = constrained.chart_derivatives(q_rows, y_rows, tau_rows)
         for j, error in failures.items():
             r = rows[j]
             tau_r = tau if tau is None or tau.ndim == 1 else tau[r]
@@ -953,7 +925,6 @@ def _run_batch(run, constrained, states, last, stop, near, fail, python_step, ti
     io = np.zeros((count, run.io.size))
     tail = stepping.io_size(system.nq, system.nv)
     io[:, tail:] = np.nan
-    joint_forces = _joint_forces(constrained)
     following = np.ones(count, dtype=np.int64)  # each trajectory's next step
     handed = np.zeros(count, dtype=bool)  # whose next step the run left to Python
 
@@ -989,7 +960,7 @@ def _run_batch(run, constrained, states, last, stop, near, fail, python_step, ti
             if count == 1:
                 try:
                     run.advance(states[0], int(io[0, stepping.IO_STEP]), int(io[0, stepping.IO_STOP]), controller,
-                                joint_forces)
+                                constrained.checked_tau)
                 except _FAILURES as error:
                     # (the steps before the stage whose joint forces raised are done)
                     io[0] = run.io

@@ -132,7 +132,7 @@ import numba
 import numpy as np
 
 from . import driver, linalg, numba_hooks, spatial
-from .integrators import CONTROLLER_TYPES, CompiledController, PDController
+from .integrators import CONTROLLER_TYPES, CompiledController, PDController, control_rows
 from .constrained import ConstrainedSystem, ConstraintError
 from .mechanical import ModelSystem
 from .model import all_finite
@@ -432,7 +432,7 @@ class _Rows:
     def __init__(self, constrained):
         self.constrained = constrained
         self.m = constrained.num_rows
-        mask = np.asarray(constrained._position_mask, dtype=bool)
+        mask = constrained.position_rows
         #: the indices of each kind of row: ``slice(None)`` when all rows are of that kind (which indexes
         #: without the copy and the search of a mask)
         self.holonomic = slice(None) if mask.all() else np.flatnonzero(mask)
@@ -442,14 +442,12 @@ class _Rows:
 
     def levels(self, q, t):
         """``(φ (m,), A (m, nv), b (m,))`` at ``(q, t)``."""
-        return self.constrained._position_and_velocity_levels(q, t)
+        return self.constrained.position_and_velocity_levels(q, t)
 
     def independent(self, q, A):
         """Whether the rows ``A (m, nv)`` at ``q`` are independent, by the system's one rank decision
         (:meth:`ConstrainedSystem.rank`'s singular values of ``A`` in the metric of ``M(q)``)."""
-        if (rank := self.constrained._compiled_rank(q)) is not None:
-            return rank == self.m
-        return bool(self.constrained._row_rank(q, A) == self.m)
+        return self.constrained.rank(q, A=A) == self.m
 
 
 class _GroupRows(_Rows):
@@ -735,14 +733,13 @@ class _CompiledSteps:
 
     def __init__(self, model, constrained, tau, damping, rule, weights, tolerance, max_iterations, grouped, times):
         nq, nv, m = model.nq, model.nv, constrained.num_rows
-        if m:
-            program, frames, _ = constrained._compiled_step
-            holonomic = np.asarray(constrained._position_mask, dtype=float)
-        else:
-            program, frames, holonomic = driver.NO_INPUT, model.tree.bodies, np.zeros(0)
+        step, holonomic = constrained.compiled_step, constrained.position_rows.astype(float)
         self.model, self.times, self.m = model, np.ascontiguousarray(times, dtype=float), m
-        self.program, self.frames = np.ascontiguousarray(program, dtype=float), frames
-        kind, self.control, self.pointer = self.controls(tau, nv)
+        self.program, self.frames = np.ascontiguousarray(step.program, dtype=float), step.frames
+        # (the kind of controller, its control row and the compiled controller, as the compiled run of simulate)
+        kind, control = control_rows(tau if tau is None or callable(tau) else np.asarray(tau, dtype=float), nv)
+        self.control, self.pointer = control[0], tau.pointer if kind == stepping.FUNCTION else driver.first_class(
+            stepping.no_controller, CONTROLLER_TYPES)
         header = np.zeros(iteration_kernels.PLAN_HEADER)
         header[[iteration_kernels.PLAN_NQ, iteration_kernels.PLAN_NV, iteration_kernels.PLAN_M,
                 iteration_kernels.PLAN_TRAPEZOIDAL, iteration_kernels.PLAN_GROUPED, iteration_kernels.PLAN_CHART,
@@ -753,7 +750,7 @@ class _CompiledSteps:
             max_iterations, constrained.rank_tolerance, len(weights))
         header[iteration_kernels.PLAN_WEIGHTS : iteration_kernels.PLAN_WEIGHTS + len(weights)] = weights
         self.plan = np.concatenate([header, holonomic, np.zeros(nv) if damping is None else damping])
-        self.ws = np.empty(iteration_kernels.workspace_size(model.njoints, nq, nv, m, len(frames)))
+        self.ws = np.empty(iteration_kernels.workspace_size(model.njoints, nq, nv, m, len(step.frames)))
         self.io = np.zeros(iteration_kernels.io_size(nv))
 
     @staticmethod
@@ -761,21 +758,8 @@ class _CompiledSteps:
         """Whether the compiled run takes the steps: a model's Lagrangian, no rows or only compiled ones, and
         joint forces that are data or compiled (a Python callable is called from the Python loop)."""
         return (isinstance(lagrangian, _ModelLagrangian)
-                and (not constrained.num_rows or constrained._compiled_step is not None)
+                and constrained.compiled_step is not None
                 and (tau is None or isinstance(tau, (PDController, CompiledController)) or not callable(tau)))
-
-    @staticmethod
-    def controls(tau, nv):
-        """``(kind, control row, compiled controller)`` of the joint forces ``tau``
-        (:data:`multibody.kernels.stepping.NO_CONTROL` …)."""
-        none = driver.first_class(stepping.no_controller, CONTROLLER_TYPES)
-        if tau is None:
-            return stepping.NO_CONTROL, np.zeros(nv), none
-        if isinstance(tau, PDController):
-            return stepping.PD, np.ascontiguousarray(np.concatenate([np.zeros(nv), tau.rows[0]])), none
-        if isinstance(tau, CompiledController):
-            return stepping.FUNCTION, np.zeros(nv), tau.pointer
-        return stepping.CONSTANT, np.array(tau, dtype=float).reshape(nv), none
 
     def run(self, qs, vs, mu_start, mu_end, bar, mechanical):
         """All the steps, into ``qs (n, nq)``, ``vs (n, nv)`` (their first rows the initial state) and the impulses

@@ -120,7 +120,7 @@ def test_parallelogram_chains_through_flat_evaluate_their_stages_as_alone():
     system = mb.ConstrainedSystem(parallelogram_chain(cells), planar_closures(cells))
     states = [crank_state(cells, angle, rate) for angle, rate in ((0.5, 0.0), (0.05, -1.0), (0.01, 2.0))]
     q0, v0 = (np.array(x) for x in zip(*states))
-    conditioning = system._projection(q0, v0)[2]
+    conditioning = system.projection(q0, v0)[2]
     assert conditioning[0] > mb.simulation.NEAR_SINGULAR > conditioning[2]
     batch = assert_equals_single_runs(system, q0, v0, 2.0, 0.01)
     assert np.count_nonzero(np.diff(np.sign(batch.q[:, :, 0]), axis=1)) >= 3  # flat passages

@@ -10,6 +10,7 @@ way a run stops reaches the message the Python loop gives.
 
 from __future__ import annotations
 
+import dataclasses
 import re
 
 import numba
@@ -736,6 +737,53 @@ def test_a_tableau_s_block_is_made_once_and_read_only():
         assert block.size == 4 * s + 2 * s * s, name
 
 
+def test_fixed_step_and_adaptive_runs_take_the_systems_one_compiled_step():
+    """``ConstrainedSystem.compiled_step`` is what both runs are built from: a four-bar's step and projection sizes,
+    settings ``[project's tolerance, iterations, position rows]`` and chart flag land in the same places of a
+    fixed-step and an adaptive run's plans; a system whose rows are evaluated in Python has none, and its adaptive
+    run runs as Python only."""
+    _, system, _, _ = four_bar()
+    step, nq, nv = system.compiled_step, system.nq, system.nv
+    assert step is system.compiled_step and step.charts and step.program.size and step.projection_columns
+    np.testing.assert_array_equal(step.settings, np.concatenate(([1e-12, 50], system.position_rows)))
+    times = np.linspace(0.0, 0.1, 3)
+    fixed = integrators.CompiledRun(step, integrators.TABLEAUS["RK4"], None, None, 1e-12, 1e-2, times, nq, nv)
+    adaptive = integrators.AdaptiveRun(step, False, integrators.EMBEDDED["RK45"], None, None, 1e-12, 1e-2, times, nq,
+                                       nv, 1e-8, 1e-10, np.inf, 1.0, np.zeros(0))
+    fields = [stepping.PLAN_NQ, stepping.PLAN_NV, stepping.PLAN_CHARTS, stepping.PLAN_PROJECT, stepping.PLAN_PROJECTION_TOLERANCE,
+              stepping.PLAN_NEAR_SINGULAR, stepping.PLAN_STEP_COLUMNS, stepping.PLAN_STEP_WORKSPACE,
+              stepping.PLAN_PROJECTION_COLUMNS, stepping.PLAN_PROJECTION_WORKSPACE]
+    np.testing.assert_array_equal(fixed.plan[fields], adaptive.plan[fields])
+    np.testing.assert_array_equal(fixed.plan[fields], [nq, nv, 1.0, 1.0, 1e-12, 1e-2, step.step_columns,
+                                                       step.step_workspace, step.projection_columns,
+                                                       step.projection_workspace])
+    for run in (fixed, adaptive):
+        start = int(run.plan[stepping.PLAN_SETTINGS])
+        np.testing.assert_array_equal(run.plan[start : start + step.settings.size], step.settings)
+        assert run.tree is step.tree and run.frames is step.frames
+    pendulum = mb.ConstrainedSystem(particle_model(1.0), [mb.Holonomic(lambda q, t: np.array([q @ q - 1.0]))])
+    assert pendulum.compiled_step is None
+    python = integrators.AdaptiveRun(None, False, integrators.EMBEDDED["RK45"], None, None, 1e-12, -np.inf, times, 3,
+                                     3, 1e-8, 1e-10, np.inf, 1.0, np.zeros(0))
+    assert python.tree is None and python.plan[stepping.PLAN_STEP_COLUMNS] == 0
+
+
+def test_a_python_controller_that_gives_none_gives_zero_joint_forces():
+    """``None`` from a Python controller at a stage is zero joint forces: the compiled run's states equal those of
+    the run without a controller."""
+    model = mb.robots.load("double_pendulum")
+    step, times = mb.ConstrainedSystem(model).compiled_step, np.linspace(0.0, 0.2, 21)
+    results = []
+    for controller in (None, lambda t, q, v: None):
+        run = integrators.CompiledRun(step, integrators.TABLEAUS["RK4"], controller, None, None, -np.inf, times,
+                                      model.nq, model.nv)
+        states = np.zeros((len(times), model.nq + model.nv))
+        states[0, :2] = [0.3, 0.2]
+        assert run.advance(states, 1, len(times), controller) == (len(times), stepping.COMPLETED)
+        results.append(states)
+    np.testing.assert_array_equal(results[0], results[1])
+
+
 def test_control_rows_of_each_controller_kind():
     """:func:`multibody.integrators.control_rows`: the kind each controller runs as and its rows, one row of ``nv``
     zeros where the kind reads none."""
@@ -818,10 +866,8 @@ def test_the_vector_space_steps_equal_the_charted_steps(method):
     (:func:`multibody.kernels.stepping.vector_space_steps`): from random states of a chain of every vector-space joint
     kind, with each controller that is not Python and with joint damping, its states equal the general run's through
     the chart maps (the identity there) to 1e-13, and the energies it records those of all its states to 1e-12."""
-    from multibody.kernels import aba
-
     model = vector_space_chain()
-    tree, nq, nv = model.tree, model.nq, model.nv
+    nq, nv = model.nq, model.nv
     assert model.is_vector_space and nq == nv
     rng = np.random.default_rng(7)
     times = np.linspace(0.0, 0.05, 51)
@@ -840,9 +886,8 @@ def test_the_vector_space_steps_equal_the_charted_steps(method):
             q0, v0 = rng.uniform(-1.0, 1.0, nq), rng.uniform(-2.0, 2.0, nv)
             results = []
             for charts in (False, True):
-                run = integrators.CompiledRun(tree, tree.bodies, np.zeros(0), nv,
-                                              aba.workspace_size(model.njoints, nv), None, charts, tableau, controller,
-                                              damping, None, -np.inf, times, nq, nv)
+                step = dataclasses.replace(mb.ConstrainedSystem(model).compiled_step, charts=charts)
+                run = integrators.CompiledRun(step, tableau, controller, damping, None, -np.inf, times, nq, nv)
                 states = np.full((len(times), nq + nv), np.nan)
                 states[0] = np.concatenate([q0, v0])
                 assert run.advance(states, 1, len(times)) == (len(times), stepping.COMPLETED)

@@ -905,7 +905,7 @@ def test_a_systems_compiled_rows_and_rank_equal_its_constraints_own():
     assert system._compiled_step is not None
     for phi in (0.3, 1e-9):
         q, _ = crank_state(2, phi)
-        phi_rows, A, b = system._position_and_velocity_levels(q, 0.0)
+        phi_rows, A, b = system.position_and_velocity_levels(q, 0.0)
         own = [c.position_and_velocity_level(system.system, q, 0.0) for c in system.constraints]
         np.testing.assert_array_equal(phi_rows, np.concatenate([level[0] for level in own]))
         np.testing.assert_array_equal(A, np.concatenate([level[1] for level in own]))
@@ -920,6 +920,18 @@ def test_a_systems_compiled_rows_and_rank_equal_its_constraints_own():
     q_bad[0] = np.nan
     assert system._compiled_levels(q_bad) is None
     assert system._compiled_rank(q[None]) is None
+
+
+def test_rank_decides_on_the_rows_the_caller_has():
+    """``rank(q, A=A)``: the rank of the rows ``A`` given (those of another time, as the variational step has them),
+    by the rule of the rows the system evaluates. A particle's two rows that coincide at t = 1 s only."""
+    system = mb.ConstrainedSystem(particle_model(1.0), [mb.Holonomic(
+        lambda q, t: np.array([q[0], (1.0 - t) * q[1] + t * q[0]]),
+        lambda q, t: np.array([[1.0, 0.0, 0.0], [t, 1.0 - t, 0.0]]))])
+    q = np.array([0.0, 0.0, 1.0])
+    assert (system.rank(q), system.rank(q, 1.0)) == (2, 1)
+    assert system.rank(q, A=system.jacobian(q, 1.0)) == 1
+    assert system.rank(q, 1.0, A=system.jacobian(q, 0.0)) == 2
 
 
 # ============================================================================= the plane of a planar closure, names, rank

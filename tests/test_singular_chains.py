@@ -255,7 +255,7 @@ def test_output_states_are_projected_by_the_move_too(batched):
 @pytest.mark.filterwarnings("ignore::multibody.RankDeficientWarning")  # (flat: the closures lose rank there)
 @pytest.mark.parametrize("angle", [1e-3, 1e-6, 1e-9, 1e-12])
 def test_the_projection_reports_how_near_flat_the_rows_are(angle):
-    """The conditioning that :meth:`ConstrainedSystem._projection` returns with the projected state, and by
+    """The conditioning that :meth:`ConstrainedSystem.projection` returns with the projected state, and by
     which ``simulate`` evaluates a step's stages on the constraints (``NEAR_SINGULAR``), falls as the
     angle from flat: the x rows shrink as ``sin φ``. It counts the directions that the rank tolerance
     drops (1e-12 rad from flat) but not the rows' rounding; on the compiled program's rows and on the same rows
@@ -264,17 +264,17 @@ def test_the_projection_reports_how_near_flat_the_rows_are(angle):
     model = parallelogram_chain(cells)
     system = mb.ConstrainedSystem(model, planar_closures(cells))
     q, v = crank_state(cells, angle, 1.0)
-    compiled = system._projection(q, v)[2]
+    compiled = system.projection(q, v)[2]
     system.__dict__["_compiled_step"] = None  # the cached property, withheld: the rows evaluated in Python
     try:
-        by_python_rows = system._projection(q, v)[2]
+        by_python_rows = system.projection(q, v)[2]
     finally:
         del system.__dict__["_compiled_step"]
     # the compiled step's LQ factor bounds it from below within a factor m (4 rows), the rotations give it
     m = system.num_rows
     assert by_python_rows / m <= compiled * (1.0 + 1e-8) and compiled <= by_python_rows * (1.0 + 1e-8)
     assert 0.1 * angle <= by_python_rows <= angle
-    far = system._projection(*crank_state(cells, 0.5, 1.0))[2]
+    far = system.projection(*crank_state(cells, 0.5, 1.0))[2]
     assert far > mb.simulation.NEAR_SINGULAR
 
 
@@ -394,8 +394,8 @@ def test_a_stall_near_flat_is_reported_with_its_cause():
 
 # ----------------------------------------------------------------------------- the error on the tangent space
 
-def test_row_space_projectors_give_what_the_projection_removes():
-    """``_row_space_projectors``: ``P = M⁻¹Aᵀ (A M⁻¹ Aᵀ)⁺ A`` is an ``M``-orthogonal projector onto the rows' range,
+def testrow_space_projectors_give_what_the_projection_removes():
+    """``row_space_projectors``: ``P = M⁻¹Aᵀ (A M⁻¹ Aᵀ)⁺ A`` is an ``M``-orthogonal projector onto the rows' range,
     the closed form where the rows have full rank, the position one from the rows with a position level only
     (the rolling ball's contact height, not its rolling rows), and on a consistent state the velocity
     projection of ``v + e`` is ``v + (I − P) e``."""
@@ -408,7 +408,7 @@ def test_row_space_projectors_give_what_the_projection_removes():
     rng = np.random.default_rng(3)
     for system, q0, v0 in cases:
         q, v = system.project(q0, v0)
-        position, velocity = system._row_space_projectors(q)
+        position, velocity = system.row_space_projectors(q)
         M = system.system.mass_matrix(q)
         A = system.jacobian(q)
         for P, rows in ((position, A[system._position_mask]), (velocity, A)):
@@ -421,7 +421,7 @@ def test_row_space_projectors_give_what_the_projection_removes():
         e = rng.standard_normal(system.nv)
         np.testing.assert_allclose(system.project(q, v + e)[1], v + e - velocity @ e, atol=1e-12)
     ball = cases[0][0]
-    assert np.linalg.matrix_rank(ball._row_space_projectors(setup.q0)[0]) == 1  # the contact height only
+    assert np.linalg.matrix_rank(ball.row_space_projectors(setup.q0)[0]) == 1  # the contact height only
 
 
 def test_the_error_norm_near_a_singular_configuration_measures_what_the_tangent_map_leaves():
@@ -454,7 +454,7 @@ def test_tangent_map_removes_the_normal_parts_on_a_curved_configuration_space():
     """``_tangent_map`` on the rolling ball (a free body: its chart's velocity alignment ``T`` is not the
     identity; one row with a position level, two rolling rows): an error estimate whose ``δ`` lies along the
     position row and whose ``ẇ = T v`` has ``v`` along the rows' range (``P`` of
-    ``ConstrainedSystem._row_space_projectors``) maps to zero, and a tangent one maps to itself."""
+    ``ConstrainedSystem.row_space_projectors``) maps to zero, and a tangent one maps to itself."""
     from multibody.demos import rolling_ball_setup
     from multibody.simulation import Charts, _tangent_map
 
@@ -465,7 +465,7 @@ def test_tangent_map_removes_the_normal_parts_on_a_curved_configuration_space():
     y = charts.to_chart(np.concatenate([q, v]))
     T = system.system.velocity_alignment(q)
     assert np.abs(T - np.eye(system.nv)).max() > 0.1
-    position, velocity = system._row_space_projectors(q)
+    position, velocity = system.row_space_projectors(q)
     e = rng.standard_normal((4, system.nv))
     normal = np.concatenate([position @ e[0], T @ velocity @ e[1]])
     tangent = np.concatenate([e[2] - position @ e[2], T @ (e[3] - velocity @ e[3])])
