@@ -1,9 +1,11 @@
-"""The layout of multibody's modules: no module imports another module's private (underscore) name, and the
-modules' imports (function-level ones included) form no cycle.
+"""The layout of multibody's modules: no module imports another module's private (underscore) name or reads a
+private member of another module's objects, and the modules' imports (function-level ones included) form no cycle.
 
-Both are read from the source with ``ast``, without importing anything: ``from .x import _y`` and ``x._y`` on a
-module ``x`` bound by an import count as private imports; every ``import``/``from ... import`` of a multibody
-module, wherever it stands in a file, is an edge of the import graph.
+All are read from the source with ``ast``, without importing anything: ``from .x import _y`` and ``x._y`` on a
+module ``x`` bound by an import count as private imports; ``obj._y`` on anything but ``self`` or ``cls``, in a
+module that neither defines nor assigns ``_y``, as a private member read (``multibody/numba_hooks.py`` reads
+Numba's internals by design: ``tests/test_private_members.py``); every ``import``/``from ... import`` of a
+multibody module, wherever it stands in a file, is an edge of the import graph.
 """
 
 import ast
@@ -71,9 +73,26 @@ def imports(module, source=None, modules=MODULES):
     return {edge for edge in edges if edge in modules}, private
 
 
+def private_members(source):
+    """``(line, "obj._y")`` of each private member read in a module's text ``source`` on an object other than
+    ``self`` or ``cls`` whose name ``_y`` the module neither defines (a function or class) nor assigns (a name
+    or an attribute): a member of another module's objects."""
+    tree = ast.parse(source)
+    own = {node.name for node in ast.walk(tree) if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef))}
+    own |= {node.id if isinstance(node, ast.Name) else node.attr for node in ast.walk(tree)
+            if isinstance(node, (ast.Name, ast.Attribute)) and isinstance(node.ctx, (ast.Store, ast.Del))}
+    return [(node.lineno, f"{ast.unparse(node.value)}.{node.attr}") for node in ast.walk(tree)
+            if isinstance(node, ast.Attribute) and isinstance(node.ctx, ast.Load) and _private(node.attr)
+            and node.attr not in own and not (isinstance(node.value, ast.Name) and node.value.id in ("self", "cls"))]
+
+
+#: The module that reads Numba's internals by design (``tests/test_private_members.py``).
+NUMBA_HOOKS = "multibody.numba_hooks"
 GRAPH = {}
 PRIVATE = set()
 WHERE = {}
+MEMBERS = sorted(f"{MODULES[module].relative_to(PACKAGE.parent)}:{line}: {read}" for module in MODULES
+                 if module != NUMBA_HOOKS for line, read in private_members(MODULES[module].read_text()))
 for _module in MODULES:
     GRAPH[_module], _found = imports(_module)
     for _line, _name in _found:
@@ -118,6 +137,11 @@ def test_no_module_imports_another_modules_private_names():
         f"{WHERE[found]}: {found[0]} imports {found[1]}" for found in new)
 
 
+def test_no_module_reads_a_private_member_of_another_modules_objects():
+    assert not MEMBERS, ("private members read on other modules' objects (move the code to the module that owns "
+                         "the data, or make the member public, documented):\n" + "\n".join(MEMBERS))
+
+
 def test_no_import_cycle():
     graph = GRAPH
     found = cycles(graph)
@@ -137,6 +161,15 @@ def test_the_checker_finds_private_imports_and_function_level_edges():
     assert sorted(name for _, name in private) == ["multibody.b._hidden", "multibody.b._other"]
     assert cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
     assert cycles({"a": {"b"}, "b": set()}) == []
+
+
+def test_the_checker_finds_private_members_read_on_other_modules_objects():
+    """A private member read on another object (a name, an attribute, a call's result) is found; one on
+    ``self`` or ``cls``, one the module defines or assigns itself, a dunder and a public one are not."""
+    source = ("class A:\n    _kept = 1\n\n    def f(self, model, other):\n        self._own = model._state\n"
+              "        return (other._own, self.system.model._rows, self._hidden, model.__class__, model.rows,\n"
+              "                make()._made, other._kept, other._f)\n\n\n    def _f(cls):\n        return cls._g\n")
+    assert private_members(source) == [(5, "model._state"), (6, "self.system.model._rows"), (7, "make()._made")]
 
 
 def test_every_eagerly_bound_name_of_the_api_is_in_all():
