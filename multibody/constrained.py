@@ -706,10 +706,13 @@ class ConstrainedSystem:
         largest.
 
         ``rows``: a boolean mask ``(m,)`` of the rows to count (e.g. :attr:`position_rows`), or ``None`` for
-        all. ``A (..., m, nv)``: the rows at ``q``, where the caller has them. An ``int`` for one state; ``(...)`` ints
-        for a batch ``q (..., nq)`` (see :attr:`batched`).
+        all. ``A (..., m, nv)``: the rows at ``q`` and ``t``, where the caller has them already (compiled rows, fixed in
+        time, are decided on the program's own). An ``int`` for one state; ``(...)`` ints for a batch ``q (..., nq)``
+        (see :attr:`batched`).
         """
         q = np.asarray(q, dtype=float)
+        if A is not None and np.shape(A)[-2:] != (self.num_rows, self.nv):
+            raise ValueError(f"A must have shape (..., {self.num_rows}, {self.nv}), got {np.shape(A)}")
         if rows is not None:
             rows = np.asarray(rows)
             if rows.dtype != bool or rows.shape != (self.num_rows,):
@@ -792,12 +795,11 @@ class ConstrainedSystem:
 
     def projection(self, q, v, t=0.0, tolerance=PROJECTION_TOLERANCE, max_iterations=PROJECTION_ITERATIONS,
                    stacklevel=3):
-        """:meth:`project` of ``q (..., nq)``, ``v (..., nv)`` at ``t`` (s): ``(q, v, conditioning)``, the
-        conditioning of the rows at the projected state ``(...)`` being the
-        smallest singular value of ``A L⁻ᵀ`` above rounding (``m ε σ_max``, which leaves out redundant rows)
-        over the largest, or (compiled, where the LQ factor decides) a lower bound on it within a factor
-        ``m``; 1 without rows. Every projected state is checked for a wrong branch (:meth:`_check_branches`),
-        and the first projection of the system checks the rank of the rows at its state
+        """:meth:`project` of ``q (..., nq)``, ``v (..., nv)`` at ``t`` (s): ``(q, v, conditioning)``, the conditioning
+        of the rows at the projected state ``(...)`` being the smallest singular value of ``A L⁻ᵀ`` above rounding
+        (``m ε σ_max``, which leaves out redundant rows) over the largest, or (compiled, where the LQ factor decides) a
+        lower bound on it within a factor ``m``; 1 without rows. Every projected state is checked for a wrong branch
+        (:meth:`_check_branches`), and the first projection of the system checks the rank of the rows at its state
         (:meth:`_warn_if_rank_deficient`, warning ``stacklevel`` calls up from here)."""
         projected = self._projected(q, v, t, tolerance, max_iterations)
         self._check_branches(projected[0])

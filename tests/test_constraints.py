@@ -932,6 +932,8 @@ def test_rank_decides_on_the_rows_the_caller_has():
     assert (system.rank(q), system.rank(q, 1.0)) == (2, 1)
     assert system.rank(q, A=system.jacobian(q, 1.0)) == 1
     assert system.rank(q, 1.0, A=system.jacobian(q, 0.0)) == 2
+    with pytest.raises(ValueError, match=r"A must have shape \(\.\.\., 2, 3\), got \(1, 3\)"):
+        system.rank(q, A=np.ones((1, 3)))
 
 
 # ============================================================================= the plane of a planar closure, names, rank
