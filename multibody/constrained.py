@@ -168,8 +168,8 @@ class ConstrainedSystem:
 
     :attr:`compiled_step`, :meth:`chart_derivative`, :meth:`chart_derivatives`, :meth:`projection`,
     :meth:`checked_tau`, :meth:`row_space_projectors` and :meth:`position_and_velocity_levels` serve the simulation
-    layer (:mod:`multibody.simulation`, :mod:`multibody.variational`, :mod:`multibody.runs`), which reads the system
-    through them alone.
+    layer (:mod:`multibody.simulation`, :mod:`multibody.variational`, :mod:`multibody.runs`), so that it reads no
+    private member of the system.
     """
 
     def __init__(self, model, constraints=(), *, baumgarte=None, rank_tolerance=1e-10):

@@ -733,8 +733,7 @@ class CompiledRun:
         """Steps ``k`` up to ``stop`` (exclusive) of one trajectory, ``states (n, nq + nv)`` filled in place:
         ``(the first step not taken, status)``. A Python controller ``torque(t, q, v)`` gives the joint forces of
         each stage: ``None`` (zero), a float64 array ``(nv,)`` or anything ``joint_forces(value)`` turns into one
-        (or raises for).
-        The status's report: :attr:`io` (``IO_TIME``, ``IO_VALUE``, ``τ``)."""
+        (or raises for). The status's report: :attr:`io` (``IO_TIME``, ``IO_VALUE``, ``τ``)."""
         io = self.io
         io[stepping.IO_STEP], io[stepping.IO_STOP] = k, stop
         io[stepping.IO_STAGE] = io[stepping.IO_TORQUE_GIVEN] = 0.0
