@@ -733,6 +733,7 @@ def test_builder_hides_joint_carriers_and_keeps_the_equality_constraints():
         with pytest.raises(ValueError, match=r"^hidden must name massless bodies of the builder"):
             b.build(hidden=wrong)
 
+
 def test_builder_default_joint_names_and_limits():
     b = mb.ModelBuilder("m")
     b.add_body("a", jt.Revolute(), lower=[-1.0], upper=[2.0])
@@ -767,7 +768,7 @@ def test_model_members_the_algorithms_read(tree):
     slices = tree.unit_norm_slices
     assert len(slices) == sum(joint.unit_norm is not None for joint in tree.joints) > 0
     assert all(stop - start in (2, 4) and np.linalg.norm(q[start:stop]) == 1.0 for start, stop in slices)
-    assert tree.body_frame_row(tree.body_names[3]) is tree.body_frame_row(3)
+    np.testing.assert_array_equal(tree.body_frame_row(tree.body_names[3]), tree.body_frame_row(3))
     np.testing.assert_array_equal(tree.body_frame_row(np.int64(3)), tree.tree.bodies[3:4])
     with pytest.raises(ValueError, match="unknown body 'nope'"):
         tree.body_frame_row("nope")
@@ -775,6 +776,7 @@ def test_model_members_the_algorithms_read(tree):
     assert f_ext.dtype == np.float64 and f_ext.shape == (2, tree.njoints, 6)
     with pytest.raises(ValueError, match=rf"^f_ext must have shape \(\.\.\., {tree.njoints}, 6\)"):
         tree.check_external_forces(np.zeros((tree.njoints, 3)))
+
 
 def test_misspelled_names_suggest_the_close_ones():
     model = mb.robots.load("four_bar")

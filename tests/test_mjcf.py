@@ -440,6 +440,7 @@ def test_a_mesh_is_drawn_where_mujoco_compiles_its_vertices(tmp_path, scale):
     tolerance = 4 * np.finfo(np.float32).eps * np.abs(compiled).max()  # (MuJoCo keeps its vertices in float32)
     assert distances.min(axis=0).max() < tolerance and distances.min(axis=1).max() < tolerance
 
+
 def test_a_mesh_file_mujoco_read_that_the_viewer_does_not_find_warns(tmp_path):
     """MuJoCo reads an attached model's mesh from that model's folder and ``meshdir``; the viewer looks for it
     in the main file's folder, finds none, and leaves it undrawn (``filename`` ``None``), warning with the
@@ -456,6 +457,7 @@ def test_a_mesh_file_mujoco_read_that_the_viewer_does_not_find_warns(tmp_path):
                                          "mesh whose file MuJoCo read but the viewer does not find there is not drawn$"):
         model = load_mjcf(path)
     assert [(g.uri, g.filename) for g in model.geometries] == [("block.stl", None)]
+
 
 def test_sites_are_frames(features):
     """A site is a named frame of the model: its placement and Jacobian by name, as MuJoCo's site."""

@@ -131,6 +131,7 @@ def test_the_example_compiles_the_document_in_mujoco_once_per_use(example, gripp
     assert example["mujoco_stroke"](xml, model, tau, [0.0, 1e-3]).shape == (2, model.nq)
     assert compiled == [xml, xml]
 
+
 def test_stroke_keeps_the_closures_and_closes(example, gripper, stroke):
     """The 1 s stroke: the closure residual stays within what the step ends' projection leaves (its
     tolerance times the rows' largest absolute row sum, margin 10; measured 1.0e-12); the drivers end near

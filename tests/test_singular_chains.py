@@ -394,7 +394,7 @@ def test_a_stall_near_flat_is_reported_with_its_cause():
 
 # ----------------------------------------------------------------------------- the error on the tangent space
 
-def testrow_space_projectors_give_what_the_projection_removes():
+def test_row_space_projectors_give_what_the_projection_removes():
     """``row_space_projectors``: ``P = M⁻¹Aᵀ (A M⁻¹ Aᵀ)⁺ A`` is an ``M``-orthogonal projector onto the rows' range,
     the closed form where the rows have full rank, the position one from the rows with a position level only
     (the rolling ball's contact height, not its rolling rows), and on a consistent state the velocity
