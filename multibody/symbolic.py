@@ -293,15 +293,19 @@ class NumericLagrangian:
     ``bias_forces(q, v) (n,)`` (so that ``M q̈ + h = τ``), ``energy(q, v) = T + U``; for the variational
     integrator also ``lagrangian_gradient``, ``lagrangian_hessian``, ``momentum_jacobian`` and
     ``generalized_forces`` (derived from ``L`` on first use).
+
+    ``symbolic_lagrangian``: ``(q symbols, v symbols, L(q, v), Q (n,))``, the Lagrangian (J) and the generalized
+    forces (N or N·m per coordinate) it was made from by :meth:`LagrangianSystem.numeric`, with every parameter
+    given; ``None`` for one made by hand, which then has no ``L`` for the variational integrator's derivatives.
     """
 
     def __init__(self, n, mass_matrix, bias_forces, energy, names, lagrangian=None):
         self.nq = self.nv = n
         self._M, self._h, self._E = mass_matrix, bias_forces, energy
         self.coordinate_names = names
-        # (q symbols, v symbols, L(q, v), Q(q, v)) for the variational integrator's derivatives, which
-        # are derived and compiled on first use only (most simulations never ask for them)
-        self._lagrangian = lagrangian
+        # (the variational integrator's derivatives are derived and compiled on first use only: most
+        # simulations never ask for them)
+        self.symbolic_lagrangian = lagrangian
 
     def mass_matrix(self, q):
         return np.asarray(self._M(np.asarray(q, dtype=float)), dtype=float).reshape(self.nv, self.nv)
@@ -321,10 +325,10 @@ class NumericLagrangian:
     @cached_property
     def _derivatives(self):
         """Compiled ``∂L/∂q``, ``∂²L/∂q²``, ``∂(M v)/∂q`` and ``Q`` of the symbolic Lagrangian."""
-        if self._lagrangian is None:
+        if self.symbolic_lagrangian is None:
             raise AttributeError("this NumericLagrangian was built without its Lagrangian "
                                  "(use LagrangianSystem.numeric())")
-        q, v, L, Q = self._lagrangian
+        q, v, L, Q = self.symbolic_lagrangian
         gradient = sp.Matrix([L]).jacobian(q)
         M = sp.Matrix([[L.diff(a).diff(b) for b in v] for a in v])
         return (sp.lambdify([q, v], gradient, "numpy"), sp.lambdify([q, v], gradient.T.jacobian(q), "numpy"),

@@ -258,7 +258,7 @@ class _SystemLagrangian:
 def _has_nonzero_forces(system):
     """Whether a system's generalized forces ``Q`` may be non-zero: ``False`` only for a symbolic system whose
     ``Q`` are zero expressions (which saves their evaluation at every Newton iteration)."""
-    lagrangian = getattr(system, "_lagrangian", None)
+    lagrangian = getattr(system, "symbolic_lagrangian", None)
     if lagrangian is None:
         return True
     return any(entry != 0 for entry in lagrangian[3])
@@ -277,7 +277,7 @@ def _lagrangian_of(mechanical):
         raise ValueError(f"method='variational' needs q̇ = v, but {type(mechanical).__name__} has nq = {mechanical.nq} "
                          f"!= nv = {mechanical.nv}")
     # (a NumericLagrangian made by hand, without its Lagrangian, has the methods but cannot answer them)
-    if getattr(mechanical, "_lagrangian", True) is None or not hasattr(mechanical, "lagrangian_gradient"):
+    if getattr(mechanical, "symbolic_lagrangian", True) is None or not hasattr(mechanical, "lagrangian_gradient"):
         raise ValueError(
             f"method='variational' needs the Lagrangian's gradient ∂L/∂q, which {type(mechanical).__name__} does not "
             "provide: use a Model, LagrangianSystem.numeric(), or a system with lagrangian_gradient(q, v) (and "

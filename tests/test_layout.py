@@ -2,18 +2,21 @@
 private member of another module's objects, and the modules' imports (function-level ones included) form no cycle.
 
 All are read from the source with ``ast``, without importing anything: ``from .x import _y`` and ``x._y`` on a
-module ``x`` bound by an import count as private imports; ``obj._y`` on anything but ``self`` or ``cls``, in a
-module that neither defines nor assigns ``_y``, as a private member read (``multibody/numba_hooks.py`` reads
-Numba's internals by design: ``tests/test_private_members.py``); every ``import``/``from ... import`` of a
-multibody module, wherever it stands in a file, is an edge of the import graph.
+module ``x`` bound by an import count as private imports; ``obj._y`` or ``getattr(obj, "_y")`` on anything but
+``self`` or ``cls``, where ``_y`` is a member of another module's classes and none of the module's own, as a private
+member read (``multibody/numba_hooks.py`` reads Numba's internals by design: ``tests/test_private_members.py``);
+every ``import``/``from ... import`` of a multibody module, wherever it stands in a file, is an edge of the import
+graph.
 """
 
 import ast
 import pathlib
+import textwrap
 
 import multibody
 
 PACKAGE = pathlib.Path(multibody.__file__).parent
+
 
 def module_name(path):
     parts = list(path.relative_to(PACKAGE.parent).with_suffix("").parts)
@@ -73,17 +76,57 @@ def imports(module, source=None, modules=MODULES):
     return {edge for edge in edges if edge in modules}, private
 
 
-def private_members(source):
-    """``(line, "obj._y")`` of each private member read in a module's text ``source`` on an object other than
-    ``self`` or ``cls`` whose name ``_y`` the module neither defines (a function or class) nor assigns (a name
-    or an attribute): a member of another module's objects."""
+#: The functions that read or write a member named by a string: ``getattr(obj, "_y")`` is ``obj._y``.
+_ATTRIBUTE_FUNCTIONS = ("getattr", "hasattr", "setattr", "delattr")
+
+
+def _on_self(node):
+    return isinstance(node, ast.Name) and node.id in ("self", "cls")
+
+
+def _member_accesses(tree):
+    """``(node, object, name)`` of each member access: ``obj.name`` and ``getattr(obj, "name", ...)`` (or
+    ``hasattr``, ``setattr``, ``delattr``) with the name a string constant."""
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Attribute):
+            yield node, node.value, node.attr
+        elif (isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id in _ATTRIBUTE_FUNCTIONS
+              and len(node.args) >= 2 and isinstance(node.args[1], ast.Constant) and isinstance(node.args[1].value, str)):
+            yield node, node.args[0], node.args[1].value
+
+
+def own_members(source):
+    """The private members of a module's own objects, from its text ``source``: the methods, nested classes and
+    class attributes of its classes, and the attributes it sets on ``self`` or ``cls``. Its module-level names and
+    local variables are no members."""
     tree = ast.parse(source)
-    own = {node.name for node in ast.walk(tree) if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef))}
-    own |= {node.id if isinstance(node, ast.Name) else node.attr for node in ast.walk(tree)
-            if isinstance(node, (ast.Name, ast.Attribute)) and isinstance(node.ctx, (ast.Store, ast.Del))}
-    return [(node.lineno, f"{ast.unparse(node.value)}.{node.attr}") for node in ast.walk(tree)
-            if isinstance(node, ast.Attribute) and isinstance(node.ctx, ast.Load) and _private(node.attr)
-            and node.attr not in own and not (isinstance(node.value, ast.Name) and node.value.id in ("self", "cls"))]
+    own = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.ClassDef):
+            for item in node.body:
+                if isinstance(item, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
+                    own.add(item.name)
+                elif isinstance(item, (ast.Assign, ast.AnnAssign)):
+                    targets = item.targets if isinstance(item, ast.Assign) else [item.target]
+                    own |= {name.id for target in targets for name in ast.walk(target) if isinstance(name, ast.Name)}
+    for node, obj, name in _member_accesses(tree):
+        stored = (isinstance(node, ast.Attribute) and isinstance(node.ctx, (ast.Store, ast.Del))
+                  or isinstance(node, ast.Call) and node.func.id in ("setattr", "delattr"))
+        if stored and _on_self(obj):
+            own.add(name)
+    return {name for name in own if _private(name)}
+
+
+def private_members(source, others):
+    """``(line, "obj._y")`` of each private member read or written in a module's text ``source`` on an object
+    other than ``self`` or ``cls`` (``obj._y``, ``getattr(obj, "_y")``) where ``_y`` is a member of another
+    module's objects (in ``others``, :func:`own_members` of the other modules) and not of this module's own. A
+    name that both own is not found (``ast`` does not know the object's class); nor is a private member of
+    another package's objects (``tests/test_private_members.py`` covers SciPy's and Numba's)."""
+    tree = ast.parse(source)
+    own = own_members(source)
+    return sorted((node.lineno, f"{ast.unparse(obj)}.{name}") for node, obj, name in _member_accesses(tree)
+                  if _private(name) and name in others and name not in own and not _on_self(obj))
 
 
 #: The module that reads Numba's internals by design (``tests/test_private_members.py``).
@@ -91,8 +134,10 @@ NUMBA_HOOKS = "multibody.numba_hooks"
 GRAPH = {}
 PRIVATE = set()
 WHERE = {}
+OWN = {module: own_members(path.read_text()) for module, path in MODULES.items()}
 MEMBERS = sorted(f"{MODULES[module].relative_to(PACKAGE.parent)}:{line}: {read}" for module in MODULES
-                 if module != NUMBA_HOOKS for line, read in private_members(MODULES[module].read_text()))
+                 if module != NUMBA_HOOKS for line, read in private_members(
+                     MODULES[module].read_text(), set().union(*(OWN[other] for other in OWN if other != module))))
 for _module in MODULES:
     GRAPH[_module], _found = imports(_module)
     for _line, _name in _found:
@@ -164,12 +209,36 @@ def test_the_checker_finds_private_imports_and_function_level_edges():
 
 
 def test_the_checker_finds_private_members_read_on_other_modules_objects():
-    """A private member read on another object (a name, an attribute, a call's result) is found; one on
-    ``self`` or ``cls``, one the module defines or assigns itself, a dunder and a public one are not."""
-    source = ("class A:\n    _kept = 1\n\n    def f(self, model, other):\n        self._own = model._state\n"
-              "        return (other._own, self.system.model._rows, self._hidden, model.__class__, model.rows,\n"
-              "                make()._made, other._kept, other._f)\n\n\n    def _f(cls):\n        return cls._g\n")
-    assert private_members(source) == [(5, "model._state"), (6, "self.system.model._rows"), (7, "make()._made")]
+    """A private member of another module's objects, read or written on an object (a name, an attribute, a call's
+    result) or by ``getattr``, ``hasattr`` or ``setattr`` with its name, is found, whatever module-level name or local
+    variable of the same name the module has; one on ``self`` or ``cls``, one the module's classes have too, another
+    package's, a dunder and a public one are not."""
+    source = textwrap.dedent("""\
+        _rows = 3
+
+
+        def _levels():
+            return _rows
+
+
+        class A:
+            _kept = 1
+
+            def f(self, model, other):
+                self._own = model._state
+                other._cache = {}
+                return (other._own, self.system.model._rows, self._hidden, model.__class__, model.rows,
+                        make()._made, other._kept, other._f, other._levels(), getattr(model, "_lagrangian", None),
+                        hasattr(self, "_cache"), dynamicsymbols._t)
+
+            def _f(cls):
+                return cls._g
+        """)
+    assert own_members(source) == {"_kept", "_own", "_f"}
+    others = {"_state", "_cache", "_own", "_rows", "_made", "_kept", "_f", "_levels", "_lagrangian", "_hidden"}
+    assert private_members(source, others) == [(12, "model._state"), (13, "other._cache"),
+                                               (14, "self.system.model._rows"), (15, "make()._made"),
+                                               (15, "model._lagrangian"), (15, "other._levels")]
 
 
 def test_every_eagerly_bound_name_of_the_api_is_in_all():

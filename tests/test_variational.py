@@ -363,6 +363,20 @@ def test_a_system_without_the_lagrangian_gradient_is_refused():
         mb.simulate(CurveCoordinateSystem(Helix(), 1.0), [0.0], [1.0], 1.0, method="variational", dt=0.01)
 
 
+def test_a_numeric_lagrangian_made_by_hand_is_refused():
+    """``LagrangianSystem.numeric()`` keeps the symbolic ``(q, v, L, Q)`` it was made from (``symbolic_lagrangian``),
+    from which the integrator derives ``∂L/∂q``; a ``NumericLagrangian`` made by hand has the methods but no
+    ``L`` (``symbolic_lagrangian`` ``None``) and is refused as a system without the gradient."""
+    from multibody.symbolic import NumericLagrangian
+
+    q, v, L, Q = kepler().symbolic_lagrangian
+    assert len(q) == len(v) == 2 and L.free_symbols == {q[0], v[0], v[1]} and list(Q) == [0, 0]  # (θ cyclic)
+    by_hand = NumericLagrangian(1, lambda q: np.eye(1), lambda q, v: np.zeros(1), lambda q, v: 0.5 * v[0] ** 2, ["x"])
+    assert by_hand.symbolic_lagrangian is None and hasattr(by_hand, "lagrangian_gradient")
+    with pytest.raises(ValueError, match="needs the Lagrangian's gradient"):
+        mb.simulate(by_hand, [0.0], [1.0], 1.0, method="variational", dt=0.01)
+
+
 def test_newton_failure_is_a_simulation_error_with_time_and_residual():
     """A step whose Newton iteration does not meet the tolerance raises ``SimulationError`` naming the time
     and the residual, with the states before it in ``.trajectory``."""
