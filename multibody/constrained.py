@@ -223,14 +223,6 @@ class ConstrainedSystem:
         workspace = kkt.workspace_size(model.njoints, self.nv, len(frames), self.num_rows)
         return program, frames, workspace
 
-    def compiled_program(self):
-        """``(program, frame rows)`` of the bilateral rows compiled (:mod:`multibody.kernels.constraints`, the frames
-        it indexes as :mod:`multibody.tree` rows), as the compiled steps read them; ``None`` when a constraint has
-        no compiled rows (a user constraint, a moving surface), there are none, or the system is not a
-        :class:`Model`."""
-        step = self._compiled_step
-        return None if step is None else step[:2]
-
     def _compiled_levels(self, q):
         """``(φ (m,), A (m, nv), b (m,))`` of every row at one state ``q``, all compiled and fixed in time
         (``b = 0``), from one call of :func:`multibody.kernels.constraints.constraint_levels` on the step's

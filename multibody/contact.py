@@ -26,12 +26,12 @@ import numpy as np
 from numba import prange, types
 
 from . import driver
-from .integrators import CONTROLLER_TYPES, control_rows
+from .integrators import CONTROLLER_TYPES, control_rows, controller_pointer
 from .contact_problem import STATUS_MESSAGES
-from .kernels import collision, kkt, stepping, timestepping
+from .kernels import collision, stepping, timestepping
 from .model import Model
 from .trajectory import Contacts, Trajectory, recorded_names
-from .tree import frame_rows
+from .tree import CompiledTree, frame_rows
 
 #: The one time-stepping method of systems with unilateral constraints (``simulate(..., method=...)``).
 METHOD = "Moreau-Jean"
@@ -44,10 +44,6 @@ MAX_ITERATIONS = 20000
 MARGIN = 1e-3
 #: Depth (m or rad) of a step's end penetration that its position correction removes (shallower is left alone).
 PENETRATION = 1e-10
-#: The projection of each step's end onto the bilateral rows (:func:`multibody.kernels.kkt.project`): the largest
-#: ``|φ|`` and step left (m or rad), and its Gauss–Newton iterations.
-PROJECTION_TOLERANCE = 1e-12
-PROJECTION_ITERATIONS = 50
 #: Rows (limits and contacts) of each output step's record at a run's start: a step with more widens every record
 #: of the run to at least twice as many (at most the rows the system can have) and the run goes on from that step.
 #: The step's workspaces are sized by the records' rows (:meth:`ContactProgram.workspaces`) and grow with them.
@@ -248,8 +244,10 @@ def _copy(constraint):
 @dataclass
 class ContactProgram:
     """What the compiled step of a system with unilateral constraints reads (:mod:`multibody.kernels.timestepping`):
-    the bilateral program and its frames, the geometry rows and vertices, and the plan without its controller."""
+    the model's compiled tree, the bilateral program and its frames, the geometry rows and vertices, and the plan
+    without its controller."""
 
+    tree: CompiledTree
     program: np.ndarray
     frames: np.ndarray
     geometry: np.ndarray
@@ -316,40 +314,33 @@ def contact_program(constrained, *, tolerance=TOLERANCE, max_iterations=MAX_ITER
             pairs += [[ga, gb, c.friction, c.restitution] for ga, gb in c.pairs]
         elif isinstance(c, JointLimits):
             limits += [[iq, iv, lower, upper, c.restitution, j] for j, iq, iv, lower, upper in c.limits]
+    # the bilateral rows' program, frames and projection at a step's end (project's defaults): the constrained step's
+    step = constrained.compiled_step
+    if step is None:
+        names = [c.name for c in constrained.constraints]
+        raise ValueError(f"simulate with contact or joint limits needs bilateral constraints with compiled rows "
+                         f"(built-in, fixed in time); {names} are not all")
     blocks = [np.ravel(np.array(x, dtype=float)) for x in (grounds, pairs, limits)]
     header = np.zeros(timestepping.PLAN_HEADER)
-    start = timestepping.PLAN_HEADER
-    starts = np.cumsum([start] + [b.size for b in blocks])
-    damped = damping is not None
+    starts = np.cumsum([timestepping.PLAN_HEADER] + [b.size for b in blocks])
     header[[timestepping.PLAN_NQ, timestepping.PLAN_NV, timestepping.PLAN_GROUNDS, timestepping.PLAN_PAIRS,
             timestepping.PLAN_LIMITS, timestepping.PLAN_MARGIN, timestepping.PLAN_TOLERANCE,
             timestepping.PLAN_MAX_ITERATIONS, timestepping.PLAN_BILATERAL, timestepping.PLAN_DAMPED,
             timestepping.PLAN_GROUND_START, timestepping.PLAN_PAIR_START, timestepping.PLAN_LIMIT_START,
             timestepping.PLAN_DAMPING_START, timestepping.PLAN_PENETRATION, timestepping.PLAN_KINEMATICS_WORKSPACE,
-            timestepping.PLAN_PASSES_WORKSPACE, timestepping.PLAN_SETTINGS_START]] = (
-        nq, nv, len(grounds), len(pairs), len(limits), margin, tolerance, max_iterations, constrained.num_rows, damped,
-        starts[0], starts[1], starts[2], starts[3], penetration, *timestepping.pass_workspaces(model.njoints, nv),
-        starts[3] + nv)
-    # the projection onto the bilateral rows: [tolerance, iterations, position mask]
-    settings = np.concatenate(([PROJECTION_TOLERANCE, PROJECTION_ITERATIONS], constrained.position_rows.astype(float)))
+            timestepping.PLAN_PASSES_WORKSPACE, timestepping.PLAN_SETTINGS_START,
+            timestepping.PLAN_PROJECTION_WORKSPACE]] = (
+        nq, nv, len(grounds), len(pairs), len(limits), margin, tolerance, max_iterations, constrained.num_rows,
+        damping is not None, starts[0], starts[1], starts[2], starts[3], penetration,
+        *timestepping.pass_workspaces(model.njoints, nv), starts[3] + nv, step.projection_workspace)
     plan = np.concatenate([header, *blocks, np.zeros(nv) if damping is None else np.asarray(damping, dtype=float),
-                           settings])
-    # the bilateral rows' program and frames (the compiled constraint program of the constrained step)
-    if constrained.num_rows:
-        compiled = constrained.compiled_program()
-        if compiled is None:
-            names = [c.name for c in constrained.constraints]
-            raise ValueError(f"simulate with contact or joint limits needs bilateral constraints with compiled rows "
-                             f"(built-in, fixed in time); {names} are not all")
-        program, frames = compiled
-    else:
-        program, frames = np.zeros(0), np.zeros((0, 13))
-    projection_workspace = kkt.projection_workspace_size(model.njoints, nq, nv, len(frames), constrained.num_rows) \
-        if constrained.num_rows else 0
-    plan[timestepping.PLAN_PROJECTION_WORKSPACE] = projection_workspace
-    return ContactProgram(np.ascontiguousarray(program, dtype=float), np.ascontiguousarray(frames, dtype=float),
-                          np.ascontiguousarray(geometry), np.ascontiguousarray(table.vertices, dtype=float),
-                          np.ascontiguousarray(plan),
+                           step.settings])
+    # (without bilateral rows the step reads no frames: the unconstrained step's, the bodies', would size the step's
+    # frame motions for nothing)
+    frames = step.frames if constrained.num_rows else np.zeros((0, 13))
+    return ContactProgram(step.tree, np.ascontiguousarray(step.program, dtype=float),
+                          np.ascontiguousarray(frames, dtype=float), np.ascontiguousarray(geometry),
+                          np.ascontiguousarray(table.vertices, dtype=float), np.ascontiguousarray(plan),
                           # a record's most rows: every contact point and both limits of each limited coordinate
                           timestepping.max_contacts(len(grounds), len(pairs)) + 2 * len(limits), constrained.num_rows,
                           tuple(model.body_names), tuple(model.joint_names))
@@ -479,7 +470,7 @@ def contact_records(records, summaries, program):
     return [ContactRecord(records[r], counts[r], names, len(program.body_names)) for r in range(len(records))]
 
 
-def separate_initial(constrained, program, q, tree):
+def separate_initial(constrained, program, q):
     """``q`` with its penetrations (contacts and joint limits) removed by :func:`multibody.kernels.timestepping.step`'s
     position correction at ``dt → 0`` (a zero-length step moves nothing but the correction), repeated until the
     deepest gap is above the tolerance (curvature needs a few passes), and the deepest penetration found (m or rad,
@@ -495,7 +486,7 @@ def separate_initial(constrained, program, q, tree):
         io[timestepping.IO_STEP], io[timestepping.IO_STOP] = 1, 2
         # a step of 1e-300 s: the free motion and the impulses move nothing; the correction moves q
         times = np.array([0.0, 1e-300])
-        _call_run(program, tree, stepping.NO_CONTROL, np.zeros((1, nv)), None, times, states, records, summaries, io)
+        _call_run(program, stepping.NO_CONTROL, np.zeros((1, nv)), None, times, states, records, summaries, io)
         depth = -summaries[1, timestepping.SUMMARY_SEPARATION]
         if not depth > 0.0:
             break
@@ -504,53 +495,53 @@ def separate_initial(constrained, program, q, tree):
     return q, deepest
 
 
-def initial_gaps(program, tree, q):
+def initial_gaps(program, q):
     """The deepest gap (m, or rad to a joint limit; at most the margin) of each configuration of ``q (N, nq)``
     (:func:`multibody.kernels.timestepping.deepest_gap`): ``(N,)``, negative where it penetrates."""
     gaps = np.empty(len(q))
-    size = timestepping.gap_workspace_size(tree.njoints, tree.nv, timestepping.max_contacts(
+    size = timestepping.gap_workspace_size(program.tree.njoints, program.tree.nv, timestepping.max_contacts(
         int(program.plan[timestepping.PLAN_GROUNDS]), int(program.plan[timestepping.PLAN_PAIRS])))
     driver.entry_point(timestepping.deepest_gaps, _GAPS_TYPES)(
-        tree.joints, tree.reals, program.geometry, program.vertices, program.plan, np.ascontiguousarray(q), gaps,
-        np.empty(size))
+        program.tree.joints, program.tree.reals, program.geometry, program.vertices, program.plan,
+        np.ascontiguousarray(q), gaps, np.empty(size))
     return gaps
 
 
-def _call_run(program, tree, kind, control, controller, times, states, records, summaries, io):
-    """One trajectory's steps ``io[IO_STEP]`` up to ``io[IO_STOP]`` by :func:`multibody.kernels.timestepping.run`."""
+def _leading(program, kind, controller):
+    """The arguments of :func:`multibody.kernels.timestepping.run` before its control row: the controller's
+    first-class function, the tree's arrays, the frames, program, geometry, vertices and the plan with the controller
+    ``kind``."""
     plan = program.plan.copy()
     plan[timestepping.PLAN_CONTROL] = kind
-    pointer = controller.pointer if kind == stepping.FUNCTION else driver.first_class(stepping.no_controller,
-                                                                                       CONTROLLER_TYPES)
-    entry = driver.entry_point(timestepping.run, _RUN_TYPES)
+    return (controller_pointer(kind, controller), program.tree.joints, program.tree.reals, program.frames,
+            program.program, program.geometry, program.vertices, plan)
+
+
+def _call_run(program, kind, control, controller, times, states, records, summaries, io):
+    """One trajectory's steps ``io[IO_STEP]`` up to ``io[IO_STOP]`` by :func:`multibody.kernels.timestepping.run`."""
     floats, ints = program.workspaces(records.shape[1])
-    entry(pointer, tree.joints, tree.reals, program.frames, program.program, program.geometry, program.vertices, plan,
-          control[0], times, states, records, summaries, io, np.empty(floats), np.zeros(ints, dtype=np.int64))
+    driver.entry_point(timestepping.run, _RUN_TYPES)(*_leading(program, kind, controller), control[0], times, states,
+                                                     records, summaries, io, np.empty(floats),
+                                                     np.zeros(ints, dtype=np.int64))
 
 
-def _run_batch(program, tree, kind, control, controller, times, states, records, summaries, io, device=False):
+def _run_batch(program, kind, control, controller, times, states, records, summaries, io, device=False):
     """The steps of every trajectory of ``states (N, n, nq + nv)`` on all cores, each on its own, or (``device``) on
     the GPU, one trajectory per thread (:func:`multibody.gpu.contact_batch`)."""
-    plan = program.plan.copy()
-    plan[timestepping.PLAN_CONTROL] = kind
-    pointer = controller.pointer if kind == stepping.FUNCTION else driver.first_class(stepping.no_controller,
-                                                                                       CONTROLLER_TYPES)
+    pointer, *arrays = _leading(program, kind, controller)
     floats, ints = program.workspaces(records.shape[2])
     if device:
         from . import gpu
         launcher = gpu.run_launcher(gpu.contact_run_source, timestepping.run,
                                     controller.function if kind == stepping.FUNCTION else None, pointer,
                                     dict(ENTRY_POINTS)[timestepping.run])
-        gpu.contact_batch(launcher, (tree.joints, tree.reals, program.frames, program.program, program.geometry,
-                                     program.vertices, plan, control, times), floats, ints,
-                          states, records, summaries, io)
+        gpu.contact_batch(launcher, (*arrays, control, times), floats, ints, states, records, summaries, io)
         return
     shares = max(1, min(driver.get_num_threads(), len(states)))
     entry = driver.entry_point(_trajectories, _TRAJECTORIES_TYPES)
     with driver.parallel_shares(shares):
-        entry(driver.first_class(timestepping.run, _RUN_TYPES), pointer, tree.joints, tree.reals, program.frames,
-              program.program, program.geometry, program.vertices, plan, control, times, states, records, summaries,
-              io, floats, ints, shares)
+        entry(driver.first_class(timestepping.run, _RUN_TYPES), pointer, *arrays, control, times, states, records,
+              summaries, io, floats, ints, shares)
 
 
 def run(constrained, q, v, times, controller, torque, batch, damping=None, tolerance=TOLERANCE,
@@ -562,13 +553,13 @@ def run(constrained, q, v, times, controller, torque, batch, damping=None, toler
     compiled controller, run inside the step; or ``torque(t, q, v)``, a Python function of the state at each step's
     start (``controller`` then ``None``). ``damping (nv,)`` or ``None``: joint damping ``−D v``. ``tolerance`` (m/s)
     and ``max_iterations``: each step's contact problem; a step that does not reach the tolerance ends its
-    trajectory before it (its record stays in ``contacts``, its residual in ``complementarity``). An initial state in penetration is projected out (the smallest move in the metric of ``M``) with a
-    warning giving the depth. ``device``: the batch's steps on the GPU, one trajectory per thread (a ``controller``
-    the GPU computes, not ``torque``)."""
+    trajectory before it (its record stays in ``contacts``, its residual in ``complementarity``). An initial state in
+    penetration is projected out (the smallest move in the metric of ``M``) with a warning giving the depth.
+    ``device``: the batch's steps on the GPU, one trajectory per thread (a ``controller`` the GPU computes, not
+    ``torque``)."""
     model = constrained.system.model
     nq, nv = constrained.nq, constrained.nv
     program = contact_program(constrained, tolerance=tolerance, max_iterations=max_iterations, damping=damping)
-    tree = model.tree
     count = len(q)
     q, v = model.normalize(np.array(q, dtype=float)), np.array(v, dtype=float)
     # an initial state in penetration, projected out (and onto the bilateral constraints); the zero-length steps of
@@ -576,8 +567,8 @@ def run(constrained, q, v, times, controller, torque, batch, damping=None, toler
     if constrained.num_rows:
         for r in range(count):
             q[r], v[r] = constrained.project(q[r], v[r], times[0])
-    for r in np.flatnonzero(initial_gaps(program, tree, q) < -program.plan[timestepping.PLAN_PENETRATION]):
-        q[r], depth = separate_initial(constrained, program, q[r], tree)
+    for r in np.flatnonzero(initial_gaps(program, q) < -program.plan[timestepping.PLAN_PENETRATION]):
+        q[r], depth = separate_initial(constrained, program, q[r])
         if depth > 0.0:
             where = "" if batch is None else f" (trajectory {r})"
             warnings.warn(f"the initial state{where} penetrates by {depth:.3g} (m, or rad past a joint limit); "
@@ -602,12 +593,12 @@ def run(constrained, q, v, times, controller, torque, batch, damping=None, toler
             control = np.ascontiguousarray(np.broadcast_to(np.zeros(nv) if value is None else value, (count, nv)),
                                            dtype=float)
             io[live, timestepping.IO_STEP], io[live, timestepping.IO_STOP] = k, k + 1
-            records = _dispatch(program, tree, stepping.CONSTANT, control, None, times, states, records, summaries, io,
-                                batch, live)
+            records = _dispatch(program, stepping.CONSTANT, control, None, times, states, records, summaries, io, batch,
+                                live)
     else:
         kind, control = control_rows(controller, nv)
-        records = _dispatch(program, tree, kind, control, controller, times, states, records, summaries, io, batch,
-                            None, device)
+        records = _dispatch(program, kind, control, controller, times, states, records, summaries, io, batch, None,
+                            device)
     statuses = []
     for r in range(count):
         status = int(io[r, timestepping.IO_STATUS])
@@ -633,12 +624,11 @@ def run(constrained, q, v, times, controller, torque, batch, damping=None, toler
                        batch)
 
 
-def _dispatch(program, tree, kind, control, controller, times, states, records, summaries, io, batch, live,
-              device=False):
+def _dispatch(program, kind, control, controller, times, states, records, summaries, io, batch, live, device=False):
     """The steps of one trajectory (``batch`` ``None``) or of the ``live`` trajectories of a batch (``None``: all), on
-    the GPU where ``device``, each stopped by a step with more rows than ``records (N, n, R, RECORD_COLUMNS)`` holds going on from that step
-    with every record widened (:data:`RECORD_CAPACITY`); returns the records."""
-    _dispatch_once(program, tree, kind, control, controller, times, states, records, summaries, io, batch, live, device)
+    the GPU where ``device``, each stopped by a step with more rows than ``records (N, n, R, RECORD_COLUMNS)`` holds
+    going on from that step with every record widened (:data:`RECORD_CAPACITY`); returns the records."""
+    _dispatch_once(program, kind, control, controller, times, states, records, summaries, io, batch, live, device)
     while True:
         full = io[:, timestepping.IO_STATUS] == timestepping.RECORD_FULL
         if not full.any():
@@ -650,23 +640,22 @@ def _dispatch(program, tree, kind, control, controller, times, states, records, 
         grown[:, :, : records.shape[2]] = records
         records = grown
         io[rows, timestepping.IO_STATUS] = timestepping.COMPLETED
-        _dispatch_once(program, tree, kind, control, controller, times, states, records, summaries, io, batch, full,
-                       device)
+        _dispatch_once(program, kind, control, controller, times, states, records, summaries, io, batch, full, device)
 
 
-def _dispatch_once(program, tree, kind, control, controller, times, states, records, summaries, io, batch, live,
+def _dispatch_once(program, kind, control, controller, times, states, records, summaries, io, batch, live,
                    device=False):
     """The steps of one trajectory (``batch`` ``None``) or of the ``live`` trajectories of a batch (``None``: all), on
     the GPU where ``device``."""
     if batch is None:
-        _call_run(program, tree, kind, control, controller, times, states[0], records[0], summaries[0], io[0])
+        _call_run(program, kind, control, controller, times, states[0], records[0], summaries[0], io[0])
         return
     if live is None or live.all():
-        _run_batch(program, tree, kind, control, controller, times, states, records, summaries, io, device)
+        _run_batch(program, kind, control, controller, times, states, records, summaries, io, device)
         return
     rows = np.flatnonzero(live)
     parts = [np.ascontiguousarray(x[rows]) for x in (states, records, summaries, io)]
-    _run_batch(program, tree, kind, np.ascontiguousarray(control[rows]) if len(control) > 1 else control, controller,
+    _run_batch(program, kind, np.ascontiguousarray(control[rows]) if len(control) > 1 else control, controller,
                times, *parts, device)
     for x, part in zip((states, records, summaries, io), parts):
         x[rows] = part

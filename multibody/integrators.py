@@ -602,6 +602,14 @@ def control_rows(controller, nv):
     return stepping.PYTHON, np.zeros((1, nv))
 
 
+def controller_pointer(kind, controller):
+    """The first-class function the compiled runs call as the controller of ``kind`` (:func:`control_rows`):
+    ``controller``'s compiled function for :data:`~multibody.kernels.stepping.FUNCTION`, else
+    :func:`multibody.kernels.stepping.no_controller`."""
+    return controller.pointer if kind == stepping.FUNCTION else driver.first_class(stepping.no_controller,
+                                                                                   CONTROLLER_TYPES)
+
+
 # ============================================================================= the compiled run
 
 #: The argument types of :func:`multibody.kernels.stepping.run` (one trajectory): the tree's arrays and the constraint
@@ -711,8 +719,7 @@ class CompiledRun:
         self.times, self.nq, self.nv = np.ascontiguousarray(times, dtype=float), nq, nv
         kind, control = control_rows(controller, nv)
         self.kind, self.control, self.controller = kind, control, controller
-        self.pointer = controller.pointer if kind == stepping.FUNCTION else driver.first_class(
-            stepping.no_controller, CONTROLLER_TYPES)
+        self.pointer = controller_pointer(kind, controller)
         self.plan = _plan(step, tableau, kind, damping, projection_tolerance, near_singular, nq, nv)
         self.plan[stepping.PLAN_ENERGY] = 1.0
         self.workspace = stepping.workspace_size(nq, nv, tableau.stages, step.step_columns, step.step_workspace,

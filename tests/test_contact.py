@@ -418,14 +418,14 @@ def test_zero_length_step_only_for_a_penetrating_initial_state(ball, monkeypatch
     system = mb.ConstrainedSystem(ball, [mb.Ground()])
     program = contact.contact_program(system)
     q0 = np.array([[0, 0, z, 0, 0, 0, 1] for z in (0.1, 0.1005, 0.5, 0.09, 0.1 - 1e-11)])
-    gaps = contact.initial_gaps(program, ball.tree, q0)
+    gaps = contact.initial_gaps(program, q0)
     np.testing.assert_allclose(gaps, [0.0, 5e-4, contact.MARGIN, -0.01, -1e-11], rtol=0, atol=1e-15)
     separated = []
     original = contact.separate_initial
 
-    def counted(constrained, program, q, tree):
+    def counted(constrained, program, q):
         separated.append(q.copy())
-        return original(constrained, program, q, tree)
+        return original(constrained, program, q)
 
     monkeypatch.setattr(contact, "separate_initial", counted)
     with warnings.catch_warnings():
@@ -520,6 +520,31 @@ def test_bilateral_rows_in_the_same_solve(ball):
     assert (trajectory.lam[2 : touching[0], 0] > 0).all()
     assert (np.diff(trajectory.energy) <= 1e-12).all()
     assert trajectory.complementarity.max() <= TOLERANCE
+
+
+def test_the_contact_step_takes_the_systems_one_compiled_step(ball):
+    """A contact run reads the bilateral rows as the constrained step has them (``ConstrainedSystem.compiled_step``):
+    its tree, program and frames, and in its plan the projection's settings (``project``'s default tolerance and
+    iterations, the position rows) and workspace; without bilateral rows it has no frames and no projection; rows
+    evaluated in Python have no compiled step, and the run says so."""
+    from multibody import constrained
+    from multibody.kernels import timestepping as ts
+
+    rod = mb.Distance("ball", None, 0.5, point_b=[0.0, 0.0, 0.55])
+    system = mb.ConstrainedSystem(ball, [rod, mb.Ground(friction=0.5)])
+    step, program = system.compiled_step, contact.contact_program(system)
+    assert program.tree is step.tree and program.bilateral == 1
+    np.testing.assert_array_equal(program.program, step.program)
+    np.testing.assert_array_equal(program.frames, step.frames)
+    np.testing.assert_array_equal(program.plan[int(program.plan[ts.PLAN_SETTINGS_START]) :], step.settings)
+    np.testing.assert_array_equal(step.settings,
+                                  [constrained.PROJECTION_TOLERANCE, constrained.PROJECTION_ITERATIONS, 1.0])
+    assert program.plan[ts.PLAN_PROJECTION_WORKSPACE] == step.projection_workspace > 0
+    free = contact.contact_program(mb.ConstrainedSystem(ball, [mb.Ground()]))
+    assert free.frames.shape == (0, 13) and free.program.size == 0 and free.plan[ts.PLAN_PROJECTION_WORKSPACE] == 0
+    python = mb.ConstrainedSystem(ball, [mb.Holonomic(lambda q, t: np.array([q[2] - 0.5])), mb.Ground()])
+    with pytest.raises(ValueError, match=r"needs bilateral constraints with compiled rows \(built-in, fixed in time\)"):
+        mb.simulate(python, [0, 0, 0.5, 0, 0, 0, 1], np.zeros(6), 0.01, dt=DT)
 
 
 def test_elastic_collision_of_two_balls_exchanges_their_velocities():
