@@ -26,7 +26,7 @@ import numpy as np
 from numba import prange, types
 
 from . import driver
-from .integrators import CONTROLLER_TYPES, control_rows, controller_pointer
+from .integrators import CONTROLLER_FUNCTION, TREE_FLOATS, TREE_INTS, control_rows, controller_function
 from .contact_problem import STATUS_MESSAGES
 from .kernels import collision, stepping, timestepping
 from .model import Model
@@ -348,14 +348,11 @@ def contact_program(constrained, *, tolerance=TOLERANCE, max_iterations=MAX_ITER
 
 # ============================================================================= the compiled run
 
-_TREE_INTS = types.Array(types.int64, 2, "C", readonly=True)
-_TREE_FLOATS = types.Array(types.float64, 2, "C", readonly=True)
-_CONTROLLER_FUNCTION = types.FunctionType(types.none(*CONTROLLER_TYPES))
-_RUN_TYPES = (_CONTROLLER_FUNCTION, _TREE_INTS, _TREE_FLOATS, types.float64[:, ::1], types.float64[::1],
+_RUN_TYPES = (CONTROLLER_FUNCTION, TREE_INTS, TREE_FLOATS, types.float64[:, ::1], types.float64[::1],
               types.float64[:, ::1], types.float64[:, ::1], types.float64[::1], types.float64[::1], types.float64[::1],
               types.float64[:, ::1], types.float64[:, :, ::1], types.float64[:, ::1], types.float64[::1],
               types.float64[::1], types.int64[::1])
-_TRAJECTORIES_TYPES = (types.FunctionType(types.none(*_RUN_TYPES)), _CONTROLLER_FUNCTION, _TREE_INTS, _TREE_FLOATS,
+_TRAJECTORIES_TYPES = (types.FunctionType(types.none(*_RUN_TYPES)), CONTROLLER_FUNCTION, TREE_INTS, TREE_FLOATS,
                        types.float64[:, ::1], types.float64[::1], types.float64[:, ::1], types.float64[:, ::1],
                        types.float64[::1], types.float64[:, ::1], types.float64[::1], types.float64[:, :, ::1],
                        types.float64[:, :, :, ::1], types.float64[:, :, ::1], types.float64[:, ::1], types.int64,
@@ -376,7 +373,7 @@ def _trajectories(run, controller, joints, reals, frames, program, geometry, ver
                 control[r if control.shape[0] > 1 else 0], times, states[r], records[r], summaries[r], io[r], ws, iws)
 
 
-_GAPS_TYPES = (_TREE_INTS, _TREE_FLOATS, types.float64[:, ::1], types.float64[:, ::1], types.float64[::1],
+_GAPS_TYPES = (TREE_INTS, TREE_FLOATS, types.float64[:, ::1], types.float64[:, ::1], types.float64[::1],
                types.float64[:, ::1], types.float64[::1], types.float64[::1])
 
 #: The compiled run's functions that Python calls or passes as first-class functions (``multibody compile``).
@@ -513,7 +510,7 @@ def _leading(program, kind, controller):
     ``kind``."""
     plan = program.plan.copy()
     plan[timestepping.PLAN_CONTROL] = kind
-    return (controller_pointer(kind, controller), program.tree.joints, program.tree.reals, program.frames,
+    return (controller_function(kind, controller), program.tree.joints, program.tree.reals, program.frames,
             program.program, program.geometry, program.vertices, plan)
 
 
@@ -682,11 +679,9 @@ def _trajectory(constrained, program, times, states, records, summaries, reached
     lam = summaries[..., timestepping.SUMMARY_COLUMNS :].copy()
     complementarity_ = summaries[..., timestepping.SUMMARY_RESIDUAL].copy()
     complementarity_[..., 0] = 0.0
-    contacts = contact_records(records, summaries, program)
-    one = batch is None
-    return Trajectory(t=np.array(times, dtype=float), q=q[0] if one else q, v=v[0] if one else v,
-                      lam=lam[0] if one else lam, energy=energy[0] if one else energy,
-                      residual=residual[0] if one else residual, row_names=list(constrained.row_names),
-                      status=statuses[0] if one else statuses, joint_names=recorded_names(constrained),
-                      contacts=contacts[0] if one else contacts,
-                      complementarity=complementarity_[0] if one else complementarity_)
+    trajectory = Trajectory(t=np.array(times, dtype=float), q=q, v=v, lam=lam, energy=energy, residual=residual,
+                            row_names=list(constrained.row_names), status=statuses,
+                            joint_names=recorded_names(constrained),
+                            contacts=contact_records(records, summaries, program), complementarity=complementarity_)
+    # (one trajectory is a batch of one, whose result loses the batch axis)
+    return trajectory if batch is not None else trajectory.select(0)

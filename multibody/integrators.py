@@ -570,8 +570,9 @@ def _controller_pointer(function):
 #: ``numba.njit`` function, held while that lives: a function defined again is another key, and one compiled
 #: again has another overload, so either is checked and made again.
 _CONTROLLER_POINTERS = weakref.WeakKeyDictionary()
-_CONTROLLER_FUNCTION = types.FunctionType(types.none(*CONTROLLER_TYPES))
-_CONTROLLER_ROWS_TYPES = (_CONTROLLER_FUNCTION, types.float64, types.float64[:, ::1], types.float64[:, ::1],
+#: The type of a compiled controller as a first-class function, which the compiled runs take.
+CONTROLLER_FUNCTION = types.FunctionType(types.none(*CONTROLLER_TYPES))
+_CONTROLLER_ROWS_TYPES = (CONTROLLER_FUNCTION, types.float64, types.float64[:, ::1], types.float64[:, ::1],
                           types.float64[:, ::1])
 
 
@@ -602,7 +603,7 @@ def control_rows(controller, nv):
     return stepping.PYTHON, np.zeros((1, nv))
 
 
-def controller_pointer(kind, controller):
+def controller_function(kind, controller):
     """The first-class function the compiled runs call as the controller of ``kind`` (:func:`control_rows`):
     ``controller``'s compiled function for :data:`~multibody.kernels.stepping.FUNCTION`, else
     :func:`multibody.kernels.stepping.no_controller`."""
@@ -614,14 +615,15 @@ def controller_pointer(kind, controller):
 
 #: The argument types of :func:`multibody.kernels.stepping.run` (one trajectory): the tree's arrays and the constraint
 #: frames read-only, then the program, times, plan, control row, states, io and workspace; and of
-#: :func:`~multibody.kernels.stepping.advance`, which takes a compiled controller first.
-_TREE_INTS = types.Array(types.int64, 2, "C", readonly=True)
-_TREE_FLOATS = types.Array(types.float64, 2, "C", readonly=True)
-_RUN_TYPES = (_TREE_INTS, _TREE_FLOATS, _TREE_FLOATS, types.float64[::1], types.float64[::1], types.float64[::1],
+#: :func:`~multibody.kernels.stepping.advance`, which takes a compiled controller first. ``TREE_INTS``,
+#: ``TREE_FLOATS``: the types of a compiled tree's arrays, which every compiled run reads.
+TREE_INTS = types.Array(types.int64, 2, "C", readonly=True)
+TREE_FLOATS = types.Array(types.float64, 2, "C", readonly=True)
+_RUN_TYPES = (TREE_INTS, TREE_FLOATS, TREE_FLOATS, types.float64[::1], types.float64[::1], types.float64[::1],
               types.float64[::1], types.float64[:, ::1], types.float64[::1], types.float64[::1])
-_ADVANCE_TYPES = (_CONTROLLER_FUNCTION,) + _RUN_TYPES
-_TRAJECTORIES_TYPES = (types.FunctionType(types.none(*_ADVANCE_TYPES)), _CONTROLLER_FUNCTION, _TREE_INTS, _TREE_FLOATS,
-                       _TREE_FLOATS, types.float64[::1], types.float64[::1], types.float64[::1], types.float64[:, ::1],
+_ADVANCE_TYPES = (CONTROLLER_FUNCTION,) + _RUN_TYPES
+_TRAJECTORIES_TYPES = (types.FunctionType(types.none(*_ADVANCE_TYPES)), CONTROLLER_FUNCTION, TREE_INTS, TREE_FLOATS,
+                       TREE_FLOATS, types.float64[::1], types.float64[::1], types.float64[::1], types.float64[:, ::1],
                        types.float64[:, :, ::1], types.float64[:, ::1], types.int64[::1], types.int64, types.int64)
 
 
@@ -719,7 +721,7 @@ class CompiledRun:
         self.times, self.nq, self.nv = np.ascontiguousarray(times, dtype=float), nq, nv
         kind, control = control_rows(controller, nv)
         self.kind, self.control, self.controller = kind, control, controller
-        self.pointer = controller_pointer(kind, controller)
+        self.pointer = controller_function(kind, controller)
         self.plan = _plan(step, tableau, kind, damping, projection_tolerance, near_singular, nq, nv)
         self.plan[stepping.PLAN_ENERGY] = 1.0
         self.workspace = stepping.workspace_size(nq, nv, tableau.stages, step.step_columns, step.step_workspace,
