@@ -778,12 +778,19 @@ class ModelBuilder:
 
         With ``check_inertia`` a moving rigid body (a link with everything fixed to it) whose mass
         properties no real body can have raises ``ValueError`` (see :func:`inertia_problems`). ``hidden``:
-        the names of massless bodies added only to carry a joint (between the joints of one MJCF body),
-        left out of the model's bodies; the joints they carry stay.
+        the names of massless bodies without geometries added only to carry a joint (between the joints of one
+        MJCF body), left out of the model's bodies; the joints they carry stay. A name that is no such body raises
+        ``ValueError`` naming it and why.
         """
-        carried = {spec.name: spec.inertia.mass for spec in self._bodies if spec.name in hidden}
-        if len(carried) < len(set(hidden)) or any(carried.values()):
-            raise ValueError(f"hidden must name massless bodies of the builder, got {sorted(hidden)}")
+        if isinstance(hidden, str):
+            raise TypeError(f"hidden must be a collection of body names, got the string {hidden!r}")
+        masses = {spec.name: spec.inertia.mass for spec in self._bodies}
+        drawn = {geometry.body for geometry in self.geometries + self.collision_geometries}
+        wrong = [f"{name!r} (" + ("not a body" if name not in masses else f"mass {masses[name]} kg" if masses[name]
+                                  else "has geometries") + ")"
+                 for name in sorted(set(hidden), key=str) if name not in masses or masses[name] or name in drawn]
+        if wrong:
+            raise ValueError(f"hidden must name massless bodies of the builder without geometries, got {', '.join(wrong)}")
         moving, parents, joint_placements = [], [], []
         body_joint, body_placement = {}, {}
         for spec in self._bodies:

@@ -720,7 +720,8 @@ def test_builder_lumps_fixed_bodies():
 
 def test_builder_hides_joint_carriers_and_keeps_the_equality_constraints():
     """A body added only to carry a joint (``hidden``) is left out of the model's bodies, its joint kept; the
-    builder's equality constraints are the model's."""
+    builder's equality constraints are the model's. A hidden name that is no body, a body with mass or one with
+    geometries (which would name a body the model does not have) is refused, naming it and why."""
     b = mb.ModelBuilder("slider")
     b.add_body("carrier", jt.Prismatic([1, 0, 0]))
     b.add_body("arm", jt.Revolute([0, 0, 1]), parent="carrier", inertia=Inertia(1.0, [0.1, 0, 0], np.eye(3)))
@@ -729,9 +730,15 @@ def test_builder_hides_joint_carriers_and_keeps_the_equality_constraints():
     assert model.body_names == ("arm",) and model.joint_names == ("carrier_joint", "arm_joint")
     assert model.body_joints.tolist() == [1] and model.parents.tolist() == [-1, 0]
     assert model.equality_constraints == tuple(b.equality_constraints)
-    for wrong in ({"arm"}, {"carrier", "nope"}):
-        with pytest.raises(ValueError, match=r"^hidden must name massless bodies of the builder"):
+    for wrong, why in (({"arm"}, r"'arm' \(mass 1\.0 kg\)"), ({"carrier", "nope"}, r"'nope' \(not a body\)")):
+        with pytest.raises(ValueError, match=rf"^hidden must name massless bodies of the builder without geometries, "
+                                             rf"got {why}$"):
             b.build(hidden=wrong)
+    with pytest.raises(TypeError, match="hidden must be a collection of body names, got the string 'carrier'"):
+        b.build(hidden="carrier")
+    b.add_geometry(mb.Geometry("carrier", "visual", "sphere", np.eye(4), size=(0.1,)))
+    with pytest.raises(ValueError, match=r"got 'carrier' \(has geometries\)$"):
+        b.build(hidden={"carrier"})
 
 
 def test_builder_default_joint_names_and_limits():
