@@ -25,7 +25,8 @@ converted by :func:`to_mujoco`):
   viewer shows, as ``"visual"``, the others as ``"collision"``; a mesh is its file, scaled, placed where
   MuJoCo's compiled vertices are (MuJoCo moves a mesh's vertices to its inertial frame, ``mesh_pos`` and
   ``mesh_quat``, and the geom's pose with them); a mesh given by its vertices (no file), a plane, a
-  height field and an SDF are not drawn;
+  height field and an SDF are not drawn, nor, with a warning, a mesh whose file the loader does not find
+  where MuJoCo read it (an attached model's, read from that model's folder);
 * the bodies' geoms that collide (``contype`` or ``conaffinity`` not 0, MuJoCo's filter; any group) are
   ``model.collision_geometries``: spheres, boxes, capsules and cylinders, and a mesh as the convex hull
   of its compiled vertices (``mesh_vert``, MuJoCo's own, in the geom frame). Ellipsoids, planes, height
