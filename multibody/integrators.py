@@ -664,6 +664,9 @@ class CompiledStep:
             ``projection_workspace``: its output columns and workspace (0 without constraints).
         charts: whether the stages go through the chart maps (a curved configuration space, or constraints); else
             ``q = q₀ + δ``, ``v = w``.
+
+    ``tree``, ``frames`` and ``settings`` (a copy) are read-only; ``program`` is the array that the system's own
+    compiled calls and the runs read, writable because the kernels' argument types are: not to be written.
     """
 
     tree: CompiledTree | None
@@ -675,6 +678,12 @@ class CompiledStep:
     projection_columns: int
     projection_workspace: int
     charts: bool
+
+    def __post_init__(self):
+        # (a copy: the system's projection keeps reading its own settings, whatever is done to these)
+        settings = np.array(self.settings, dtype=float)
+        settings.setflags(write=False)
+        object.__setattr__(self, "settings", settings)
 
 
 #: The step of an adaptive run without a compiled step, which runs as Python only.
