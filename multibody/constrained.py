@@ -783,9 +783,9 @@ class ConstrainedSystem:
         The first projection of this system (here, or at the initial state of :func:`multibody.simulate`)
         gives a :class:`RankDeficientWarning` when the rows at the projected state are not independent.
         """
-        return self.projection(q, v, t, tolerance, max_iterations)[:2]
+        return self.projection(q, v, t, tolerance=tolerance, max_iterations=max_iterations)[:2]
 
-    def projection(self, q, v, t=0.0, tolerance=PROJECTION_TOLERANCE, max_iterations=PROJECTION_ITERATIONS,
+    def projection(self, q, v, t=0.0, *, tolerance=PROJECTION_TOLERANCE, max_iterations=PROJECTION_ITERATIONS,
                    stacklevel=3):
         """:meth:`project` of ``q (..., nq)``, ``v (..., nv)`` at ``t`` (s): ``(q, v, conditioning)``, the conditioning
         of the rows at the projected state ``(...)`` being the smallest singular value of ``A L⁻ᵀ`` above rounding

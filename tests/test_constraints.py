@@ -922,6 +922,20 @@ def test_a_systems_compiled_rows_and_rank_equal_its_constraints_own():
     assert system._compiled_rank(q[None]) is None
 
 
+def test_projection_takes_projects_options_by_keyword_and_gives_the_conditioning():
+    """``projection`` is :meth:`project` with the rows' conditioning at the projected state (1 for one row), its
+    tolerance, iterations and warning's stack level given by keyword, as ``project``'s."""
+    system = mb.ConstrainedSystem(particle_model(1.0), [mb.Holonomic(lambda q, t: np.array([q @ q - 1.0]))])
+    q, v = np.array([0.0, 0.0, 1.1]), np.array([1.0, 0.0, 1.0])
+    q_p, v_p, conditioning = system.projection(q, v, tolerance=1e-10, max_iterations=20)
+    expected = system.project(q, v, tolerance=1e-10, max_iterations=20)
+    np.testing.assert_array_equal(q_p, expected[0])
+    np.testing.assert_array_equal(v_p, expected[1])
+    assert conditioning == 1.0
+    with pytest.raises(TypeError):
+        system.projection(q, v, 0.0, 1e-10)
+
+
 def test_rank_decides_on_the_rows_the_caller_has():
     """``rank(q, A=A)``: the rank of the rows ``A`` given (those of another time, as the variational step has them),
     by the rule of the rows the system evaluates. A particle's two rows that coincide at t = 1 s only."""
