@@ -615,7 +615,8 @@ class ModelBuilder:
 
     Bodies must be added parents first; the joints of the model come in the order their bodies
     were added. Bodies attached by :class:`~multibody.joints.Fixed` joints are lumped into their
-    moving parent but keep their names and placements.
+    moving parent but keep their names and placements. The built-in constraints (:mod:`multibody.constraints`)
+    appended to ``equality_constraints`` become the model's :attr:`Model.equality_constraints`.
     """
 
     def __init__(self, name: str = "model", gravity=STANDARD_GRAVITY):
@@ -627,7 +628,7 @@ class ModelBuilder:
         self.geometries: list[Geometry] = []
         self.collision_geometries: list[Geometry] = []
         self.mimic: list[Mimic] = []
-        self.equality_constraints: list = []  # built-in constraints of multibody.constraints (Model's)
+        self.equality_constraints: list = []
 
     def add_body(self, name, joint=None, *, parent=None, placement=None, inertia=None, joint_name=None,
                  lower=None, upper=None, damping=0.0, friction=0.0, effort_limit=np.inf,
