@@ -132,7 +132,7 @@ import numba
 import numpy as np
 
 from . import driver, linalg, numba_hooks, spatial
-from .integrators import CONTROLLER_TYPES, CompiledController, PDController, control_rows
+from .integrators import CONTROLLER_TYPES, CompiledController, PDController, control_rows, controller_function
 from .constrained import ConstrainedSystem, ConstraintError
 from .mechanical import ModelSystem
 from .model import all_finite
@@ -141,7 +141,6 @@ from .runs import (Progress, SimulationError, checked_timing, joint_damping_of, 
 from .tree import IQ, IV, KIND
 from .kernels import configuration, coriolis, crba
 from .kernels import lagrangian as lagrangian_kernels
-from .kernels import stepping
 from .kernels import variational as iteration_kernels
 from .kernels import joints as kinds
 from .kernels import derivatives as derivative_kernels
@@ -738,8 +737,7 @@ class _CompiledSteps:
         self.program, self.frames = np.ascontiguousarray(step.program, dtype=float), step.frames
         # (the kind of controller, its control row and the compiled controller, as the compiled run of simulate)
         kind, control = control_rows(tau if tau is None or callable(tau) else np.asarray(tau, dtype=float), nv)
-        self.control, self.pointer = control[0], tau.pointer if kind == stepping.FUNCTION else driver.first_class(
-            stepping.no_controller, CONTROLLER_TYPES)
+        self.control, self.pointer = control[0], controller_function(kind, tau)
         header = np.zeros(iteration_kernels.PLAN_HEADER)
         header[[iteration_kernels.PLAN_NQ, iteration_kernels.PLAN_NV, iteration_kernels.PLAN_M,
                 iteration_kernels.PLAN_TRAPEZOIDAL, iteration_kernels.PLAN_GROUPED, iteration_kernels.PLAN_CHART,
