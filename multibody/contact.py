@@ -26,7 +26,8 @@ import numpy as np
 from numba import prange, types
 
 from . import driver
-from .integrators import CONTROLLER_FUNCTION, TREE_FLOATS, TREE_INTS, control_rows, controller_function
+from .integrators import CONTROLLER_FUNCTION, control_rows, controller_function
+from .driver import TREE_FLOATS, TREE_INTS
 from .contact_problem import STATUS_MESSAGES
 from .kernels import collision, stepping, timestepping
 from .model import Model

@@ -345,18 +345,20 @@ def kernel_workspace_size(kernel, nj, nv):
 
 
 _DIRECT = {}
-_TREE_INTS, _TREE_FLOATS = (numba.types.Array(numba.types.int64, 2, "C", readonly=True),
-                            numba.types.Array(numba.types.float64, 2, "C", readonly=True))
-_VECTOR, _MATRIX = numba.types.float64[::1], numba.types.float64[:, ::1]
+#: The types of a compiled tree's arrays (:class:`~multibody.tree.CompiledTree`), read-only, as every compiled call
+#: reads them; and of a vector and a matrix it reads or writes.
+TREE_INTS, TREE_FLOATS = (numba.types.Array(numba.types.int64, 2, "C", readonly=True),
+                          numba.types.Array(numba.types.float64, 2, "C", readonly=True))
+VECTOR, MATRIX = numba.types.float64[::1], numba.types.float64[:, ::1]
 #: The argument types of every single call: the tree's read-only arrays, then writable inputs and outputs.
 #: Machine code does not depend on whether an array is writable, and no kernel writes its inputs.
-_SINGLE_CALL_TYPES = (_TREE_INTS, _TREE_FLOATS, _TREE_FLOATS, _VECTOR, _VECTOR, _VECTOR, _VECTOR, _MATRIX, _VECTOR)
+_SINGLE_CALL_TYPES = (TREE_INTS, TREE_FLOATS, TREE_FLOATS, VECTOR, VECTOR, VECTOR, VECTOR, MATRIX, VECTOR)
 
 
 #: The argument types of :func:`_batch`: a kernel's single call (:func:`first_class`), the tree's arrays and
 #: the frames read-only, the input rows and the outputs writable, whatever the arrays passed are.
-_BATCH_TYPES = (numba.types.FunctionType(numba.types.none(*_SINGLE_CALL_TYPES)), _TREE_INTS, _TREE_FLOATS,
-                _TREE_FLOATS, _MATRIX, _MATRIX, _MATRIX, _MATRIX, numba.types.float64[:, :, ::1], numba.types.int64,
+_BATCH_TYPES = (numba.types.FunctionType(numba.types.none(*_SINGLE_CALL_TYPES)), TREE_INTS, TREE_FLOATS,
+                TREE_FLOATS, MATRIX, MATRIX, MATRIX, MATRIX, numba.types.float64[:, :, ::1], numba.types.int64,
                 numba.types.int64)
 
 #: The compiled loops the driver calls from Python, as ``(function, argument types)``: a batch's loop compiles

@@ -27,6 +27,7 @@ import numpy as np
 from numba import prange, types
 
 from . import driver, numba_hooks
+from .driver import TREE_FLOATS, TREE_INTS
 from .numba_hooks import NumbaError
 from .kernels import joints as kinds
 from .kernels import stepping
@@ -615,10 +616,7 @@ def controller_function(kind, controller):
 
 #: The argument types of :func:`multibody.kernels.stepping.run` (one trajectory): the tree's arrays and the constraint
 #: frames read-only, then the program, times, plan, control row, states, io and workspace; and of
-#: :func:`~multibody.kernels.stepping.advance`, which takes a compiled controller first. ``TREE_INTS``,
-#: ``TREE_FLOATS``: the types of a compiled tree's arrays, which every compiled run reads.
-TREE_INTS = types.Array(types.int64, 2, "C", readonly=True)
-TREE_FLOATS = types.Array(types.float64, 2, "C", readonly=True)
+#: :func:`~multibody.kernels.stepping.advance`, which takes a compiled controller first.
 _RUN_TYPES = (TREE_INTS, TREE_FLOATS, TREE_FLOATS, types.float64[::1], types.float64[::1], types.float64[::1],
               types.float64[::1], types.float64[:, ::1], types.float64[::1], types.float64[::1])
 _ADVANCE_TYPES = (CONTROLLER_FUNCTION,) + _RUN_TYPES

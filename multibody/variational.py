@@ -128,11 +128,10 @@ import functools
 import math
 import warnings
 
-import numba
 import numpy as np
 
 from . import driver, linalg, numba_hooks, spatial
-from .integrators import CONTROLLER_TYPES, CompiledController, PDController, control_rows, controller_function
+from .integrators import CONTROLLER_FUNCTION, CompiledController, PDController, control_rows, controller_function
 from .constrained import ConstrainedSystem, ConstraintError
 from .mechanical import ModelSystem
 from .model import all_finite
@@ -710,14 +709,10 @@ class _NotConverged(Exception):
 
 # ============================================================================= the compiled run
 
-_CONTROLLER = numba.types.FunctionType(numba.types.none(*CONTROLLER_TYPES))
-_READ_ONLY_INTS = numba.types.Array(numba.types.int64, 2, "C", readonly=True)
-_READ_ONLY_FLOATS = numba.types.Array(numba.types.float64, 2, "C", readonly=True)
-_VECTOR, _MATRIX = numba.types.float64[::1], numba.types.float64[:, ::1]
 #: The argument types of :func:`multibody.kernels.variational.advance`: a compiled controller, the tree's arrays and
 #: the constraint frames (read-only), the program, times, plan, control row, states, impulses, io and workspace.
-ADVANCE_TYPES = (_CONTROLLER, _READ_ONLY_INTS, _READ_ONLY_FLOATS, _READ_ONLY_FLOATS, _VECTOR, _VECTOR, _VECTOR, _VECTOR,
-                 _MATRIX, _MATRIX, _VECTOR, _VECTOR)
+ADVANCE_TYPES = (CONTROLLER_FUNCTION, driver.TREE_INTS, driver.TREE_FLOATS, driver.TREE_FLOATS, driver.VECTOR,
+                 driver.VECTOR, driver.VECTOR, driver.VECTOR, driver.MATRIX, driver.MATRIX, driver.VECTOR, driver.VECTOR)
 #: The compiled run's entry point, which ``multibody compile`` compiles beside the kernels.
 ENTRY_POINTS = ((iteration_kernels.advance, ADVANCE_TYPES),)
 
