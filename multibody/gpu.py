@@ -104,9 +104,9 @@ def device_tree(model) -> DeviceTree:
 
 
 def _host_view(x):
-    """Under the CUDA simulator: the NumPy array behind a simulated device array (else ``x``)."""
-    x = x.__dict__.get("_item", x) if hasattr(x, "__dict__") else x
-    return getattr(x, "_ary", x)
+    """Under the CUDA simulator: a NumPy view of a simulated device array, which writes through to it (by its public
+    ``__array__``); ``x`` itself for a NumPy array or scalar, a number or a function."""
+    return np.asarray(x) if hasattr(x, "__array__") and not isinstance(x, (np.ndarray, np.generic)) else x
 
 
 def _simulated(kernel):
