@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import math
 import operator
+import time
 import warnings
 import weakref
 from collections.abc import Sequence
@@ -31,6 +32,7 @@ from .driver import TREE_FLOATS, TREE_INTS
 from .contact_problem import STATUS_MESSAGES
 from .kernels import collision, stepping, timestepping
 from .model import Model
+from .runs import FIRST_CHUNK, Progress, next_chunk, projected_start, warn_projected_starts
 from .trajectory import Contacts, Trajectory, recorded_names
 from .tree import CompiledTree, frame_rows
 
@@ -543,7 +545,7 @@ def _run_batch(program, kind, control, controller, times, states, records, summa
 
 
 def run(constrained, q, v, times, controller, torque, batch, damping=None, tolerance=TOLERANCE,
-        max_iterations=MAX_ITERATIONS, device=False):
+        max_iterations=MAX_ITERATIONS, device=False, progress=None):
     """The Moreau–Jean steps (:mod:`multibody.kernels.timestepping`) of ``constrained`` from the checked initial
     states ``q (N, nq)``, ``v (N, nv)`` at the output ``times (n,)`` (s; one step per interval): a
     :class:`~multibody.Trajectory` (one, for ``batch`` ``None``, or of ``batch`` trajectories) whose ``status``
@@ -551,10 +553,16 @@ def run(constrained, q, v, times, controller, torque, batch, damping=None, toler
     compiled controller, run inside the step; or ``torque(t, q, v)``, a Python function of the state at each step's
     start (``controller`` then ``None``). ``damping (nv,)`` or ``None``: joint damping ``−D v``. ``tolerance`` (m/s)
     and ``max_iterations``: each step's contact problem; a step that does not reach the tolerance ends its
-    trajectory before it (its record stays in ``contacts``, its residual in ``complementarity``). An initial state in
-    penetration is projected out (the smallest move in the metric of ``M``) with a warning giving the depth.
+    trajectory before it (its record stays in ``contacts``, its residual in ``complementarity``). An initial state
+    off the bilateral constraints is projected onto them with a warning (:func:`multibody.runs.projected_start`: the
+    distance and the coordinates that moved most; a batch: :func:`multibody.runs.warn_projected_starts`), and one in
+    penetration is projected out (the smallest move in the metric of ``M``) with a warning giving the depth; the
+    warnings point at the caller of the function that called this one (:func:`multibody.simulate`'s caller).
     ``device``: the batch's steps on the GPU, one trajectory per thread (a ``controller`` the GPU computes, not
-    ``torque``)."""
+    ``torque``), in one launch. ``progress``: a :class:`~multibody.runs.Progress` bar over the simulated time
+    (``None``, ``True`` or ``False``, as :func:`multibody.simulate` takes it); the compiled steps run in calls of
+    about :data:`~multibody.runs.CHUNK_SECONDS` (:func:`~multibody.runs.next_chunk`), between which the bar moves
+    and an interrupt (Ctrl-C) stops the run, a Python ``torque`` one step per call."""
     model = constrained.system.model
     nq, nv = constrained.nq, constrained.nv
     program = contact_program(constrained, tolerance=tolerance, max_iterations=max_iterations, damping=damping)
@@ -562,15 +570,21 @@ def run(constrained, q, v, times, controller, torque, batch, damping=None, toler
     q, v = model.normalize(np.array(q, dtype=float)), np.array(v, dtype=float)
     # an initial state in penetration, projected out (and onto the bilateral constraints); the zero-length steps of
     # separate_initial only for the states whose gaps show a penetration it would remove
-    if constrained.num_rows:
+    if constrained.num_rows and batch is None:
+        q[0], v[0], _ = projected_start(constrained, q[0], v[0], times[0], stacklevel=4)
+    elif constrained.num_rows:
+        moved = np.empty(count)
         for r in range(count):
-            q[r], v[r] = constrained.project(q[r], v[r], times[0])
+            q_r, v_r = constrained.project(q[r], v[r], times[0])
+            moved[r] = max(np.abs(q_r - q[r]).max(initial=0.0), np.abs(v_r - v[r]).max(initial=0.0))
+            q[r], v[r] = q_r, v_r
+        warn_projected_starts(moved, stacklevel=4)
     for r in np.flatnonzero(initial_gaps(program, q) < -program.plan[timestepping.PLAN_PENETRATION]):
         q[r], depth = separate_initial(constrained, program, q[r])
         if depth > 0.0:
             where = "" if batch is None else f" (trajectory {r})"
             warnings.warn(f"the initial state{where} penetrates by {depth:.3g} (m, or rad past a joint limit); "
-                          "projected out of penetration", UserWarning, stacklevel=4)
+                          "projected out of penetration", UserWarning, stacklevel=3)
     n = len(times)
     # (the steps fill the states; those a trajectory does not reach are NaN'd with its status below)
     states = np.empty((count, n, nq + nv))
@@ -579,24 +593,29 @@ def run(constrained, q, v, times, controller, torque, batch, damping=None, toler
     summaries = np.zeros((count, n, timestepping.SUMMARY_COLUMNS + program.bilateral))
     io = np.zeros((count, timestepping.IO_SIZE))
     io[:, timestepping.IO_STEP], io[:, timestepping.IO_STOP] = 1, n
-    if torque is not None:
-        # a Python controller: its joint forces at each step's start, then that one step compiled
-        for k in range(1, n):
-            live = io[:, timestepping.IO_STATUS] == timestepping.COMPLETED
-            if not live.any():
-                break
-            at = (states[:, k - 1, :nq], states[:, k - 1, nq:]) if batch is not None else \
-                (states[0, k - 1, :nq].copy(), states[0, k - 1, nq:].copy())
-            value = torque(times[k - 1], *at)
-            control = np.ascontiguousarray(np.broadcast_to(np.zeros(nv) if value is None else value, (count, nv)),
-                                           dtype=float)
-            io[live, timestepping.IO_STEP], io[live, timestepping.IO_STOP] = k, k + 1
-            records = _dispatch(program, stepping.CONSTANT, control, None, times, states, records, summaries, io, batch,
-                                live)
-    else:
-        kind, control = control_rows(controller, nv)
-        records = _dispatch(program, kind, control, controller, times, states, records, summaries, io, batch, None,
-                            device)
+    bar = Progress(progress, times[0], times[-1])
+    try:
+        if torque is not None:
+            # a Python controller: its joint forces at each step's start, then that one step compiled
+            for k in range(1, n):
+                live = io[:, timestepping.IO_STATUS] == timestepping.COMPLETED
+                if not live.any():
+                    break
+                at = (states[:, k - 1, :nq], states[:, k - 1, nq:]) if batch is not None else \
+                    (states[0, k - 1, :nq].copy(), states[0, k - 1, nq:].copy())
+                value = torque(times[k - 1], *at)
+                control = np.ascontiguousarray(np.broadcast_to(np.zeros(nv) if value is None else value, (count, nv)),
+                                               dtype=float)
+                io[live, timestepping.IO_STEP], io[live, timestepping.IO_STOP] = k, k + 1
+                records = _dispatch(program, stepping.CONSTANT, control, None, times, states, records, summaries, io,
+                                    batch, live)
+                bar.update(times[k])
+        else:
+            kind, control = control_rows(controller, nv)
+            records = _chunked(program, kind, control, controller, times, states, records, summaries, io, batch, bar,
+                               device)
+    finally:
+        bar.close()
     statuses = []
     for r in range(count):
         status = int(io[r, timestepping.IO_STATUS])
@@ -620,6 +639,31 @@ def run(constrained, q, v, times, controller, torque, batch, damping=None, toler
         summaries[r, last + 1 :, timestepping.SUMMARY_RESIDUAL] = np.nan
     return _trajectory(constrained, program, times, states, records, summaries, io[:, timestepping.IO_STEP], statuses,
                        batch)
+
+
+def _chunked(program, kind, control, controller, times, states, records, summaries, io, batch, bar, device=False):
+    """Every trajectory's steps from ``io[:, IO_STEP]`` to the end of ``times (n,)`` by :func:`_dispatch`, in calls
+    of about :data:`~multibody.runs.CHUNK_SECONDS` (:func:`~multibody.runs.next_chunk`; on the GPU, ``device``, all
+    in one launch), telling ``bar`` (a :class:`~multibody.runs.Progress`) after each call the time every trajectory
+    still running has reached; returns the records (widened where a step needed more rows)."""
+    n = len(times)
+    chunk = FIRST_CHUNK
+    while True:
+        going = (io[:, timestepping.IO_STATUS] == timestepping.COMPLETED) & (io[:, timestepping.IO_STEP] < n)
+        if not going.any():
+            return records
+        # a trajectory that stopped is given no step (its stop at its next step), which the run reports as completed:
+        # its status is put back after the call, so that the batch's calls need not copy the trajectories still going
+        stopped = io[~going, timestepping.IO_STATUS].copy()
+        step = io[:, timestepping.IO_STEP]
+        io[:, timestepping.IO_STOP] = np.where(going, n if device else np.minimum(n, step + chunk), step)
+        started = time.perf_counter()
+        records = _dispatch(program, kind, control, controller, times, states, records, summaries, io, batch, None,
+                            device)
+        chunk = next_chunk(chunk, time.perf_counter() - started)
+        io[~going, timestepping.IO_STATUS] = stopped
+        going = (io[:, timestepping.IO_STATUS] == timestepping.COMPLETED) & (io[:, timestepping.IO_STEP] < n)
+        bar.update(times[int(io[going, timestepping.IO_STEP].min(initial=n)) - 1])
 
 
 def _dispatch(program, kind, control, controller, times, states, records, summaries, io, batch, live, device=False):

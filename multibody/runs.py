@@ -189,6 +189,17 @@ def projected_start(constrained, q, v, t0, stacklevel):
     return q_projected, v_projected, conditioning
 
 
+def warn_projected_starts(moved, stacklevel):
+    """One warning for a batch of initial states whose projection onto the constraints moved each by ``moved (N,)``
+    (its largest change of a coordinate, m or rad, m/s or rad/s): how many moved by more than ``1e-10``, the largest
+    move and its trajectory, ``stacklevel`` calls up; nothing where none moved that far."""
+    if moved.max(initial=0.0) > 1e-10:
+        j = int(np.argmax(moved))
+        warnings.warn(f"the initial states of {int(np.sum(moved > 1e-10))} of {moved.size} trajectories violated the "
+                      f"constraints; projected onto them (moved by up to {moved[j]:.3g}, in trajectory {j})",
+                      UserWarning, stacklevel=stacklevel)
+
+
 def coordinate_name(system, k, rate, force=False):
     """``"q[k] (joint 'name', unit)"``, ``"v[k] (...)"`` or, with ``force``, the joint force ``"tau[k] (..., N or
     N·m)"`` (indexed as ``v``): a coordinate of ``system`` named for messages (by its index alone without a
@@ -243,6 +254,19 @@ def require_finite(system, name, values, rate=False, force=False):
 def non_finite_torque(system, t, values):
     """The message of joint forces ``values (nv,)`` from ``tau(t, q, v)`` at ``t`` (s) that are not finite."""
     return f"the joint forces tau(t, q, v) are not finite at t = {t:.6g} s: {non_finite(system, values, force=True)}"
+
+
+#: A compiled run's first call takes :data:`FIRST_CHUNK` steps; the next ones about :data:`CHUNK_SECONDS` of wall
+#: time each (:func:`next_chunk`), so that the progress bar moves and an interrupt (Ctrl-C, answered when a call
+#: returns) stops the run between calls.
+FIRST_CHUNK, CHUNK_SECONDS = 64, 0.2
+
+
+def next_chunk(chunk, seconds):
+    """The steps of a compiled run's next call, after its last call took ``chunk`` steps in ``seconds`` (wall time):
+    as many as take about :data:`CHUNK_SECONDS` at that rate, at least :data:`FIRST_CHUNK` and at most 64 times
+    ``chunk`` (a first call slowed by compiling does not make the next one short, a fast one not endless)."""
+    return max(FIRST_CHUNK, min(int(chunk * CHUNK_SECONDS / max(seconds, 1e-9)), 64 * chunk, 1 << 30))
 
 
 #: Wall time (s) above which a run shows a progress bar with ``simulate(..., progress=None)``.

@@ -51,9 +51,9 @@ from .kernels import kkt, stepping
 from .mechanical import CHART_TURN, Charts, ModelSystem
 from .model import all_finite
 # JointLimitWarning is the warning simulate's docstring names, and scripts import it from here
-from .runs import (JointLimitWarning, Progress, SimulationError, checked_timing, coordinate_name,  # noqa: F401
-                   joint_damping_of, non_finite_torque, output_times, projected_start, report_limits, require_finite,
-                   torque_function, with_joint_damping)
+from .runs import (FIRST_CHUNK, JointLimitWarning, Progress, SimulationError, checked_timing,  # noqa: F401
+                   coordinate_name, joint_damping_of, next_chunk, non_finite_torque, output_times, projected_start,
+                   report_limits, require_finite, torque_function, warn_projected_starts, with_joint_damping)
 from .trajectory import Trajectory, recorded_names
 
 #: The implicit methods, SciPy's solvers through their public interface.
@@ -152,10 +152,12 @@ def simulate(system, q0, v0, t_final, *, dt=None, method=None, tau=None, rtol=1e
             Systems without a ``Model`` (symbolic ones) have no limits. For ``N`` trajectories, ``"warn"``
             gives one warning per joint with the number of trajectories outside, and ``"error"`` stops each
             trajectory outside at its first output time outside, as a failure does.
-        progress: a progress bar over simulated time (``tqdm``, on standard error): ``None`` (default) shows
-            one when the run is expected to take more than :data:`multibody.runs.PROGRESS_AFTER` seconds, judged from the
-            wall time of its first steps, and the output is a terminal or a notebook; ``True`` always;
-            ``False`` never.
+        progress: a progress bar over simulated time (``tqdm``, on standard error), for every method, contact and
+            joint limits included: ``None`` (default) shows one when the run is expected to take more than
+            :data:`multibody.runs.PROGRESS_AFTER` seconds, judged from the wall time of its first steps, and the
+            output is a terminal or a notebook; ``True`` always; ``False`` never. Compiled runs take their steps in
+            calls of about :data:`multibody.runs.CHUNK_SECONDS`, between which the bar moves and an interrupt
+            (Ctrl-C) stops the run (on the GPU, a batch's steps run in one launch).
         rule, order: ``method="variational"`` only: ``"midpoint"`` (default) or ``"trapezoidal"`` quadrature of the
             action, and order 2 (default) or 4 (Yoshida's composition, systems without constraints).
     Returns:
@@ -222,7 +224,7 @@ def simulate(system, q0, v0, t_final, *, dt=None, method=None, tau=None, rtol=1e
         # the compiled Moreau–Jean steps of multibody.contact.run, but for a Python controller's joint forces
         trajectory = contact.run(constrained, np.broadcast_to(q, (count, nq)), np.broadcast_to(v, (count, nv)), times,
                                  None if python else controller, torque if python else None, batch, damping,
-                                 device=device)
+                                 device=device, progress=progress)
         return _finish(mechanical, trajectory, limits, contact.enforced_coordinates(constrained),
                        f"simulate ({contact.METHOD}) stopped: ")
     if damping is not None:
@@ -265,7 +267,7 @@ def simulate(system, q0, v0, t_final, *, dt=None, method=None, tau=None, rtol=1e
                                 projection_tolerance, times, rtol, atol, max_step)
             stages.hand_back = run.tree is not None
             run.start(states[0], near)
-            chunk, handed = _FIRST_CHUNK, False
+            chunk, handed = FIRST_CHUNK, False
             while done < len(times):
                 python = stages if handed or run.near or not stages.hand_back else None
                 started = time.perf_counter()
@@ -273,7 +275,7 @@ def simulate(system, q0, v0, t_final, *, dt=None, method=None, tau=None, rtol=1e
                     _, status = run.advance(states, min(len(times), done + chunk), python)
                 finally:
                     done = run.done
-                chunk = _next_chunk(chunk, time.perf_counter() - started)
+                chunk = next_chunk(chunk, time.perf_counter() - started)
                 bar.update(run.t)
                 # (a stage or projection the compiled step did not solve: the next step runs as Python)
                 handed = status in (stepping.STAGE_UNSOLVED, stepping.PROJECTION_UNSOLVED)
@@ -493,16 +495,6 @@ class _ChartStages:
         if projected:
             state[:nq], state[nq:] = q, v
         return projected, near
-
-
-#: A compiled run's first call takes this many steps; the next ones about :data:`CHUNK_SECONDS` of wall time
-#: each, so that the progress bar moves and an interrupt is answered.
-_FIRST_CHUNK, CHUNK_SECONDS = 64, 0.2
-
-
-def _next_chunk(chunk, seconds):
-    """The steps of a compiled run's next call, after ``chunk`` steps took ``seconds``."""
-    return max(_FIRST_CHUNK, min(int(chunk * CHUNK_SECONDS / max(seconds, 1e-9)), 64 * chunk, 1 << 30))
 
 
 #: The failures a compiled run reports (:mod:`multibody.kernels.stepping`), each as the error the Python loop raises
@@ -770,11 +762,8 @@ def _simulate_batch(constrained, charts, q0, v0, times, torque, state_dependent,
     projected = projected[:, :-1]
     moved = np.abs(projected - last).max(axis=-1, initial=0.0)
     moved[list(errors)] = 0.0
-    if not single and m and moved.max(initial=0.0) > 1e-10:
-        j = int(np.argmax(moved))
-        warnings.warn(f"the initial states of {int(np.sum(moved > 1e-10))} of {count} trajectories violated the "
-                      f"constraints; projected onto them (moved by up to {moved[j]:.3g}, in trajectory {j})",
-                      UserWarning, stacklevel=3)
+    if not single and m:
+        warn_projected_starts(moved, stacklevel=4)
     last[:] = projected
     if single:
         try:
@@ -907,11 +896,12 @@ def _simulate_batch(constrained, charts, q0, v0, times, torque, state_dependent,
 def _run_batch(run, constrained, states, last, stop, near, fail, python_step, times, bar, device=False,
                controller=None, energies=None):
     """The steps of a batch by its compiled ``run`` (:meth:`~multibody.integrators.CompiledRun.advance_batch`), each
-    trajectory on its own from its next step, in calls of about :data:`CHUNK_SECONDS`. A step that a trajectory's run
-    leaves to Python (it starts near a singular configuration, or a stage or a projection the compiled step did not
-    solve) is taken by ``python_step(k, rows)`` for the trajectories at that step, which then go on compiled.
-    ``states (N, n, nq + nv)``, ``last (N, nq + nv)``, ``stop (N,)``, ``near (N,)`` and the failures (``fail(r, k,
-    reason)``) as :func:`_simulate_batch` keeps them; ``constrained``: the system.
+    trajectory on its own from its next step, in calls of about :data:`multibody.runs.CHUNK_SECONDS`
+    (:func:`multibody.runs.next_chunk`). A step that a trajectory's run leaves to Python (it starts near a singular
+    configuration, or a stage or a projection the compiled step did not solve) is taken by ``python_step(k, rows)``
+    for the trajectories at that step, which then go on compiled. ``states (N, n, nq + nv)``, ``last (N, nq +
+    nv)``, ``stop (N,)``, ``near (N,)`` and the failures (``fail(r, k, reason)``) as :func:`_simulate_batch` keeps
+    them; ``constrained``: the system.
 
     A batch of one runs on this thread (:meth:`~multibody.integrators.CompiledRun.advance`), with its Python
     ``controller`` called once per stage; an error the controller raises stops it at that step.
@@ -949,7 +939,7 @@ def _run_batch(run, constrained, states, last, stop, near, fail, python_step, ti
         io[rows, stepping.IO_STEP], io[rows, stepping.IO_STOP] = 1, n
         gpu.advance_batch(run, states, io, rows)
         reports(rows)
-    chunk = _FIRST_CHUNK
+    chunk = FIRST_CHUNK
     while True:
         going = (stop == n) & (following < n)
         rows = np.flatnonzero(going & ~near & ~handed)
@@ -973,7 +963,7 @@ def _run_batch(run, constrained, states, last, stop, near, fail, python_step, ti
                 io[0] = run.io
             else:
                 run.advance_batch(states, io, rows)
-            chunk = _next_chunk(chunk, time.perf_counter() - started)
+            chunk = next_chunk(chunk, time.perf_counter() - started)
             reports(rows)
         going = (stop == n) & (following < n)
         bar.update(times[int(following[stop == n].min(initial=n)) - 1])

@@ -126,6 +126,7 @@ from __future__ import annotations
 
 import functools
 import math
+import time
 import warnings
 
 import numpy as np
@@ -135,8 +136,9 @@ from .integrators import CONTROLLER_FUNCTION, CompiledController, PDController, 
 from .constrained import ConstrainedSystem, ConstraintError
 from .mechanical import ModelSystem
 from .model import all_finite
-from .runs import (Progress, SimulationError, checked_timing, joint_damping_of, non_finite_torque, output_times,
-                   projected_start, report_limits, require_finite, torque_function, with_joint_damping)
+from .runs import (FIRST_CHUNK, Progress, SimulationError, checked_timing, joint_damping_of, next_chunk,
+                   non_finite_torque, output_times, projected_start, report_limits, require_finite, torque_function,
+                   with_joint_damping)
 from .tree import IQ, IV, KIND
 from .kernels import configuration, coriolis, crba
 from .kernels import lagrangian as lagrangian_kernels
@@ -716,12 +718,10 @@ ADVANCE_TYPES = (CONTROLLER_FUNCTION, driver.TREE_INTS, driver.TREE_FLOATS, driv
 #: The compiled run's entry point, which ``multibody compile`` compiles beside the kernels.
 ENTRY_POINTS = ((iteration_kernels.advance, ADVANCE_TYPES),)
 
-#: Steps per compiled call: the progress bar moves between calls.
-_CHUNK = 1000
-
 
 class _CompiledSteps:
-    """Every step of a run by :func:`multibody.kernels.variational.advance`, a chunk of steps per call: a
+    """Every step of a run by :func:`multibody.kernels.variational.advance`, in calls of about
+    :data:`multibody.runs.CHUNK_SECONDS` (:func:`multibody.runs.next_chunk`): a
     :class:`~multibody.model.Model` without constraints or with compiled rows fixed in time, and joint forces
     none, constant, :class:`~multibody.integrators.PD` or a ``numba.njit`` function (with the joints' damping)."""
 
@@ -768,11 +768,14 @@ class _CompiledSteps:
             # an experimental feature: the fixed-step run relies on it as well)
             warnings.simplefilter("ignore", numba_hooks.NumbaExperimentalFeatureWarning)
             entry = driver.entry_point(iteration_kernels.advance, ADVANCE_TYPES)
-        k, status = 1, iteration_kernels.COMPLETED
+        k, status, chunk = 1, iteration_kernels.COMPLETED, FIRST_CHUNK
+        # (calls of about CHUNK_SECONDS each: the bar moves, and an interrupt is answered, between them)
         while k < n and status == iteration_kernels.COMPLETED:
-            io[iteration_kernels.IO_STEP], io[iteration_kernels.IO_STOP] = k, min(n, k + _CHUNK)
+            io[iteration_kernels.IO_STEP], io[iteration_kernels.IO_STOP] = k, min(n, k + chunk)
+            started = time.perf_counter()
             entry(self.pointer, tree.joints, tree.reals, self.frames, self.program, self.times, self.plan, self.control,
                   states, impulses, io, self.ws)
+            chunk = next_chunk(chunk, time.perf_counter() - started)
             k, status = int(io[iteration_kernels.IO_STEP]), int(io[iteration_kernels.IO_STATUS])
             bar.update(self.times[k - 1])
         qs[:k], vs[:k] = states[:k, :nq], states[:k, nq:]

@@ -753,3 +753,135 @@ def test_a_contact_runs_warnings_point_at_the_caller():
         mb.simulate(system, [0.05], [3.0], 0.05, dt=DT)
     assert [os.path.basename(w.filename) for w in caught if issubclass(w.category, mb.JointLimitWarning)] == \
         [os.path.basename(__file__)]
+
+
+def recorded_updates(monkeypatch):
+    """The times the contact runs tell their progress bars (``Progress.update``), in order; the bars work as
+    before."""
+    from multibody import runs
+
+    told = []
+    update = runs.Progress.update
+
+    def recording(bar, t):
+        told.append(t)
+        update(bar, t)
+
+    monkeypatch.setattr(runs.Progress, "update", recording)
+    return told
+
+
+def test_a_contact_runs_bar_moves_between_its_compiled_calls(ball, monkeypatch, capsys):
+    """A contact run's compiled steps go in calls (``runs.FIRST_CHUNK`` steps, then about ``runs.CHUNK_SECONDS``
+    each) and its bar is told the time after each, single or batched; a Python controller's run, after each step.
+    ``progress=True`` draws the bar to its end; a run expected to take long opens it by itself where it is seen."""
+    from multibody import runs
+
+    system = mb.ConstrainedSystem(ball, [mb.Ground(friction=0.4, restitution=0.5)])
+    steps = 3 * runs.FIRST_CHUNK
+    q0, v0 = np.array([0, 0, 0.3, 0, 0, 0, 1.0]), np.array([0.5, 0, 0, 0, 1.0, 0])
+    told = recorded_updates(monkeypatch)
+    for start in (q0, np.stack([q0, q0 + 0.01])):
+        trajectory = mb.simulate(system, start, v0, steps * DT, dt=DT, progress=False)
+        assert len(told) >= 2 and told[0] == trajectory.t[runs.FIRST_CHUNK] and told[-1] == trajectory.t[-1]
+        assert np.all(np.diff(told) > 0)
+        told.clear()
+    trajectory = mb.simulate(system, q0, v0, 10 * DT, dt=DT, tau=lambda t, q, v: np.zeros(6), progress=False)
+    assert told == list(trajectory.t[1:])
+    assert capsys.readouterr().err == ""
+
+    mb.simulate(system, q0, v0, 0.1, dt=DT, progress=True)
+    err = capsys.readouterr().err
+    assert "simulate: 100%" in err and "t = 0.1/0.1 s" in err
+    monkeypatch.setattr(runs, "PROGRESS_AFTER", 0.0)
+    monkeypatch.setattr(runs, "_visible", lambda: True)
+    slow = lambda t, q, v: __import__("time").sleep(0.001) or np.zeros(6)  # noqa: E731
+    mb.simulate(system, q0, v0, 0.2, dt=DT, tau=slow)
+    assert "simulate: 100%" in capsys.readouterr().err
+
+
+def test_an_interrupt_between_calls_stops_a_contact_run(ball, monkeypatch):
+    """A KeyboardInterrupt (Ctrl-C, which Python raises when a compiled call returns) raised where the bar is told
+    the time after the first call stops the run there: no further compiled call, and the bar is closed."""
+    from multibody import runs
+
+    system = mb.ConstrainedSystem(ball, [mb.Ground(friction=0.4)])
+    told, calls, closed = [], [], []
+
+    def interrupt(bar, t):
+        told.append(t)
+        raise KeyboardInterrupt
+
+    dispatch = contact._dispatch
+    monkeypatch.setattr(runs.Progress, "update", interrupt)
+    monkeypatch.setattr(runs.Progress, "close", lambda bar: closed.append(bar))
+    monkeypatch.setattr(contact, "_dispatch", lambda *args, **kwargs: calls.append(args[3]) or dispatch(*args,
+                                                                                                        **kwargs))
+    q0 = np.array([0, 0, 0.3, 0, 0, 0, 1.0])
+    for start in (q0, np.stack([q0, q0])):
+        with pytest.raises(KeyboardInterrupt):
+            mb.simulate(system, start, np.zeros(6), 1.0, dt=DT, progress=False)
+        assert told == [runs.FIRST_CHUNK * DT] and len(calls) == 1 and len(closed) == 1
+        told.clear(), calls.clear(), closed.clear()
+
+
+def test_chunks_leave_the_steps_unchanged(box, monkeypatch):
+    """The compiled calls' lengths change no step: runs in calls of 7 steps equal, bit for bit (states, contacts,
+    residuals, statuses), the runs in one call, for a box stack whose records widen on the way and a batch whose
+    trajectories stop at different steps (a contact problem not solved in the iterations allowed: the resting box
+    at its first step, the falling one when it lands), whose stopped trajectory stays stopped."""
+
+    def both(simulate):
+        results = []
+        for chunk in (10**6, 7):
+            monkeypatch.setattr(contact, "FIRST_CHUNK", chunk)
+            monkeypatch.setattr(contact, "next_chunk", lambda steps, seconds: chunk)
+            results.append(simulate())
+        return results
+
+    system, q0 = box_stack()
+    monkeypatch.setattr(contact, "RECORD_CAPACITY", 1)
+    one, chunked = both(lambda: mb.simulate(system, q0, np.zeros(18), 0.1, dt=DT))
+    assert one.status == "completed" and max(len(entry) for entry in one.contacts) >= 12
+    assert np.array_equal(one.q, chunked.q) and np.array_equal(one.v, chunked.v)
+    assert one.contacts == chunked.contacts and np.array_equal(one.complementarity, chunked.complementarity)
+
+    system = mb.ConstrainedSystem(box, [mb.Ground(friction=0.5)])
+    q0 = np.array([[0, 0, 0.05, 0, 0, 0, 1], [0.3, 0, 0.1, 0, 0, 0, 1]], dtype=float)
+    one, chunked = both(lambda: contact.run(system, q0, np.zeros((2, 6)), DT * np.arange(200), None, None, 2,
+                                            max_iterations=1))
+    assert one.status == chunked.status and all(s.startswith("the contact problem of the step") for s in one.status)
+    stops = [int(np.argmax(np.isnan(one.q[r, :, 0]))) for r in range(2)]
+    assert stops[0] == 1 and 1 < stops[1] < 200
+    assert np.array_equal(one.q, chunked.q, equal_nan=True) and np.array_equal(one.v, chunked.v, equal_nan=True)
+    assert np.array_equal(one.complementarity, chunked.complementarity, equal_nan=True)
+    assert [list(c) for c in one.contacts] == [list(c) for c in chunked.contacts]
+
+
+def test_initial_states_off_the_bilateral_rows_are_projected_with_a_warning(ball):
+    """A contact run projects its initial state onto the bilateral rows with the warning of the smooth runs, naming
+    the distance and the coordinates that moved most (a batch: how many of its trajectories moved, by up to how
+    much, in which one), pointing at the line that called ``simulate``, as its penetration warning does."""
+    import os
+
+    rod = mb.Distance("ball", None, 0.5, point_b=[0.0, 0.0, 0.55])
+    system = mb.ConstrainedSystem(ball, [rod, mb.Ground(friction=0.5)])
+    on = np.array([0.5, 0, 0.55, 0, 0, 0, 1])
+    off = on + [0.01, 0, 0, 0, 0, 0, 0]
+    with pytest.warns(UserWarning, match=r"initial state violated the constraints; projected onto them \(moved by "
+                                         r"0\.01: q\[0\] \(joint 'ball_joint', m\) by 0\.01\)") as caught:
+        single = mb.simulate(system, off, np.zeros(6), 0.05, dt=DT)
+    assert [os.path.basename(w.filename) for w in caught] == [os.path.basename(__file__)]
+    np.testing.assert_allclose(single.q[0], on, atol=1e-12)
+    with pytest.warns(UserWarning, match=r"the initial states of 1 of 2 trajectories violated the constraints; "
+                                         r"projected onto them \(moved by up to 0\.01, in trajectory 1\)") as caught:
+        batch = mb.simulate(system, np.stack([on, off]), np.zeros(6), 0.05, dt=DT)
+    assert [os.path.basename(w.filename) for w in caught] == [os.path.basename(__file__)]
+    assert np.array_equal(batch.q[1], single.q)
+    np.testing.assert_allclose(batch.q[0], batch.q[1], atol=1e-12)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        mb.simulate(system, on, np.zeros(6), 0.05, dt=DT)  # a state on the rows starts as given, silently
+    with pytest.warns(UserWarning, match=r"penetrates by 0\.01 ") as caught:
+        mb.simulate(mb.ConstrainedSystem(ball, [mb.Ground()]), [0, 0, 0.09, 0, 0, 0, 1], np.zeros(6), 0.01, dt=DT)
+    assert [os.path.basename(w.filename) for w in caught] == [os.path.basename(__file__)]

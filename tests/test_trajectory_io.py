@@ -119,13 +119,11 @@ def test_progress_bar_for_a_long_run(capsys, monkeypatch):
 
     # A run "expected" to take long: the threshold lowered to nothing, and output seen as a terminal. The bar
     # follows the compiled calls, so the run is longer than the first one's steps.
-    from multibody.simulation import _FIRST_CHUNK
-
     monkeypatch.setattr(runs, "PROGRESS_AFTER", 0.0)
     monkeypatch.setattr(runs, "_visible", lambda: True)
     slow = lambda t, q, v: __import__("time").sleep(0.001) or np.zeros(1)  # noqa: E731
     model = mb.robots.load("pendulum")
-    steps = 2 * _FIRST_CHUNK
+    steps = 2 * runs.FIRST_CHUNK
     mb.simulate(model, np.array([0.3]), np.zeros(1), steps * 0.01, dt=0.01, method="RK4", tau=slow)
     assert "simulate: 100%" in capsys.readouterr().err
     monkeypatch.setattr(runs, "_visible", lambda: False)  # nobody would see it
