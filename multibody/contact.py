@@ -32,7 +32,7 @@ from .driver import TREE_FLOATS, TREE_INTS
 from .contact_problem import STATUS_MESSAGES
 from .kernels import collision, stepping, timestepping
 from .model import Model
-from .runs import FIRST_CHUNK, Progress, next_chunk, projected_start, warn_projected_starts
+from .runs import FIRST_CHUNK, Progress, next_chunk, non_finite, projected_start, warn_projected_starts
 from .trajectory import Contacts, Trajectory, recorded_names
 from .tree import CompiledTree, frame_rows
 
@@ -549,7 +549,8 @@ def run(constrained, q, v, times, controller, torque, batch, damping=None, toler
     """The Moreau–Jean steps (:mod:`multibody.kernels.timestepping`) of ``constrained`` from the checked initial
     states ``q (N, nq)``, ``v (N, nv)`` at the output ``times (n,)`` (s; one step per interval): a
     :class:`~multibody.Trajectory` (one, for ``batch`` ``None``, or of ``batch`` trajectories) whose ``status``
-    says where each stopped. ``controller``: ``None``, joint forces ``(nv,)`` or ``(N, nv)``, a bound PD or a
+    says where each stopped (a non-finite state or joint forces: which coordinates, by joint,
+    :func:`multibody.runs.non_finite`). ``controller``: ``None``, joint forces ``(nv,)`` or ``(N, nv)``, a bound PD or a
     compiled controller, run inside the step; or ``torque(t, q, v)``, a Python function of the state at each step's
     start (``controller`` then ``None``). ``damping (nv,)`` or ``None``: joint damping ``−D v``. ``tolerance`` (m/s)
     and ``max_iterations``: each step's contact problem; a step that does not reach the tolerance ends its
@@ -594,6 +595,7 @@ def run(constrained, q, v, times, controller, torque, batch, damping=None, toler
     io = np.zeros((count, timestepping.IO_SIZE))
     io[:, timestepping.IO_STEP], io[:, timestepping.IO_STOP] = 1, n
     bar = Progress(progress, times[0], times[-1])
+    forces = {}  # a Python controller's joint forces (nv,) that stopped a trajectory, by trajectory
     try:
         if torque is not None:
             # a Python controller: its joint forces at each step's start, then that one step compiled
@@ -606,9 +608,17 @@ def run(constrained, q, v, times, controller, torque, batch, damping=None, toler
                 value = torque(times[k - 1], *at)
                 control = np.ascontiguousarray(np.broadcast_to(np.zeros(nv) if value is None else value, (count, nv)),
                                                dtype=float)
-                io[live, timestepping.IO_STEP], io[live, timestepping.IO_STOP] = k, k + 1
-                records = _dispatch(program, stepping.CONSTANT, control, None, times, states, records, summaries, io,
-                                    batch, live)
+                # a trajectory whose row of joint forces is not finite stops before the step (the compiled step
+                # takes constant joint forces as checked), its forces kept for its status
+                bad = live & ~np.isfinite(control).all(axis=1)
+                forces.update({r: control[r].copy() for r in np.flatnonzero(bad)})
+                io[bad, timestepping.IO_STEP], io[bad, timestepping.IO_STATUS] = k, timestepping.NON_FINITE_TORQUE
+                io[bad, timestepping.IO_TIME] = times[k - 1]
+                live &= ~bad
+                if live.any():
+                    io[live, timestepping.IO_STEP], io[live, timestepping.IO_STOP] = k, k + 1
+                    records = _dispatch(program, stepping.CONSTANT, control, None, times, states, records, summaries,
+                                        io, batch, live)
                 bar.update(times[k])
         else:
             kind, control = control_rows(controller, nv)
@@ -631,7 +641,19 @@ def run(constrained, q, v, times, controller, torque, batch, damping=None, toler
                             f"iterations (residual {summary[timestepping.SUMMARY_RESIDUAL]:.3g} m/s: "
                             f"{STATUS_MESSAGES.get(solver, 'failed')})")
         else:
-            statuses.append(f"{_STATUS[status]} at t = {io[r, timestepping.IO_TIME]:.6g} s")
+            message = f"{_STATUS[status]} at t = {io[r, timestepping.IO_TIME]:.6g} s"
+            system = constrained.system
+            if status == timestepping.NON_FINITE_STATE:
+                # the state the step ended in, before it is dropped below
+                named = [non_finite(system, states[r, last, :nq]), non_finite(system, states[r, last, nq:], rate=True)]
+                message += ": " + ", ".join(x for x in named if x)
+            elif status == timestepping.NON_FINITE_TORQUE:
+                at = forces.get(r)
+                if at is None:
+                    at = _controller_forces(controller, r, io[r, timestepping.IO_TIME], states[r, last - 1, :nq],
+                                            states[r, last - 1, nq:])
+                message += ": " + non_finite(system, at, force=True)
+            statuses.append(message)
             summaries[r, last, timestepping.SUMMARY_RESIDUAL] = np.nan
         # the steps not taken: no state, no residual (the failed step's record and residual stay, as the solver left
         # them)
@@ -639,6 +661,14 @@ def run(constrained, q, v, times, controller, torque, batch, damping=None, toler
         summaries[r, last + 1 :, timestepping.SUMMARY_RESIDUAL] = np.nan
     return _trajectory(constrained, program, times, states, records, summaries, io[:, timestepping.IO_STEP], statuses,
                        batch)
+
+
+def _controller_forces(controller, r, t, q, v):
+    """The joint forces ``(nv,)`` that ``controller`` (joint forces ``(nv,)`` or ``(N, nv)``, a bound PD or a
+    compiled controller) gives trajectory ``r`` at ``t`` (s) and ``q (nq,)``, ``v (nv,)``: by the code the compiled
+    step runs (:class:`~multibody.integrators.PDController`, :class:`~multibody.integrators.CompiledController`)."""
+    value = controller if isinstance(controller, np.ndarray) else np.asarray(controller(t, q, v))
+    return value[r if len(value) > 1 else 0] if value.ndim == 2 else value
 
 
 def _chunked(program, kind, control, controller, times, states, records, summaries, io, batch, bar, device=False):

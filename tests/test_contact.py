@@ -885,3 +885,42 @@ def test_initial_states_off_the_bilateral_rows_are_projected_with_a_warning(ball
     with pytest.warns(UserWarning, match=r"penetrates by 0\.01 ") as caught:
         mb.simulate(mb.ConstrainedSystem(ball, [mb.Ground()]), [0, 0, 0.09, 0, 0, 0, 1], np.zeros(6), 0.01, dt=DT)
     assert [os.path.basename(w.filename) for w in caught] == [os.path.basename(__file__)]
+
+
+def test_non_finite_state_or_joint_forces_are_named_by_joint(ball):
+    """A contact run stopped by a non-finite state or non-finite joint forces names the coordinates, by joint and
+    with their values, as the smooth runs do: the forces of a compiled controller, of a PD and of a batch's Python
+    controller (the trajectory whose row is not finite), and a state that overflowed under finite forces."""
+    import numba
+
+    system = mb.ConstrainedSystem(ball, [mb.Ground()])
+    q0 = np.array([0, 0, 100.0, 0, 0, 0, 1])
+
+    @numba.njit
+    def failing(t, q, v, out):
+        if t >= 0.0045:
+            out[2] = np.nan
+
+    expected = r"the joint forces are not finite at t = 0\.005 s: tau\[2\] \(joint 'ball_joint', N\) = nan"
+    with pytest.raises(mb.SimulationError, match=expected):
+        mb.simulate(system, q0, np.zeros(6), 0.01, dt=DT, tau=failing)
+    pd = mb.PD(np.r_[0, 1e308, 0, 0, 0, 0], np.zeros(6), q0 + [0, 10, 0, 0, 0, 0, 0])  # (1e309 N overflows)
+    with pytest.raises(mb.SimulationError, match=r"the joint forces are not finite at t = 0 s: tau\[1\] \(joint "
+                                                 r"'ball_joint', N\) = inf"):
+        mb.simulate(system, q0, np.zeros(6), 0.01, dt=DT, tau=pd)
+
+    def python(t, q, v):
+        tau = np.zeros((2, 6))
+        tau[1, 4] = np.inf if t >= 0.0045 else 0.0
+        return tau
+
+    with pytest.warns(RuntimeWarning, match="1 of 2 trajectories stopped early"):
+        batch = mb.simulate(system, np.stack([q0, q0]), np.zeros(6), 0.01, dt=DT, tau=python)
+    assert batch.status[0] == "completed"
+    assert batch.status[1] == ("the joint forces are not finite at t = 0.005 s: tau[4] (joint 'ball_joint', N·m) = "
+                               "inf")
+    # finite forces that accelerate a light ball past the largest float
+    light = mb.ConstrainedSystem(ball_model(mass=1e-6), [mb.Ground()])
+    with pytest.raises(mb.SimulationError, match=r"the state is not finite at t = 0 s: q\[0\] \(joint 'ball_joint', "
+                                                 r"m\) = nan, .*, v\[0\] \(joint 'ball_joint', m/s\) = nan"):
+        mb.simulate(light, q0, np.zeros(6), 0.01, dt=DT, tau=np.r_[1.7e308, np.zeros(5)])
