@@ -25,12 +25,9 @@ from .kernels import aba, integration, kkt
 from .kernels import constraints as compiled_rows
 from .mechanical import ModelSystem
 from .model import Model
+from .runs import ConstraintError
 from .spatial import matvec
 from .tree import frame_rows
-
-
-class ConstraintError(RuntimeError):
-    """Constraints that cannot hold together (inconsistent), or a state that cannot be projected."""
 
 
 class RankDeficientWarning(UserWarning):

@@ -32,7 +32,8 @@ from .driver import TREE_FLOATS, TREE_INTS
 from .contact_problem import STATUS_MESSAGES
 from .kernels import collision, stepping, timestepping
 from .model import Model
-from .runs import FIRST_CHUNK, Progress, next_chunk, non_finite, projected_start, warn_projected_starts
+from .runs import (FIRST_CHUNK, Progress, by_state, next_chunk, non_finite, projected_start,
+                   warn_projected_starts)
 from .trajectory import Contacts, Trajectory, recorded_names
 from .tree import CompiledTree, frame_rows
 
@@ -571,16 +572,22 @@ def run(constrained, q, v, times, controller, torque, batch, damping=None, toler
     q, v = model.normalize(np.array(q, dtype=float)), np.array(v, dtype=float)
     # an initial state in penetration, projected out (and onto the bilateral constraints); the zero-length steps of
     # separate_initial only for the states whose gaps show a penetration it would remove
+    refused = {}  # a batch's trajectories whose initial state could not be projected: the error's message
     if constrained.num_rows and batch is None:
         q[0], v[0], _ = projected_start(constrained, q[0], v[0], times[0], stacklevel=4)
     elif constrained.num_rows:
-        moved = np.empty(count)
-        for r in range(count):
-            q_r, v_r = constrained.project(q[r], v[r], times[0])
-            moved[r] = max(np.abs(q_r - q[r]).max(initial=0.0), np.abs(v_r - v[r]).max(initial=0.0))
-            q[r], v[r] = q_r, v_r
+        # a batch's initial state whose projection fails stops its trajectory before its first step, which sees it at
+        # rest in the neutral configuration (as simulate's smooth batch does); the others go on
+        projected, refused = by_state(lambda q_r, v_r: np.concatenate(constrained.project(q_r, v_r, times[0])),
+                                      (q, v), (nq + nv,), batched=False)
+        moved = np.abs(projected - np.concatenate([q, v], axis=1)).max(axis=1, initial=0.0)
+        moved[list(refused)] = 0.0
         warn_projected_starts(moved, stacklevel=4)
+        q[:], v[:] = projected[:, :nq], projected[:, nq:]
+        q[list(refused)], v[list(refused)] = model.neutral(), 0.0
     for r in np.flatnonzero(initial_gaps(program, q) < -program.plan[timestepping.PLAN_PENETRATION]):
+        if r in refused:
+            continue
         q[r], depth = separate_initial(constrained, program, q[r])
         if depth > 0.0:
             where = "" if batch is None else f" (trajectory {r})"
@@ -594,6 +601,7 @@ def run(constrained, q, v, times, controller, torque, batch, damping=None, toler
     summaries = np.zeros((count, n, timestepping.SUMMARY_COLUMNS + program.bilateral))
     io = np.zeros((count, timestepping.IO_SIZE))
     io[:, timestepping.IO_STEP], io[:, timestepping.IO_STOP] = 1, n
+    io[list(refused), timestepping.IO_STEP], io[list(refused), timestepping.IO_STATUS] = 0, timestepping.NOT_PROJECTED
     bar = Progress(progress, times[0], times[-1])
     forces = {}  # a Python controller's joint forces (nv,) that stopped a trajectory, by trajectory
     try:
@@ -603,8 +611,10 @@ def run(constrained, q, v, times, controller, torque, batch, damping=None, toler
                 live = io[:, timestepping.IO_STATUS] == timestepping.COMPLETED
                 if not live.any():
                     break
-                at = (states[:, k - 1, :nq], states[:, k - 1, nq:]) if batch is not None else \
-                    (states[0, k - 1, :nq].copy(), states[0, k - 1, nq:].copy())
+                # a stopped trajectory's row holds its last state (the initial one where it never started)
+                last = states[np.arange(count), np.maximum(np.minimum(io[:, timestepping.IO_STEP], k) - 1, 0)
+                              .astype(np.int64)]
+                at = (last[:, :nq], last[:, nq:]) if batch is not None else (last[0, :nq], last[0, nq:])
                 value = torque(times[k - 1], *at)
                 control = np.ascontiguousarray(np.broadcast_to(np.zeros(nv) if value is None else value, (count, nv)),
                                                dtype=float)
@@ -633,7 +643,10 @@ def run(constrained, q, v, times, controller, torque, batch, damping=None, toler
         if status == timestepping.COMPLETED:
             statuses.append("completed")
             continue
-        if status == timestepping.NOT_SOLVED:
+        if r in refused:
+            statuses.append(f"the projection onto the bilateral constraints failed at t = {times[0]:.6g} s: "
+                            f"{refused[r]}")
+        elif status == timestepping.NOT_SOLVED:
             summary = summaries[r, last]
             solver = int(summary[timestepping.SUMMARY_STATUS])
             statuses.append(f"the contact problem of the step from t = {times[last - 1]:.6g} s did not reach the "
@@ -742,8 +755,11 @@ def _trajectory(constrained, program, times, states, records, summaries, reached
     # the energy of each state that a step started from is in its summary row (the step's kinematics pass); the last
     # state each trajectory reached, which no step started from, computed here
     energy = np.where(finite, summaries[..., timestepping.SUMMARY_ENERGY], np.nan)
-    ends = (np.arange(len(states)), reached.astype(np.int64) - 1)
-    energy[ends] = constrained.energy(np.ascontiguousarray(q[ends]), np.ascontiguousarray(v[ends]))
+    # (NaN where it cannot be computed, as for velocities that overflow it; none where no state was reached)
+    started = np.flatnonzero(reached > 0)
+    ends = (started, reached[started].astype(np.int64) - 1)
+    energy[ends] = by_state(constrained.energy, (np.ascontiguousarray(q[ends]), np.ascontiguousarray(v[ends])), (),
+                            constrained.batched)[0]
     if m:
         # (C-contiguous, as the batched kernels read them)
         safe_q = np.ascontiguousarray(np.where(finite[..., None], q, constrained.system.model.neutral()))

@@ -1,6 +1,6 @@
-"""What the runs of :func:`multibody.simulate` share, whichever method takes the steps: their error and
-warning, the checks of their options and inputs (named by joint), the joint forces as a function, the report of
-joint limits, and the progress bar."""
+"""What the runs of :func:`multibody.simulate` share, whichever method takes the steps: their errors, the failures
+that stop one trajectory of a batch (:func:`by_state`), their warning, the checks of their options and inputs (named
+by joint), the joint forces as a function, the report of joint limits, and the progress bar."""
 
 from __future__ import annotations
 
@@ -30,6 +30,34 @@ class SimulationError(RuntimeError):
     def __init__(self, message, trajectory):
         super().__init__(message)
         self.trajectory = trajectory
+
+
+class ConstraintError(RuntimeError):
+    """Constraints that cannot hold together (inconsistent), or a state that cannot be projected."""
+
+
+#: The failures that stop one trajectory (the others of a batch go on).
+FAILURES = (SimulationError, ConstraintError, np.linalg.LinAlgError, ValueError, FloatingPointError)
+
+
+def by_state(f, arrays, shape, batched=True):
+    """``f(*arrays)`` on states ``arrays`` with a common leading axis of ``n``, ``(n,) + shape``, and ``{index:
+    message}`` of the states it fails on: in one call where ``batched`` (the system takes batches), else, and where
+    that call raises, on each state alone (``f`` of one state giving ``shape``), the states it fails on getting
+    NaN."""
+    if batched:
+        try:
+            return f(*arrays), {}
+        except FAILURES:
+            pass
+    n = len(arrays[0])
+    out, errors = np.full((n,) + shape, np.nan), {}
+    for i in range(n):
+        try:
+            out[i] = f(*(x[i] for x in arrays))
+        except FAILURES as error:
+            errors[i] = str(error)
+    return out, errors
 
 
 def torque_function(tau, nv, batch=None, system=None):

@@ -51,9 +51,9 @@ from .kernels import kkt, stepping
 from .mechanical import CHART_TURN, Charts, ModelSystem
 from .model import all_finite
 # JointLimitWarning is the warning simulate's docstring names, and scripts import it from here
-from .runs import (FIRST_CHUNK, JointLimitWarning, Progress, SimulationError, checked_timing,  # noqa: F401
-                   coordinate_name, joint_damping_of, next_chunk, non_finite_torque, output_times, projected_start,
-                   report_limits, require_finite, torque_function, warn_projected_starts, with_joint_damping)
+from .runs import (FAILURES, FIRST_CHUNK, JointLimitWarning, Progress, SimulationError, by_state,  # noqa: F401
+                   checked_timing, coordinate_name, joint_damping_of, next_chunk, non_finite_torque, output_times,
+                   projected_start, report_limits, require_finite, torque_function, warn_projected_starts, with_joint_damping)
 from .trajectory import Trajectory, recorded_names
 
 #: The implicit methods, SciPy's solvers through their public interface.
@@ -344,7 +344,7 @@ def simulate(system, q0, v0, t_final, *, dt=None, method=None, tau=None, rtol=1e
         message = f"simulation stopped at t = {t_fail:.6g} s: {_grown(mechanical, states[:done], nq, v) or exc}"
         try:
             partial = _trajectory(constrained, times[:done], states[:done], torque, message, tolerance)
-        except _FAILURES:
+        except FAILURES:
             # states so far out that their multipliers cannot be computed (or joint forces that are not finite
             # at them): the states alone, as a batch of one that stopped before them
             partial = _batch_trajectory(constrained, times[:done], states[None, :done, :nq], states[None, :done, nq:],
@@ -636,9 +636,6 @@ def _trajectory(constrained, times, states, torque, status, projection_tolerance
 
 # ============================================================================= many trajectories in lockstep
 
-#: The failures that stop one trajectory (the others of a batch go on).
-_FAILURES = (SimulationError, ConstraintError, np.linalg.LinAlgError, ValueError, FloatingPointError)
-
 #: Output states whose multipliers, energies and residuals are computed in one call (bounds the memory of
 #: the constrained step's outputs, a few dozen floats per state).
 _OUTPUT_BLOCK = 1 << 16
@@ -676,26 +673,6 @@ def check_batchable(constrained, method, q_shape, v_shape):
             "its constrained step is not compiled"
     raise ValueError(f"simulate cannot integrate a batch of initial states (q0 {q_shape}) for this system: {why}; "
                      "simulate the states one at a time")
-
-
-def _by_state(f, arrays, shape, batched=True):
-    """``f(*arrays)`` on states ``arrays`` with a common leading axis of ``n``, ``(n,) + shape``, and ``{index:
-    message}`` of the states it fails on: in one call where ``batched`` (the system takes batches), else, and where
-    that call raises, on each state alone (``f`` of one state giving ``shape``), the states it fails on getting
-    NaN."""
-    if batched:
-        try:
-            return f(*arrays), {}
-        except _FAILURES:
-            pass
-    n = len(arrays[0])
-    out, errors = np.full((n,) + shape, np.nan), {}
-    for i in range(n):
-        try:
-            out[i] = f(*(x[i] for x in arrays))
-        except _FAILURES as error:
-            errors[i] = str(error)
-    return out, errors
 
 
 def _simulate_batch(constrained, charts, q0, v0, times, torque, state_dependent, tableau, run, *, project,
@@ -757,7 +734,7 @@ def _simulate_batch(constrained, charts, q0, v0, times, torque, state_dependent,
         q_one, v_one, conditioning = projected_start(constrained, q0[0], v0[0], t0, stacklevel=4)
         projected, errors = np.concatenate([q_one, v_one, [conditioning]])[None], {}
     else:
-        projected, errors = _by_state(projection(t0), (q0, v0), (nq + nv + 1,), batched)
+        projected, errors = by_state(projection(t0), (q0, v0), (nq + nv + 1,), batched)
     near = np.zeros(count, dtype=bool) | _near_singular(projected[:, -1], project, constrained, charts)
     projected = projected[:, :-1]
     moved = np.abs(projected - last).max(axis=-1, initial=0.0)
@@ -769,7 +746,7 @@ def _simulate_batch(constrained, charts, q0, v0, times, torque, state_dependent,
         try:
             # the initial state has a solution of the constrained step
             constrained.solve(last[0, :nq], last[0, nq:], torque(t0, last[:, :nq], last[:, nq:]), t0)
-        except _FAILURES as error:
+        except FAILURES as error:
             errors[0] = str(error)
     good = np.ones(count, dtype=bool)
     good[list(errors)] = False
@@ -795,7 +772,7 @@ def _simulate_batch(constrained, charts, q0, v0, times, torque, state_dependent,
         close = rows[near[rows]]
         if close.size:
             q_t, v_t = charts.state(q_chart[close], y[close])
-            on, errors = _by_state(projection(t), (q_t, v_t), (nq + nv + 1,), batched)
+            on, errors = by_state(projection(t), (q_t, v_t), (nq + nv + 1,), batched)
             y = y.copy()
             y[close] = charts.coordinates(q_chart[close], on[:, :nq], on[:, nq : nq + nv])
             failed.update({int(close[i]): message for i, message in errors.items()})
@@ -825,7 +802,7 @@ def _simulate_batch(constrained, charts, q0, v0, times, torque, state_dependent,
                 if error is not None:
                     raise error
                 y_dot[j] = _solved_chart_derivative(constrained, charts, t, q_rows[j], y_rows[j], lambda *_: tau_r)
-            except _FAILURES as error:
+            except FAILURES as error:
                 failed[r] = str(error)
         if whole:
             return y_dot
@@ -842,7 +819,7 @@ def _simulate_batch(constrained, charts, q0, v0, times, torque, state_dependent,
             y = tableau_step(lambda t, y: derivative(t, y, q_chart, rows, failed),
                              lambda y: charts.chart_rate(y[..., :nv], y[..., nv:]), times[k - 1],
                              charts.to_chart(last), times[k] - times[k - 1], tableau)
-        except _FAILURES as error:
+        except FAILURES as error:
             if not single:
                 raise
             # (one trajectory's joint forces, which raised)
@@ -856,7 +833,7 @@ def _simulate_batch(constrained, charts, q0, v0, times, torque, state_dependent,
             # the states that their projection onto the constraints moves by more than the tolerance,
             # projected (as settle does for a step of the adaptive methods)
             at = np.flatnonzero(~np.isin(rows, list(reasons)))
-            settled, errors = _by_state(projection(times[k]), (end[at, :nq], end[at, nq:]), (nq + nv + 1,),
+            settled, errors = by_state(projection(times[k]), (end[at, :nq], end[at, nq:]), (nq + nv + 1,),
                                         batched)
             near[rows[at]] = _near_singular(settled[:, -1], project, constrained, charts)
             settled = settled[:, :-1]
@@ -951,7 +928,7 @@ def _run_batch(run, constrained, states, last, stop, near, fail, python_step, ti
                 try:
                     run.advance(states[0], int(io[0, stepping.IO_STEP]), int(io[0, stepping.IO_STOP]), controller,
                                 constrained.checked_tau)
-                except _FAILURES as error:
+                except FAILURES as error:
                     # (the steps before the stage whose joint forces raised are done)
                     io[0] = run.io
                     if energies is not None:
@@ -1015,7 +992,7 @@ def _batch_trajectory(constrained, times, q, v, stop, last, torque, state_depend
             np.copyto(e, recorded[:, a:b], where=at)
         r_e, k_e = np.nonzero(at & np.isnan(e))
         if r_e.size:
-            e[r_e, k_e] = _by_state(constrained.energy, (q[r_e, a + k_e], v[r_e, a + k_e]), (), batched)[0]
+            e[r_e, k_e] = by_state(constrained.energy, (q[r_e, a + k_e], v[r_e, a + k_e]), (), batched)[0]
         if not m:
             np.copyto(residual[:, a:b], 0.0, where=at)
             continue
@@ -1023,7 +1000,7 @@ def _batch_trajectory(constrained, times, q, v, stop, last, torque, state_depend
         t_s = np.broadcast_to(times[a:b], at.shape)[at]
         # (every output state is a step's end, projected already where that moved it: RK4 steps once per
         # output interval)
-        r_s, _ = _by_state(constrained.residual, (q_s, v_s, t_s), (), batched)
+        r_s, _ = by_state(constrained.residual, (q_s, v_s, t_s), (), batched)
         residual[:, a:b][at] = r_s
         if state_dependent:
             # (not called at the times after every trajectory stopped)
@@ -1034,10 +1011,10 @@ def _batch_trajectory(constrained, times, q, v, stop, last, torque, state_depend
             tau = torque(times[0], None, None)
             tau = tau if tau is None or tau.ndim == 1 else np.broadcast_to(tau[:, None], at.shape + (nv,))
         if tau is None or tau.ndim == 1:
-            lam_s, _ = _by_state(lambda q_, v_, t_: constrained.solve(q_, v_, tau, t_).lam, (q_s, v_s, t_s), (m,),
+            lam_s, _ = by_state(lambda q_, v_, t_: constrained.solve(q_, v_, tau, t_).lam, (q_s, v_s, t_s), (m,),
                                  batched)
         else:
-            lam_s, _ = _by_state(lambda q_, v_, t_, tau_: constrained.solve(q_, v_, tau_, t_).lam,
+            lam_s, _ = by_state(lambda q_, v_, t_, tau_: constrained.solve(q_, v_, tau_, t_).lam,
                                  (q_s, v_s, t_s, tau[at]), (m,), batched)
         lam[:, a:b][at] = lam_s
     return Trajectory(t=np.array(times, dtype=float), q=q, v=v, lam=lam, energy=energy, residual=residual,

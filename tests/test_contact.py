@@ -924,3 +924,77 @@ def test_non_finite_state_or_joint_forces_are_named_by_joint(ball):
     with pytest.raises(mb.SimulationError, match=r"the state is not finite at t = 0 s: q\[0\] \(joint 'ball_joint', "
                                                  r"m\) = nan, .*, v\[0\] \(joint 'ball_joint', m/s\) = nan"):
         mb.simulate(light, q0, np.zeros(6), 0.01, dt=DT, tau=np.r_[1.7e308, np.zeros(5)])
+
+
+def test_a_batch_python_controller_sees_a_stopped_trajectory_at_its_last_state(ball):
+    """A batch's Python controller is called with every trajectory's row; a trajectory stopped (here by its own
+    non-finite joint forces at t = 0.005 s) is seen at its last state, as simulate's smooth batch passes it."""
+    system = mb.ConstrainedSystem(ball, [mb.Ground()])
+    q0 = np.array([0, 0, 100.0, 0, 0, 0, 1])
+    seen = []
+
+    def python(t, q, v):
+        seen.append((t, q.copy(), v.copy()))
+        tau = np.zeros((2, 6))
+        tau[1, 4] = np.inf if t >= 0.0045 else 0.0
+        return tau
+
+    with pytest.warns(RuntimeWarning, match="1 of 2 trajectories stopped early"):
+        batch = mb.simulate(system, np.stack([q0, q0]), np.zeros(6), 0.01, dt=DT, tau=python)
+    after = [(q, v) for t, q, v in seen if t > 0.0045]
+    assert len(after) == 5
+    for q, v in after:
+        np.testing.assert_array_equal(q[1], batch.q[1, 5])
+        np.testing.assert_array_equal(v[1], batch.v[1, 5])
+    assert np.isnan(batch.q[1, 6:]).all()
+
+
+def test_a_last_state_whose_energy_overflows_keeps_the_trajectory_and_its_status():
+    """A light ball pushed by 1e300 N reaches v ≈ 1e303 m/s after one step, whose energy overflows float64, and
+    the next step's state is not finite: the run returns its trajectory with that status (its energy there NaN),
+    and simulate raises SimulationError with it for one trajectory, as the smooth runs do."""
+    light = mb.ConstrainedSystem(ball_model(mass=1e-6), [mb.Ground()])
+    q0 = np.array([0, 0, 100.0, 0, 0, 0, 1])
+    push = np.r_[1e300, np.zeros(5)]
+    with pytest.raises(mb.SimulationError, match=r"the state is not finite at t = 0\.001 s") as raised:
+        mb.simulate(light, q0, np.zeros(6), 0.01, dt=DT, tau=push)
+    partial = raised.value.trajectory
+    assert partial.status.startswith("the state is not finite at t = 0.001 s")
+    assert np.isfinite(partial.v[1]).all() and np.abs(partial.v[1]).max() > 1e300
+    assert np.isfinite(partial.energy[0]) and np.isnan(partial.energy[1:]).all()
+    with pytest.warns(RuntimeWarning, match="2 of 2 trajectories stopped early"):
+        batch = mb.simulate(light, np.stack([q0, q0]), np.zeros(6), 0.01, dt=DT, tau=push)
+    assert batch.status == [partial.status] * 2
+    np.testing.assert_array_equal(batch.v[0], partial.v)
+
+
+def test_a_batch_initial_state_whose_projection_fails_stops_that_trajectory_alone(ball):
+    """A batch's initial state that cannot be projected onto the bilateral rows (a rod whose two points coincide)
+    stops its trajectory before its first step (its status says why, its outputs are NaN) while the others run as
+    they do alone; a Python controller sees it at rest in the neutral configuration, as simulate's smooth batch
+    does. One such state raises the projection's error."""
+    rod = mb.Distance("ball", None, 0.5, point_b=[0.0, 0.0, 0.55])
+    system = mb.ConstrainedSystem(ball, [rod, mb.Ground(friction=0.5)])
+    on, coincident = np.array([0.5, 0, 0.55, 0, 0, 0, 1]), np.array([0, 0, 0.55, 0, 0, 0, 1.0])
+    with pytest.raises(ValueError, match="the two points coincide"):
+        mb.simulate(system, coincident, np.zeros(6), 0.01, dt=DT)
+    seen = []
+
+    def python(t, q, v):
+        seen.append((q.copy(), v.copy()))
+        return np.zeros((2, 6))
+
+    single = mb.simulate(system, on, np.zeros(6), 0.01, dt=DT)
+    for tau in (None, python):
+        with pytest.warns(RuntimeWarning, match="1 of 2 trajectories stopped early"):
+            batch = mb.simulate(system, np.stack([on, coincident]), np.zeros(6), 0.01, dt=DT, tau=tau)
+        assert batch.status[0] == "completed"
+        assert batch.status[1] == ("the projection onto the bilateral constraints failed at t = 0 s: distance "
+                                   "ball-None: the two points coincide, so the rod has no direction")
+        np.testing.assert_array_equal(batch.q[0], single.q)
+        np.testing.assert_array_equal(batch.v[0], single.v)
+        assert np.isnan(batch.q[1]).all() and np.isnan(batch.v[1]).all() and np.isnan(batch.energy[1]).all()
+    assert len(seen) == 10
+    for q, v in seen:
+        np.testing.assert_array_equal(q[1], ball.neutral())
+        np.testing.assert_array_equal(v[1], np.zeros(6))
