@@ -53,7 +53,8 @@ from .model import all_finite
 # JointLimitWarning is the warning simulate's docstring names, and scripts import it from here
 from .runs import (FAILURES, FIRST_CHUNK, JointLimitWarning, Progress, SimulationError, by_state,  # noqa: F401
                    checked_timing, coordinate_name, joint_damping_of, next_chunk, non_finite_torque, output_times,
-                   projected_start, report_limits, require_finite, torque_function, warn_projected_starts, with_joint_damping)
+                   projected_start, report_limits, require_finite, torque_function, warn_projected_starts,
+                   with_joint_damping)
 from .trajectory import Trajectory, recorded_names
 
 #: The implicit methods, SciPy's solvers through their public interface.
@@ -833,8 +834,7 @@ def _simulate_batch(constrained, charts, q0, v0, times, torque, state_dependent,
             # the states that their projection onto the constraints moves by more than the tolerance,
             # projected (as settle does for a step of the adaptive methods)
             at = np.flatnonzero(~np.isin(rows, list(reasons)))
-            settled, errors = by_state(projection(times[k]), (end[at, :nq], end[at, nq:]), (nq + nv + 1,),
-                                        batched)
+            settled, errors = by_state(projection(times[k]), (end[at, :nq], end[at, nq:]), (nq + nv + 1,), batched)
             near[rows[at]] = _near_singular(settled[:, -1], project, constrained, charts)
             settled = settled[:, :-1]
             off = np.abs(settled - end[at]).max(axis=-1, initial=0.0) > projection_tolerance
