@@ -767,7 +767,8 @@ def _trajectory(constrained, program, times, states, records, summaries, reached
         residual = np.where(finite, constrained.residual(safe_q, safe_v, times), np.nan)
     else:
         residual = np.where(finite, 0.0, np.nan)
-    lam = summaries[..., timestepping.SUMMARY_COLUMNS :].copy()
+    # (the multipliers of the states reached; NaN after a trajectory stopped, as its states are)
+    lam = np.where(finite[..., None], summaries[..., timestepping.SUMMARY_COLUMNS :], np.nan)
     complementarity_ = summaries[..., timestepping.SUMMARY_RESIDUAL].copy()
     complementarity_[..., 0] = 0.0
     trajectory = Trajectory(t=np.array(times, dtype=float), q=q, v=v, lam=lam, energy=energy, residual=residual,
