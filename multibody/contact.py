@@ -770,7 +770,8 @@ def _trajectory(constrained, program, times, states, records, summaries, reached
     # (the multipliers of the states reached; NaN after a trajectory stopped, as its states are)
     lam = np.where(finite[..., None], summaries[..., timestepping.SUMMARY_COLUMNS :], np.nan)
     complementarity_ = summaries[..., timestepping.SUMMARY_RESIDUAL].copy()
-    complementarity_[..., 0] = 0.0
+    # (no step ends at t[0]: 0 there, but NaN for a trajectory that never started, as all its outputs are)
+    complementarity_[..., 0] = np.where(reached > 0, 0.0, np.nan)
     trajectory = Trajectory(t=np.array(times, dtype=float), q=q, v=v, lam=lam, energy=energy, residual=residual,
                             row_names=list(constrained.row_names), status=statuses,
                             joint_names=recorded_names(constrained),

@@ -997,6 +997,8 @@ def test_a_batch_initial_state_whose_projection_fails_stops_that_trajectory_alon
         # the rod's multiplier: the single run's where the trajectory ran, NaN where it never did
         np.testing.assert_array_equal(batch.lam[0], single.lam)
         assert batch.lam.shape == (2, len(single.t), 1) and np.isnan(batch.lam[1]).all()
+        np.testing.assert_array_equal(batch.complementarity[0], single.complementarity)
+        assert np.isnan(batch.complementarity[1]).all()
     assert len(seen) == 10
     for q, v in seen:
         np.testing.assert_array_equal(q[1], ball.neutral())
