@@ -110,14 +110,13 @@ def _per_dof_problem(values, size, finite):
     shape, entries = (values.shape, values.tolist()) if isinstance(values, np.ndarray) else ((len(values),), values)
     if shape != (size,):
         return f"must have shape ({size},), got {shape}"
-    # (a sum of finite entries is finite, one with a NaN unequal to itself: with the least entry, faster than a loop)
-    total = sum(entries)
-    if (math.isfinite(total) if finite else total == total) and min(entries, default=0.0) >= 0.0:
+    # (a NaN fails both comparisons and goes on to the checks that name it)
+    if all(0.0 <= x < math.inf for x in entries) if finite else all(0.0 <= x for x in entries):
         return None
     if any(math.isnan(x) for x in entries) or (finite and not all(math.isfinite(x) for x in entries)):
         return f"must be {'finite' if finite else 'numbers (inf for none)'}, got {entries}"
-    # (a negative entry, or finite ones whose sum overflows)
-    return f"must not be negative, got {entries}" if min(entries) < 0.0 else None
+    # (what is left to fail the comparisons above is a negative entry)
+    return f"must not be negative, got {entries}"
 
 
 @dataclass(frozen=True, eq=False)
