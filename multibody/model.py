@@ -784,11 +784,13 @@ class ModelBuilder:
         """
         if isinstance(hidden, str):
             raise TypeError(f"hidden must be a collection of body names, got the string {hidden!r}")
+        # (a set, read once: an iterator would be empty by the second reading, a list searched once per body)
+        hidden = set(hidden)
         masses = {spec.name: spec.inertia.mass for spec in self._bodies}
         drawn = {geometry.body for geometry in self.geometries + self.collision_geometries}
         wrong = [f"{name!r} (" + ("not a body" if name not in masses else f"mass {masses[name]} kg" if masses[name]
                                   else "has geometries") + ")"
-                 for name in sorted(set(hidden), key=str) if name not in masses or masses[name] or name in drawn]
+                 for name in sorted(hidden, key=str) if name not in masses or masses[name] or name in drawn]
         if wrong:
             raise ValueError(f"hidden must name massless bodies of the builder without geometries, got {', '.join(wrong)}")
         moving, parents, joint_placements = [], [], []

@@ -730,6 +730,8 @@ def test_builder_hides_joint_carriers_and_keeps_the_equality_constraints():
     assert model.body_names == ("arm",) and model.joint_names == ("carrier_joint", "arm_joint")
     assert model.body_joints.tolist() == [1] and model.parents.tolist() == [-1, 0]
     assert model.equality_constraints == tuple(b.equality_constraints)
+    # any collection of names, an iterator read once included
+    assert b.build(hidden=iter(["carrier"])).body_names == b.build(hidden=["carrier"]).body_names == ("arm",)
     for wrong, why in (({"arm"}, r"'arm' \(mass 1\.0 kg\)"), ({"carrier", "nope"}, r"'nope' \(not a body\)")):
         with pytest.raises(ValueError, match=rf"^hidden must name massless bodies of the builder without geometries, "
                                              rf"got {why}$"):
