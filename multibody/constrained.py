@@ -51,8 +51,7 @@ _NO_TREE = vector_space_tree(0)
 
 def _failing_constraint(system, row):
     """The constraint of ``system`` (a :class:`ConstrainedSystem`) that holds constraint row ``row``."""
-    ends = np.cumsum([c.rows(system.system) for c in system.constraints])
-    return system.constraints[int(np.searchsorted(ends, row, side="right"))]
+    return system.constraints[int(np.searchsorted(np.cumsum(system._rows), row, side="right"))]
 
 
 #: The one table of the compiled solve's and projection's failures (:mod:`multibody.kernels.kkt`): each status
