@@ -820,7 +820,7 @@ class AdaptiveRun:
         self.times, self.nq, self.nv = np.ascontiguousarray(times, dtype=float), nq, nv
         kind, control = control_rows(controller, nv)
         self.kind, self.control = kind, control
-        self.pointer = controller.pointer if kind == stepping.FUNCTION else None
+        self.pointer = controller_function(kind, controller)
         self.plan = _plan(step, pair, kind, damping, projection_tolerance, near_singular, nq, nv,
                           np.asarray(rotations, dtype=float).ravel())
         self.plan[[stepping.PLAN_CURVED, stepping.PLAN_RTOL, stepping.PLAN_ATOL, stepping.PLAN_MAX_STEP,
