@@ -647,7 +647,7 @@ ENTRY_POINTS = ((stepping.run, _RUN_TYPES), (stepping.advance, _ADVANCE_TYPES), 
                 (stepping.adaptive_run, _RUN_TYPES), (stepping.adaptive_run_function, _ADVANCE_TYPES))
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class CompiledStep:
     """The compiled step of a system as the compiled runs take it (made by
     :attr:`multibody.constrained.ConstrainedSystem.compiled_step`).

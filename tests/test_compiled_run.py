@@ -748,6 +748,9 @@ def test_fixed_step_and_adaptive_runs_take_the_systems_one_compiled_step():
     np.testing.assert_array_equal(step.settings, np.concatenate(([1e-12, 50], system.position_rows)))
     with pytest.raises(ValueError, match="read-only"):
         step.settings[0] = 1.0  # (project's own settings, which the step's were, stay as they are)
+    # a step holds arrays: it is one object, hashed and compared by identity (field-wise == would be ambiguous)
+    other = mb.ConstrainedSystem(system.system, system.constraints).compiled_step
+    assert step == step and step != other and len({step, other}) == 2
     times = np.linspace(0.0, 0.1, 3)
     fixed = integrators.CompiledRun(step, integrators.TABLEAUS["RK4"], None, None, 1e-12, 1e-2, times, nq, nv)
     adaptive = integrators.AdaptiveRun(step, False, integrators.EMBEDDED["RK45"], None, None, 1e-12, 1e-2, times, nq,
